@@ -1,0 +1,271 @@
+"""Validation and gain report: which of the paper's conditions hold for a configuration.
+
+Conditions checked (each a :class:`Finding`):
+
+* ``beta >= v_N`` (eq. 10-11): the convergence proof of the kinematic law needs it;
+* existence of the formation: for 3 trackers ``b > a + k_N/(3 k_f)`` (SPEC section 2), for any
+  n ``b > a`` (otherwise the pair term never repels);
+* the lower bounds on ``u0``: Theorem 1 (eq. 29), eq. 37 and eq. 43, both as printed (with
+  ``-f_bar``) and corrected (``+f_bar/M_lo``, the usual sliding-mode argument), from a priori
+  estimates of ``J_bar`` and ``J_bar_s`` (:func:`gain_bounds`) or from run data
+  (:func:`gain_bounds_from_run`);
+* numerics: the filter time constant against dt, the switching ripple ``u0 dt / M`` (SPEC
+  section 2, fact 4) and the boundary-layer lag ``v_N / (k_N (alpha + beta/gamma))`` (fact 3).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .config import SwarmConfig
+from .design import expected_spacing, triangle_spacing
+from .potential import gradient
+
+__all__ = ['Finding', 'GainBound', 'CheckReport', 'pair_hessian_bound', 'gain_bounds',
+           'gain_bounds_from_run', 'check_config']
+
+Level = Literal['ok', 'info', 'warning', 'error']
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One condition and its verdict."""
+
+    level: Level
+    code: str
+    message: str
+
+
+@dataclass(frozen=True)
+class GainBound:
+    """A lower bound on u0: the printed form and the corrected form, and whether u0 clears them."""
+
+    name: str              # 'theorem1_eq29', 'eq37', 'eq43'
+    regime: str            # which part of the law it covers
+    printed: float         # bound as printed in the paper [N]
+    corrected: float       # bound with +f_bar/M_lo [N]
+    u0: float
+
+    @property
+    def holds_printed(self) -> bool:
+        return self.u0 > self.printed
+
+    @property
+    def holds_corrected(self) -> bool:
+        return self.u0 > self.corrected
+
+    def as_dict(self) -> dict[str, Any]:
+        return {'name': self.name, 'regime': self.regime, 'printed': self.printed,
+                'corrected': self.corrected, 'u0': self.u0, 'holds_printed': self.holds_printed,
+                'holds_corrected': self.holds_corrected}
+
+
+@dataclass
+class CheckReport:
+    """All findings and gain bounds for one configuration."""
+
+    findings: list[Finding] = field(default_factory=list)
+    bounds: list[GainBound] = field(default_factory=list)
+    estimates: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def exit_code(self) -> int:
+        """0 consistent, 1 warnings only, 2 errors."""
+        levels = {f.level for f in self.findings}
+        return 2 if 'error' in levels else 1 if 'warning' in levels else 0
+
+    @property
+    def warnings(self) -> list[str]:
+        return [f.message for f in self.findings if f.level in ('warning', 'error')]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {'exit_code': self.exit_code,
+                'findings': [f.__dict__ for f in self.findings],
+                'bounds': [b.as_dict() for b in self.bounds], 'estimates': self.estimates}
+
+
+def pair_hessian_bound(a: float, b: float) -> float:
+    """Bound on the spectral norm of the Hessian of one pair term of eq. 44.
+
+    The Hessian of ``(a/2) r^2 + (bc/2) e^{-r^2/c}`` is ``w I + (2b/c) e^{-r^2/c} d d^T`` with
+    ``w = a - b e^{-r^2/c}``; its eigenvalues are ``w`` and ``a - b e^{-u}(1 - 2u)``,
+    ``u = r^2/c``, which lie in ``[a - b, a + 2b e^{-3/2}]``.
+    """
+    return max(abs(a - b), a + 2.0 * b * math.exp(-1.5))
+
+
+def gain_bounds(cfg: SwarmConfig, *, j_bar: float | None = None,
+                j_bar_s: float | None = None) -> tuple[list[GainBound], dict[str, float]]:
+    """The u0 bounds of eq. 29, 37 and 43 for ``cfg``, printed and corrected.
+
+    Without ``j_bar`` / ``j_bar_s`` they are estimated a priori (conservatively): with
+    ``L = k_N + 2 (n-1) k_f H`` (H from :func:`pair_hessian_bound`) a Lipschitz bound of
+    ``grad_i J`` and ``V`` a tracker speed bound, ``||d/dt grad_i J|| <= L V + k_N v_N``;
+    outside the layer ``V = alpha g0 + sqrt(3) beta`` with g0 the largest initial gradient, so
+    ``J_bar = alpha (L V + k_N v_N)``; inside the layer ``V = alpha gamma + beta`` and
+    ``J_bar_s = (alpha + beta/gamma)(L V + k_N v_N)``. ``J_bar_sign = 2 beta / lambda`` (eq. 35).
+    """
+    from .simulator import initial_positions
+
+    n, vn = cfg.n_trackers, cfg.target_speed_bound
+    lip = cfg.k_n + 2.0 * max(0, n - 1) * cfg.k_f * pair_hessian_bound(cfg.a, cfg.b)
+    g0 = float(np.linalg.norm(gradient(initial_positions(cfg), np.asarray(cfg.target_start),
+                                       **cfg.potential_params()), axis=-1).max())
+    if j_bar is None:
+        j_bar = cfg.alpha * (lip * (cfg.alpha * g0 + math.sqrt(3.0) * cfg.beta) + cfg.k_n * vn)
+    if j_bar_s is None:
+        j_bar_s = (cfg.alpha + cfg.beta / cfg.gamma) * (
+            lip * (cfg.alpha * cfg.gamma + cfg.beta) + cfg.k_n * vn)
+    j_sign = 2.0 * cfg.beta / cfg.lambda_filter
+    m_lo, m_hi, f = cfg.mass_lo, cfg.mass_hi, cfg.f_bar
+    bounds = [
+        GainBound('theorem1_eq29', 'outside the layer (and the traditional law)',
+                  m_hi * (-f / m_lo + j_bar + j_sign + cfg.epsilon),
+                  m_hi * (f / m_lo + j_bar + j_sign + cfg.epsilon), cfg.u0),
+        GainBound('eq37', 'outside the layer, proof of Theorem 1',
+                  m_hi * (-f / m_hi + j_sign + j_bar + cfg.epsilon),
+                  m_hi * (f / m_lo + j_sign + j_bar + cfg.epsilon), cfg.u0),
+        GainBound('eq43', 'inside the layer (proposed law only)',
+                  m_hi * (-f / m_hi + j_bar_s + cfg.mu),
+                  m_hi * (f / m_lo + j_bar_s + cfg.mu), cfg.u0),
+    ]
+    return bounds, {'J_bar': j_bar, 'J_bar_sign': j_sign, 'J_bar_s': j_bar_s,
+                    'lipschitz_grad': lip, 'initial_gradient_max': g0}
+
+
+def gain_bounds_from_run(cfg: SwarmConfig, t: ArrayLike, x: ArrayLike, target_x: ArrayLike,
+                         steady_fraction: float | None = None
+                         ) -> tuple[list[GainBound], dict[str, float]]:
+    """The u0 bounds with ``J_bar`` and ``J_bar_s`` measured along a run.
+
+    The rate ``||d/dt grad_i J||`` is taken by first differences of the gradient recomputed
+    from the recorded positions. ``J_bar = alpha max rate`` over the samples where tracker i is
+    outside the boundary layer (the regime of eq. 29 / 37), ``J_bar_s = (alpha + beta/gamma)
+    max rate`` over the samples inside it (the regime of eq. 43); a regime never visited gives 0.
+    Only the last ``steady_fraction`` of the run is used (default ``cfg.steady_fraction``): the
+    bounds are the conditions for staying on the manifold once it has been reached, and the
+    reaching transient would otherwise dominate the maximum.
+    """
+    frac = cfg.steady_fraction if steady_fraction is None else steady_fraction
+    t = np.asarray(t, dtype=float)
+    g = gradient(np.asarray(x, dtype=float), np.asarray(target_x, dtype=float),
+                 **cfg.potential_params())
+    start = min(len(t) - 2, int(len(t) * (1.0 - frac))) if len(t) > 1 else 0
+    t, g = t[max(0, start):], g[max(0, start):]
+    if len(t) < 2:
+        return gain_bounds(cfg, j_bar=0.0, j_bar_s=0.0)
+    rate = np.linalg.norm(np.diff(g, axis=0), axis=-1) / np.diff(t)[:, None]   # (T-1, n)
+    outside = np.linalg.norm(g[:-1], axis=-1) >= cfg.gamma
+    r_out = float(rate[outside].max()) if outside.any() else 0.0
+    r_in = float(rate[~outside].max()) if (~outside).any() else 0.0
+    bounds, est = gain_bounds(cfg, j_bar=cfg.alpha * r_out,
+                              j_bar_s=(cfg.alpha + cfg.beta / cfg.gamma) * r_in)
+    est['fraction_inside_layer'] = float(np.mean(~outside))
+    return bounds, est
+
+
+def _bound_findings(cfg: SwarmConfig, bounds: list[GainBound], source: str,
+                    fail_level: Level) -> list[Finding]:
+    out = []
+    for bnd in bounds:
+        if cfg.law == 'traditional' and bnd.name == 'eq43':
+            continue
+        code = f"u0_{bnd.name}_{'measured' if source.startswith('measured') else 'a_priori'}"
+        if bnd.holds_corrected:
+            out.append(Finding('ok', code, f'{source}: u0 = {cfg.u0:g} > {bnd.corrected:.4g}, the '
+                               f'corrected {bnd.name} bound ({bnd.regime}; printed form '
+                               f'{bnd.printed:.4g}).'))
+        elif bnd.holds_printed:
+            out.append(Finding(fail_level, code, f'{source}: u0 = {cfg.u0:g} clears the printed '
+                               f'{bnd.name} bound {bnd.printed:.4g} but not the corrected one '
+                               f'{bnd.corrected:.4g} ({bnd.regime}): reaching the manifold is not '
+                               'guaranteed against the worst-case disturbance.'))
+        else:
+            out.append(Finding(fail_level, code, f'{source}: u0 = {cfg.u0:g} is below both the '
+                               f'printed ({bnd.printed:.4g}) and the corrected '
+                               f'({bnd.corrected:.4g}) {bnd.name} bound ({bnd.regime}).'))
+    return out
+
+
+def check_config(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> CheckReport:
+    """Every condition for ``cfg``, in words: what holds, what fails, and what will happen.
+
+    ``run`` (a trajectory with ``t``, ``x``, ``target_x``) adds the u0 bounds measured on it;
+    only those can turn a failed gain bound into a warning, because the a priori estimates of
+    ``J_bar_s`` are far too conservative to decide (they assume worst-case relative speeds).
+    """
+    rep = CheckReport()
+    add = rep.findings.append
+    vn = cfg.target_speed_bound
+    # beta >= v_N
+    if cfg.beta >= vn:
+        add(Finding('ok', 'beta_vs_vn', f'beta = {cfg.beta:g} >= v_N = {vn:g}: the convergence '
+                    'condition of eq. 10-11 holds.'))
+    else:
+        add(Finding('warning', 'beta_vs_vn',
+                    f'beta = {cfg.beta:g} < v_N = {vn:g}: the convergence proof (eq. 10-11) does '
+                    'not apply. The switching term cannot keep up with the target: the trackers '
+                    f'trail it until alpha |grad J| makes up the missing {vn - cfg.beta:g} m/s '
+                    f'(about {(vn - cfg.beta) / max(cfg.alpha, 1e-12) / cfg.k_n:.3g} m behind for '
+                    'a straight target). Raise beta to at least v_N.'))
+    # formation existence
+    n = cfg.n_trackers
+    if n == 3:
+        d = triangle_spacing(cfg.a, cfg.b, cfg.c, cfg.k_n, cfg.k_f)
+        thr = cfg.a + cfg.k_n / (3 * cfg.k_f)
+        if d is None:
+            add(Finding('warning', 'formation',
+                        f'b = {cfg.b:g} <= a + k_n/(3 k_f) = {thr:g}: no triangle exists. '
+                        + ('With b < a the pair term never repels, so ' if cfg.b < cfg.a else
+                           'The repulsion is too weak to balance the target attraction, so ')
+                        + 'the trackers collapse onto the target and onto each other. Choose '
+                        f'b > {thr:g} (apf-swarm design --spacing D gives b for a spacing D).'))
+        else:
+            add(Finding('ok', 'formation', f'the triangle exists with side d = {d:.4g} m '
+                        f'(b = {cfg.b:g} > a + k_n/(3 k_f) = {thr:g}).'))
+    elif n >= 2:
+        if cfg.b <= cfg.a:
+            add(Finding('warning', 'formation', f'b = {cfg.b:g} <= a = {cfg.a:g}: the pair term '
+                        'never repels; the trackers collapse onto each other.'))
+        else:
+            d = expected_spacing(n, **cfg.potential_params())
+            if d is None:
+                add(Finding('warning', 'formation', f'no formation of {n} trackers: the '
+                            'equilibrium of J collapses; raise b.'))
+            else:
+                add(Finding('ok', 'formation', f'the equilibrium formation of {n} trackers has '
+                            f'nearest-neighbour spacing {d:.4g} m.'))
+    else:
+        add(Finding('info', 'formation', 'one tracker: no formation, it converges onto the target.'))
+    # gain bounds: a priori (conservative, informative only) and measured on a run
+    bounds, est = gain_bounds(cfg)
+    rep.bounds, rep.estimates = bounds, {f'a_priori_{k}': v for k, v in est.items()}
+    rep.findings += _bound_findings(cfg, bounds, 'a priori estimate (conservative)', 'info')
+    if run is not None:
+        mbounds, mest = gain_bounds_from_run(cfg, run['t'], run['x'], run['target_x'])
+        rep.bounds += [GainBound(b.name + '_measured', b.regime, b.printed, b.corrected, b.u0)
+                       for b in mbounds]
+        rep.estimates.update({f'measured_{k}': v for k, v in mest.items()})
+        rep.findings += _bound_findings(cfg, mbounds, 'measured on a run (steady window)',
+                                        'warning')
+    # numerics
+    if cfg.dt > cfg.lambda_filter / 10:
+        add(Finding('warning', 'filter_dt', f'dt = {cfg.dt:g} s is not small against '
+                    f'lambda_filter = {cfg.lambda_filter:g} s: the filter of eq. 26 cannot average '
+                    'the switching; use dt <= lambda_filter / 10.'))
+    m_lo = min(min(r) for r in cfg.mass_matrix_diag())
+    ripple = cfg.u0 * cfg.dt / m_lo
+    add(Finding('info', 'ripple', f'switching ripple of the velocity about u0 dt / M = '
+                f'{ripple:.3g} m/s per step (SPEC fact 4): it scales with dt.'))
+    if cfg.law == 'proposed' and cfg.beta >= vn:
+        lag = vn / (cfg.k_n * (cfg.alpha + cfg.beta / cfg.gamma))
+        add(Finding('info', 'lag', f'inside the boundary layer the law is linear with gain '
+                    f'alpha + beta/gamma = {cfg.alpha + cfg.beta / cfg.gamma:.4g} 1/s: a target '
+                    f'at {vn:g} m/s is trailed by about v_N / (k_n (alpha + beta/gamma)) = '
+                    f'{lag:.3g} m (smaller gamma: less lag, more switching).'))
+    return rep

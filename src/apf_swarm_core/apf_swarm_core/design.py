@@ -1,0 +1,163 @@
+"""Formation design: equilibrium spacings of the potential (eq. 44) and their inverses.
+
+Closed forms (SPEC section 2, fact 1):
+
+* three trackers on an equilateral triangle centred on the target are in equilibrium when
+  ``a - b exp(-d^2/c) = -k_N / (3 k_f)``, i.e. side ``d = sqrt(c ln(b / (a + k_N/(3 k_f))))``,
+  which exists only for ``b > a + k_N/(3 k_f)``;
+* the same argument for n trackers on a regular polygon gives no single closed form (the pair
+  distances differ), so :func:`equilibrium_formation` minimizes J numerically;
+* two agents without a target (Gazi & Passino, IEEE TAC 48(4), 2003) rest at
+  ``delta = sqrt(c ln(b/a))``, and a whole swarm stays within ``(b/a) sqrt(c/2) e^{-1/2}`` of
+  its centroid.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import ConfigError
+from .potential import gradient, potential
+
+__all__ = ['triangle_spacing', 'triangle_b_for_spacing', 'triangle_c_for_spacing',
+           'pair_equilibrium_distance', 'swarm_size_bound', 'Formation',
+           'equilibrium_formation', 'b_for_spacing', 'expected_spacing']
+
+
+def _triangle_threshold(a: float, k_n: float, k_f: float) -> float:
+    return a + k_n / (3.0 * k_f)
+
+
+def triangle_spacing(a: float, b: float, c: float, k_n: float = 1.0,
+                     k_f: float = 1.0) -> float | None:
+    """Side d [m] of the equilateral equilibrium of 3 trackers centred on the target.
+
+    ``d = sqrt(c ln(b / (a + k_N/(3 k_f))))`` (SPEC section 2, fact 1); ``None`` when
+    ``b <= a + k_N/(3 k_f)``, where no such formation exists and the trackers collapse onto
+    the target.
+    """
+    thr = _triangle_threshold(a, k_n, k_f)
+    if b <= thr:
+        return None
+    return math.sqrt(c * math.log(b / thr))
+
+
+def triangle_b_for_spacing(d: float, a: float, c: float, k_n: float = 1.0,
+                           k_f: float = 1.0) -> float:
+    """The b that makes the 3-tracker triangle side equal to ``d`` (inverse of the formula)."""
+    return _triangle_threshold(a, k_n, k_f) * math.exp(d * d / c)
+
+
+def triangle_c_for_spacing(d: float, a: float, b: float, k_n: float = 1.0,
+                           k_f: float = 1.0) -> float:
+    """The c that makes the 3-tracker triangle side equal to ``d``; needs ``b > a + k_N/(3k_f)``."""
+    thr = _triangle_threshold(a, k_n, k_f)
+    if b <= thr:
+        raise ConfigError(f'b = {b:g} <= a + k_n/(3 k_f) = {thr:g}: no c gives a triangle; '
+                          'raise b or solve for b instead')
+    return d * d / math.log(b / thr)
+
+
+def pair_equilibrium_distance(a: float, b: float, c: float) -> float | None:
+    """Gazi--Passino equilibrium distance of two agents, ``delta = sqrt(c ln(b/a))`` (b > a)."""
+    return math.sqrt(c * math.log(b / a)) if b > a else None
+
+
+def swarm_size_bound(a: float, b: float, c: float) -> float:
+    """Gazi--Passino bound on the distance of every agent from the centroid,
+    ``epsilon = (b/a) sqrt(c/2) e^{-1/2}`` (no target term)."""
+    return (b / a) * math.sqrt(c / 2.0) * math.exp(-0.5)
+
+
+@dataclass(frozen=True)
+class Formation:
+    """An equilibrium of J: positions relative to the target and the pair distances."""
+
+    relative_positions: NDArray[np.float64]  # (n, 3) [m]
+    pair_distances: NDArray[np.float64]      # (n(n-1)/2,) sorted [m]
+    potential: float
+    gradient_norm: float                     # max_i ||grad_i J|| at the solution
+
+    @property
+    def spacing(self) -> float:
+        """Smallest pair distance (the nearest-neighbour spacing) [m]."""
+        return float(self.pair_distances.min()) if self.pair_distances.size else 0.0
+
+
+def equilibrium_formation(n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: float = 1.0,
+                          b: float = 6.0, c: float = 1.7, starts: int = 8,
+                          seed: int = 0) -> Formation:
+    """Equilibrium formation of n trackers around a target at the origin, minimizing J.
+
+    Runs L-BFGS (scipy) with the analytic gradient of eq. 44 from ``starts`` random initial
+    shapes and keeps the lowest J. Rotations of the result are equilibria too.
+    """
+    from scipy.optimize import minimize
+
+    params = dict(k_n=k_n, k_f=k_f, a=a, b=b, c=c)
+    origin = np.zeros(3)
+    rng = np.random.default_rng(seed)
+    scale = pair_equilibrium_distance(a, b, c) or 1.0
+
+    def fun(flat: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+        x = flat.reshape(n, 3)
+        return float(potential(x, origin, **params)), gradient(x, origin, **params).ravel()
+
+    best = None
+    for _ in range(max(1, starts)):
+        x0 = rng.normal(scale=scale, size=(n, 3))
+        res = minimize(fun, x0.ravel(), jac=True, method='L-BFGS-B',
+                       options={'gtol': 1e-12, 'ftol': 1e-15, 'maxiter': 20000})
+        if best is None or res.fun < best.fun - 1e-12:
+            best = res
+    x = best.x.reshape(n, 3)
+    iu = np.triu_indices(n, 1)
+    d = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)[iu]
+    g = np.linalg.norm(gradient(x, origin, **params), axis=-1).max()
+    return Formation(x, np.sort(d), float(best.fun), float(g))
+
+
+def expected_spacing(n: int, *, k_n: float, k_f: float, a: float, b: float,
+                     c: float) -> float | None:
+    """Design spacing the formation metrics compare against.
+
+    n = 3: the closed form of :func:`triangle_spacing`; n = 2: the two trackers sit on opposite
+    sides of the target at ``sqrt(c ln(b/(a + k_N/(2 k_f))))``; other n: the smallest pair
+    distance of :func:`equilibrium_formation`, or ``None`` when it collapses (< 1e-6 m).
+    """
+    if n == 3:
+        return triangle_spacing(a, b, c, k_n, k_f)
+    if n == 2:
+        thr = a + k_n / (2.0 * k_f)
+        return math.sqrt(c * math.log(b / thr)) if b > thr else None
+    if n < 2:
+        return None
+    f = equilibrium_formation(n, k_n=k_n, k_f=k_f, a=a, b=b, c=c, starts=4)
+    return f.spacing if f.spacing > 1e-6 else None
+
+
+def b_for_spacing(d: float, n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: float = 1.0,
+                  c: float = 1.7) -> float:
+    """The b whose equilibrium nearest-neighbour spacing is ``d`` for n trackers.
+
+    Closed form for n = 3; otherwise a bracketed root search (scipy ``brentq``) on the
+    numerical equilibrium of :func:`equilibrium_formation`.
+    """
+    if n == 3:
+        return triangle_b_for_spacing(d, a, c, k_n, k_f)
+    from scipy.optimize import brentq
+
+    def spacing_error(b: float) -> float:
+        s = expected_spacing(n, k_n=k_n, k_f=k_f, a=a, b=b, c=c)
+        return (s or 0.0) - d
+
+    lo, hi = a * 1.0001, a * 2.0
+    while spacing_error(hi) < 0:
+        hi *= 2.0
+        if hi > 1e9:
+            raise ConfigError(f'no b below 1e9 gives spacing {d:g} m for n = {n}')
+    return float(brentq(spacing_error, lo, hi, xtol=1e-10))

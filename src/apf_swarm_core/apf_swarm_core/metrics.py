@@ -1,0 +1,174 @@
+"""Run metrics: centroid error, pair distances, formation error, J(t), chattering, summary.
+
+Arrays follow the trajectory schema: ``t (T,)``, ``x (T, n, 3)``, ``v (T, n, 3)``,
+``target_x (T, 3)``, ``target_v (T, 3)``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ['centroid_error', 'pair_distances', 'formation_error', 'potential_series',
+           'moving_average', 'hf_velocity_rms', 'heading_rate', 'steady_slice',
+           'time_to_converge', 'summarize', 'SUMMARY_KEYS']
+
+#: top-level keys of summary.json, in order (a stable schema shared with the bag tools)
+SUMMARY_KEYS = ('law', 'n_trackers', 'dt', 'duration', 'seed', 'centroid_error', 'formation',
+                'chattering', 'potential', 'converged', 'time_to_converge', 'warnings')
+
+
+def centroid_error(x: ArrayLike, target_x: ArrayLike) -> NDArray[np.float64]:
+    """Distance between the formation centroid and the target, ``||mean_i x_i - x_N||`` [m], (T,)."""
+    x = np.asarray(x, dtype=float)
+    return np.linalg.norm(x.mean(axis=-2) - np.asarray(target_x, dtype=float), axis=-1)
+
+
+def pair_distances(x: ArrayLike) -> NDArray[np.float64]:
+    """Distances of every unordered pair, ``(..., n(n-1)/2)`` in ``triu`` order [m]."""
+    x = np.asarray(x, dtype=float)
+    n = x.shape[-2]
+    i, j = np.triu_indices(n, 1)
+    return np.linalg.norm(x[..., i, :] - x[..., j, :], axis=-1)
+
+
+def formation_error(x: ArrayLike, expected_pairs: ArrayLike) -> NDArray[np.float64]:
+    """RMS difference between the sorted pair distances and the design's sorted pair distances.
+
+    For 3 trackers the design pairs are three copies of the triangle side, so this is the RMS of
+    ``d_ij - d``. Sorting makes the measure blind to relabelling and rotation. (T,) [m].
+    """
+    d = np.sort(pair_distances(x), axis=-1)
+    e = np.sort(np.asarray(expected_pairs, dtype=float))
+    return np.sqrt(np.mean((d - e) ** 2, axis=-1))
+
+
+def potential_series(x: ArrayLike, target_x: ArrayLike, params: Mapping[str, float]
+                     ) -> NDArray[np.float64]:
+    """J(t) of eq. 2 / 44 along a trajectory, (T,)."""
+    from .potential import potential
+    return potential(x, target_x, **params)
+
+
+def moving_average(y: ArrayLike, width: int) -> NDArray[np.float64]:
+    """Centred moving average over ``width`` samples along axis 0 (edges use shorter windows)."""
+    y = np.asarray(y, dtype=float)
+    width = max(1, int(width))
+    csum = np.cumsum(np.concatenate([np.zeros((1,) + y.shape[1:]), y]), axis=0)
+    idx = np.arange(y.shape[0])
+    lo = np.clip(idx - width // 2, 0, y.shape[0])
+    hi = np.clip(idx - width // 2 + width, 0, y.shape[0])
+    shape = (-1,) + (1,) * (y.ndim - 1)
+    return (csum[hi] - csum[lo]) / (hi - lo).reshape(shape)
+
+
+def hf_velocity_rms(v: ArrayLike, dt: float, window: float = 0.1) -> float:
+    """High-frequency velocity energy: RMS of ``v - moving_average(v, window)`` [m/s].
+
+    The residual after removing a centred moving average of ``window`` seconds is the part of
+    the velocity above roughly ``1/window`` Hz: the switching ripple of the inner loop
+    (about ``u0 dt / M``, SPEC section 2 fact 4) and any buffeting of the manifold. Computed
+    over all trackers and samples given; (T, n, 3) input.
+    """
+    v = np.asarray(v, dtype=float)
+    resid = v - moving_average(v, round(window / dt))
+    return float(np.sqrt(np.mean(np.sum(resid ** 2, axis=-1))))
+
+
+def heading_rate(v: ArrayLike, dt: float, window: float = 0.1) -> float:
+    """Mean absolute turn rate of the smoothed velocity direction [rad/s].
+
+    The velocity is smoothed with the same ``window`` as :func:`hf_velocity_rms` (so the
+    switching ripple does not count), then the angle between successive smoothed velocity
+    vectors is divided by ``dt`` and averaged over trackers and samples. A target on a circle of
+    radius R at speed v turns at v/R; anything above that is rotation buffeting.
+    """
+    vs = moving_average(np.asarray(v, dtype=float), round(window / dt))
+    a, b = vs[:-1], vs[1:]
+    na, nb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
+    ok = (na > 1e-9) & (nb > 1e-9)
+    cos = np.clip(np.sum(a * b, axis=-1) / np.where(ok, na * nb, 1.0), -1.0, 1.0)
+    ang = np.where(ok, np.arccos(cos), 0.0)
+    return float(np.mean(ang) / dt) if ang.size else 0.0
+
+
+def steady_slice(n_samples: int, fraction: float) -> slice:
+    """The last ``fraction`` of ``n_samples`` (at least one sample)."""
+    start = min(n_samples - 1, int(math.floor(n_samples * (1.0 - fraction))))
+    return slice(max(0, start), n_samples)
+
+
+def time_to_converge(t: ArrayLike, ok: ArrayLike) -> float | None:
+    """First time after which ``ok`` stays true to the end, or ``None``."""
+    ok = np.asarray(ok, dtype=bool)
+    if ok.size == 0 or not ok[-1]:
+        return None
+    bad = np.flatnonzero(~ok)
+    return float(np.asarray(t)[0 if bad.size == 0 else bad[-1] + 1])
+
+
+def _f(value: float | None) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+def summarize(traj: Mapping[str, Any], *, law: str, dt: float, seed: int,
+              potential_params: Mapping[str, float], expected_pairs: ArrayLike | None,
+              steady_fraction: float = 0.25, centroid_tol: float = 0.5,
+              formation_tol: float = 0.05, chatter_window: float = 0.1,
+              warnings: list[str] | None = None) -> dict[str, Any]:
+    """The summary.json document (schema :data:`SUMMARY_KEYS`) of a trajectory.
+
+    ``converged`` is true when, over the steady window, the centroid error stays below
+    ``centroid_tol`` [m] and (when the design has a spacing) the formation error stays below
+    ``formation_tol`` times the design spacing. ``time_to_converge`` is the first time after
+    which both hold until the end.
+    """
+    t = np.asarray(traj['t'], dtype=float)
+    x = np.asarray(traj['x'], dtype=float)
+    v = np.asarray(traj['v'], dtype=float)
+    tx = np.asarray(traj['target_x'], dtype=float)
+    n = x.shape[1]
+    sample_dt = float(t[1] - t[0]) if t.size > 1 else dt
+    st = steady_slice(t.size, steady_fraction)
+    ce = centroid_error(x, tx)
+    pd = pair_distances(x)
+    j = potential_series(x, tx, potential_params)
+    dj = np.diff(j)
+    ok = ce <= centroid_tol
+    formation: dict[str, Any] = {
+        'pair_distance_min': _f(pd[st].min()) if pd.size else None,
+        'pair_distance_max': _f(pd[st].max()) if pd.size else None,
+        'pair_distance_mean': _f(pd[st].mean()) if pd.size else None,
+        'pair_distance_expected': None,
+        'error_rms_steady': None,
+    }
+    if expected_pairs is not None and pd.size:
+        exp = np.asarray(expected_pairs, dtype=float)
+        fe = formation_error(x, exp)
+        formation['pair_distance_expected'] = _f(float(exp.min())) if np.allclose(
+            exp, exp.min()) else [float(e) for e in np.sort(exp)]
+        formation['error_rms_steady'] = _f(float(np.sqrt(np.mean(fe[st] ** 2))))
+        ok = ok & (fe <= formation_tol * float(exp.min()))
+    summary = {
+        'law': law,
+        'n_trackers': int(n),
+        'dt': float(dt),
+        'duration': round(float(t[-1] - t[0] + sample_dt), 9) if t.size else 0.0,
+        'seed': int(seed),
+        'centroid_error': {'rms_steady': _f(float(np.sqrt(np.mean(ce[st] ** 2)))),
+                           'max_steady': _f(float(ce[st].max())), 'final': _f(float(ce[-1]))},
+        'formation': formation,
+        'chattering': {'hf_velocity_rms': _f(hf_velocity_rms(v[st], sample_dt, chatter_window)),
+                       'heading_rate': _f(heading_rate(v[st], sample_dt, chatter_window))},
+        'potential': {'initial': _f(float(j[0])), 'final': _f(float(j[-1])),
+                      'decreasing_fraction': _f(float(np.mean(dj <= 0))) if dj.size else None},
+        'converged': bool(ok[st].all()),
+        'time_to_converge': time_to_converge(t, ok),
+        'warnings': list(warnings or []),
+    }
+    if not np.all(np.isfinite(x)):
+        summary['warnings'].append('the trajectory contains non-finite positions')
+    return summary

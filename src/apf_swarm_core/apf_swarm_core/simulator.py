@@ -1,0 +1,259 @@
+"""Headless fixed-step simulator of the closed loop, single or batched.
+
+One step ``k -> k+1`` (``t_k = k dt``), the order a lockstep ROS run follows too:
+
+1. the target state ``x_N(t_k), xdot_N(t_k)`` from its trajectory (eq. 1);
+2. :func:`control_step`: gradients (eq. 2 / 44) and the sliding-mode command of every tracker
+   from the state at step k (eq. 22-28, 31, 24) -- the tracker node calls the same function for
+   its own row;
+3. :func:`integrate`: the plant (eq. 19-21) advances with the command held over the step and a
+   seeded bounded disturbance -- the plant node calls the same function.
+
+The batched form runs R independent runs (different seeds and/or parameter values, the same
+number of trackers) as one array program with a leading run axis; a single run is the batch
+R = 1, so there is one code path. Random streams: ``default_rng([seed, 1])`` draws the initial
+positions, ``default_rng([seed, 2])`` the disturbance (see :mod:`apf_swarm_core.plant`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .config import SwarmConfig
+from .design import equilibrium_formation, triangle_spacing
+from .laws import ControlOutput, SlidingModeController
+from .metrics import summarize
+from .plant import DisturbanceSource, plant_step, uniform_ball
+from .potential import gradient
+
+__all__ = ['initial_positions', 'expected_pairs', 'make_controller', 'control_step',
+           'integrate', 'BatchSimulator', 'SimResult', 'simulate', 'simulate_batch',
+           'TRAJECTORY_KEYS']
+
+#: arrays of trajectory.npz
+TRAJECTORY_KEYS = ('t', 'x', 'v', 'u', 's', 'target_x', 'target_v')
+
+#: configuration keys that may differ between the runs of one batch
+BATCHABLE = ('k_n', 'k_f', 'a', 'b', 'c', 'alpha', 'beta', 'gamma', 'lambda_filter', 'u0',
+             'drag', 'f_bar', 'mass', 'seed', 'init_spread', 'target_speed', 'target_radius',
+             'target_yaw_deg', 'target_pitch_deg', 'target_trajectory', 'target_start',
+             'target_waypoints', 'init_center', 'v_n', 'epsilon', 'mu', 'mass_lo', 'mass_hi',
+             'noise', 'uav_overrides')
+
+
+def initial_positions(cfg: SwarmConfig) -> NDArray[np.float64]:
+    """Initial tracker positions, shape (n, 3) [m]: uniform in a ball of radius
+    ``init_spread`` around ``init_center`` (stream ``[seed, 1]``), then per-UAV overrides."""
+    rng = np.random.default_rng([cfg.seed, 1])
+    x = np.asarray(cfg.init_center) + uniform_ball(rng.random((cfg.n_trackers, 3)),
+                                                   cfg.init_spread)
+    for i, over in cfg.uav_overrides.items():
+        if 'initial_position' in over:
+            x[int(i) - 1] = np.asarray(over['initial_position'], dtype=float)
+    return x
+
+
+def expected_pairs(cfg: SwarmConfig) -> NDArray[np.float64] | None:
+    """Design pair distances for the formation metrics, or ``None`` when J has no formation.
+
+    3 trackers: three copies of the closed-form triangle side; 2: the closed form of
+    :func:`apf_swarm_core.design.expected_spacing`; more: the pair distances of the numerical
+    equilibrium (``None`` if it collapses).
+    """
+    n = cfg.n_trackers
+    p = cfg.potential_params()
+    if n < 2:
+        return None
+    if n == 3:
+        d = triangle_spacing(p['a'], p['b'], p['c'], p['k_n'], p['k_f'])
+        return None if d is None else np.full(3, d)
+    f = equilibrium_formation(n, **p, starts=4)
+    return f.pair_distances if f.spacing > 1e-6 else None
+
+
+def make_controller(cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, ...]
+                    ) -> SlidingModeController:
+    """A controller with the gains of one configuration, or per-run gains of a batch."""
+    cfgs = [cfg] if isinstance(cfg, SwarmConfig) else list(cfg)
+
+    def gain(name: str) -> float | NDArray[np.float64]:
+        vals = np.array([getattr(c, name) for c in cfgs], dtype=float)
+        return float(vals[0]) if isinstance(cfg, SwarmConfig) else vals
+
+    return SlidingModeController(
+        law=cfgs[0].law, alpha=gain('alpha'), beta=gain('beta'), gamma=gain('gamma'),
+        lambda_filter=gain('lambda_filter'), u0=gain('u0'), drag=gain('drag'), dt=cfgs[0].dt,
+        shape=shape, saturation=cfgs[0].saturation)
+
+
+def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
+                 target_x: ArrayLike, potential_params: dict[str, Any], *,
+                 rows: ArrayLike | None = None, mask: ArrayLike | None = None) -> ControlOutput:
+    """Commands of the trackers in ``rows`` (default all) at one step.
+
+    Parameters
+    ----------
+    controller : SlidingModeController
+        Holds the filter state of the selected rows, shape ``(..., m, 3)``.
+    x : array (..., n, 3)
+        Positions of every tracker the potential sees [m].
+    v : array (..., m, 3)
+        Velocities of the selected trackers [m/s].
+    target_x : array (..., 3)
+    potential_params : keyword arguments of :func:`apf_swarm_core.potential.gradient`
+    rows, mask : see :func:`apf_swarm_core.potential.gradient`
+    """
+    grad = gradient(x, target_x, **potential_params, rows=rows, mask=mask)
+    return controller.step(v, grad)
+
+
+def integrate(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike, dt: float,
+              drag: ArrayLike, disturbance: ArrayLike) -> tuple[NDArray[np.float64],
+                                                                NDArray[np.float64]]:
+    """Advance the plant one step (eq. 19-21); see :func:`apf_swarm_core.plant.plant_step`."""
+    return plant_step(x, v, force, mass=mass, dt=dt, drag=drag, disturbance=disturbance)
+
+
+def _param_array(cfgs: Sequence[SwarmConfig], name: str) -> float | NDArray[np.float64]:
+    vals = np.array([getattr(c, name) for c in cfgs], dtype=float)
+    return float(vals[0]) if np.all(vals == vals[0]) else vals
+
+
+@dataclass
+class SimResult:
+    """Trajectory arrays (R leading axis removed for a single run) and the configuration(s)."""
+
+    trajectory: dict[str, NDArray[Any]]
+    config: SwarmConfig | list[SwarmConfig]
+    final: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+
+    def summary(self, *, warnings: list[str] | None = None, run: int | None = None
+                ) -> dict[str, Any]:
+        """summary.json of the (single) run, or of run ``run`` of a batch."""
+        cfg = self.config if isinstance(self.config, SwarmConfig) else self.config[run or 0]
+        traj = self.trajectory if run is None else {k: (v if k == 't' else v[run])
+                                                    for k, v in self.trajectory.items()}
+        return summarize(traj, law=cfg.law, dt=cfg.dt, seed=cfg.seed,
+                         potential_params=cfg.potential_params(),
+                         expected_pairs=expected_pairs(cfg),
+                         steady_fraction=cfg.steady_fraction, warnings=warnings)
+
+
+class BatchSimulator:
+    """R runs with the same n, law, saturation, dt and duration, stepped together.
+
+    Parameters
+    ----------
+    cfgs : sequence of SwarmConfig
+        One configuration per run; only keys in :data:`BATCHABLE` may differ.
+    """
+
+    def __init__(self, cfgs: Sequence[SwarmConfig]) -> None:
+        if not cfgs:
+            raise ValueError('a batch needs at least one configuration')
+        self.cfgs = list(cfgs)
+        first = self.cfgs[0]
+        for c in self.cfgs[1:]:
+            for key in ('n_trackers', 'law', 'saturation', 'dt', 'duration', 'record_every'):
+                if getattr(c, key) != getattr(first, key):
+                    raise ValueError(f'every run of a batch must share {key}; got '
+                                     f'{getattr(first, key)!r} and {getattr(c, key)!r}')
+        self.R, self.n, self.dt = len(self.cfgs), first.n_trackers, first.dt
+        self.params = {k: _param_array(self.cfgs, k) for k in ('k_n', 'k_f', 'a', 'b', 'c')}
+        self.drag = _param_array(self.cfgs, 'drag')
+        self.mass = np.array([c.mass_matrix_diag() for c in self.cfgs])  # (R, n, 3)
+        self.controller = make_controller(self.cfgs, (self.R, self.n, 3))
+        if len({c.noise for c in self.cfgs}) > 1:
+            raise ValueError('every run of a batch must share the noise kind')
+        self.noise = DisturbanceSource([c.seed for c in self.cfgs], self.n,
+                                       [c.f_bar for c in self.cfgs], first.noise)
+        self.x = np.array([initial_positions(c) for c in self.cfgs])
+        self.v = np.zeros_like(self.x)
+        # runs that share a trajectory share its evaluation
+        trajs = [c.target_trajectory_obj for c in self.cfgs]
+        self._trajs: list[Any] = []
+        self._traj_index = np.empty(self.R, dtype=int)
+        for r, tr in enumerate(trajs):
+            if tr not in self._trajs:
+                self._trajs.append(tr)
+            self._traj_index[r] = self._trajs.index(tr)
+        self.k = 0
+        self._tblock = (-1, None, None)
+
+    def target_state(self, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Target position and velocity of every run at step k, shapes (R, 3).
+
+        Evaluated for blocks of 1024 steps at once (``t = k dt``, vectorized over k).
+        """
+        base, pos, vel = self._tblock
+        if base < 0 or not base <= k < base + 1024:
+            base = k
+            t = np.arange(k, k + 1024) * self.dt
+            states = [tr.state(t) for tr in self._trajs]
+            pos = np.stack([s[0] for s in states], axis=1)[:, self._traj_index]
+            vel = np.stack([s[1] for s in states], axis=1)[:, self._traj_index]
+            self._tblock = (base, pos, vel)
+        return pos[k - base], vel[k - base]
+
+    def step(self) -> tuple[ControlOutput, NDArray[np.float64], NDArray[np.float64]]:
+        """Advance every run by one step; returns the command and the target state used."""
+        tx, tv = self.target_state(self.k)
+        out = control_step(self.controller, self.x, self.v, tx, self.params)
+        dist = self.noise.next()
+        self.x, self.v = integrate(self.x, self.v, out.force, mass=self.mass, dt=self.dt,
+                                   drag=self.drag, disturbance=dist)
+        self.k += 1
+        return out, tx, tv
+
+    def run(self, steps: int | None = None, *, record: bool = True,
+            progress: Callable[[int, int], None] | None = None,
+            progress_every: int = 1000) -> dict[str, NDArray[Any]]:
+        """Run ``steps`` steps (default: the configured duration) and return the trajectory.
+
+        Sample k holds the state at ``t_k`` and the command computed from it (applied over
+        ``[t_k, t_{k+1})``); every ``record_every``-th step is kept.
+        """
+        steps = self.cfgs[0].steps if steps is None else steps
+        every = self.cfgs[0].record_every
+        T = (steps + every - 1) // every if record else 0
+        shape = (self.R, T, self.n, 3)
+        rec = {'t': np.empty(T), 'x': np.empty(shape), 'v': np.empty(shape),
+               'u': np.empty(shape), 's': np.empty(shape), 'target_x': np.empty((self.R, T, 3)),
+               'target_v': np.empty((self.R, T, 3)), 'saturated': np.empty((self.R, T, self.n),
+                                                                          dtype=bool)}
+        for i in range(steps):
+            k = self.k
+            x, v = self.x, self.v
+            out, tx, tv = self.step()
+            if record and k % every == 0:
+                j = i // every
+                rec['t'][j] = k * self.dt
+                rec['x'][:, j], rec['v'][:, j] = x, v
+                rec['u'][:, j], rec['s'][:, j] = out.force, out.sliding_surface
+                rec['target_x'][:, j], rec['target_v'][:, j] = tx, tv
+                rec['saturated'][:, j] = out.saturated
+            if progress is not None and (i + 1) % progress_every == 0:
+                progress(i + 1, steps)
+        if progress is not None:
+            progress(steps, steps)
+        return rec
+
+
+def simulate_batch(cfgs: Sequence[SwarmConfig], *, record: bool = True,
+                   progress: Callable[[int, int], None] | None = None) -> SimResult:
+    """Run a batch; trajectory arrays carry a leading run axis (except ``t``)."""
+    sim = BatchSimulator(cfgs)
+    traj = sim.run(record=record, progress=progress)
+    return SimResult(traj, list(cfgs), {'x': sim.x, 'v': sim.v, 'z': sim.controller.z})
+
+
+def simulate(cfg: SwarmConfig, *, record: bool = True,
+             progress: Callable[[int, int], None] | None = None) -> SimResult:
+    """Run one configuration: the batch of one, with the run axis removed."""
+    res = simulate_batch([cfg], record=record, progress=progress)
+    traj = {k: (v if k == 't' else v[0]) for k, v in res.trajectory.items()}
+    return SimResult(traj, cfg, {k: v[0] for k, v in res.final.items()})

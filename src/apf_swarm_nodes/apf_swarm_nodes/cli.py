@@ -1,0 +1,230 @@
+"""The ``apf-swarm`` command: simulate, check, design, reproduce, sweep.
+
+Every expected failure (bad configuration, unknown preset, unreadable file...) prints one
+line ``apf-swarm: error: ...`` and exits 2; ``check`` exits 0 / 1 / 2 for consistent /
+warnings only / errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from apf_swarm_core.checks import check_config
+from apf_swarm_core.config import (SwarmConfig, apply_overrides, load_config, load_preset,
+                                   parse_set, preset_names)
+from apf_swarm_core.design import (b_for_spacing, equilibrium_formation, triangle_c_for_spacing)
+from apf_swarm_core.errors import ApfSwarmError
+from apf_swarm_core.simulator import simulate
+
+from .progress import Progress
+from .runio import format_summary, write_run
+
+__all__ = ['main', 'build_parser']
+
+PROG = 'apf-swarm'
+
+
+def _add_config_args(p: argparse.ArgumentParser, *, required: bool = True,
+                     default_preset: str | None = None) -> None:
+    g = p.add_mutually_exclusive_group(required=required)
+    g.add_argument('--preset', metavar='NAME', default=default_preset,
+                   help='named preset (config/NAME.yaml): ' + ', '.join(preset_names()))
+    g.add_argument('--config', metavar='FILE', type=Path, help='ROS 2 parameter file')
+    p.add_argument('--set', metavar='KEY=VALUE', action='append', default=[], dest='sets',
+                   help='override a configuration key (repeatable), e.g. --set gamma=0.5')
+
+
+def _load(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> SwarmConfig:
+    cfg = load_config(args.config) if args.config is not None else load_preset(args.preset)
+    values = parse_set(args.sets)
+    values.update({k: v for k, v in (extra or {}).items() if v is not None})
+    return apply_overrides(cfg, values) if values else cfg
+
+
+def _progress(args: argparse.Namespace, label: str):
+    return None if getattr(args, 'quiet', False) else Progress(label)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    cfg = _load(args, {'law': args.law, 'n_trackers': args.n_trackers,
+                       'duration': args.duration, 'dt': args.dt, 'seed': args.seed})
+    report = check_config(cfg)
+    res = simulate(cfg, progress=_progress(args, 'simulate'))
+    summary = res.summary(warnings=report.warnings)
+    write_run(args.out, res.trajectory, summary, cfg)
+    print(format_summary(summary))
+    print(f'wrote {args.out / "trajectory.npz"} and {args.out / "summary.json"}')
+    return 0
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    cfg = _load(args)
+    run = None if args.no_run else simulate(cfg, progress=_progress(args, 'check run')).trajectory
+    rep = check_config(cfg, run)
+    if args.json:
+        print(json.dumps(rep.as_dict(), indent=2))
+    else:
+        mark = {'ok': 'ok  ', 'info': 'info', 'warning': 'WARN', 'error': 'ERR '}
+        for f in rep.findings:
+            print(f'[{mark[f.level]}] {f.message}')
+        verdict = {0: 'consistent', 1: 'warnings: read them before flying',
+                   2: 'errors: this configuration cannot run'}[rep.exit_code]
+        print(f'verdict: {verdict}')
+    return rep.exit_code
+
+
+def cmd_design(args: argparse.Namespace) -> int:
+    cfg = _load(args, {'n_trackers': args.n_trackers})
+    n, p = cfg.n_trackers, cfg.potential_params()
+    if args.solve == 'b':
+        p['b'] = b_for_spacing(args.spacing, n, k_n=p['k_n'], k_f=p['k_f'], a=p['a'], c=p['c'])
+    else:
+        if n != 3:
+            raise ApfSwarmError('--solve c has a closed form for 3 trackers only; use --solve b')
+        p['c'] = triangle_c_for_spacing(args.spacing, p['a'], p['b'], p['k_n'], p['k_f'])
+    form = equilibrium_formation(n, **p)
+    out = {'n_trackers': n, 'spacing': args.spacing, 'solved_for': args.solve,
+           args.solve: p[args.solve], 'parameters': p,
+           'relative_positions': np.round(form.relative_positions, 9).tolist(),
+           'pair_distances': np.round(form.pair_distances, 9).tolist(),
+           'potential': form.potential, 'gradient_norm': form.gradient_norm}
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    print(f'{args.solve} = {p[args.solve]:.9g} gives nearest-neighbour spacing {args.spacing:g} m '
+          f'for {n} trackers (k_n = {p["k_n"]:g}, k_f = {p["k_f"]:g}, a = {p["a"]:g}, '
+          f'b = {p["b"]:.6g}, c = {p["c"]:.6g})')
+    print('equilibrium positions relative to the target [m] (any rotation is an equilibrium too):')
+    for i, row in enumerate(form.relative_positions, 1):
+        print(f'  uav_{i}: ({row[0]: .4f}, {row[1]: .4f}, {row[2]: .4f})  '
+              f'|r| = {np.linalg.norm(row):.4f}')
+    print('pair distances [m]: ' + ', '.join(f'{d:.4f}' for d in form.pair_distances))
+    print(f'max |grad J| at the solution: {form.gradient_norm:.2e}')
+    return 0
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from .studies import GAMMA_VALUES, reproduce
+    presets = {name: load_preset(name) for name in ('triangle', 'paper')}
+    if args.duration is not None:
+        presets = {k: v.replace(duration=args.duration) for k, v in presets.items()}
+    gammas = GAMMA_VALUES if not args.quick else (0.02, 0.2, 1.0)
+    path = reproduce(args.out, presets, None if args.quiet else Progress, gammas)
+    print(path.read_text().split('## Conclusion', 1)[-1].strip())
+    print(f'wrote {path} and the figures next to it')
+    return 0
+
+
+def _parse_values(text: str) -> list[Any]:
+    import yaml
+    vals = []
+    for item in text.split(','):
+        item = item.strip()
+        if not item:
+            raise ApfSwarmError(f'--values {text!r}: empty value; expected V1,V2,...')
+        vals.append(yaml.safe_load(item))
+    return vals
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from .studies import sweep, write_sweep
+    cfg = _load(args, {'duration': args.duration})
+    values = _parse_values(args.values)
+    if args.seeds < 1:
+        raise ApfSwarmError(f'--seeds {args.seeds}: must be >= 1')
+    rows = sweep(cfg, args.param, values, args.seeds,
+                 progress=None if args.quiet else Progress('sweep'))
+    paths = write_sweep(rows, args.param, args.out)
+    print(f'{"law":12s} {args.param:>10s} {"centroid RMS":>13s} {"HF vel RMS":>11s} '
+          f'{"heading rate":>13s}')
+    for law in ('proposed', 'traditional'):
+        for v in values:
+            sel = [r for r in rows if r['law'] == law and r['value'] == v]
+            print(f'{law:12s} {str(v):>10s} '
+                  f'{np.mean([r["centroid_rms"] for r in sel]):13.4g} '
+                  f'{np.mean([r["hf_velocity_rms"] for r in sel]):11.4g} '
+                  f'{np.mean([r["heading_rate"] for r in sel]):13.4g}')
+    print(f'wrote {paths["csv"]} and {paths["png"]}')
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description='APF formation tracking with '
+                                     'sliding-mode control: simulate, check, design, reproduce.')
+    sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+
+    p = sub.add_parser('simulate', help='run the headless simulator')
+    _add_config_args(p)
+    p.add_argument('--law', choices=('proposed', 'traditional'))
+    p.add_argument('--n-trackers', type=int)
+    p.add_argument('--duration', type=float, metavar='S')
+    p.add_argument('--dt', type=float, metavar='S')
+    p.add_argument('--seed', type=int)
+    p.add_argument('--out', type=Path, required=True, metavar='DIR')
+    p.add_argument('--quiet', action='store_true', help='no progress line')
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser('check', help='validation and gain report (exit 0 ok, 1 warnings, 2 errors)')
+    _add_config_args(p)
+    p.add_argument('--no-run', action='store_true',
+                   help='skip the simulation that measures J_bar (a priori bounds only)')
+    p.add_argument('--json', action='store_true')
+    p.add_argument('--quiet', action='store_true')
+    p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser('design', help='b (or c) for a spacing, and the equilibrium shape')
+    _add_config_args(p, required=False, default_preset='triangle')
+    p.add_argument('--spacing', type=float, required=True, metavar='D',
+                   help='wanted nearest-neighbour distance [m]')
+    p.add_argument('--n-trackers', type=int)
+    p.add_argument('--solve', choices=('b', 'c'), default='b')
+    p.add_argument('--json', action='store_true')
+    p.set_defaults(func=cmd_design)
+
+    p = sub.add_parser('reproduce', help="the paper's Figures 1-7 and report.md")
+    p.add_argument('--out', type=Path, required=True, metavar='DIR')
+    p.add_argument('--duration', type=float, metavar='S', help='override the presets\' duration')
+    p.add_argument('--quick', action='store_true', help='3 gamma values instead of 8')
+    p.add_argument('--quiet', action='store_true')
+    p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser('sweep', help='both laws over values of one key, batched')
+    _add_config_args(p, required=False, default_preset='triangle')
+    p.add_argument('--param', required=True, metavar='NAME')
+    p.add_argument('--values', required=True, metavar='V1,V2,...')
+    p.add_argument('--seeds', type=int, default=1, metavar='K')
+    p.add_argument('--duration', type=float, metavar='S')
+    p.add_argument('--out', type=Path, required=True, metavar='DIR')
+    p.add_argument('--quiet', action='store_true')
+    p.set_defaults(func=cmd_sweep)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    for attr in ('spacing', 'duration', 'dt'):
+        val = getattr(args, attr, None)
+        if val is not None and not val > 0:
+            parser.error(f'--{attr} {val}: must be a positive number')
+    try:
+        return int(args.func(args))
+    except ApfSwarmError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f'{PROG}: error: {exc.strerror or exc}: {exc.filename or ""}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'{PROG}: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,73 @@
+"""Reading and writing run outputs: ``trajectory.npz``, ``summary.json``, resolved config."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from apf_swarm_core.config import SwarmConfig, to_ros_params
+from apf_swarm_core.simulator import TRAJECTORY_KEYS
+
+from .errors import CliError
+
+__all__ = ['write_run', 'read_trajectory', 'format_summary']
+
+
+def write_run(out: Path, traj: Mapping[str, Any], summary: Mapping[str, Any],
+              cfg: SwarmConfig | None = None) -> dict[str, Path]:
+    """Write ``trajectory.npz``, ``summary.json`` and (with ``cfg``) ``config.yaml`` into out."""
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {'trajectory': out / 'trajectory.npz', 'summary': out / 'summary.json'}
+    np.savez(paths['trajectory'], **{k: np.asarray(traj[k]) for k in TRAJECTORY_KEYS})
+    paths['summary'].write_text(json.dumps(summary, indent=2) + '\n')
+    if cfg is not None:
+        paths['config'] = out / 'config.yaml'
+        paths['config'].write_text(yaml.safe_dump(to_ros_params(cfg), sort_keys=False))
+    return paths
+
+
+def read_trajectory(path: Path) -> dict[str, np.ndarray]:
+    """Load a ``trajectory.npz`` and check it has every array of the schema."""
+    try:
+        with np.load(path) as data:
+            traj = {k: data[k] for k in data.files}
+    except (OSError, ValueError) as exc:
+        raise CliError(f'{path}: not a readable trajectory.npz ({exc})') from None
+    missing = [k for k in TRAJECTORY_KEYS if k not in traj]
+    if missing:
+        raise CliError(f'{path}: missing arrays {", ".join(missing)}; expected {TRAJECTORY_KEYS}')
+    return traj
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return '-'
+    if isinstance(v, float):
+        return f'{v:.4g}'
+    return str(v)
+
+
+def format_summary(summary: Mapping[str, Any]) -> str:
+    """Human-readable lines of a summary.json document."""
+    s = summary
+    lines = [f"law {s['law']}, {s['n_trackers']} trackers, dt {s['dt']:g} s, "
+             f"duration {s['duration']:g} s, seed {s['seed']}"]
+    ce, fo, ch, po = s['centroid_error'], s['formation'], s['chattering'], s['potential']
+    lines.append(f"  centroid error   rms_steady {_fmt(ce['rms_steady'])} m, max_steady "
+                 f"{_fmt(ce['max_steady'])} m, final {_fmt(ce['final'])} m")
+    lines.append(f"  pair distance    min {_fmt(fo['pair_distance_min'])} m, max "
+                 f"{_fmt(fo['pair_distance_max'])} m, mean {_fmt(fo['pair_distance_mean'])} m, "
+                 f"expected {_fmt(fo['pair_distance_expected'])} m")
+    lines.append(f"  formation error  rms_steady {_fmt(fo['error_rms_steady'])} m")
+    lines.append(f"  chattering       hf_velocity_rms {_fmt(ch['hf_velocity_rms'])} m/s, "
+                 f"heading_rate {_fmt(ch['heading_rate'])} rad/s")
+    lines.append(f"  potential J      initial {_fmt(po['initial'])}, final {_fmt(po['final'])}, "
+                 f"decreasing {_fmt(po['decreasing_fraction'])}")
+    lines.append(f"  converged        {s['converged']} (after {_fmt(s['time_to_converge'])} s)")
+    for w in s.get('warnings', []):
+        lines.append(f'  warning: {w}')
+    return '\n'.join(lines)
