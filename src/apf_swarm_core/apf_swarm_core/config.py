@@ -252,9 +252,15 @@ def _validate(cfg: SwarmConfig) -> None:
     if len(cfg.target_waypoints) % 3:
         raise ConfigError(f'target_waypoints has {len(cfg.target_waypoints)} numbers: '
                           'expected a flat list x1, y1, z1, x2, ... (a multiple of 3)')
+    if cfg.target_speed == 0.0 and cfg.target_trajectory in ('waypoints', 'circle', 'helix',
+                                                              'figure_eight'):
+        raise ConfigError(f'target_speed = 0 with target_trajectory = {cfg.target_trajectory}: '
+                          'a moving trajectory needs target_speed > 0 (use hover for a '
+                          'stationary target)')
     if cfg.target_trajectory == 'waypoints' and not cfg.target_waypoints:
         raise ConfigError('target_trajectory = waypoints needs target_waypoints '
                           '(a flat list of x, y, z offsets)')
+    normalized: dict[int, dict[str, Any]] = {}
     for i, over in cfg.uav_overrides.items():
         if not 1 <= int(i) <= cfg.n_trackers:
             raise ConfigError(f'override section for uav_{i}: there are only '
@@ -265,7 +271,8 @@ def _validate(cfg: SwarmConfig) -> None:
                                   'can differ per UAV')
             meta = {'length': (3,), 'lo': None} if key == 'initial_position' else \
                 _FIELDS['mass'].metadata
-            _coerce(f'uav_{i}.{key}', val, 'tuple', meta)
+            normalized.setdefault(int(i), {})[key] = _coerce(f'uav_{i}.{key}', val, 'tuple', meta)
+    object.__setattr__(cfg, 'uav_overrides', normalized)
     for m_row in cfg.mass_matrix_diag():
         for m in m_row:
             if not cfg.mass_lo <= m <= cfg.mass_hi:
