@@ -12,6 +12,7 @@ from typing import Any, Mapping, Sequence
 import matplotlib
 
 matplotlib.use('Agg')
+import matplotlib.ticker  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -132,12 +133,15 @@ def plot_tradeoff(rows: Sequence[Mapping[str, Any]], param: str, path: Path) -> 
             xs = [np.mean([r['centroid_rms'] for r in sel if r['value'] == v]) for v in values]
             ys = [np.mean([r[key] for r in sel if r['value'] == v]) for v in values]
             ax.plot(xs, ys, marker=marker, lw=1.0, label=_LAW_TITLE[law])
+            if len({(round(a, 12), round(b, 12)) for a, b in zip(xs, ys)}) == 1:
+                continue  # the parameter does not change this law: one point, no labels
             for xv, yv, v in zip(xs, ys, values):
                 ax.annotate(f'{param}={v:g}' if isinstance(v, float) else f'{param}={v}',
                             (xv, yv), fontsize=6, textcoords='offset points', xytext=(3, 3))
             ax.set_xlabel('steady centroid error RMS [m]')
             ax.set_ylabel(label)
             ax.set_xscale('log')
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
             ax.grid(alpha=0.3, which='both')
     axes[0].legend()
     fig.suptitle(f'chattering against tracking error over {param}')
