@@ -22,6 +22,9 @@ setup(
     entry_points={
         'console_scripts': [
             'apf-swarm = apf_swarm_nodes.cli:main',
+            'tracker = apf_swarm_nodes.tracker_node:main',
+            'plant = apf_swarm_nodes.plant_node:main',
+            'target = apf_swarm_nodes.target_node:main',
         ],
     },
 )

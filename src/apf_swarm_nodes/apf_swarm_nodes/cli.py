@@ -203,6 +203,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', type=Path, required=True, metavar='DIR')
     p.add_argument('--quiet', action='store_true')
     p.set_defaults(func=cmd_sweep)
+
+    from . import bringup  # no rclpy import until a bring-up actually runs
+    p = sub.add_parser('up', help='bring up the ROS 2 graph (target, plant, trackers) and '
+                       'record a run (exit 0 ok, 2 bad input / not ready, 3 a node died)')
+    bringup.add_arguments(p)
+    p.set_defaults(func=lambda args: bringup.run(args, prog=f'{PROG} up'))
     return parser
 
 

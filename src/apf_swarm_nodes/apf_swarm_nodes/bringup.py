@@ -1,0 +1,1082 @@
+"""Bring-up of the ROS 2 swarm without ``launch``: ``scripts/swarm_up.py`` / ``apf-swarm up``.
+
+What a run does, in order:
+
+1. resolve the configuration (preset or ``--config`` file, ``--set``, ``--n-trackers``,
+   ``--seed``, ``--duration``) and write it to ``DIR/config.yaml`` -- the one parameter file
+   every node reads;
+2. isolate the run: ``ROS_DOMAIN_ID`` (``--domain-id`` or a random free-looking domain in
+   1..101, never the inherited one) and ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (``LOCALHOST``
+   unless ``--discovery-range`` says otherwise), set in this process's environment before
+   ``rclpy.init`` and inherited by every child;
+3. start one OS process per node (``target``, ``plant``, ``tracker`` x n), each in its own
+   process group, output to ``DIR/logs/<name>.log``;
+4. wait, bounded by ``--ready-timeout``, until the ROS graph shows every node and every
+   expected publisher / subscriber (:func:`expected_graph`), polling the graph API from a
+   ``spin_once`` loop; then publish ``/swarm/start`` once (reliable, transient local);
+5. accumulate ``/swarm/state`` (:class:`StateAccumulator`) with a progress line about once a
+   second, supervising the children (respawn or stop), until the run ends: lockstep when the
+   sample of step ``steps - 1`` arrived, realtime ``duration`` wall seconds after the start;
+6. stop every child (:class:`ProcessGroup`: SIGINT to its group, then SIGTERM, then SIGKILL,
+   each bounded) and check by PID that nothing is left;
+7. write ``trajectory.npz`` and ``summary.json`` (the schema of ``apf-swarm simulate`` plus the
+   run fields listed in :func:`run_fields`) and the figures.
+
+Exit codes: 0 success, 2 bad input or graph not ready in time, 3 a child died (without
+``--respawn``, or after ``--max-respawns``), 4 no ``/swarm/state`` for ``--stall-timeout``,
+130 interrupted (SIGINT or SIGTERM).
+
+This module imports rclpy only inside :func:`run`, so the ``apf-swarm`` parser stays light, and
+the process supervision (:class:`Child`, :class:`ProcessGroup`), the graph expectations
+(:func:`expected_graph`, :func:`graph_missing`) and the accumulation
+(:class:`StateAccumulator`) are usable and testable without ROS.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import random
+import re
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, Sequence, TextIO
+
+from apf_swarm_core.config import (SwarmConfig, apply_overrides, load_config, load_preset,
+                                   parse_set, preset_names, to_ros_params)
+from apf_swarm_core.errors import ApfSwarmError
+
+from .errors import CliError
+
+__all__ = ['EXIT_OK', 'EXIT_BAD_INPUT', 'EXIT_CHILD_DIED', 'EXIT_STALLED', 'EXIT_INTERRUPTED',
+           'Child', 'ProcessGroup', 'TopicExpectation', 'expected_graph', 'graph_missing',
+           'StateAccumulator', 'pick_domain_id', 'domain_looks_busy', 'resolve_config',
+           'node_commands', 'add_arguments', 'build_parser', 'run', 'main']
+
+PACKAGE = 'apf_swarm_nodes'
+EXIT_OK = 0
+EXIT_BAD_INPUT = 2
+EXIT_CHILD_DIED = 3
+EXIT_STALLED = 4
+EXIT_INTERRUPTED = 130
+
+#: escalation of :meth:`ProcessGroup.stop_all`: (signal, seconds to wait after it)
+STOP_SEQUENCE = ((signal.SIGINT, 5.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0))
+
+DISCOVERY_RANGES = ('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF')
+
+
+# --------------------------------------------------------------------------------------------
+# process supervision (no ROS)
+# --------------------------------------------------------------------------------------------
+
+def _describe_rc(rc: int) -> str:
+    if rc < 0:
+        try:
+            return f'killed by {signal.Signals(-rc).name}'
+        except ValueError:
+            return f'killed by signal {-rc}'
+    return f'exit code {rc}'
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    # a zombie still answers kill(0); it is not running any more
+    try:
+        with open(f'/proc/{pid}/stat', encoding='ascii', errors='replace') as f:
+            return f.read().rsplit(')', 1)[-1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
+def group_members(pgid: int) -> list[int]:
+    """Live (non-zombie) processes of process group ``pgid``, from /proc."""
+    out = []
+    try:
+        entries = os.listdir('/proc')
+    except OSError:
+        return out
+    for entry in entries:
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f'/proc/{entry}/stat', encoding='ascii', errors='replace') as f:
+                fields = f.read().rsplit(')', 1)[-1].split()
+        except OSError:
+            continue
+        # fields: state ppid pgrp ...
+        if len(fields) > 2 and int(fields[2]) == pgid and fields[0] != 'Z':
+            out.append(int(entry))
+    return out
+
+
+def _group_alive(pgid: int) -> bool:
+    """True while process group ``pgid`` has a member that is not a zombie."""
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    # zombies answer kill(0) too (and PID 1 of a container may never reap them)
+    return bool(group_members(pgid))
+
+
+def tail_lines(path: Path, n: int = 10, max_bytes: int = 16384) -> list[str]:
+    """The last ``n`` lines of a text file (empty list if unreadable)."""
+    try:
+        with open(path, 'rb') as f:
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - max_bytes))
+            data = f.read()
+    except OSError:
+        return []
+    lines = data.decode('utf-8', errors='replace').splitlines()
+    return lines[-n:]
+
+
+@dataclass
+class Child:
+    """One supervised OS process: its own process group, output appended to ``log_path``."""
+
+    name: str
+    argv: list[str]
+    log_path: Path
+    env: Mapping[str, str] | None = None
+    cwd: Path | None = None
+    popen: subprocess.Popen[bytes] | None = None
+    starts: int = 0
+    stopping: bool = False
+    pids: list[int] = field(default_factory=list)
+
+    def start(self) -> None:
+        """Start (or restart) the process; the log is appended to, with a header on restarts."""
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.log_path, 'ab') as log:
+            if self.starts:
+                log.write(f'\n===== {self.name}: restart {self.starts} at '
+                          f'{time.strftime("%H:%M:%S")} =====\n'.encode())
+                log.flush()
+            self.popen = subprocess.Popen(
+                self.argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                env=dict(self.env) if self.env is not None else None,
+                cwd=self.cwd, start_new_session=True, close_fds=True)
+        self.starts += 1
+        self.stopping = False
+        self.pids.append(self.popen.pid)
+
+    @property
+    def pid(self) -> int | None:
+        return self.popen.pid if self.popen is not None else None
+
+    @property
+    def respawns(self) -> int:
+        return max(0, self.starts - 1)
+
+    def poll(self) -> int | None:
+        """The exit code once the process ended (reaped), else None (also when never started)."""
+        return self.popen.poll() if self.popen is not None else None
+
+    @property
+    def running(self) -> bool:
+        return self.popen is not None and self.popen.poll() is None
+
+    def signal_group(self, sig: int) -> None:
+        """Send ``sig`` to the child's process group (no error if it is gone); a stopped
+        (SIGSTOP, Ctrl-Z) process is continued so that it can handle SIGINT / SIGTERM."""
+        if self.popen is None:
+            return
+        try:
+            os.killpg(self.popen.pid, sig)
+            if sig not in (signal.SIGKILL, signal.SIGCONT):
+                os.killpg(self.popen.pid, signal.SIGCONT)
+        except ProcessLookupError:
+            pass
+
+    def tail(self, n: int = 10) -> list[str]:
+        return tail_lines(self.log_path, n)
+
+    def death_report(self, rc: int, n: int = 10) -> str:
+        """Multi-line report of an unexpected exit: name, pid, exit code, last log lines."""
+        lines = self.tail(n)
+        head = (f'{self.name} (pid {self.pid}) died unexpectedly: {_describe_rc(rc)}; '
+                f'last {len(lines)} lines of {self.log_path}:')
+        return '\n'.join([head] + [f'    | {ln}' for ln in lines])
+
+
+class ProcessGroup:
+    """A set of :class:`Child` processes started, polled and stopped together."""
+
+    def __init__(self, stop_sequence: Sequence[tuple[int, float]] = STOP_SEQUENCE) -> None:
+        self.children: list[Child] = []
+        self.stop_sequence = tuple(stop_sequence)
+
+    def add(self, child: Child) -> Child:
+        if any(c.name == child.name for c in self.children):
+            raise ValueError(f'duplicate child name {child.name!r}')
+        self.children.append(child)
+        return child
+
+    def __iter__(self):
+        return iter(self.children)
+
+    def start_all(self) -> None:
+        for c in self.children:
+            c.start()
+
+    def poll(self) -> list[tuple[Child, int]]:
+        """Children that exited since they were (re)started and were not asked to stop."""
+        return [(c, rc) for c in self.children
+                if not c.stopping and (rc := c.poll()) is not None]
+
+    def stop_all(self, *, hurry: Callable[[], bool] | None = None,
+                 poll_interval: float = 0.02) -> dict[str, str]:
+        """Stop every running child: SIGINT to each group, wait, SIGTERM, wait, SIGKILL.
+
+        A child counts as stopped when its process has exited (and is reaped) and its process
+        group has no member left. Each stage waits at most its time in :attr:`stop_sequence`
+        and ends early once every child is stopped, or when ``hurry()`` turns true (a second
+        Ctrl-C: the next stage starts at once). Returns ``{name: how}``, ``how`` one of
+        ``exited`` (had already ended), ``SIGINT``, ``SIGTERM``, ``SIGKILL`` (the signal after
+        which it stopped) or ``not stopped`` (should never happen; see :meth:`leftovers`).
+        """
+        def stopped(c: Child) -> bool:
+            return c.poll() is not None and not _group_alive(c.popen.pid)
+
+        how: dict[str, str] = {}
+        pending = []
+        for c in self.children:
+            if c.popen is None:
+                continue
+            c.stopping = True
+            if stopped(c):
+                how[c.name] = 'exited'
+            else:
+                pending.append(c)
+        for sig, wait_s in self.stop_sequence:
+            if not pending:
+                break
+            for c in pending:
+                c.signal_group(sig)
+            deadline = time.monotonic() + wait_s
+            hurried = hurry() if hurry else False
+            while pending:
+                still = []
+                for c in pending:
+                    if stopped(c):
+                        how[c.name] = signal.Signals(sig).name
+                    else:
+                        still.append(c)
+                pending = still
+                if not pending or time.monotonic() >= deadline:
+                    break
+                if hurry is not None and hurry() and not hurried:
+                    break
+                time.sleep(poll_interval)
+        for c in pending:
+            how[c.name] = 'not stopped'
+        return how
+
+    def leftovers(self) -> list[tuple[str, int]]:
+        """(name, pid) of every process this group ever started that is still alive, and of
+        every process group of ours that still has members; empty when all is clean."""
+        out = []
+        for c in self.children:
+            for pid in c.pids:
+                if _pid_alive(pid):
+                    out.append((c.name, pid))
+            if c.popen is not None and (c.name, c.popen.pid) not in out \
+                    and _group_alive(c.popen.pid):
+                out.append((c.name + ' (process group)', c.popen.pid))
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# the graph: what must be there before the start
+# --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class TopicExpectation:
+    """A topic and the publisher / subscriber counts the graph must show.
+
+    ``or_subscribers_of``: subscribers of that other topic count too (a tracker reads its
+    inputs either from the per-UAV odometry topics or from the aggregate ``/swarm/odom``).
+    ``optional``: only checked when the topic has a subscriber (``/swarm/odom`` when no
+    tracker reads it).
+    """
+
+    topic: str
+    publishers: int
+    subscribers: int
+    or_subscribers_of: str | None = None
+    optional: bool = False
+
+
+SWARM_ODOM = '/swarm/odom'
+
+
+def expected_graph(n: int, mode: str) -> tuple[list[str], list[TopicExpectation]]:
+    """Fully qualified node names and topic endpoint counts of a swarm of ``n`` trackers.
+
+    Every tracker reads every tracker's odometry and the target's, either as ``/uav_<j>/odom``
+    and ``/target/odom`` (``inputs:=odom``) or as the one aggregate ``/swarm/odom`` message per
+    step (``inputs:=aggregate``); the counts accept either. ``/swarm/start`` and this node's
+    ``/swarm/state`` subscription are checked on its own endpoints (matched counts), see
+    :meth:`Bringup.missing`.
+    """
+    nodes = ['/target/target', '/plant'] + [f'/uav_{i}/tracker' for i in range(1, n + 1)]
+    topics = []
+    for i in range(1, n + 1):
+        topics.append(TopicExpectation(f'/uav_{i}/odom', 1, n, or_subscribers_of=SWARM_ODOM))
+        topics.append(TopicExpectation(f'/uav_{i}/force_cmd', 1, 1))
+    topics.append(TopicExpectation('/target/odom', 1, n + 1, or_subscribers_of=SWARM_ODOM))
+    topics.append(TopicExpectation(SWARM_ODOM, 1, 0, optional=True))
+    if mode == 'lockstep':
+        topics.append(TopicExpectation('/clock', 1, 1))
+    topics.append(TopicExpectation('/swarm/state', 1, 1))
+    return nodes, topics
+
+
+def graph_missing(present_nodes: Iterable[str], counts: Mapping[str, tuple[int, int]],
+                  nodes: Sequence[str], topics: Sequence[TopicExpectation]) -> list[str]:
+    """What is not there yet, in words (empty when the graph is complete).
+
+    ``counts`` maps a topic to its (publishers, subscribers) as the graph shows them.
+    """
+    present = set(present_nodes)
+    out = [f'node {name}' for name in nodes if name not in present]
+    for t in topics:
+        pubs, subs = counts.get(t.topic, (0, 0))
+        if t.optional and subs == 0:
+            continue
+        extra = counts.get(t.or_subscribers_of, (0, 0))[1] if t.or_subscribers_of else 0
+        if pubs < t.publishers or subs + extra < t.subscribers:
+            sub_text = f'{subs}' + (f' + {extra} of {t.or_subscribers_of}'
+                                    if t.or_subscribers_of else '')
+            out.append(f'topic {t.topic} (publishers {pubs}/{t.publishers}, '
+                       f'subscribers {sub_text}/>={t.subscribers})')
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# the run's data
+# --------------------------------------------------------------------------------------------
+
+class StateAccumulator:
+    """Collects ``/swarm/state`` samples (:class:`~apf_swarm_nodes.conversions.SwarmSample`).
+
+    Lockstep: steps must be consecutive from 0; a gap counts its missing steps as dropped, a
+    step that is not newer than the last one is counted as out of order and ignored. The run
+    is complete when step ``steps - 1`` arrived. Realtime: every sample is kept in arrival
+    order.
+    """
+
+    def __init__(self, mode: str, steps: int, record_every: int = 1) -> None:
+        self.mode, self.steps, self.record_every = mode, int(steps), max(1, int(record_every))
+        self.samples: list[Any] = []
+        self.received = 0
+        self.dropped = 0
+        self.out_of_order = 0
+        self.gaps: list[tuple[int, int]] = []
+        self.last: Any = None
+        self.last_step = -1
+        self.last_time: float | None = None
+
+    def add(self, sample: Any) -> None:
+        self.received += 1
+        self.last_time = time.monotonic()
+        if self.mode == 'lockstep':
+            step = int(sample.step)
+            if step <= self.last_step:
+                self.out_of_order += 1
+                return
+            if step != self.last_step + 1:
+                self.dropped += step - self.last_step - 1
+                self.gaps.append((self.last_step + 1, step - 1))
+            self.last_step = step
+        else:
+            self.last_step = int(sample.step)
+        self.last = sample
+        self.samples.append(sample)
+
+    @property
+    def complete(self) -> bool:
+        return self.mode == 'lockstep' and self.last_step >= self.steps - 1
+
+    def kept(self) -> list[Any]:
+        if self.mode == 'lockstep' and self.record_every > 1:
+            return [s for s in self.samples if int(s.step) % self.record_every == 0]
+        return self.samples
+
+    def trajectory(self) -> dict[str, Any] | None:
+        """Arrays of the ``trajectory.npz`` schema, or None without samples."""
+        import numpy as np
+        kept = self.kept()
+        if not kept:
+            return None
+        n = kept[0].x.shape[0]
+        bad = [int(s.step) for s in kept if s.x.shape[0] != n]
+        if bad:
+            raise CliError(f'/swarm/state changed its number of trackers from {n} (steps '
+                           f'{bad[:5]}...); cannot build one trajectory')
+        return {'t': np.array([s.t for s in kept], dtype=float),
+                'x': np.stack([s.x for s in kept]), 'v': np.stack([s.v for s in kept]),
+                'u': np.stack([s.u for s in kept]), 's': np.stack([s.s for s in kept]),
+                'target_x': np.stack([s.target_x for s in kept]),
+                'target_v': np.stack([s.target_v for s in kept])}
+
+    def messages(self) -> dict[str, Any]:
+        out: dict[str, Any] = {'received': self.received, 'dropped': self.dropped,
+                               'gaps': [list(g) for g in self.gaps[:20]],
+                               'out_of_order': self.out_of_order}
+        if self.mode == 'lockstep':
+            out['expected'] = self.steps
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# configuration, isolation, command lines
+# --------------------------------------------------------------------------------------------
+
+def resolve_config(args: argparse.Namespace) -> SwarmConfig:
+    """Preset or file, then ``--set``, then ``--n-trackers`` / ``--seed`` / ``--duration``."""
+    cfg = load_config(args.config) if args.config is not None else load_preset(args.preset)
+    values = parse_set(args.sets)
+    for key, val in (('n_trackers', args.n_trackers), ('seed', args.seed),
+                     ('duration', args.duration)):
+        if val is not None:
+            values[key] = val
+    return apply_overrides(cfg, values) if values else cfg
+
+
+_FASTDDS_PORT_BASE, _FASTDDS_DOMAIN_GAIN = 7400, 250
+
+
+def _bound_udp_ports() -> set[int]:
+    ports: set[int] = set()
+    for name in ('/proc/net/udp', '/proc/net/udp6'):
+        try:
+            with open(name, encoding='ascii') as f:
+                next(f, None)
+                for line in f:
+                    parts = line.split()
+                    if len(parts) > 1 and ':' in parts[1]:
+                        ports.add(int(parts[1].rsplit(':', 1)[1], 16))
+        except OSError:
+            continue
+    try:
+        for entry in os.listdir('/dev/shm'):
+            m = re.match(r'fastrtps_port(\d+)$', entry)
+            if m:
+                ports.add(int(m.group(1)))
+    except OSError:
+        pass
+    return ports
+
+
+def domain_looks_busy(domain: int, ports: set[int] | None = None) -> bool:
+    """True when a UDP port (or Fast DDS shared-memory port) of the domain's range is in use."""
+    ports = _bound_udp_ports() if ports is None else ports
+    lo = _FASTDDS_PORT_BASE + _FASTDDS_DOMAIN_GAIN * domain
+    return any(lo <= p < lo + _FASTDDS_DOMAIN_GAIN for p in ports)
+
+
+def pick_domain_id(exclude: Iterable[int] = (), lo: int = 1, hi: int = 101,
+                   rng: random.Random | None = None) -> int:
+    """A random domain in ``[lo, hi]``, not in ``exclude``, preferring one nobody uses."""
+    rng = rng or random.SystemRandom()
+    excl = set(exclude)
+    candidates = [d for d in range(lo, hi + 1) if d not in excl]
+    rng.shuffle(candidates)
+    ports = _bound_udp_ports()
+    for d in candidates:
+        if not domain_looks_busy(d, ports):
+            return d
+    return candidates[0]
+
+
+def _env_domain() -> int | None:
+    try:
+        return int(os.environ.get('ROS_DOMAIN_ID', ''))
+    except ValueError:
+        return None
+
+
+def executable_path(prefix: Path, name: str) -> Path:
+    return prefix / 'lib' / PACKAGE / name
+
+
+def package_prefix() -> Path:
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+    try:
+        return Path(get_package_prefix(PACKAGE))
+    except (PackageNotFoundError, KeyError, ValueError) as exc:
+        raise CliError(f'package {PACKAGE} is not in the ament index ({exc}); build with '
+                       '`make setup` and `source scripts/activate.sh`') from None
+
+
+def node_commands(prefix: Path, config_file: Path, n: int, mode: str
+                  ) -> list[tuple[str, list[str]]]:
+    """(log name, argv) of every node process of the swarm."""
+    cfg = str(config_file)
+
+    def exe(name: str) -> str:
+        return str(executable_path(prefix, name))
+
+    cmds = [('target', [exe('target'), '--ros-args', '--params-file', cfg,
+                        '-r', '__ns:=/target', '-r', '__node:=target',
+                        '-p', f'mode:={mode}', '-p', 'wait_for_start:=true']),
+            ('plant', [exe('plant'), '--ros-args', '--params-file', cfg,
+                       '-r', '__node:=plant', '-p', f'mode:={mode}', '-p', 'wait_for_start:=true'])]
+    for i in range(1, n + 1):
+        cmds.append((f'tracker_{i}', [exe('tracker'), '--ros-args', '--params-file', cfg,
+                                      '-r', f'__ns:=/uav_{i}', '-r', '__node:=tracker',
+                                      '-p', f'uav_id:={i}', '-p', f'mode:={mode}']))
+    return cmds
+
+
+# --------------------------------------------------------------------------------------------
+# command line
+# --------------------------------------------------------------------------------------------
+
+def _positive(text: str) -> float:
+    try:
+        val = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
+    if not (val > 0 and math.isfinite(val)):
+        raise argparse.ArgumentTypeError(f'{text}: must be a positive number')
+    return val
+
+
+def _domain(text: str) -> int:
+    try:
+        val = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not an integer') from None
+    if not 0 <= val <= 232:
+        raise argparse.ArgumentTypeError(f'{val}: a ROS domain id is 0..232')
+    return val
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        val = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not an integer') from None
+    if val < 0:
+        raise argparse.ArgumentTypeError(f'{val}: must be >= 0')
+    return val
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``swarm_up.py`` / ``apf-swarm up``."""
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument('--preset', metavar='NAME',
+                   help='named preset (config/NAME.yaml): ' + ', '.join(preset_names()))
+    g.add_argument('--config', metavar='FILE', type=Path, help='ROS 2 parameter file')
+    p.add_argument('--set', metavar='KEY=VALUE', action='append', default=[], dest='sets',
+                   help='override a configuration key (repeatable), e.g. --set gamma=0.5')
+    p.add_argument('--n-trackers', type=int, metavar='N', help='number of tracker processes')
+    p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep',
+                   help='lockstep: simulated time, reproduces the simulator (default); '
+                        'realtime: wall-clock timers')
+    p.add_argument('--duration', type=_positive, metavar='S',
+                   help='simulated (lockstep) or wall (realtime) seconds')
+    p.add_argument('--seed', type=int, metavar='N')
+    p.add_argument('--domain-id', type=_domain, metavar='N',
+                   help='ROS_DOMAIN_ID of the run (default: a random unused-looking one, 1..101)')
+    p.add_argument('--discovery-range', choices=DISCOVERY_RANGES, default='LOCALHOST',
+                   help='ROS_AUTOMATIC_DISCOVERY_RANGE (default LOCALHOST)')
+    p.add_argument('--record', action='store_true',
+                   help='also record a rosbag2 (MCAP) with the recorder node')
+    p.add_argument('--respawn', action='store_true',
+                   help='restart a node process that dies (counted in summary.json)')
+    p.add_argument('--max-respawns', type=_nonneg_int, default=3, metavar='K',
+                   help='with --respawn: give up (exit 3) after K restarts of one node '
+                        '(default 3)')
+    p.add_argument('--ready-timeout', type=_positive, default=30.0, metavar='S',
+                   help='how long to wait for every node and topic (default 30)')
+    p.add_argument('--stall-timeout', type=_positive, default=20.0, metavar='S',
+                   help='stop when no /swarm/state arrives for this long (default 20)')
+    p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+    p.add_argument('--out', type=Path, required=True, metavar='DIR')
+
+
+def build_parser(prog: str = 'swarm_up.py') -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=prog, description='Bring up the ROS 2 swarm (target, plant, one tracker process '
+        'per UAV), run it, and write trajectory.npz, summary.json, logs and figures.')
+    add_arguments(p)
+    return p
+
+
+# --------------------------------------------------------------------------------------------
+# the bring-up itself
+# --------------------------------------------------------------------------------------------
+
+class _Stop(Exception):
+    """Ends the run early with an exit code and a status word."""
+
+    def __init__(self, code: int, status: str, message: str = '') -> None:
+        super().__init__(message)
+        self.code, self.status, self.message = code, status, message
+
+
+class _Signals:
+    """SIGINT / SIGTERM set a flag (the loops poll it); restored on exit."""
+
+    def __init__(self) -> None:
+        self.received: list[int] = []
+        self._old: dict[int, Any] = {}
+
+    def _handler(self, signum: int, frame: Any) -> None:  # noqa: ARG002
+        self.received.append(signum)
+
+    def install(self) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._old[sig] = signal.signal(sig, self._handler)
+            except ValueError:  # not the main thread: nothing to install
+                pass
+
+    def restore(self) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        self._old.clear()
+
+    @property
+    def first(self) -> int | None:
+        return self.received[0] if self.received else None
+
+
+class Bringup:
+    """One run; see the module docstring. :meth:`execute` returns the exit code."""
+
+    def __init__(self, args: argparse.Namespace, cfg: SwarmConfig, *, prog: str,
+                 stream: TextIO | None = None) -> None:
+        self.args, self.cfg, self.prog = args, cfg, prog
+        self.err = stream if stream is not None else sys.stderr
+        self.mode: str = args.mode
+        self.out: Path = args.out
+        self.n = cfg.n_trackers
+        self.group = ProcessGroup()
+        self.signals = _Signals()
+        self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
+        self.domain_id: int | None = None
+        self.node = None
+        self.executor = None
+        self.state_sub = None
+        self.start_pub = None
+        self.t_launch = self.t_start = self.t_end = None
+        self.stop_how: dict[str, str] = {}
+        self.stop_seconds = 0.0
+        self.leftovers: list[tuple[str, int]] = []
+        self.warned: set[str] = set()
+
+    # --- messages -------------------------------------------------------------------------
+    def say(self, text: str) -> None:
+        self.err.write(f'{self.prog}: {text}\n')
+        self.err.flush()
+
+    def warn_once(self, key: str, text: str) -> None:
+        if key not in self.warned:
+            self.warned.add(key)
+            self.say(f'warning: {text}')
+
+    # --- set-up ---------------------------------------------------------------------------
+    def prepare(self) -> None:
+        """Checks that need no process: executables, recorder, output directory, config."""
+        import yaml
+        prefix = package_prefix()
+        names = ['target', 'plant', 'tracker']
+        if self.args.record:
+            rec = executable_path(prefix, 'recorder')
+            if not rec.is_file():
+                raise CliError(f'--record: recording is not available yet: the recorder node '
+                               f'({rec}) is not installed; run without --record')
+            names.append('recorder')
+        for name in names:
+            path = executable_path(prefix, name)
+            if not (path.is_file() and os.access(path, os.X_OK)):
+                raise CliError(f'node executable {path} not found; build the workspace with '
+                               '`make setup`')
+        self.prefix = prefix
+        (self.out / 'logs').mkdir(parents=True, exist_ok=True)
+        self.config_file = self.out / 'config.yaml'
+        self.config_file.write_text(yaml.safe_dump(to_ros_params(self.cfg), sort_keys=False))
+
+    def isolate(self) -> None:
+        """Domain id and discovery range into os.environ (before rclpy.init; children inherit)."""
+        if self.args.domain_id is not None:
+            self.domain_id = self.args.domain_id
+        else:
+            own = _env_domain()
+            self.domain_id = pick_domain_id(exclude=[own] if own is not None else [])
+        os.environ['ROS_DOMAIN_ID'] = str(self.domain_id)
+        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = self.args.discovery_range
+        os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated; would fight the range
+        # every ROS log file of the run (this node's and the children's) under DIR/logs/ros
+        os.environ['ROS_LOG_DIR'] = str((self.out / 'logs' / 'ros').resolve())
+
+    def child_env(self) -> dict[str, str]:
+        env = dict(os.environ)
+        env.setdefault('PYTHONUNBUFFERED', '1')
+        env.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
+        return env
+
+    def launch(self) -> None:
+        env = self.child_env()
+        cmds = node_commands(self.prefix, self.config_file.resolve(), self.n, self.mode)
+        if self.args.record:
+            # provisional: the recorder's interface is fixed by its own issue
+            cmds.append(('recorder', [str(executable_path(self.prefix, 'recorder')),
+                                      '--ros-args', '--params-file', str(self.config_file.resolve()),
+                                      '-r', '__node:=recorder', '-p', f'mode:={self.mode}',
+                                      '-p', f'output:={(self.out / "bag").resolve()}']))
+        for name, argv in cmds:
+            self.group.add(Child(name, argv, self.out / 'logs' / f'{name}.log', env))
+        self.t_launch = time.monotonic()
+        self.group.start_all()
+        self.say(f'started {len(cmds)} processes on ROS_DOMAIN_ID={self.domain_id} '
+                 f'({self.args.discovery_range}), {self.mode}, {self.n} trackers, '
+                 f'logs in {self.out / "logs"}')
+
+    def init_ros(self) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+        from std_msgs.msg import Empty
+
+        from apf_swarm_msgs.msg import SwarmState
+
+        from .conversions import swarm_state_arrays
+        from .node_common import START_QOS, STATE_QOS, SWARM_START, SWARM_STATE
+
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node('swarm_up')
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.node)
+        self.state_sub = self.node.create_subscription(
+            SwarmState, SWARM_STATE, lambda m: self.acc.add(swarm_state_arrays(m)), STATE_QOS)
+        self.start_pub = self.node.create_publisher(Empty, SWARM_START, START_QOS)
+        self._empty_msg = Empty
+
+    # --- supervision ----------------------------------------------------------------------
+    def check_signals(self) -> None:
+        sig = self.signals.first
+        if sig is not None:
+            raise _Stop(EXIT_INTERRUPTED, 'interrupted',
+                        f'interrupted by {signal.Signals(sig).name}')
+
+    def supervise(self) -> None:
+        for child, rc in self.group.poll():
+            self.say(child.death_report(rc))
+            if not self.args.respawn:
+                raise _Stop(EXIT_CHILD_DIED, 'child_died',
+                            f'{child.name} died ({_describe_rc(rc)}); stopping the run')
+            if child.respawns >= self.args.max_respawns:
+                raise _Stop(EXIT_CHILD_DIED, 'child_died',
+                            f'{child.name} died ({_describe_rc(rc)}) after '
+                            f'{child.respawns} respawns (--max-respawns {self.args.max_respawns}); '
+                            'stopping the run')
+            child.start()
+            self.say(f'respawned {child.name} (pid {child.pid}, respawn {child.respawns} of at '
+                     f'most {self.args.max_respawns})')
+
+    def spin(self, timeout: float) -> None:
+        self.executor.spin_once(timeout_sec=timeout)
+
+    # --- the graph ------------------------------------------------------------------------
+    def missing(self) -> list[str]:
+        node = self.node
+        present = {(ns.rstrip('/') + '/' + name) for name, ns in
+                   node.get_node_names_and_namespaces()}
+        nodes, topics = expected_graph(self.n, self.mode)
+        if self.args.record:
+            nodes = nodes + ['/recorder']
+        counts = {t.topic: (node.count_publishers(t.topic), node.count_subscribers(t.topic))
+                  for t in topics}
+        miss = graph_missing(present, counts, nodes, topics)
+        for t in topics:
+            if counts[t.topic][0] > t.publishers:
+                self.warn_once('pubs' + t.topic,
+                               f'{t.topic} has {counts[t.topic][0]} publishers (expected '
+                               f'{t.publishers}): another graph on ROS_DOMAIN_ID='
+                               f'{self.domain_id}, or a respawned node not yet forgotten?')
+        # our own endpoints: matched counts, not mere discovery
+        nstate = self.state_sub.get_publisher_count()
+        if nstate < 1:
+            miss.append(f'/swarm/state subscription of {self.prog} matched to the plant '
+                        f'(matched publishers {nstate}/1)')
+        # the plant waits for the start in both modes; the target only in realtime (in
+        # lockstep it is driven by /clock)
+        nstart = self.start_pub.get_subscription_count()
+        want, who = (2, 'plant, target') if self.mode == 'realtime' else (1, 'plant')
+        if nstart < want:
+            miss.append(f'topic /swarm/start (matched subscribers {nstart}/>={want}: {who})')
+        return miss
+
+    def wait_ready(self) -> None:
+        t0 = time.monotonic()
+        deadline = t0 + self.args.ready_timeout
+        last_check, last_report = 0.0, t0
+        miss = ['(not checked yet)']
+        while True:
+            self.spin(0.05)
+            self.check_signals()
+            self.supervise()
+            now = time.monotonic()
+            if now - last_check >= 0.1:
+                last_check = now
+                miss = self.missing()
+                if not miss:
+                    return
+            if now - last_report >= 5.0:
+                last_report = now
+                self.say(f'waiting for the graph ({now - t0:.0f} s of {self.args.ready_timeout:g}): '
+                         f'{len(miss)} missing, e.g. {miss[0]}')
+            if now >= deadline:
+                raise _Stop(EXIT_BAD_INPUT, 'not_ready',
+                            f'the ROS graph was not complete after {self.args.ready_timeout:g} s '
+                            f'(--ready-timeout, ROS_DOMAIN_ID={self.domain_id}); '
+                            f'{len(miss)} never appeared:\n'
+                            + ''.join(f'    {m}\n' for m in miss)
+                            + f'  node logs: {self.out / "logs"}')
+
+    # --- the run --------------------------------------------------------------------------
+    def progress_line(self, rate: float) -> str:
+        s = self.acc.last
+        dur = self.cfg.duration
+        if s is None:
+            return (f'waiting for /swarm/state ({time.monotonic() - self.t_start:.1f} s since '
+                    'start)')
+        fe = 'n/a' if not math.isfinite(s.formation_error) else f'{s.formation_error:.3f} m'
+        unit = 'steps/s' if self.mode == 'lockstep' else 'msgs/s'
+        return (f't {s.t:7.2f}/{dur:g} s | centroid err {s.centroid_error:.3f} m | formation err '
+                f'{fe} | missed {s.missed_deadlines} stale {s.stale_inputs} rejected '
+                f'{s.rejected_inputs} | {rate:,.0f} {unit} | dropped {self.acc.dropped}')
+
+    def run_loop(self) -> None:
+        self.start_pub.publish(self._empty_msg())
+        self.t_start = time.monotonic()
+        self.say(f'graph ready after {self.t_start - self.t_launch:.2f} s; published /swarm/start')
+        last_progress = self.t_start
+        last_poll = 0.0
+        prev_step, prev_recv = 0, 0
+        while True:
+            self.spin(0.05)
+            now = time.monotonic()
+            self.check_signals()
+            if now - last_poll >= 0.1:
+                last_poll = now
+                self.supervise()
+            if self.acc.complete:
+                return
+            if self.mode == 'realtime' and now - self.t_start >= self.cfg.duration:
+                return
+            last_msg = self.acc.last_time if self.acc.last_time is not None else self.t_start
+            if now - last_msg >= self.args.stall_timeout:
+                what = ('no /swarm/state message at all' if self.acc.received == 0 else
+                        f'no /swarm/state message after step {self.acc.last_step}')
+                raise _Stop(EXIT_STALLED, 'stalled',
+                            f'{what} for {self.args.stall_timeout:g} s (--stall-timeout); '
+                            f'stopping. Node logs: {self.out / "logs"}')
+            if now - last_progress >= 1.0:
+                if self.mode == 'lockstep':
+                    rate = (self.acc.last_step + 1 - prev_step) / (now - last_progress)
+                    prev_step = self.acc.last_step + 1
+                else:
+                    rate = (self.acc.received - prev_recv) / (now - last_progress)
+                    prev_recv = self.acc.received
+                last_progress = now
+                self.say(self.progress_line(rate))
+
+    def drain(self, seconds: float = 0.2) -> None:
+        """Take what is already queued (realtime end) without waiting for more."""
+        end = time.monotonic() + seconds
+        before = -1
+        while time.monotonic() < end and before != self.acc.received:
+            before = self.acc.received
+            self.spin(0.02)
+
+    # --- shutdown and outputs -------------------------------------------------------------
+    def stop_children(self) -> None:
+        t0 = time.monotonic()
+        n_signals = len(self.signals.received)
+        self.stop_how = self.group.stop_all(hurry=lambda: len(self.signals.received) > n_signals)
+        self.stop_seconds = time.monotonic() - t0
+        self.leftovers = self.group.leftovers()
+        by: dict[str, list[str]] = {}
+        for name, how in self.stop_how.items():
+            by.setdefault(how, []).append(name)
+        detail = ', '.join(f'{len(v)} {k}' for k, v in by.items())
+        self.say(f'stopped {len(self.stop_how)} processes in {self.stop_seconds:.2f} s ({detail})')
+        for how in ('SIGTERM', 'SIGKILL', 'not stopped'):
+            if how in by:
+                self.say(f'warning: needed {how} for: {", ".join(by[how])}')
+        if self.leftovers:
+            self.say('error: processes left behind: ' +
+                     ', '.join(f'{n} pid {p}' for n, p in self.leftovers))
+
+    def shutdown_ros(self) -> None:
+        import rclpy
+        if self.executor is not None:
+            self.executor.shutdown(timeout_sec=1.0)
+            self.executor = None
+        if self.node is not None:
+            self.node.destroy_node()
+            self.node = None
+        rclpy.try_shutdown()
+
+    def run_fields(self, status: str) -> dict[str, Any]:
+        last = self.acc.last
+        run_s = (self.t_end - self.t_start) if self.t_start is not None else 0.0
+        return {
+            'status': status,
+            'mode': self.mode,
+            'domain_id': self.domain_id,
+            'wall_time': round(run_s, 3),
+            'missed_deadlines': int(last.missed_deadlines) if last is not None else 0,
+            'stale_inputs': int(last.stale_inputs) if last is not None else 0,
+            'rejected_inputs': int(last.rejected_inputs) if last is not None else 0,
+            'respawns': sum(c.respawns for c in self.group),
+            'respawned': {c.name: c.respawns for c in self.group if c.respawns},
+            'messages': self.acc.messages(),
+            'timing': {
+                'ready': round(self.t_start - self.t_launch, 3)
+                if self.t_start is not None and self.t_launch is not None else None,
+                'run': round(run_s, 3),
+                'shutdown': round(self.stop_seconds, 3),
+                'rate': round(len(self.acc.samples) / run_s, 1) if run_s > 0 else None,
+            },
+            'stopped_by': self.stop_how,
+        }
+
+    def write_outputs(self, status: str) -> dict[str, Path]:
+        from apf_swarm_core.checks import check_config
+        from apf_swarm_core.metrics import summarize
+        from apf_swarm_core.simulator import expected_pairs
+
+        from .runio import format_summary, write_run
+        traj = self.acc.trajectory()
+        if traj is None:
+            self.say(f'no /swarm/state samples: wrote no trajectory.npz / summary.json '
+                     f'(config and logs are in {self.out})')
+            return {}
+        cfg = self.cfg
+        warnings = list(check_config(cfg).warnings)
+        if status != 'completed':
+            warnings.append(f'incomplete run ({status}): {len(self.acc.samples)} samples')
+        if self.acc.dropped:
+            warnings.append(f'{self.acc.dropped} /swarm/state steps were not received')
+        respawned = [c.name for c in self.group if c.respawns]
+        if respawned:
+            warnings.append(f'respawned during the run: {", ".join(respawned)} (a restarted '
+                            'node starts from its initial state)')
+        summary = summarize(traj, law=cfg.law, dt=cfg.dt, seed=cfg.seed,
+                            potential_params=cfg.potential_params(),
+                            expected_pairs=expected_pairs(cfg),
+                            steady_fraction=cfg.steady_fraction, warnings=warnings)
+        summary.update(self.run_fields(status))
+        paths = write_run(self.out, traj, summary, cfg)
+        if not self.args.no_plots and len(traj['t']) > 1:
+            from . import plots
+            title = f'{cfg.law} law, ROS 2 {self.mode} run'
+            paths['trajectories_3d'] = plots.plot_trajectories_3d(
+                traj, f'trajectories, {title}', self.out / 'trajectories_3d.png')
+            paths['xy_time'] = plots.plot_xy_time(traj, f'x and y, {title}',
+                                                  self.out / 'xy_time.png')
+            paths['centroid'] = plots.plot_centroid(traj, f'formation centre, {title}',
+                                                    self.out / 'centroid.png')
+            paths['centroid_error'] = plots.plot_centroid_error(
+                {cfg.law: traj}, f'centroid error, ROS 2 {self.mode} run',
+                self.out / 'centroid_error.png')
+        print(format_summary(summary))
+        m = summary['messages']
+        print(f"  run              {status}, {self.mode}, ROS_DOMAIN_ID {self.domain_id}, "
+              f"{summary['wall_time']:g} s wall, {m['received']} messages, {m['dropped']} "
+              f"dropped, missed deadlines {summary['missed_deadlines']}, stale "
+              f"{summary['stale_inputs']}, rejected {summary['rejected_inputs']}, respawns "
+              f"{summary['respawns']}")
+        figs = [p.name for k, p in paths.items() if p.suffix == '.png']
+        print(f'wrote {self.out / "trajectory.npz"}, {self.out / "summary.json"}'
+              + (f' and {", ".join(figs)}' if figs else ''))
+        return paths
+
+    # --- everything -----------------------------------------------------------------------
+    def execute(self) -> int:
+        self.prepare()
+        self.isolate()
+        code, status, message = EXIT_OK, 'completed', ''
+        self.signals.install()
+        try:
+            try:
+                self.init_ros()
+                self.launch()
+                self.check_signals()
+                self.wait_ready()
+                self.run_loop()
+                if self.mode == 'realtime':
+                    self.drain()
+                self.t_end = time.monotonic()
+            except _Stop as stop:
+                self.t_end = time.monotonic()
+                code, status, message = stop.code, stop.status, stop.message
+                self.say(('error: ' if code not in (EXIT_INTERRUPTED,) else '') + message)
+            finally:
+                if self.t_end is None:
+                    self.t_end = time.monotonic()
+                self.stop_children()
+                self.shutdown_ros()
+        finally:
+            self.signals.restore()
+        if self.leftovers and code == EXIT_OK:
+            code, status = EXIT_CHILD_DIED, 'leftover_processes'
+        if status in ('not_ready',):
+            return code
+        if self.t_start is not None:
+            self.write_outputs(status)
+        return code
+
+
+def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
+    """Run a bring-up from parsed arguments (:func:`add_arguments`); returns the exit code.
+
+    Raises :class:`~apf_swarm_core.errors.ApfSwarmError` for bad input (before anything
+    starts); the caller prints it and exits 2.
+    """
+    cfg = resolve_config(args)
+    return Bringup(args, cfg, prog=prog).execute()
+
+
+def main(argv: Sequence[str] | None = None, prog: str = 'swarm_up.py') -> int:
+    """Entry point of ``scripts/swarm_up.py``."""
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    try:
+        return run(args, prog=prog)
+    except ApfSwarmError as exc:
+        print(f'{prog}: error: {exc}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        print(f'{prog}: error: {exc.strerror or exc}: {exc.filename or ""}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f'{prog}: interrupted', file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == '__main__':
+    sys.exit(main())

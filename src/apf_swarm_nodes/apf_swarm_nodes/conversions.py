@@ -1,0 +1,185 @@
+"""The one place where ROS messages meet numpy arrays.
+
+Frames: every pose and twist is in ``world`` (x east, y north, z up), SI units. Times: a
+lockstep run stamps step k with the simulated time ``k * dt_ns`` nanoseconds (``dt_ns`` the
+step in integer nanoseconds), so the step of a message is ``stamp_ns // dt_ns`` exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Point, Vector3
+from nav_msgs.msg import Odometry
+from numpy.typing import NDArray
+from rosgraph_msgs.msg import Clock
+
+from apf_swarm_msgs.msg import ForceCommand, SwarmState
+
+__all__ = ['WORLD', 'dt_to_ns', 'step_stamp', 'stamp_ns', 'step_of', 'odom_msg', 'odom_arrays',
+           'force_msg', 'ForceArrays', 'force_arrays', 'clock_msg', 'swarm_state_msg',
+           'SwarmSample', 'swarm_state_arrays', 'is_finite', 'LAW_CODES']
+
+WORLD = 'world'
+LAW_CODES = {'proposed': ForceCommand.LAW_PROPOSED, 'traditional': ForceCommand.LAW_TRADITIONAL}
+
+
+def dt_to_ns(dt: float) -> int:
+    """The step length in integer nanoseconds."""
+    return int(round(dt * 1e9))
+
+
+def step_stamp(step: int, dt_ns: int) -> Time:
+    """Simulated time of step k as a ``builtin_interfaces/Time``."""
+    ns = int(step) * int(dt_ns)
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def stamp_ns(stamp: Time) -> int:
+    """A ``builtin_interfaces/Time`` in integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def step_of(stamp: Time, dt_ns: int) -> int:
+    """The lockstep step a stamp belongs to."""
+    return stamp_ns(stamp) // int(dt_ns)
+
+
+def _vec(msg: Any) -> NDArray[np.float64]:
+    return np.array((msg.x, msg.y, msg.z), dtype=float)
+
+
+def _set_vec(msg: Any, v: NDArray[np.float64]) -> Any:
+    msg.x, msg.y, msg.z = float(v[0]), float(v[1]), float(v[2])
+    return msg
+
+
+def odom_msg(position: NDArray[np.float64], velocity: NDArray[np.float64], stamp: Time,
+             child_frame_id: str) -> Odometry:
+    """``nav_msgs/Odometry`` in ``world`` with identity orientation and zero covariance."""
+    msg = Odometry()
+    msg.header.stamp = stamp
+    msg.header.frame_id = WORLD
+    msg.child_frame_id = child_frame_id
+    _set_vec(msg.pose.pose.position, position)
+    msg.pose.pose.orientation.w = 1.0
+    _set_vec(msg.twist.twist.linear, velocity)
+    return msg
+
+
+def odom_arrays(msg: Odometry) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Position (3,) [m] and velocity (3,) [m/s] of an odometry message."""
+    return _vec(msg.pose.pose.position), _vec(msg.twist.twist.linear)
+
+
+def is_finite(*arrays: NDArray[np.float64]) -> bool:
+    """True when every value is finite."""
+    return all(bool(np.all(np.isfinite(a))) for a in arrays)
+
+
+def force_msg(*, uav_id: int, step: int, law: str, stamp: Time, force: NDArray[np.float64],
+              sliding_surface: NDArray[np.float64], gradient: NDArray[np.float64],
+              filter_state: NDArray[np.float64], saturated: bool,
+              stale: bool = False) -> ForceCommand:
+    """``apf_swarm_msgs/ForceCommand`` from one tracker's controller output (vectors (3,))."""
+    msg = ForceCommand()
+    msg.header.stamp = stamp
+    msg.header.frame_id = WORLD
+    msg.uav_id = int(uav_id)
+    msg.step = int(step)
+    msg.law = LAW_CODES[law]
+    _set_vec(msg.force, force)
+    _set_vec(msg.sliding_surface, sliding_surface)
+    _set_vec(msg.gradient, gradient)
+    _set_vec(msg.filter_state, filter_state)
+    msg.saturated = bool(saturated)
+    msg.stale = bool(stale)
+    return msg
+
+
+@dataclass(frozen=True)
+class ForceArrays:
+    """The numeric content of a ForceCommand."""
+
+    uav_id: int
+    step: int
+    force: NDArray[np.float64]
+    sliding_surface: NDArray[np.float64]
+    stale: bool
+
+
+def force_arrays(msg: ForceCommand) -> ForceArrays:
+    """Numbers of a ``ForceCommand``."""
+    return ForceArrays(int(msg.uav_id), int(msg.step), _vec(msg.force),
+                       _vec(msg.sliding_surface), bool(msg.stale))
+
+
+def clock_msg(stamp: Time) -> Clock:
+    """``rosgraph_msgs/Clock`` for a stamp."""
+    return Clock(clock=stamp)
+
+
+def swarm_state_msg(*, step: int, sim_time: float, stamp: Time, uav_ids: Sequence[int],
+                    x: NDArray[np.float64], v: NDArray[np.float64], u: NDArray[np.float64],
+                    s: NDArray[np.float64], target_x: NDArray[np.float64],
+                    target_v: NDArray[np.float64], potential: float, centroid_error: float,
+                    formation_error: float, missed_deadlines: int, stale_inputs: int,
+                    rejected_inputs: int) -> SwarmState:
+    """``apf_swarm_msgs/SwarmState`` from arrays of shape (n, 3) and (3,)."""
+    msg = SwarmState()
+    msg.header.stamp = stamp
+    msg.header.frame_id = WORLD
+    msg.step = int(step)
+    msg.sim_time = float(sim_time)
+    msg.uav_ids = [int(i) for i in uav_ids]
+    msg.positions = [_set_vec(Point(), p) for p in x]
+    msg.velocities = [_set_vec(Vector3(), p) for p in v]
+    msg.forces = [_set_vec(Vector3(), p) for p in u]
+    msg.sliding_surfaces = [_set_vec(Vector3(), p) for p in s]
+    _set_vec(msg.target_position, target_x)
+    _set_vec(msg.target_velocity, target_v)
+    msg.potential = float(potential)
+    msg.centroid_error = float(centroid_error)
+    msg.formation_error = float(formation_error)
+    msg.missed_deadlines = int(missed_deadlines)
+    msg.stale_inputs = int(stale_inputs)
+    msg.rejected_inputs = int(rejected_inputs)
+    return msg
+
+
+@dataclass(frozen=True)
+class SwarmSample:
+    """One SwarmState as arrays: x, v, u, s of shape (n, 3); target_x, target_v of shape (3,)."""
+
+    step: int
+    t: float
+    uav_ids: tuple[int, ...]
+    x: NDArray[np.float64]
+    v: NDArray[np.float64]
+    u: NDArray[np.float64]
+    s: NDArray[np.float64]
+    target_x: NDArray[np.float64]
+    target_v: NDArray[np.float64]
+    potential: float
+    centroid_error: float
+    formation_error: float
+    missed_deadlines: int
+    stale_inputs: int
+    rejected_inputs: int
+
+
+def _rows(seq: Sequence[Any]) -> NDArray[np.float64]:
+    return np.array([(m.x, m.y, m.z) for m in seq], dtype=float).reshape(-1, 3)
+
+
+def swarm_state_arrays(msg: SwarmState) -> SwarmSample:
+    """Arrays of a ``SwarmState`` message (works for rclpy and rosbags-deserialized objects)."""
+    return SwarmSample(
+        int(msg.step), float(msg.sim_time), tuple(int(i) for i in msg.uav_ids),
+        _rows(msg.positions), _rows(msg.velocities), _rows(msg.forces),
+        _rows(msg.sliding_surfaces), _vec(msg.target_position), _vec(msg.target_velocity),
+        float(msg.potential), float(msg.centroid_error), float(msg.formation_error),
+        int(msg.missed_deadlines), int(msg.stale_inputs), int(msg.rejected_inputs))

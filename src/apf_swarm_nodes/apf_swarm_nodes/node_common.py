@@ -1,0 +1,127 @@
+"""What every apf_swarm node shares: QoS profiles per topic, topic names, the executor
+choice and the Jazzy ``main()`` pattern.
+
+QoS (documented in README, section "Topics and QoS"):
+
+=====================  ==========================  =========================================
+topic                  lockstep                    realtime
+=====================  ==========================  =========================================
+/uav_<i>/odom          reliable, keep last 10      best effort, keep last 1 (sensor data)
+/target/odom           reliable, keep last 10      best effort, keep last 1
+/uav_<i>/force_cmd     reliable, keep last 10      best effort, keep last 1 (latest wins)
+/clock                 reliable, keep last 10      (not published)
+/swarm/odom            reliable, keep last 10      best effort, keep last 1
+/swarm/state           reliable, keep last 100     reliable, keep last 100 (recorded, summed)
+/swarm/start           reliable, transient local, keep last 1 (late joiners see the start)
+=====================  ==========================  =========================================
+
+``/swarm/odom`` (apf_swarm_msgs/SwarmState without forces) carries every tracker's odometry
+and the target state the plant received, for step k, in one message: trackers with
+``inputs:=aggregate`` (the default) read it instead of n + 1 separate odometry topics, which
+cuts the deliveries per step from n(n + 1) to n.
+
+Lockstep needs every message of every step (a lost one would stall the barrier), so its
+control topics are reliable; realtime control wants the newest sample, never a queue of old
+ones, so its control topics are best effort with depth 1.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Callable
+
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
+                             SingleThreadedExecutor)
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+
+from apf_swarm_core.errors import ApfSwarmError
+
+__all__ = ['EXECUTORS', 'EXECUTOR_PARAM', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
+           'force_topic', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'INPUTS', 'SWARM_START', 'CLOCK', 'run_node']
+
+TARGET_ODOM = '/target/odom'
+SWARM_STATE = '/swarm/state'
+SWARM_ODOM = '/swarm/odom'
+INPUTS = ('aggregate', 'odom')
+SWARM_START = '/swarm/start'
+CLOCK = '/clock'
+
+STATE_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                       depth=100, durability=DurabilityPolicy.VOLATILE)
+START_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                       depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+CLOCK_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                       depth=10)
+
+
+def control_qos(mode: str) -> QoSProfile:
+    """QoS of odometry and force commands for a timing mode."""
+    if mode == 'lockstep':
+        return QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
+                          history=HistoryPolicy.KEEP_LAST, depth=10)
+    return QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT,
+                      history=HistoryPolicy.KEEP_LAST, depth=1)
+
+
+def odom_topic(uav_id: int) -> str:
+    """Absolute odometry topic of tracker ``uav_id``."""
+    return f'/uav_{uav_id}/odom'
+
+
+def force_topic(uav_id: int) -> str:
+    """Absolute force-command topic of tracker ``uav_id``."""
+    return f'/uav_{uav_id}/force_cmd'
+
+
+EXECUTORS = ('single', 'events', 'multi')
+
+
+def spin(node: Node, kind: str = 'single') -> None:
+    """Spin ``node`` with the chosen executor until shutdown.
+
+    ``single``: rclpy's SingleThreadedExecutor (the default); ``multi``: MultiThreadedExecutor;
+    ``events``: ``rclpy.experimental.EventsExecutor`` driven by a ``spin_once`` loop (its
+    ``spin()`` busy-loops and ignores SIGINT in these wheels; see SPEC section 4).
+    """
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        executor = EventsExecutor()
+        executor.add_node(node)
+        try:
+            while rclpy.ok():
+                executor.spin_once(timeout_sec=0.1)
+        finally:
+            executor.shutdown()
+        return
+    executor = MultiThreadedExecutor() if kind == 'multi' else SingleThreadedExecutor()
+    executor.add_node(node)
+    executor.spin()
+
+
+def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = None) -> int:
+    """The Jazzy ``main()``: init, build the node, spin, and always clean up.
+
+    A configuration error (bad parameter value or type) stops the node with one line on
+    stderr naming the parameter, and exit code 2.
+    """
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = factory()
+        kind = node.get_parameter('executor').value if node.has_parameter('executor') \
+            else 'single'
+        spin(node, kind)
+    except (ApfSwarmError, ParameterException, ValueError) as exc:
+        print(f'{name}: error: {exc}', file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code

@@ -1,0 +1,241 @@
+"""Plant node: integrates every tracker's dynamics (eq. 19-21) with bounded noise.
+
+Publishes ``/uav_<i>/odom`` for every tracker, ``/swarm/odom`` (all of them and the target
+state, one message), ``/swarm/state`` and, in lockstep, ``/clock``;
+subscribes ``/uav_<i>/force_cmd`` and ``/target/odom``.
+
+Lockstep barrier, step k: publish ``/clock`` (k dt) and the odometry of step k; wait until the
+command of step k of every tracker and the target state of step k have arrived; publish the
+``/swarm/state`` sample of step k; integrate to k + 1. A command (or target state) still
+missing ``command_timeout`` seconds of wall time after the step was published is counted in
+``missed_deadlines``, logged, and the previous command is held (zero-order hold).
+
+Realtime: a physics timer integrates the steps of dt that wall time has advanced (held
+commands; a command older than ``command_timeout`` is stale: zero force, counted); a publish
+timer publishes odometry and ``/swarm/state`` at ``publish_rate``.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+import numpy as np
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Empty
+
+from apf_swarm_core.agents import PlantModel
+from apf_swarm_msgs.msg import ForceCommand, SwarmState
+
+from .conversions import (clock_msg, dt_to_ns, force_arrays, odom_arrays, odom_msg,
+                          step_of, step_stamp, swarm_state_msg)
+from .node_common import (CLOCK, CLOCK_QOS, START_QOS, STATE_QOS, SWARM_ODOM, SWARM_START,
+                          SWARM_STATE,
+                          TARGET_ODOM, control_qos, force_topic, odom_topic, run_node)
+from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
+
+__all__ = ['PlantNode', 'main']
+
+NODE_PARAMS = (
+    EXECUTOR_PARAM,
+    NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
+    NodeParam('wait_for_start', False, 'wait for /swarm/start before step 0'),
+    NodeParam('command_timeout', 1.0, 'a command later than this is missed (lockstep) or '
+              'stale (realtime) [s of wall time]', lo=0.001, hi=600.0),
+    NodeParam('physics_rate', 200.0, 'realtime: physics timer rate [Hz]', lo=1.0, hi=5000.0),
+    NodeParam('publish_rate', 100.0, 'realtime: odometry and state rate [Hz]', lo=1.0,
+              hi=2000.0),
+)
+
+
+class PlantNode(Node):
+    """Owns the swarm's physical state; the core's PlantModel integrates it."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('plant', **kwargs)
+        declare_config(self, read_only=True)
+        p = declare_node_params(self, NODE_PARAMS)
+        self.cfg = read_config(self)
+        self.mode = p['mode']
+        self.timeout = float(p['command_timeout'])
+        self.model = PlantModel(self.cfg)
+        self.steps = self.cfg.steps
+        self.dt_ns = dt_to_ns(self.cfg.dt)
+        qos = control_qos(self.mode)
+        self.odom_pubs = [self.create_publisher(Odometry, odom_topic(i), qos)
+                          for i in self.model.ids]
+        self.state_pub = self.create_publisher(SwarmState, SWARM_STATE, STATE_QOS)
+        self.swarm_odom_pub = self.create_publisher(SwarmState, SWARM_ODOM, qos)
+        self.odom_sent = False
+        for i in self.model.ids:
+            self.create_subscription(ForceCommand, force_topic(i), self._on_force, qos)
+        self.create_subscription(Odometry, TARGET_ODOM, self._on_target, qos)
+        self.target = (-1, np.zeros(3), np.zeros(3), 0.0)   # step, x, v, received
+        self.targets: dict[int, tuple] = {}   # lockstep: target states by step (one ahead)
+        self.running = False
+        self.done = False
+        self.step_started = 0.0
+        if self.mode == 'lockstep':
+            self.clock_pub = self.create_publisher(Clock, CLOCK, CLOCK_QOS)
+            self.create_timer(0.01, self._check_deadline)
+        else:
+            self.create_timer(1.0 / float(p['physics_rate']), self._on_physics)
+            self.create_timer(1.0 / float(p['publish_rate']), self._on_publish)
+            self.cmd_received = np.zeros(self.cfg.n_trackers)
+        if p['wait_for_start']:
+            self.create_subscription(Empty, SWARM_START, self._on_start, START_QOS)
+            self.get_logger().info('waiting for /swarm/start')
+        else:
+            self._start_timer = self.create_timer(0.5, self._autostart)
+        self.get_logger().info(f'plant: {self.cfg.n_trackers} trackers, {self.mode}, '
+                               f'dt {self.cfg.dt:g} s, {self.steps} steps')
+
+    # --- start -------------------------------------------------------------------------
+    def _autostart(self) -> None:
+        """Without a start signal: start once every force_cmd topic has its publisher."""
+        if all(self.count_publishers(force_topic(i)) > 0 for i in self.model.ids) and \
+                self.count_publishers(TARGET_ODOM) > 0:
+            self._start_timer.cancel()
+            self._start()
+
+    def _on_start(self, _msg: Empty) -> None:
+        if not self.running and not self.done:
+            self._start()
+
+    def _start(self) -> None:
+        self.running = True
+        self.get_logger().info('started')
+        if self.mode == 'lockstep':
+            self._publish_step()
+        else:
+            self.wall0 = time.monotonic()
+
+    # --- lockstep ------------------------------------------------------------------------
+    def _publish_step(self) -> None:
+        k = self.model.k
+        stamp = step_stamp(k, self.dt_ns)
+        self.step_started = time.monotonic()
+        self.clock_pub.publish(clock_msg(stamp))
+        for i, pub in zip(self.model.ids, self.odom_pubs):
+            pub.publish(odom_msg(self.model.x[i - 1], self.model.v[i - 1], stamp, f'uav_{i}'))
+        self.odom_sent = False
+        self._maybe_publish_swarm_odom()
+
+    def _maybe_publish_swarm_odom(self) -> None:
+        """Lockstep: ``/swarm/odom`` of step k once the target state of step k is held."""
+        k = self.model.k
+        if self.running and not self.done and not self.odom_sent and self.target[0] == k:
+            self._publish_swarm_odom(k, step_stamp(k, self.dt_ns))
+            self.odom_sent = True
+
+    def _publish_swarm_odom(self, k: int, stamp) -> None:
+        empty = np.zeros((0, 3))
+        self.swarm_odom_pub.publish(swarm_state_msg(
+            step=k, sim_time=k * self.cfg.dt, stamp=stamp, uav_ids=self.model.ids,
+            x=self.model.x, v=self.model.v, u=empty, s=empty, target_x=self.target[1],
+            target_v=self.target[2], potential=float('nan'), centroid_error=float('nan'),
+            formation_error=float('nan'), missed_deadlines=self.model.missed,
+            stale_inputs=self.model.stale, rejected_inputs=self.model.rejected))
+
+    def _on_force(self, msg: ForceCommand) -> None:
+        f = force_arrays(msg)
+        if not self.model.offer_command(f.uav_id, f.step, f.force, f.sliding_surface, f.stale):
+            self.get_logger().warn(f'rejected command from uav_{f.uav_id} (non-finite, unknown '
+                                   f'id or out of order); {self.model.rejected} so far',
+                                   throttle_duration_sec=1.0)
+            return
+        if self.mode == 'lockstep':
+            self._maybe_finish()
+        else:
+            self.cmd_received[f.uav_id - 1] = time.monotonic()
+
+    def _on_target(self, msg: Odometry) -> None:
+        x, v = odom_arrays(msg)
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
+            self.model.rejected += 1
+            return
+        if self.mode == 'lockstep':
+            step = step_of(msg.header.stamp, self.dt_ns)
+            self.targets[step] = (step, x, v, time.monotonic())
+            if self.target[0] != self.model.k and self.model.k in self.targets:
+                self.target = self.targets.pop(self.model.k)
+            self._maybe_publish_swarm_odom()
+            self._maybe_finish()
+        else:
+            self.target = (-1, x, v, time.monotonic())
+
+    def _maybe_finish(self, force: bool = False) -> None:
+        if not self.running or self.done:
+            return
+        k = self.model.k
+        missing = self.model.missing(k)
+        target_late = self.target[0] != k
+        if (missing or target_late) and not force:
+            return
+        if missing or target_late:
+            self.model.missed += len(missing) + int(target_late)
+            what = [f'uav_{i}' for i in missing] + (['target'] if target_late else [])
+            self.get_logger().warn(f'step {k}: no input from {what} within '
+                                   f'{self.timeout:g} s; holding the previous values '
+                                   f'({self.model.missed} missed so far)')
+        self._publish_state(k, step_stamp(k, self.dt_ns))
+        self.model.advance()
+        if self.model.k in self.targets:
+            self.target = self.targets.pop(self.model.k)
+        for old in [j for j in self.targets if j < self.model.k]:
+            del self.targets[old]
+        if self.model.k >= self.steps:
+            self.done = True
+            self.get_logger().info(f'done: {self.steps} steps, {self.model.missed} missed')
+            return
+        self._publish_step()
+
+    def _check_deadline(self) -> None:
+        if self.running and not self.done and \
+                time.monotonic() - self.step_started > self.timeout:
+            self._maybe_finish(force=True)
+
+    # --- realtime ------------------------------------------------------------------------
+    def _on_physics(self) -> None:
+        if not self.running or self.done:
+            return
+        now = time.monotonic()
+        stale = (now - self.cmd_received) > self.timeout
+        if np.any(stale):
+            self.model.u[stale] = 0.0
+        due = int(math.floor((now - self.wall0) / self.cfg.dt)) - self.model.k
+        if due > 0:
+            self.model.advance(min(due, 1000))
+        if self.model.k >= self.steps:
+            self.done = True
+
+    def _on_publish(self) -> None:
+        if not self.running:
+            return
+        stamp = self.get_clock().now().to_msg()
+        for i, pub in zip(self.model.ids, self.odom_pubs):
+            pub.publish(odom_msg(self.model.x[i - 1], self.model.v[i - 1], stamp, f'uav_{i}'))
+        self._publish_swarm_odom(self.model.k, stamp)
+        self._publish_state(self.model.k, stamp)
+
+    # --- shared ------------------------------------------------------------------------------
+    def _publish_state(self, k: int, stamp) -> None:
+        tx, tv = self.target[1], self.target[2]
+        j, ce, fe = self.model.metrics(tx)
+        self.state_pub.publish(swarm_state_msg(
+            step=k, sim_time=k * self.cfg.dt, stamp=stamp, uav_ids=self.model.ids,
+            x=self.model.x, v=self.model.v, u=self.model.u, s=self.model.s, target_x=tx,
+            target_v=tv, potential=j, centroid_error=ce, formation_error=fe,
+            missed_deadlines=self.model.missed, stale_inputs=self.model.stale,
+            rejected_inputs=self.model.rejected))
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node('plant', PlantNode, args))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,90 @@
+"""Target node: flies the target along its trajectory (eq. 1), publishes ``odom`` (relative;
+``/target/odom`` with the namespace ``/target``).
+
+Lockstep: when ``/clock`` announces step k, publishes the states of steps k and k + 1
+(stamps ``k dt``), one step ahead so that the target is off the barrier's critical path.
+Realtime: publishes at ``publish_rate`` with the wall-clock time since the start. With
+``wait_for_start`` it waits for ``/swarm/start`` before the trajectory's time 0.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Empty
+
+from .conversions import dt_to_ns, odom_msg, stamp_ns, step_stamp
+from .node_common import CLOCK, CLOCK_QOS, START_QOS, SWARM_START, control_qos, run_node
+from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
+
+__all__ = ['TargetNode', 'main']
+
+NODE_PARAMS = (
+    EXECUTOR_PARAM,
+    NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
+    NodeParam('publish_rate', 100.0, 'realtime publish rate [Hz]', lo=1.0, hi=2000.0),
+    NodeParam('wait_for_start', False, 'realtime: wait for /swarm/start before t = 0'),
+)
+
+
+class TargetNode(Node):
+    """Publishes the trajectory's state; the trajectory itself is the core's."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('target', **kwargs)
+        declare_config(self, read_only=True)
+        p = declare_node_params(self, NODE_PARAMS)
+        self.cfg = read_config(self)
+        self.mode = p['mode']
+        self.traj = self.cfg.target_trajectory_obj
+        self.dt_ns = dt_to_ns(self.cfg.dt)
+        self.pub = self.create_publisher(Odometry, 'odom', control_qos(self.mode))
+        self.t0: float | None = None
+        self.next_step = 0
+        if self.mode == 'lockstep':
+            self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS)
+        else:
+            if p['wait_for_start']:
+                self.create_subscription(Empty, SWARM_START, self._on_start, START_QOS)
+            else:
+                self.t0 = time.monotonic()
+            self.create_timer(1.0 / float(p['publish_rate']), self._on_timer)
+        self.get_logger().info(f'target: {self.cfg.target_trajectory} at '
+                               f'{self.cfg.target_speed:g} m/s, {self.mode}')
+
+    def _publish(self, t: float, stamp) -> None:
+        x, v = self.traj.state(t)
+        self.pub.publish(odom_msg(x, v, stamp, 'target'))
+
+    def _on_clock(self, msg: Clock) -> None:
+        """Step k announced: publish every state up to step k + 1 not yet published.
+
+        Publishing one step ahead takes the target off the critical path of the lockstep
+        barrier (the plant and the trackers hold inputs by step); the state of step k is
+        still exactly ``trajectory.state(k dt)``.
+        """
+        k = stamp_ns(msg.clock) // self.dt_ns
+        while self.next_step <= k + 1:
+            j = self.next_step
+            self._publish(j * self.cfg.dt, step_stamp(j, self.dt_ns))
+            self.next_step += 1
+
+    def _on_start(self, _msg: Empty) -> None:
+        if self.t0 is None:
+            self.t0 = time.monotonic()
+
+    def _on_timer(self) -> None:
+        if self.t0 is not None:
+            self._publish(time.monotonic() - self.t0, self.get_clock().now().to_msg())
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node('target', TargetNode, args))
+
+
+if __name__ == '__main__':
+    main()
