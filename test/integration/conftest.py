@@ -1,0 +1,91 @@
+"""Helpers for topic-level tests: real node processes, an isolated domain, bounded waits."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import time
+from pathlib import Path
+from typing import Callable
+
+import pytest
+import rclpy
+from ament_index_python.packages import get_package_prefix
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+LIB = Path(get_package_prefix('apf_swarm_nodes')) / 'lib' / 'apf_swarm_nodes'
+ROOT = Path(__file__).resolve().parents[2]
+CONFIG = ROOT / 'config'
+
+
+def free_domain_id() -> int:
+    """A domain id for this test (random in 102..201, away from make test's 1..100)."""
+    return random.Random(os.getpid() * 1000 + time.monotonic_ns()).randint(102, 201)
+
+
+class Graph:
+    """Node processes in one isolated domain, and an in-process rclpy node to observe them."""
+
+    def __init__(self, tmp: Path, domain_id: int | None = None) -> None:
+        self.domain_id = domain_id if domain_id is not None else free_domain_id()
+        self.env = {**os.environ, 'ROS_DOMAIN_ID': str(self.domain_id),
+                    'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+        self.tmp = tmp
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=self.domain_id)
+        self.node = Node('test_observer', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def start(self, name: str, exe: str, *ros_args: str) -> subprocess.Popen:
+        log = open(self.tmp / f'{name}.log', 'w')
+        p = subprocess.Popen([str(LIB / exe), '--ros-args', *ros_args], env=self.env,
+                             stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        self.procs[name] = p
+        return p
+
+    def log(self, name: str) -> str:
+        return (self.tmp / f'{name}.log').read_text()
+
+    def spin_until(self, cond: Callable[[], bool], timeout: float, what: str) -> None:
+        """Spin the observer until ``cond()`` holds; fail naming ``what`` after ``timeout`` s."""
+        end = time.monotonic() + timeout
+        while not cond():
+            if time.monotonic() > end:
+                raise AssertionError(f'timed out after {timeout:g} s waiting for {what}')
+            for name, p in self.procs.items():
+                if p.poll() is not None and p.returncode != 0:
+                    raise AssertionError(f'{name} exited with {p.returncode}:\n{self.log(name)}')
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def stop(self, name: str, timeout: float = 5.0) -> int:
+        """SIGINT the process group, then SIGKILL; returns the exit code."""
+        p = self.procs.pop(name)
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGINT)
+            try:
+                p.wait(timeout)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait(timeout)
+        return p.returncode
+
+    def close(self) -> None:
+        for name in list(self.procs):
+            self.stop(name)
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture
+def graph(tmp_path: Path):
+    """An isolated domain with an observer node; every process it started is stopped after."""
+    g = Graph(tmp_path)
+    yield g
+    g.close()

@@ -1,0 +1,151 @@
+"""Topic-level tests of the tracker, plant and target nodes: real processes over DDS."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from nav_msgs.msg import Odometry
+from std_msgs.msg import Empty
+
+from apf_swarm_core import load_preset, simulate
+from apf_swarm_core.agents import TrackerAgent
+from apf_swarm_msgs.msg import ForceCommand, SwarmState
+from apf_swarm_nodes.conversions import (dt_to_ns, odom_msg, step_stamp, swarm_state_arrays)
+from apf_swarm_nodes.node_common import START_QOS, STATE_QOS, control_qos
+
+CONFIG = Path(__file__).resolve().parents[2] / 'config'
+
+
+def start_swarm(g, duration: float, *extra: str, n: int = 3) -> None:
+    cfg = str(CONFIG / 'triangle.yaml')
+    common = ['--params-file', cfg, '-p', f'duration:={duration}', '-p', f'n_trackers:={n}',
+              *extra]
+    g.start('target', 'target', *common, '-r', '__ns:=/target')
+    for i in range(1, n + 1):
+        g.start(f'tracker{i}', 'tracker', *common, '-p', f'uav_id:={i}', '-r', f'__ns:=/uav_{i}')
+    g.start('plant', 'plant', *common, '-p', 'wait_for_start:=true')
+
+
+def test_lockstep_equals_headless_simulator(graph) -> None:
+    """Same preset, seed and dt: the ROS trajectory equals simulate() to 1e-9."""
+    steps = 600
+    got: dict[int, object] = {}
+    graph.node.create_subscription(SwarmState, '/swarm/state',
+                                   lambda m: got.__setitem__(m.step, swarm_state_arrays(m)),
+                                   STATE_QOS)
+    start = graph.node.create_publisher(Empty, '/swarm/start', START_QOS)
+    start_swarm(graph, steps * 0.001)
+    node = graph.node
+    graph.spin_until(lambda: all(node.count_publishers(f'/uav_{i}/force_cmd') == 1
+                                 for i in (1, 2, 3))
+                     and node.count_subscribers('/swarm/odom') == 3
+                     and node.count_publishers('/swarm/state') == 1
+                     and node.count_subscribers('/clock') >= 1
+                     and node.count_subscribers('/swarm/start') >= 1, 30, 'the graph')
+    start.publish(Empty())
+    graph.spin_until(lambda: steps - 1 in got, 120, f'{steps} steps of /swarm/state')
+    assert sorted(got) == list(range(steps))
+    sim = simulate(load_preset('triangle').replace(duration=steps * 0.001)).trajectory
+    for key, attr in (('x', 'x'), ('v', 'v'), ('u', 'u'), ('s', 's'), ('target_x', 'target_x')):
+        ros = np.array([getattr(got[k], attr) for k in range(steps)])
+        assert np.max(np.abs(ros - sim[key])) <= 1e-9, key
+    assert got[steps - 1].missed_deadlines == 0
+    # every topic exists with the expected type
+    topics = dict(graph.node.get_topic_names_and_types())
+    expected = {'/uav_1/odom': 'nav_msgs/msg/Odometry', '/target/odom': 'nav_msgs/msg/Odometry',
+                '/uav_2/force_cmd': 'apf_swarm_msgs/msg/ForceCommand',
+                '/swarm/state': 'apf_swarm_msgs/msg/SwarmState',
+                '/swarm/odom': 'apf_swarm_msgs/msg/SwarmState',
+                '/clock': 'rosgraph_msgs/msg/Clock'}
+    for name, typ in expected.items():
+        assert topics.get(name) == [typ], name
+    assert node.count_publishers('/target/odom') == 1
+    assert node.count_subscribers('/target/odom') == 1          # the plant
+    assert node.count_subscribers('/uav_3/force_cmd') == 1      # the plant
+    for name in list(graph.procs):
+        assert graph.stop(name) == 0, graph.log(name)
+
+
+@pytest.mark.parametrize('inputs', ['odom', 'aggregate'])
+def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: str) -> None:
+    cfg = load_preset('triangle')
+    graph.start('tracker', 'tracker', '--params-file', str(CONFIG / 'triangle.yaml'),
+                '-p', 'uav_id:=2', '-p', f'inputs:={inputs}', '-r', '__ns:=/uav_2')
+    qos = control_qos('lockstep')
+    forces: list[ForceCommand] = []
+    graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
+    rng = np.random.default_rng(7)
+    x = rng.normal(scale=2.0, size=(3, 3))
+    v = rng.normal(size=(3, 3))
+    tx, tv = np.array([0.5, -0.2, 4.0]), np.array([1.0, 0.0, 0.0])
+    dt_ns = dt_to_ns(cfg.dt)
+    if inputs == 'odom':
+        pubs = {j: graph.node.create_publisher(Odometry, f'/uav_{j}/odom', qos) for j in (1, 2, 3)}
+        tpub = graph.node.create_publisher(Odometry, '/target/odom', qos)
+        graph.spin_until(lambda: all(p.get_subscription_count() == 1 for p in pubs.values())
+                         and tpub.get_subscription_count() == 1, 30, 'the tracker subscriptions')
+
+        def send(step: int, xs: np.ndarray) -> None:
+            stamp = step_stamp(step, dt_ns)
+            tpub.publish(odom_msg(tx, tv, stamp, 'target'))
+            for j in (1, 2, 3):
+                pubs[j].publish(odom_msg(xs[j - 1], v[j - 1], stamp, f'uav_{j}'))
+    else:
+        from apf_swarm_nodes.conversions import swarm_state_msg
+        spub = graph.node.create_publisher(SwarmState, '/swarm/odom', qos)
+        graph.spin_until(lambda: spub.get_subscription_count() == 1, 30, 'the subscription')
+
+        def send(step: int, xs: np.ndarray) -> None:
+            e = np.zeros((0, 3))
+            spub.publish(swarm_state_msg(
+                step=step, sim_time=step * cfg.dt, stamp=step_stamp(step, dt_ns),
+                uav_ids=[1, 2, 3], x=xs, v=v, u=e, s=e, target_x=tx, target_v=tv,
+                potential=math.nan, centroid_error=math.nan, formation_error=math.nan,
+                missed_deadlines=0, stale_inputs=0, rejected_inputs=0))
+    graph.spin_until(lambda: graph.node.count_publishers('/uav_2/force_cmd') == 1, 30,
+                     'the force publisher')
+    send(0, x)
+    graph.spin_until(lambda: len(forces) == 1, 10, 'the force of step 0')
+    ref = TrackerAgent(cfg, 2)
+    for j in (1, 2, 3):
+        ref.offer(j, 0, x[j - 1], v[j - 1], 0.0)
+    ref.offer(0, 0, tx, tv, 0.0)
+    out = ref.command(0)
+    f = forces[0]
+    assert f.uav_id == 2 and f.step == 0
+    assert np.allclose([f.force.x, f.force.y, f.force.z], out.force[0], atol=1e-12, rtol=0)
+    assert np.allclose([f.gradient.x, f.gradient.y, f.gradient.z], out.gradient[0], atol=1e-12)
+    assert np.allclose([f.sliding_surface.x, f.sliding_surface.y, f.sliding_surface.z],
+                       out.sliding_surface[0], atol=1e-12)
+    # a NaN position is refused: no command for that step, a log line saying so
+    bad = x.copy()
+    bad[0, 1] = math.nan
+    send(1, bad)
+    graph.spin_until(lambda: 'rejected' in graph.log('tracker'), 10, 'the rejection log')
+    send(2, x + 0.01)
+    graph.spin_until(lambda: len(forces) == 2, 10, 'the force of step 2')
+    assert forces[1].step == 2
+    assert all(math.isfinite(c) for c in (forces[1].force.x, forces[1].force.y, forces[1].force.z))
+
+
+@pytest.mark.parametrize('args, needle', [
+    (('-p', 'beta:=-1.0'), 'beta'),
+    (('-p', 'uav_id:=4'), 'uav_id'),
+    (('-p', 'law:=fuzzy'), 'law'),
+    (('-p', 'mode:=sometimes'), 'mode'),
+    (('-p', 'n_trackers:=0'), 'n_trackers'),
+    (('-p', 'gamma:=not_a_number'), 'gamma'),  # wrong type (without a file, see below)
+])
+def test_bad_parameter_stops_the_node_naming_it(graph, args: tuple[str, ...],
+                                                needle: str) -> None:
+    # rcl lets a params file's value win over a wrongly typed -p, so the type case has none
+    files = [] if 'not_a_number' in args[-1] else ['--params-file', str(CONFIG / 'triangle.yaml')]
+    p = graph.start('tracker', 'tracker', *files, '-p', 'uav_id:=1', *args)
+    assert p.wait(30) == 2
+    graph.procs.pop('tracker')
+    log = graph.log('tracker')
+    assert 'tracker: error:' in log and needle in log, log
+    assert 'Traceback' not in log
