@@ -77,6 +77,7 @@ class PlantNode(Node):
         self.targets: dict[int, tuple] = {}   # lockstep: target states by step (one ahead)
         self.running = False
         self.done = False
+        self.published_final = False
         self.step_started = 0.0
         if self.mode == 'lockstep':
             self.clock_pub = self.create_publisher(Clock, CLOCK, CLOCK_QOS)
@@ -142,7 +143,8 @@ class PlantNode(Node):
 
     def _on_force(self, msg: ForceCommand) -> None:
         f = force_arrays(msg)
-        if not self.model.offer_command(f.uav_id, f.step, f.force, f.sliding_surface, f.stale):
+        if not self.model.offer_command(f.uav_id, f.step, f.force, f.sliding_surface,
+                                        f.stale and self.running):
             self.get_logger().warn(f'rejected command from uav_{f.uav_id} (non-finite, unknown '
                                    f'id or out of order); {self.model.rejected} so far',
                                    throttle_duration_sec=1.0)
@@ -211,10 +213,12 @@ class PlantNode(Node):
             self.model.advance(min(due, 1000))
         if self.model.k >= self.steps:
             self.done = True
+            self.get_logger().info(f'done: {self.steps} steps of {self.cfg.dt:g} s')
 
     def _on_publish(self) -> None:
-        if not self.running:
+        if not self.running or self.published_final:
             return
+        self.published_final = self.done   # the state at the end of the run goes out once
         stamp = self.get_clock().now().to_msg()
         for i, pub in zip(self.model.ids, self.odom_pubs):
             pub.publish(odom_msg(self.model.x[i - 1], self.model.v[i - 1], stamp, f'uav_{i}'))

@@ -4,9 +4,11 @@ Inputs (``inputs`` parameter): ``aggregate`` (default) reads ``/swarm/odom``, on
 step with every tracker's odometry and the target's state; ``odom`` subscribes its own
 odometry (relative ``odom``), its neighbours' (``/uav_<j>/odom``) and the target's
 (``/target/odom``). Publishes ``force_cmd`` (relative). Lockstep: answers step k as soon
-as every input of step k has arrived. Realtime: a timer at ``control_rate`` commands from the
+as every input of step k has arrived. Realtime: with ``trigger:=odom`` (default)
+it commands on every new own odometry, with ``trigger:=timer`` at ``control_rate`` on the
 latest inputs; an input older than ``input_timeout`` is stale and the safe command
-(:func:`apf_swarm_core.agents.brake_force`, hover in place) is sent with ``stale = true``.
+(:func:`apf_swarm_core.agents.brake_force`, hover in place) is sent with ``stale = true``
+(the ``control_rate`` timer is then the watchdog that keeps sending it).
 """
 
 from __future__ import annotations
@@ -33,7 +35,11 @@ NODE_PARAMS = (
               'the n odometry topics and /target/odom', choices=INPUTS),
     NodeParam('uav_id', 1, 'id i of this tracker (namespace /uav_<i>)', lo=1, hi=10000),
     NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
-    NodeParam('control_rate', 100.0, 'realtime control rate [Hz]', lo=1.0, hi=2000.0),
+    NodeParam('control_rate', 100.0, 'realtime: rate of the control timer (trigger timer) or '
+              'of the stale-input watchdog (trigger odom) [Hz]', lo=1.0, hi=2000.0),
+    NodeParam('trigger', 'odom', 'realtime: odom computes on every new own odometry (lowest '
+              'latency); timer computes at control_rate on the latest inputs',
+              choices=('odom', 'timer')),
     NodeParam('input_timeout', 0.5, 'realtime: an input older than this is stale [s]',
               lo=0.001, hi=60.0),
 )
@@ -51,6 +57,9 @@ class TrackerNode(Node):
         self.mode = p['mode']
         self.uav_id = int(p['uav_id'])
         self.timeout = float(p['input_timeout'])
+        self.on_odom = p['trigger'] == 'odom'
+        self.control_rate = float(p['control_rate'])
+        self._last_command = 0.0
         self.agent = TrackerAgent(self.cfg, self.uav_id)
         self.dt_ns = dt_to_ns(self.cfg.dt)
         qos = control_qos(self.mode)
@@ -84,6 +93,8 @@ class TrackerNode(Node):
             return
         if self.mode == 'lockstep' and self.agent.ready(step):
             self._publish(step, msg.header.stamp)
+        elif self.mode == 'realtime' and self.on_odom and source == self.uav_id:
+            self._realtime_command(msg.header.stamp)
 
     def _on_swarm_odom(self, msg: SwarmState) -> None:
         sample = swarm_state_arrays(msg)
@@ -100,6 +111,8 @@ class TrackerNode(Node):
             return
         if self.mode == 'lockstep' and self.agent.ready(step):
             self._publish(step, msg.header.stamp)
+        elif self.mode == 'realtime' and self.on_odom:
+            self._realtime_command(msg.header.stamp)
 
     def _publish(self, step: int, stamp) -> None:
         out = self.agent.command(step)
@@ -110,9 +123,25 @@ class TrackerNode(Node):
             saturated=bool(out.saturated[0])))
 
     def _on_timer(self) -> None:
+        """trigger timer: command on the latest inputs; trigger odom: watchdog only."""
+        if not self.on_odom:
+            self._realtime_command(self.get_clock().now().to_msg())
+        elif self.agent.stale_sources(time.monotonic(), self.timeout):
+            self._realtime_command(self.get_clock().now().to_msg())
+
+    def _realtime_command(self, stamp) -> None:
+        """Command from the latest inputs, or the safe brake when one is stale.
+
+        The header stamp is the stamp of the odometry that triggered it (trigger odom), so
+        ``now - stamp`` at the plant is the control-loop latency.
+        """
         self._tick += 1
-        stale = self.agent.stale_sources(time.monotonic(), self.timeout)
-        stamp = self.get_clock().now().to_msg()
+        now = time.monotonic()
+        # the filter of eq. 26 advances by the time actually elapsed between commands
+        self.agent.controller.dt = min(0.1, max(1e-4, now - self._last_command)) if \
+            self._last_command else 1.0 / self.control_rate
+        self._last_command = now
+        stale = self.agent.stale_sources(now, self.timeout)
         if not stale:
             self._stale_reported = False
             self._publish(self._tick, stamp)
