@@ -84,21 +84,6 @@ def _describe_rc(rc: int) -> str:
     return f'exit code {rc}'
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    # a zombie still answers kill(0); it is not running any more
-    try:
-        with open(f'/proc/{pid}/stat', encoding='ascii', errors='replace') as f:
-            return f.read().rsplit(')', 1)[-1].split()[0] != 'Z'
-    except OSError:
-        return False
-
-
 def group_members(pgid: int) -> list[int]:
     """Live (non-zombie) processes of process group ``pgid``, from /proc."""
     out = []
@@ -240,14 +225,14 @@ class ProcessGroup:
         return [(c, rc) for c in self.children
                 if not c.stopping and (rc := c.poll()) is not None]
 
-    def stop_all(self, *, hurry: Callable[[], bool] | None = None,
+    def stop_all(self, *, hurry: Callable[[], int] | None = None,
                  poll_interval: float = 0.02) -> dict[str, str]:
         """Stop every running child: SIGINT to each group, wait, SIGTERM, wait, SIGKILL.
 
         A child counts as stopped when its process has exited (and is reaped) and its process
         group has no member left. Each stage waits at most its time in :attr:`stop_sequence`
-        and ends early once every child is stopped, or when ``hurry()`` turns true (a second
-        Ctrl-C: the next stage starts at once). Returns ``{name: how}``, ``how`` one of
+        and ends early once every child is stopped, or when ``hurry()`` (a counter, e.g. of
+        signals received) grows: each further Ctrl-C moves on to the next stage at once. Returns ``{name: how}``, ``how`` one of
         ``exited`` (had already ended), ``SIGINT``, ``SIGTERM``, ``SIGKILL`` (the signal after
         which it stopped) or ``not stopped`` (should never happen; see :meth:`leftovers`).
         """
@@ -270,7 +255,7 @@ class ProcessGroup:
             for c in pending:
                 c.signal_group(sig)
             deadline = time.monotonic() + wait_s
-            hurried = hurry() if hurry else False
+            hurried = hurry() if hurry else 0
             while pending:
                 still = []
                 for c in pending:
@@ -281,7 +266,7 @@ class ProcessGroup:
                 pending = still
                 if not pending or time.monotonic() >= deadline:
                     break
-                if hurry is not None and hurry() and not hurried:
+                if hurry is not None and hurry() > hurried:
                     break
                 time.sleep(poll_interval)
         for c in pending:
@@ -289,17 +274,10 @@ class ProcessGroup:
         return how
 
     def leftovers(self) -> list[tuple[str, int]]:
-        """(name, pid) of every process this group ever started that is still alive, and of
-        every process group of ours that still has members; empty when all is clean."""
-        out = []
-        for c in self.children:
-            for pid in c.pids:
-                if _pid_alive(pid):
-                    out.append((c.name, pid))
-            if c.popen is not None and (c.name, c.popen.pid) not in out \
-                    and _group_alive(c.popen.pid):
-                out.append((c.name + ' (process group)', c.popen.pid))
-        return out
+        """(name, pid) of every live process in a process group this group ever started
+        (each start is a new session: process group id = the child's pid); empty when clean."""
+        return [(c.name, member) for c in self.children for pid in c.pids
+                for member in group_members(pid)]
 
 
 # --------------------------------------------------------------------------------------------
@@ -362,10 +340,11 @@ def graph_missing(present_nodes: Iterable[str], counts: Mapping[str, tuple[int, 
             continue
         extra = counts.get(t.or_subscribers_of, (0, 0))[1] if t.or_subscribers_of else 0
         if pubs < t.publishers or subs + extra < t.subscribers:
-            sub_text = f'{subs}' + (f' + {extra} of {t.or_subscribers_of}'
+            sub_text = f'{subs}' + (f' + {extra} on {t.or_subscribers_of}'
                                     if t.or_subscribers_of else '')
-            out.append(f'topic {t.topic} (publishers {pubs}/{t.publishers}, '
-                       f'subscribers {sub_text}/>={t.subscribers})')
+            need = f' (need >= {t.subscribers})' if t.subscribers else ''
+            out.append(f'topic {t.topic}: publishers {pubs} (need {t.publishers}), '
+                       f'subscribers {sub_text}{need}')
     return out
 
 
@@ -378,8 +357,10 @@ class StateAccumulator:
 
     Lockstep: steps must be consecutive from 0; a gap counts its missing steps as dropped, a
     step that is not newer than the last one is counted as out of order and ignored. The run
-    is complete when step ``steps - 1`` arrived. Realtime: every sample is kept in arrival
-    order.
+    is complete when step ``steps - 1`` arrived. Realtime: steps advance with wall time and
+    may skip; a sample whose step is not newer than the last one (the publish timer ran
+    twice between two physics steps) is counted as repeated and ignored, so ``t`` increases
+    strictly.
     """
 
     def __init__(self, mode: str, steps: int, record_every: int = 1) -> None:
@@ -388,6 +369,7 @@ class StateAccumulator:
         self.received = 0
         self.dropped = 0
         self.out_of_order = 0
+        self.repeated = 0
         self.gaps: list[tuple[int, int]] = []
         self.last: Any = None
         self.last_step = -1
@@ -406,7 +388,12 @@ class StateAccumulator:
                 self.gaps.append((self.last_step + 1, step - 1))
             self.last_step = step
         else:
-            self.last_step = int(sample.step)
+            # realtime: the publish timer may repeat a step the physics timer has not advanced
+            step = int(sample.step)
+            if step <= self.last_step:
+                self.repeated += 1
+                return
+            self.last_step = step
         self.last = sample
         self.samples.append(sample)
 
@@ -442,6 +429,8 @@ class StateAccumulator:
                                'out_of_order': self.out_of_order}
         if self.mode == 'lockstep':
             out['expected'] = self.steps
+        else:
+            out['repeated'] = self.repeated
         return out
 
 
@@ -741,10 +730,10 @@ class Bringup:
         cmds = node_commands(self.prefix, self.config_file.resolve(), self.n, self.mode)
         if self.args.record:
             # provisional: the recorder's interface is fixed by its own issue
-            cmds.append(('recorder', [str(executable_path(self.prefix, 'recorder')),
-                                      '--ros-args', '--params-file', str(self.config_file.resolve()),
-                                      '-r', '__node:=recorder', '-p', f'mode:={self.mode}',
-                                      '-p', f'output:={(self.out / "bag").resolve()}']))
+            cmds.append(('recorder', [
+                str(executable_path(self.prefix, 'recorder')), '--ros-args', '--params-file',
+                str(self.config_file.resolve()), '-r', '__node:=recorder',
+                '-p', f'mode:={self.mode}', '-p', f'output:={(self.out / "bag").resolve()}']))
         for name, argv in cmds:
             self.group.add(Child(name, argv, self.out / 'logs' / f'{name}.log', env))
         self.t_launch = time.monotonic()
@@ -818,14 +807,15 @@ class Bringup:
         # our own endpoints: matched counts, not mere discovery
         nstate = self.state_sub.get_publisher_count()
         if nstate < 1:
-            miss.append(f'/swarm/state subscription of {self.prog} matched to the plant '
-                        f'(matched publishers {nstate}/1)')
+            miss.append(f'topic /swarm/state: this bring-up\'s subscription matched to '
+                        f'{nstate} publishers (need 1: the plant)')
         # the plant waits for the start in both modes; the target only in realtime (in
         # lockstep it is driven by /clock)
         nstart = self.start_pub.get_subscription_count()
         want, who = (2, 'plant, target') if self.mode == 'realtime' else (1, 'plant')
         if nstart < want:
-            miss.append(f'topic /swarm/start (matched subscribers {nstart}/>={want}: {who})')
+            miss.append(f'topic /swarm/start: matched subscribers {nstart} (need >= {want}: '
+                        f'{who})')
         return miss
 
     def wait_ready(self) -> None:
@@ -845,8 +835,8 @@ class Bringup:
                     return
             if now - last_report >= 5.0:
                 last_report = now
-                self.say(f'waiting for the graph ({now - t0:.0f} s of {self.args.ready_timeout:g}): '
-                         f'{len(miss)} missing, e.g. {miss[0]}')
+                self.say(f'waiting for the graph ({now - t0:.0f} s of '
+                         f'{self.args.ready_timeout:g}): {len(miss)} missing, e.g. {miss[0]}')
             if now >= deadline:
                 raise _Stop(EXIT_BAD_INPUT, 'not_ready',
                             f'the ROS graph was not complete after {self.args.ready_timeout:g} s '
@@ -914,8 +904,7 @@ class Bringup:
     # --- shutdown and outputs -------------------------------------------------------------
     def stop_children(self) -> None:
         t0 = time.monotonic()
-        n_signals = len(self.signals.received)
-        self.stop_how = self.group.stop_all(hurry=lambda: len(self.signals.received) > n_signals)
+        self.stop_how = self.group.stop_all(hurry=lambda: len(self.signals.received))
         self.stop_seconds = time.monotonic() - t0
         self.leftovers = self.group.leftovers()
         by: dict[str, list[str]] = {}
@@ -1038,8 +1027,10 @@ class Bringup:
             finally:
                 if self.t_end is None:
                     self.t_end = time.monotonic()
-                self.stop_children()
-                self.shutdown_ros()
+                try:
+                    self.stop_children()
+                finally:
+                    self.shutdown_ros()
         finally:
             self.signals.restore()
         if self.leftovers and code == EXIT_OK:

@@ -32,7 +32,7 @@ from apf_swarm_msgs.msg import ForceCommand, SwarmState
 
 from .conversions import (clock_msg, dt_to_ns, force_arrays, odom_arrays, odom_msg,
                           step_of, step_stamp, swarm_state_msg)
-from .node_common import (CLOCK, CLOCK_QOS, START_QOS, STATE_QOS, SWARM_ODOM, SWARM_START,
+from .node_common import (CLOCK, CLOCK_QOS, INPUTS, START_QOS, STATE_QOS, SWARM_ODOM, SWARM_START,
                           SWARM_STATE,
                           TARGET_ODOM, control_qos, force_topic, odom_topic, run_node)
 from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
@@ -43,6 +43,8 @@ NODE_PARAMS = (
     EXECUTOR_PARAM,
     NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
     NodeParam('wait_for_start', False, 'wait for /swarm/start before step 0'),
+    NodeParam('inputs', 'aggregate', 'what the trackers read (as their inputs parameter): '
+              'lockstep step 0 waits until those subscriptions are matched', choices=INPUTS),
     NodeParam('command_timeout', 1.0, 'a command later than this is missed (lockstep) or '
               'stale (realtime) [s of wall time]', lo=0.001, hi=600.0),
     NodeParam('physics_rate', 200.0, 'realtime: physics timer rate [Hz]', lo=1.0, hi=5000.0),
@@ -61,6 +63,9 @@ class PlantNode(Node):
         self.cfg = read_config(self)
         self.mode = p['mode']
         self.timeout = float(p['command_timeout'])
+        self.inputs = p['inputs']
+        self.waiting_for_match = False
+        self.republished = False
         self.model = PlantModel(self.cfg)
         self.steps = self.cfg.steps
         self.dt_ns = dt_to_ns(self.cfg.dt)
@@ -110,12 +115,32 @@ class PlantNode(Node):
         self.running = True
         self.get_logger().info('started')
         if self.mode == 'lockstep':
-            self._publish_step()
+            # step 0 goes out only when every reader of it is matched, or it would be lost
+            self.waiting_for_match = True
+            self._start_when_matched()
         else:
             self.wall0 = time.monotonic()
 
+    def _matched(self) -> bool:
+        """Lockstep: every tracker's command has a publisher and every step-k reader a match."""
+        n = self.cfg.n_trackers
+        if self.clock_pub.get_subscription_count() < 1 or self.count_publishers(TARGET_ODOM) < 1:
+            return False
+        if any(self.count_publishers(force_topic(i)) < 1 for i in self.model.ids):
+            return False
+        if self.inputs == 'aggregate':
+            return self.swarm_odom_pub.get_subscription_count() >= n
+        return all(p.get_subscription_count() >= 1 for p in self.odom_pubs)
+
+    def _start_when_matched(self) -> None:
+        if self.waiting_for_match and self._matched():
+            self.waiting_for_match = False
+            self._publish_step()
+
     # --- lockstep ------------------------------------------------------------------------
-    def _publish_step(self) -> None:
+    def _publish_step(self, again: bool = False) -> None:
+        if not again:
+            self.republished = False
         k = self.model.k
         stamp = step_stamp(k, self.dt_ns)
         self.step_started = time.monotonic()
@@ -196,9 +221,24 @@ class PlantNode(Node):
         self._publish_step()
 
     def _check_deadline(self) -> None:
+        """10 ms timer: start when matched; past the deadline re-send step k once, then miss."""
+        if self.waiting_for_match:
+            self._start_when_matched()
+            return
         if self.running and not self.done and \
                 time.monotonic() - self.step_started > self.timeout:
-            self._maybe_finish(force=True)
+            if not self.republished:
+                self.republished = True
+                self.get_logger().warn(f'step {self.model.k}: inputs {self._late()} late after '
+                                       f'{self.timeout:g} s; publishing the step again')
+                self._publish_step(again=True)
+            else:
+                self._maybe_finish(force=True)
+
+    def _late(self) -> list[str]:
+        k = self.model.k
+        return [f'uav_{i}' for i in self.model.missing(k)] + (
+            ['target'] if self.target[0] != k else [])
 
     # --- realtime ------------------------------------------------------------------------
     def _on_physics(self) -> None:
@@ -216,8 +256,8 @@ class PlantNode(Node):
             self.get_logger().info(f'done: {self.steps} steps of {self.cfg.dt:g} s')
 
     def _on_publish(self) -> None:
-        if not self.running or self.published_final:
-            return
+        if not self.running or self.published_final or self.target[3] == 0.0:
+            return  # not started, finished, or no target state yet
         self.published_final = self.done   # the state at the end of the run goes out once
         stamp = self.get_clock().now().to_msg()
         for i, pub in zip(self.model.ids, self.odom_pubs):
