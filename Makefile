@@ -2,7 +2,9 @@
 #
 #   make setup      create .venv, install requirements.txt, colcon build into install/
 #   make test       setup, then run the tests (extra pytest arguments: PYTEST_ARGS="...")
-#   make run        setup, then `apf-swarm reproduce --out runs/<timestamp>` (extra: RUN_ARGS)
+#   make run        setup, then the ROS 2 swarm: `apf-swarm up --preset triangle --duration 30
+#                   --out runs/<timestamp>` (extra arguments: RUN_ARGS)
+#   make reproduce  setup, then `apf-swarm reproduce --out runs/<timestamp>-reproduce`
 #   make clean      remove build/ install/ log/        make distclean   ... and .venv/
 #
 # Every step is skipped when its inputs did not change, so a no-op `make setup` takes a
@@ -54,7 +56,7 @@ COLCON_ENV := env -u PYTHONPATH -u COLCON_PREFIX_PATH -u LD_LIBRARY_PATH \
 COLCON_ARGS := --base-paths src --build-base build --install-base install --symlink-install \
 	--cmake-args -DPython3_EXECUTABLE='$(VPY)' -DCMAKE_BUILD_TYPE=Release -DBUILD_TESTING=OFF
 
-.PHONY: setup test run clean distclean help FORCE
+.PHONY: setup test run reproduce clean distclean help FORCE
 
 help:
 	@sed -n '2,10p' '$(ROOT)/Makefile' | sed 's/^# \{0,1\}//'
@@ -101,10 +103,15 @@ test: setup
 	  python -m pytest -q test $(PYTEST_ARGS)
 
 run: setup
-	@echo "==> apf-swarm reproduce --out $(RUN_DIR) (ROS_DOMAIN_ID=$(ROS_DOMAIN_ID))"
+	@echo "==> apf-swarm up --preset triangle --duration 30 --out $(RUN_DIR) (ROS_DOMAIN_ID=$(ROS_DOMAIN_ID))"
 	@cd '$(ROOT)' && source scripts/activate.sh && \
-	  export ROS_DOMAIN_ID='$(ROS_DOMAIN_ID)' ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST && \
-	  apf-swarm reproduce --out '$(RUN_DIR)' $(RUN_ARGS)
+	  apf-swarm up --preset triangle --duration 30 --domain-id '$(ROS_DOMAIN_ID)' \
+	  --out '$(RUN_DIR)' $(RUN_ARGS)
+
+reproduce: setup
+	@echo "==> apf-swarm reproduce --out $(RUN_DIR)-reproduce"
+	@cd '$(ROOT)' && source scripts/activate.sh && \
+	  apf-swarm reproduce --out '$(RUN_DIR)-reproduce' $(RUN_ARGS)
 
 clean:
 	@echo "==> removing build/ install/ log/"
