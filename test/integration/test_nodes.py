@@ -58,7 +58,7 @@ def test_lockstep_equals_headless_simulator(graph) -> None:
     expected = {'/uav_1/odom': 'nav_msgs/msg/Odometry', '/target/odom': 'nav_msgs/msg/Odometry',
                 '/uav_2/force_cmd': 'apf_swarm_msgs/msg/ForceCommand',
                 '/swarm/state': 'apf_swarm_msgs/msg/SwarmState',
-                '/swarm/odom': 'apf_swarm_msgs/msg/SwarmState',
+                '/swarm/odom': 'apf_swarm_msgs/msg/SwarmOdometry',
                 '/clock': 'rosgraph_msgs/msg/Clock'}
     for name, typ in expected.items():
         assert topics.get(name) == [typ], name
@@ -94,17 +94,14 @@ def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: st
             for j in (1, 2, 3):
                 pubs[j].publish(odom_msg(xs[j - 1], v[j - 1], stamp, f'uav_{j}'))
     else:
-        from apf_swarm_nodes.conversions import swarm_state_msg
-        spub = graph.node.create_publisher(SwarmState, '/swarm/odom', qos)
+        from apf_swarm_msgs.msg import SwarmOdometry
+        from apf_swarm_nodes.conversions import swarm_odom_msg
+        spub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
         graph.spin_until(lambda: spub.get_subscription_count() == 1, 30, 'the subscription')
 
         def send(step: int, xs: np.ndarray) -> None:
-            e = np.zeros((0, 3))
-            spub.publish(swarm_state_msg(
-                step=step, sim_time=step * cfg.dt, stamp=step_stamp(step, dt_ns),
-                uav_ids=[1, 2, 3], x=xs, v=v, u=e, s=e, target_x=tx, target_v=tv,
-                potential=math.nan, centroid_error=math.nan, formation_error=math.nan,
-                missed_deadlines=0, stale_inputs=0, rejected_inputs=0))
+            spub.publish(swarm_odom_msg(step=step, stamp=step_stamp(step, dt_ns),
+                                        uav_ids=[1, 2, 3], x=xs, v=v, target_x=tx, target_v=tv))
     graph.spin_until(lambda: graph.node.count_publishers('/uav_2/force_cmd') == 1, 30,
                      'the force publisher')
     send(0, x)

@@ -515,23 +515,28 @@ def package_prefix() -> Path:
                        '`make setup` and `source scripts/activate.sh`') from None
 
 
-def node_commands(prefix: Path, config_file: Path, n: int, mode: str
-                  ) -> list[tuple[str, list[str]]]:
-    """(log name, argv) of every node process of the swarm."""
+def node_commands(prefix: Path, config_file: Path, n: int, mode: str,
+                  node_params: Sequence[str] = ()) -> list[tuple[str, list[str]]]:
+    """(log name, argv) of every node process of the swarm.
+
+    ``node_params`` (``NAME:=VALUE``) go to every node, e.g. ``executor:=events``.
+    """
     cfg = str(config_file)
+    extra = [a for p in node_params for a in ('-p', p)]
 
     def exe(name: str) -> str:
         return str(executable_path(prefix, name))
 
     cmds = [('target', [exe('target'), '--ros-args', '--params-file', cfg,
                         '-r', '__ns:=/target', '-r', '__node:=target',
-                        '-p', f'mode:={mode}', '-p', 'wait_for_start:=true']),
+                        '-p', f'mode:={mode}', '-p', 'wait_for_start:=true', *extra]),
             ('plant', [exe('plant'), '--ros-args', '--params-file', cfg,
-                       '-r', '__node:=plant', '-p', f'mode:={mode}', '-p', 'wait_for_start:=true'])]
+                       '-r', '__node:=plant', '-p', f'mode:={mode}', '-p', 'wait_for_start:=true',
+                       *extra])]
     for i in range(1, n + 1):
         cmds.append((f'tracker_{i}', [exe('tracker'), '--ros-args', '--params-file', cfg,
                                       '-r', f'__ns:=/uav_{i}', '-r', '__node:=tracker',
-                                      '-p', f'uav_id:={i}', '-p', f'mode:={mode}']))
+                                      '-p', f'uav_id:={i}', '-p', f'mode:={mode}', *extra]))
     return cmds
 
 
@@ -600,6 +605,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--stall-timeout', type=_positive, default=20.0, metavar='S',
                    help='stop when no /swarm/state arrives for this long (default 20)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+    p.add_argument('--node-param', action='append', default=[], metavar='NAME:=VALUE',
+                   dest='node_params', help='a node parameter for every node (repeatable), e.g. '
+                   'executor:=events, inputs:=odom')
     p.add_argument('--out', type=Path, required=True, metavar='DIR')
 
 
@@ -658,6 +666,7 @@ class Bringup:
         self.args, self.cfg, self.prog = args, cfg, prog
         self.err = stream if stream is not None else sys.stderr
         self.mode: str = args.mode
+        self.node_params: list[str] = list(getattr(args, "node_params", []) or [])
         self.out: Path = args.out
         self.n = cfg.n_trackers
         self.group = ProcessGroup()
@@ -727,7 +736,8 @@ class Bringup:
 
     def launch(self) -> None:
         env = self.child_env()
-        cmds = node_commands(self.prefix, self.config_file.resolve(), self.n, self.mode)
+        cmds = node_commands(self.prefix, self.config_file.resolve(), self.n, self.mode,
+                             self.node_params)
         if self.args.record:
             # provisional: the recorder's interface is fixed by its own issue
             cmds.append(('recorder', [

@@ -17,11 +17,12 @@ from nav_msgs.msg import Odometry
 from numpy.typing import NDArray
 from rosgraph_msgs.msg import Clock
 
-from apf_swarm_msgs.msg import ForceCommand, SwarmState
+from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 
 __all__ = ['WORLD', 'dt_to_ns', 'step_stamp', 'stamp_ns', 'step_of', 'odom_msg', 'odom_arrays',
            'force_msg', 'ForceArrays', 'force_arrays', 'clock_msg', 'swarm_state_msg',
-           'SwarmSample', 'swarm_state_arrays', 'is_finite', 'LAW_CODES']
+           'SwarmSample', 'swarm_state_arrays', 'is_finite', 'LAW_CODES', 'swarm_odom_msg',
+           'swarm_odom_arrays']
 
 WORLD = 'world'
 LAW_CODES = {'proposed': ForceCommand.LAW_PROPOSED, 'traditional': ForceCommand.LAW_TRADITIONAL}
@@ -183,3 +184,37 @@ def swarm_state_arrays(msg: SwarmState) -> SwarmSample:
         _rows(msg.sliding_surfaces), _vec(msg.target_position), _vec(msg.target_velocity),
         float(msg.potential), float(msg.centroid_error), float(msg.formation_error),
         int(msg.missed_deadlines), int(msg.stale_inputs), int(msg.rejected_inputs))
+
+
+def swarm_odom_msg(*, step: int, stamp: Time, uav_ids: Sequence[int], x: NDArray[np.float64],
+                   v: NDArray[np.float64], target_x: NDArray[np.float64],
+                   target_v: NDArray[np.float64]) -> SwarmOdometry:
+    """``apf_swarm_msgs/SwarmOdometry`` from arrays x, v (n, 3) and the target (3,)."""
+    msg = SwarmOdometry()
+    msg.header.stamp = stamp
+    msg.header.frame_id = WORLD
+    msg.step = int(step)
+    msg.uav_ids = [int(i) for i in uav_ids]
+    msg.positions = np.ascontiguousarray(x, dtype=float).ravel().tolist()
+    msg.velocities = np.ascontiguousarray(v, dtype=float).ravel().tolist()
+    msg.target_position = np.asarray(target_x, dtype=float)
+    msg.target_velocity = np.asarray(target_v, dtype=float)
+    return msg
+
+
+def swarm_odom_arrays(msg: SwarmOdometry) -> tuple[int, list[int], NDArray[np.float64],
+                                                   NDArray[np.float64], NDArray[np.float64],
+                                                   NDArray[np.float64]]:
+    """step, uav_ids, x (n, 3), v (n, 3), target_x (3,), target_v (3,) of a SwarmOdometry.
+
+    Raises ValueError when the arrays do not have 3 values per id.
+    """
+    ids = [int(i) for i in msg.uav_ids]
+    x = np.asarray(msg.positions, dtype=float)
+    v = np.asarray(msg.velocities, dtype=float)
+    if x.size != 3 * len(ids) or v.size != 3 * len(ids):
+        raise ValueError(f'SwarmOdometry with {len(ids)} ids has {x.size} position and '
+                         f'{v.size} velocity values; expected {3 * len(ids)} each')
+    return (int(msg.step), ids, x.reshape(-1, 3), v.reshape(-1, 3),
+            np.asarray(msg.target_position, dtype=float),
+            np.asarray(msg.target_velocity, dtype=float))

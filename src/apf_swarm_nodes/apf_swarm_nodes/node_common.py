@@ -15,7 +15,7 @@ topic                  lockstep                    realtime
 /swarm/start           reliable, transient local, keep last 1 (late joiners see the start)
 =====================  ==========================  =========================================
 
-``/swarm/odom`` (apf_swarm_msgs/SwarmState without forces) carries every tracker's odometry
+``/swarm/odom`` (apf_swarm_msgs/SwarmOdometry, flat arrays) carries every tracker's odometry
 and the target state the plant received, for step k, in one message: trackers with
 ``inputs:=aggregate`` (the default) read it instead of n + 1 separate odometry topics, which
 cuts the deliveries per step from n(n + 1) to n.
@@ -82,9 +82,9 @@ EXECUTORS = ('single', 'events', 'multi')
 def spin(node: Node, kind: str = 'single') -> None:
     """Spin ``node`` with the chosen executor until shutdown.
 
-    ``single``: rclpy's SingleThreadedExecutor (the default); ``multi``: MultiThreadedExecutor;
-    ``events``: ``rclpy.experimental.EventsExecutor`` driven by a ``spin_once`` loop (its
-    ``spin()`` busy-loops and ignores SIGINT in these wheels; see SPEC section 4).
+    ``events`` (the nodes' default): ``rclpy.experimental.EventsExecutor`` driven by a
+    ``spin_once`` loop (its ``spin()`` busy-loops and ignores SIGINT in these wheels, SPEC
+    section 4); ``single``: SingleThreadedExecutor; ``multi``: MultiThreadedExecutor.
     """
     if kind == 'events':
         from rclpy.experimental import EventsExecutor

@@ -28,10 +28,10 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Empty
 
 from apf_swarm_core.agents import PlantModel
-from apf_swarm_msgs.msg import ForceCommand, SwarmState
+from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 
 from .conversions import (clock_msg, dt_to_ns, force_arrays, odom_arrays, odom_msg,
-                          step_of, step_stamp, swarm_state_msg)
+                          step_of, step_stamp, swarm_odom_msg, swarm_state_msg)
 from .node_common import (CLOCK, CLOCK_QOS, INPUTS, START_QOS, STATE_QOS, SWARM_ODOM, SWARM_START,
                           SWARM_STATE,
                           TARGET_ODOM, control_qos, force_topic, odom_topic, run_node)
@@ -73,7 +73,7 @@ class PlantNode(Node):
         self.odom_pubs = [self.create_publisher(Odometry, odom_topic(i), qos)
                           for i in self.model.ids]
         self.state_pub = self.create_publisher(SwarmState, SWARM_STATE, STATE_QOS)
-        self.swarm_odom_pub = self.create_publisher(SwarmState, SWARM_ODOM, qos)
+        self.swarm_odom_pub = self.create_publisher(SwarmOdometry, SWARM_ODOM, qos)
         self.odom_sent = False
         for i in self.model.ids:
             self.create_subscription(ForceCommand, force_topic(i), self._on_force, qos)
@@ -158,13 +158,9 @@ class PlantNode(Node):
             self.odom_sent = True
 
     def _publish_swarm_odom(self, k: int, stamp) -> None:
-        empty = np.zeros((0, 3))
-        self.swarm_odom_pub.publish(swarm_state_msg(
-            step=k, sim_time=k * self.cfg.dt, stamp=stamp, uav_ids=self.model.ids,
-            x=self.model.x, v=self.model.v, u=empty, s=empty, target_x=self.target[1],
-            target_v=self.target[2], potential=float('nan'), centroid_error=float('nan'),
-            formation_error=float('nan'), missed_deadlines=self.model.missed,
-            stale_inputs=self.model.stale, rejected_inputs=self.model.rejected))
+        self.swarm_odom_pub.publish(swarm_odom_msg(
+            step=k, stamp=stamp, uav_ids=self.model.ids, x=self.model.x, v=self.model.v,
+            target_x=self.target[1], target_v=self.target[2]))
 
     def _on_force(self, msg: ForceCommand) -> None:
         f = force_arrays(msg)

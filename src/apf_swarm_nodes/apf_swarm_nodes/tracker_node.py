@@ -1,6 +1,6 @@
 """Tracker node: one tracking UAV's sliding-mode controller.
 
-Inputs (``inputs`` parameter): ``aggregate`` (default) reads ``/swarm/odom``, one message per
+Inputs (``inputs`` parameter): ``aggregate`` (default) reads ``/swarm/odom`` (SwarmOdometry), one message per
 step with every tracker's odometry and the target's state; ``odom`` subscribes its own
 odometry (relative ``odom``), its neighbours' (``/uav_<j>/odom``) and the target's
 (``/target/odom``). Publishes ``force_cmd`` (relative). Lockstep: answers step k as soon
@@ -20,9 +20,9 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from apf_swarm_core.agents import TrackerAgent
-from apf_swarm_msgs.msg import ForceCommand, SwarmState
+from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry
 
-from .conversions import dt_to_ns, force_msg, odom_arrays, step_of, swarm_state_arrays
+from .conversions import dt_to_ns, force_msg, odom_arrays, step_of, swarm_odom_arrays
 from .node_common import INPUTS, SWARM_ODOM, TARGET_ODOM, control_qos, odom_topic, run_node
 from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, install_validator, \
     read_config
@@ -73,7 +73,7 @@ class TrackerNode(Node):
                                              lambda m, j=j: self._on_odom(j, m), qos)
             self.create_subscription(Odometry, TARGET_ODOM, lambda m: self._on_odom(0, m), qos)
         else:
-            self.create_subscription(SwarmState, SWARM_ODOM, self._on_swarm_odom, qos)
+            self.create_subscription(SwarmOdometry, SWARM_ODOM, self._on_swarm_odom, qos)
         self._tick = 0
         self._stale_reported = False
         if self.mode == 'realtime':
@@ -96,12 +96,17 @@ class TrackerNode(Node):
         elif self.mode == 'realtime' and self.on_odom and source == self.uav_id:
             self._realtime_command(msg.header.stamp)
 
-    def _on_swarm_odom(self, msg: SwarmState) -> None:
-        sample = swarm_state_arrays(msg)
-        step = sample.step if self.mode == 'lockstep' else -1
+    def _on_swarm_odom(self, msg: SwarmOdometry) -> None:
+        try:
+            k, ids, xs, vs, tx, tv = swarm_odom_arrays(msg)
+        except ValueError as exc:
+            self.agent.rejected += 1
+            self.get_logger().warn(f'rejected /swarm/odom: {exc}', throttle_duration_sec=1.0)
+            return
+        step = k if self.mode == 'lockstep' else -1
         now = time.monotonic()
-        ok = self.agent.offer(0, step, sample.target_x, sample.target_v, now)
-        for j, x, v in zip(sample.uav_ids, sample.x, sample.v):
+        ok = self.agent.offer(0, step, tx, tv, now)
+        for j, x, v in zip(ids, xs, vs):
             if j in self.agent.ids:
                 ok = self.agent.offer(j, step, x, v, now) and ok
         if not ok:
