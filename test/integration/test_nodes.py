@@ -59,7 +59,8 @@ def test_lockstep_equals_headless_simulator(graph) -> None:
                 '/uav_2/force_cmd': 'apf_swarm_msgs/msg/ForceCommand',
                 '/swarm/state': 'apf_swarm_msgs/msg/SwarmState',
                 '/swarm/odom': 'apf_swarm_msgs/msg/SwarmOdometry',
-                '/clock': 'rosgraph_msgs/msg/Clock'}
+                '/clock': 'rosgraph_msgs/msg/Clock',
+                '/swarm/markers': 'visualization_msgs/msg/MarkerArray'}
     for name, typ in expected.items():
         assert topics.get(name) == [typ], name
     assert node.count_publishers('/target/odom') == 1

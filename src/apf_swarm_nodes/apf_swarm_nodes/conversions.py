@@ -22,7 +22,7 @@ from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 __all__ = ['WORLD', 'dt_to_ns', 'step_stamp', 'stamp_ns', 'step_of', 'odom_msg', 'odom_arrays',
            'force_msg', 'ForceArrays', 'force_arrays', 'clock_msg', 'swarm_state_msg',
            'SwarmSample', 'swarm_state_arrays', 'is_finite', 'LAW_CODES', 'swarm_odom_msg',
-           'swarm_odom_arrays']
+           'swarm_odom_arrays', 'markers_msg']
 
 WORLD = 'world'
 LAW_CODES = {'proposed': ForceCommand.LAW_PROPOSED, 'traditional': ForceCommand.LAW_TRADITIONAL}
@@ -218,3 +218,39 @@ def swarm_odom_arrays(msg: SwarmOdometry) -> tuple[int, list[int], NDArray[np.fl
     return (int(msg.step), ids, x.reshape(-1, 3), v.reshape(-1, 3),
             np.asarray(msg.target_position, dtype=float),
             np.asarray(msg.target_velocity, dtype=float))
+
+
+def markers_msg(x: NDArray[np.float64], target_x: NDArray[np.float64], stamp: Time,
+                uav_ids: Sequence[int]) -> 'MarkerArray':
+    """``visualization_msgs/MarkerArray`` for RViz / Foxglove: a sphere per tracker (blue),
+    the target (red) and the formation outline (a closed line through the trackers)."""
+    from geometry_msgs.msg import Point as P
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    def marker(mid: int, kind: int, rgb: tuple[float, float, float], scale: float) -> Marker:
+        m = Marker()
+        m.header.stamp = stamp
+        m.header.frame_id = WORLD
+        m.ns = 'apf_swarm'
+        m.id = mid
+        m.type = kind
+        m.action = Marker.ADD
+        m.pose.orientation.w = 1.0
+        m.scale.x = m.scale.y = m.scale.z = scale
+        m.color.r, m.color.g, m.color.b = rgb
+        m.color.a = 1.0
+        return m
+
+    out = MarkerArray()
+    for j, (uid, p) in enumerate(zip(uav_ids, x)):
+        m = marker(int(uid), Marker.SPHERE, (0.2, 0.4, 1.0), 0.3)
+        _set_vec(m.pose.position, p)
+        out.markers.append(m)
+    t = marker(0, Marker.SPHERE, (1.0, 0.2, 0.2), 0.4)
+    _set_vec(t.pose.position, target_x)
+    out.markers.append(t)
+    if len(x) > 1:
+        line = marker(10_000, Marker.LINE_STRIP, (0.6, 0.6, 0.6), 0.05)
+        line.points = [_set_vec(P(), p) for p in list(x) + [x[0]]]
+        out.markers.append(line)
+    return out

@@ -40,11 +40,12 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from apf_swarm_core.errors import ApfSwarmError
 
 __all__ = ['EXECUTORS', 'EXECUTOR_PARAM', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
-           'force_topic', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'INPUTS', 'SWARM_START', 'CLOCK', 'run_node']
+           'force_topic', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'run_node']
 
 TARGET_ODOM = '/target/odom'
 SWARM_STATE = '/swarm/state'
 SWARM_ODOM = '/swarm/odom'
+SWARM_MARKERS = '/swarm/markers'
 INPUTS = ('aggregate', 'odom')
 SWARM_START = '/swarm/start'
 CLOCK = '/clock'

@@ -1,7 +1,7 @@
 """Plant node: integrates every tracker's dynamics (eq. 19-21) with bounded noise.
 
 Publishes ``/uav_<i>/odom`` for every tracker, ``/swarm/odom`` (all of them and the target
-state, one message), ``/swarm/state`` and, in lockstep, ``/clock``;
+state, one message), ``/swarm/state``, ``/swarm/markers`` (RViz / Foxglove) and, in lockstep, ``/clock``;
 subscribes ``/uav_<i>/force_cmd`` and ``/target/odom``.
 
 Lockstep barrier, step k: publish ``/clock`` (k dt) and the odometry of step k; wait until the
@@ -26,14 +26,16 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Empty
+from visualization_msgs.msg import MarkerArray
 
 from apf_swarm_core.agents import PlantModel
 from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 
 from .conversions import (clock_msg, dt_to_ns, force_arrays, odom_arrays, odom_msg,
-                          step_of, step_stamp, swarm_odom_msg, swarm_state_msg)
-from .node_common import (CLOCK, CLOCK_QOS, INPUTS, START_QOS, STATE_QOS, SWARM_ODOM, SWARM_START,
-                          SWARM_STATE,
+                          markers_msg, step_of, step_stamp, swarm_odom_msg,
+                          swarm_state_msg)
+from .node_common import (CLOCK, CLOCK_QOS, INPUTS, START_QOS, STATE_QOS, SWARM_ODOM, SWARM_MARKERS,
+                          SWARM_START, SWARM_STATE,
                           TARGET_ODOM, control_qos, force_topic, odom_topic, run_node)
 from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
 
@@ -48,6 +50,9 @@ NODE_PARAMS = (
     NodeParam('command_timeout', 1.0, 'a command later than this is missed (lockstep) or '
               'stale (realtime) [s of wall time]', lo=0.001, hi=600.0),
     NodeParam('physics_rate', 200.0, 'realtime: physics timer rate [Hz]', lo=1.0, hi=5000.0),
+    NodeParam('markers_rate', 10.0, '/swarm/markers (visualization_msgs/MarkerArray) per second '
+              'of simulated (lockstep) or wall (realtime) time; 0 turns them off', lo=0.0,
+              hi=1000.0),
     NodeParam('publish_rate', 100.0, 'realtime: odometry and state rate [Hz]', lo=1.0,
               hi=2000.0),
 )
@@ -74,6 +79,12 @@ class PlantNode(Node):
                           for i in self.model.ids]
         self.state_pub = self.create_publisher(SwarmState, SWARM_STATE, STATE_QOS)
         self.swarm_odom_pub = self.create_publisher(SwarmOdometry, SWARM_ODOM, qos)
+        rate = float(p['markers_rate'])
+        period = self.cfg.dt if self.mode == 'lockstep' else 1.0 / float(p['publish_rate'])
+        self.markers_every = max(1, round(1.0 / (rate * period))) if rate > 0 else 0
+        self.state_count = 0
+        self.markers_pub = self.create_publisher(MarkerArray, SWARM_MARKERS, 1) \
+            if self.markers_every else None
         self.odom_sent = False
         for i in self.model.ids:
             self.create_subscription(ForceCommand, force_topic(i), self._on_force, qos)
@@ -264,6 +275,9 @@ class PlantNode(Node):
     # --- shared ------------------------------------------------------------------------------
     def _publish_state(self, k: int, stamp) -> None:
         tx, tv = self.target[1], self.target[2]
+        if self.markers_pub is not None and self.state_count % self.markers_every == 0:
+            self.markers_pub.publish(markers_msg(self.model.x, tx, stamp, self.model.ids))
+        self.state_count += 1
         j, ce, fe = self.model.metrics(tx)
         self.state_pub.publish(swarm_state_msg(
             step=k, sim_time=k * self.cfg.dt, stamp=stamp, uav_ids=self.model.ids,
