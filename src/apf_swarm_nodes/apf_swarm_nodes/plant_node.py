@@ -156,8 +156,7 @@ class PlantNode(Node):
         stamp = step_stamp(k, self.dt_ns)
         self.step_started = time.monotonic()
         self.clock_pub.publish(clock_msg(stamp))
-        for i, pub in zip(self.model.ids, self.odom_pubs):
-            pub.publish(odom_msg(self.model.x[i - 1], self.model.v[i - 1], stamp, f'uav_{i}'))
+        self._publish_odoms(stamp)
         self.odom_sent = False
         self._maybe_publish_swarm_odom()
 
@@ -267,12 +266,19 @@ class PlantNode(Node):
             return  # not started, finished, or no target state yet
         self.published_final = self.done   # the state at the end of the run goes out once
         stamp = self.get_clock().now().to_msg()
-        for i, pub in zip(self.model.ids, self.odom_pubs):
-            pub.publish(odom_msg(self.model.x[i - 1], self.model.v[i - 1], stamp, f'uav_{i}'))
+        self._publish_odoms(stamp)
         self._publish_swarm_odom(self.model.k, stamp)
         self._publish_state(self.model.k, stamp)
 
     # --- shared ------------------------------------------------------------------------------
+    def _publish_odoms(self, stamp) -> None:
+        """``/uav_<i>/odom`` of every tracker that has a reader (building an Odometry costs
+        about 0.1 ms in Python, a third of a lockstep step when nobody listens)."""
+        for i, pub in zip(self.model.ids, self.odom_pubs):
+            if pub.get_subscription_count():
+                pub.publish(odom_msg(self.model.x[i - 1], self.model.v[i - 1], stamp,
+                                     f'uav_{i}'))
+
     def _publish_state(self, k: int, stamp) -> None:
         tx, tv = self.target[1], self.target[2]
         if self.markers_pub is not None and self.state_count % self.markers_every == 0:
