@@ -4,17 +4,25 @@ Yao, Ordonez & Gazi (CDC 2006) as the baseline.
 
 Vectors are the last axis of arrays of shape ``(..., m, 3)`` (m trackers, optional leading
 batch dimensions); gains are floats or arrays of shape ``(...)`` (one value per run).
+
+Each equation is written once, in a private kernel (``_surface_filtered``, ``_surface_layer``,
+``_switching``, ``_known``, ``_filter``) that takes its gains already shaped for broadcasting;
+the public functions shape their arguments and call the kernel, and
+:class:`SlidingModeController` shapes its gains once (``_ControllerGains``) and calls the same
+kernels every step. Scalars are kept as 0-d float64 arrays rather than Python floats: on the
+arrays of a few elements of a single run, numpy's arithmetic with a 0-d array costs about half
+as much as with a Python float.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .saturation import outside_layer, saturate, sign
+from .saturation import SATURATIONS, _gamma, _outside, outside_layer, sat_continuous, saturate
 
 __all__ = [
     'LAWS', 'kinematic_velocity', 'filter_step', 'sliding_surface_proposed',
@@ -25,11 +33,80 @@ __all__ = [
 LAWS = ('proposed', 'traditional')
 
 
-def _g(value: ArrayLike, extra: int = 2) -> NDArray[np.float64] | float:
-    if type(value) is float:
-        return value
+def _g(value: ArrayLike, extra: int = 2) -> NDArray[np.float64]:
+    """A gain as a float64 array broadcastable against ``(..., m, 3)``: 0-d for one value,
+    ``(..., 1, 1)`` for per-run values of shape ``(...)``."""
     arr = np.asarray(value, dtype=float)
-    return float(arr) if arr.ndim == 0 else arr.reshape(arr.shape + (1,) * extra)
+    return arr if arr.ndim == 0 else arr.reshape(arr.shape + (1,) * extra)
+
+
+def _check_saturation(kind: str) -> None:
+    if kind not in SATURATIONS:
+        raise ValueError(f"saturation must be one of {SATURATIONS}, got {kind!r}")
+
+
+# --- kernels: one per equation, gains already shaped by _g -------------------------------
+# (np.sign is saturation.sign, sign(0) = 0, without its conversion of the argument)
+
+def _decay(lambda_filter: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
+    """Per-step decay ``e^{-dt/lambda}`` of the discretized filter of eq. 26."""
+    return np.exp(-dt / lambda_filter)
+
+
+def _filter(z: NDArray[np.float64], grad: NDArray[np.float64], decay: NDArray[np.float64],
+            gain_in: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Eq. 26 discretized: ``decay z + gain_in sign(grad)``, ``gain_in = (1 - decay) beta``."""
+    return decay * z + gain_in * np.sign(grad)
+
+
+def _surface_filtered(v: NDArray[np.float64], grad: NDArray[np.float64], z: NDArray[np.float64],
+                      alpha: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``s = v + alpha grad + z``: eq. 28 (outside the layer) and the traditional law."""
+    return v + alpha * grad + z
+
+
+def _surface_layer(v: NDArray[np.float64], grad: NDArray[np.float64],
+                   gain: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Eq. 31 inside the boundary layer: ``s = v + (alpha + beta/gamma) grad``, ``gain`` the
+    bracket."""
+    return v + gain * grad
+
+
+def _surface_proposed(v: NDArray[np.float64], grad: NDArray[np.float64],
+                      z: NDArray[np.float64], outside: NDArray[np.bool_],
+                      alpha: NDArray[np.float64], gain: NDArray[np.float64]
+                      ) -> NDArray[np.float64]:
+    """Proposed manifold with the paper's sat: eq. 28 where ``outside``, eq. 31 elsewhere.
+
+    When no tracker is outside the layer (the steady state) the eq. 28 branch is not
+    computed at all.
+    """
+    inner = _surface_layer(v, grad, gain)
+    if not np.count_nonzero(outside):
+        return inner
+    outer = _surface_filtered(v, grad, z, alpha)
+    if inner.size > 96 and inner.shape == outer.shape == outside.shape + (3,):
+        # a contiguous mask: np.where then runs one long loop instead of one per row
+        return np.where(np.repeat(outside, 3, axis=-1).reshape(inner.shape), outer, inner)
+    return np.where(outside[..., None], outer, inner)
+
+
+def _surface_continuous(v: NDArray[np.float64], grad: NDArray[np.float64],
+                        alpha: NDArray[np.float64], beta: NDArray[np.float64],
+                        gamma: ArrayLike) -> NDArray[np.float64]:
+    """Eq. 22 with the continuous sat: ``s = v + alpha grad + beta grad / max(|grad|, gamma)``."""
+    return v + alpha * grad + beta * sat_continuous(grad, gamma)
+
+
+def _known(v: NDArray[np.float64], drag: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Eq. 20's known term ``f_known = drag * v``."""
+    return drag * v
+
+
+def _switching(s: NDArray[np.float64], v: NDArray[np.float64], neg_u0: NDArray[np.float64],
+               drag: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Eq. 24, ``u = -u0 sign(s) + f_known(v)``, with ``neg_u0 = -u0``."""
+    return neg_u0 * np.sign(s) + _known(v, drag)
 
 
 def kinematic_velocity(grad: ArrayLike, *, alpha: ArrayLike, beta: ArrayLike,
@@ -71,8 +148,9 @@ def filter_step(z: ArrayLike, grad: ArrayLike, *, beta: ArrayLike, lambda_filter
     -------
     z_next : array, shape (..., m, 3)
     """
-    decay = np.exp(-dt / _g(lambda_filter))
-    return decay * np.asarray(z, dtype=float) + (1.0 - decay) * _g(beta) * sign(grad)
+    decay = _decay(_g(lambda_filter), dt)
+    return _filter(np.asarray(z, dtype=float), np.asarray(grad, dtype=float), decay,
+                   (1.0 - decay) * _g(beta))
 
 
 def sliding_surface_proposed(v: ArrayLike, grad: ArrayLike, z: ArrayLike, *, alpha: ArrayLike,
@@ -104,11 +182,11 @@ def sliding_surface_proposed(v: ArrayLike, grad: ArrayLike, z: ArrayLike, *, alp
     grad = np.asarray(grad, dtype=float)
     outside = outside_layer(grad, gamma)
     if saturation == 'paper':
-        outer = v + _g(alpha) * grad + np.asarray(z, dtype=float)
-        inner = v + (_g(alpha) + _g(beta) / _g(gamma)) * grad
-        s = np.where(outside[..., None], outer, inner)
+        s = _surface_proposed(v, grad, np.asarray(z, dtype=float), outside, _g(alpha),
+                              _g(alpha) + _g(beta) / _g(gamma))
     else:
-        s = v + _g(alpha) * grad + _g(beta) * saturate(grad, gamma, saturation)
+        _check_saturation(saturation)
+        s = _surface_continuous(v, grad, _g(alpha), _g(beta), gamma)
     return s, outside
 
 
@@ -122,8 +200,8 @@ def sliding_surface_traditional(v: ArrayLike, grad: ArrayLike, z: ArrayLike, *,
     -------
     s : array, shape (..., m, 3) [m/s]
     """
-    return (np.asarray(v, dtype=float) + _g(alpha) * np.asarray(grad, dtype=float)
-            + np.asarray(z, dtype=float))
+    return _surface_filtered(np.asarray(v, dtype=float), np.asarray(grad, dtype=float),
+                             np.asarray(z, dtype=float), _g(alpha))
 
 
 def known_force(v: ArrayLike, drag: ArrayLike) -> NDArray[np.float64]:
@@ -131,7 +209,7 @@ def known_force(v: ArrayLike, drag: ArrayLike) -> NDArray[np.float64]:
 
     A linear drag is the model this project uses for the known term; ``drag = 0`` removes it.
     """
-    return _g(drag) * np.asarray(v, dtype=float)
+    return _known(np.asarray(v, dtype=float), _g(drag))
 
 
 def switching_force(s: ArrayLike, v: ArrayLike, *, u0: ArrayLike,
@@ -140,7 +218,7 @@ def switching_force(s: ArrayLike, v: ArrayLike, *, u0: ArrayLike,
 
     The printed ``J_i^known`` is the known disturbance ``f_i^known`` of eq. 20 (SPEC section 1).
     """
-    return -_g(u0) * sign(s) + known_force(v, drag)
+    return _switching(np.asarray(s, dtype=float), np.asarray(v, dtype=float), -_g(u0), _g(drag))
 
 
 @dataclass(frozen=True)
@@ -152,6 +230,26 @@ class ControlOutput:
     gradient: NDArray[np.float64]
     filter_state: NDArray[np.float64]
     saturated: NDArray[np.bool_]
+
+
+#: controller fields its prepared gains are derived from
+_GAIN_FIELDS = frozenset({'law', 'alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'dt', 'drag',
+                          'saturation'})
+
+
+@dataclass(frozen=True)
+class _ControllerGains:
+    """Gains of a :class:`SlidingModeController` shaped once for the kernels."""
+
+    alpha: NDArray[np.float64]
+    beta: NDArray[np.float64]
+    gamma: Any                      # as given, for sat_continuous
+    gamma_rows: NDArray[np.float64]  # shaped against (..., m) for the layer test
+    layer_gain: NDArray[np.float64]  # alpha + beta / gamma of eq. 31
+    neg_u0: NDArray[np.float64]
+    drag: NDArray[np.float64]
+    decay: NDArray[np.float64]       # e^{-dt/lambda} of eq. 26
+    gain_in: NDArray[np.float64]     # (1 - decay) beta
 
 
 @dataclass
@@ -172,6 +270,10 @@ class SlidingModeController:
     shape : tuple
         Shape of the state, ``(..., m, 3)``.
     saturation : 'paper' or 'continuous'
+
+    The gains are shaped for the kernels once and the result is cached; assigning any gain
+    attribute (``ctl.gamma = 0.3``) invalidates the cache. Gain arrays must be replaced, not
+    modified in place.
     """
 
     law: Literal['proposed', 'traditional']
@@ -185,6 +287,22 @@ class SlidingModeController:
     drag: ArrayLike = 0.0
     saturation: str = 'paper'
     z: NDArray[np.float64] = field(init=False, repr=False)
+    _gains: _ControllerGains | None = field(init=False, repr=False, compare=False, default=None)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        object.__setattr__(self, name, value)
+        if name in _GAIN_FIELDS:
+            object.__setattr__(self, '_gains', None)
+
+    def _prepare(self) -> _ControllerGains:
+        alpha, beta, gamma = _g(self.alpha), _g(self.beta), _g(self.gamma)
+        decay = _decay(_g(self.lambda_filter), self.dt)
+        gains = _ControllerGains(
+            alpha=alpha, beta=beta, gamma=self.gamma, gamma_rows=_gamma(self.gamma, 1),
+            layer_gain=alpha + beta / gamma, neg_u0=-_g(self.u0), drag=_g(self.drag),
+            decay=decay, gain_in=(1.0 - decay) * beta)
+        object.__setattr__(self, '_gains', gains)
+        return gains
 
     def __post_init__(self) -> None:
         if self.law not in LAWS:
@@ -197,15 +315,18 @@ class SlidingModeController:
 
     def step(self, v: ArrayLike, grad: ArrayLike) -> ControlOutput:
         """Compute the command for velocities ``v`` and gradients ``grad`` (shape ``(..., m, 3)``)."""
+        p = self._gains or self._prepare()
+        v = np.asarray(v, dtype=float)
+        grad = np.asarray(grad, dtype=float)
         z = self.z
-        if self.law == 'proposed':
-            s, outside = sliding_surface_proposed(
-                v, grad, z, alpha=self.alpha, beta=self.beta, gamma=self.gamma,
-                saturation=self.saturation)
+        outside = _outside(grad, p.gamma_rows)
+        if self.law == 'traditional':
+            s = _surface_filtered(v, grad, z, p.alpha)
+        elif self.saturation == 'paper':
+            s = _surface_proposed(v, grad, z, outside, p.alpha, p.layer_gain)
         else:
-            s = sliding_surface_traditional(v, grad, z, alpha=self.alpha)
-            outside = outside_layer(grad, self.gamma)
-        force = switching_force(s, v, u0=self.u0, drag=self.drag)
-        self.z = filter_step(z, grad, beta=self.beta, lambda_filter=self.lambda_filter, dt=self.dt)
-        return ControlOutput(force=force, sliding_surface=s, gradient=np.asarray(grad, dtype=float),
-                             filter_state=z, saturated=outside)
+            _check_saturation(self.saturation)
+            s = _surface_continuous(v, grad, p.alpha, p.beta, p.gamma)
+        force = _switching(s, v, p.neg_u0, p.drag)
+        self.z = _filter(z, grad, p.decay, p.gain_in)
+        return ControlOutput(force, s, grad, z, outside)   # positional: cheaper per step

@@ -13,6 +13,9 @@ attraction/repulsion function the paper cites. Positions are in metres; with uni
 All functions accept optional leading batch dimensions: ``x`` of shape ``(..., n, 3)`` and
 ``x_target`` of shape ``(..., 3)``. Gains may be Python floats or arrays of shape ``(...)``
 broadcastable against the batch shape (one value per run of a batch).
+
+:func:`gradient` is the simulator's hot path; how it is organized (and why row ``i`` of the
+full gradient equals ``gradient(..., rows=[i])`` bit for bit) is described in its docstring.
 """
 
 from __future__ import annotations
@@ -23,14 +26,24 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = ['pair_weight', 'potential', 'gradient', 'target_gradient']
 
 
-def _gain(value: ArrayLike, extra_dims: int) -> NDArray[np.float64] | float:
-    """Reshape a scalar or per-run gain of shape ``(...)`` to broadcast over ``extra_dims``."""
-    if type(value) is float:
-        return value
+#: elements of the pair arrays (3, rows, n, runs) of one block of rows in :func:`gradient`
+_PAIR_BLOCK = 1 << 16
+#: below this many trackers :func:`gradient` sums over j left to right whatever the layout
+#: (numpy reduces fewer than 8 elements sequentially), and uses the pair arrays in the
+#: arrays' own layout for fewer than ``_LOOP_MIN_RUNS`` runs, a loop over the pairs
+#: vectorized over the runs otherwise
+_SMALL_N = 8
+_LOOP_MIN_RUNS = 64
+
+
+def _gain(value: ArrayLike, extra_dims: int) -> NDArray[np.float64]:
+    """Reshape a scalar or per-run gain of shape ``(...)`` to broadcast over ``extra_dims``.
+
+    A scalar becomes a 0-d float64 array, not a Python float: numpy's arithmetic on small
+    arrays is about twice as fast with a 0-d array operand.
+    """
     arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        return float(arr)
-    return arr.reshape(arr.shape + (1,) * extra_dims)
+    return arr if arr.ndim == 0 else arr.reshape(arr.shape + (1,) * extra_dims)
 
 
 def pair_weight(r2: ArrayLike, a: ArrayLike, b: ArrayLike, c: ArrayLike) -> NDArray[np.float64]:
@@ -48,7 +61,15 @@ def pair_weight(r2: ArrayLike, a: ArrayLike, b: ArrayLike, c: ArrayLike) -> NDAr
         Potential parameters (a, b dimensionless, c in m^2).
     """
     r2 = np.asarray(r2, dtype=float)
-    return _gain(a, 2) - _gain(b, 2) * np.exp(-r2 / _gain(c, 2))
+    a, b = _gain(a, 2), _gain(b, 2)
+    w = np.divide(r2, np.negative(_gain(c, 2)))        # r2/(-c) == -r2/c exactly
+    # the rest in place on the one temporary when the shapes allow
+    if type(w) is not np.ndarray or (a.ndim | b.ndim and w.shape != np.broadcast_shapes(
+            w.shape, a.shape, b.shape)):
+        return a - b * np.exp(w)
+    np.exp(w, out=w)
+    np.multiply(b, w, out=w)
+    return np.subtract(a, w, out=w)
 
 
 def _pair_geometry(x: NDArray[np.float64], rows: ArrayLike | None):
@@ -112,6 +133,27 @@ def gradient(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Ar
     position and its neighbours' evaluates its own row with ``rows=[i]``: the same function,
     the same arithmetic, as the simulator that evaluates all rows.
 
+    Evaluation strategy (performance only; the same terms, ``d_ij = x_i - x_j``,
+    ``r_ij^2 = (d_x^2 + d_y^2) + d_z^2``, ``d_ij * pair_weight_ij`` summed over j):
+
+    * fewer than 8 trackers and fewer than 64 runs (a single run of the paper's swarm):
+      whole pair arrays of shape (..., m, n, 3) in the arrays' own layout, the fewest numpy
+      calls;
+    * fewer than 8 trackers and at least 64 runs: a loop over the pairs, each evaluated once
+      and vectorized over the runs (``_pair_sums_by_pair``);
+    * 8 trackers or more: a component-major copy of the positions and whole pair arrays for
+      blocks of rows of about ``2**16`` elements (``_pair_sums_by_rows``), runs innermost if
+      there are at least n runs, outermost otherwise, so that large swarms work in
+      cache-sized pieces with long inner loops.
+
+    Every term is computed independently of the others and each row's sum over j depends
+    only on that row, so the result of a row does not depend on which or how many other rows
+    are evaluated: ``gradient(x, ..., rows=[i])`` equals row i of ``gradient(x, ...)``
+    exactly, and the blocking changes no value. Below 8 trackers numpy sums over j left to
+    right in every strategy, so a run inside a batch also equals the same run alone bit for
+    bit; from 8 trackers on, a batch with runs innermost sums in another order than a single
+    run and the two may differ by rounding.
+
     Parameters
     ----------
     x : array, shape (..., n, 3)
@@ -133,14 +175,130 @@ def gradient(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Ar
     """
     x = np.asarray(x, dtype=float)
     x_target = np.asarray(x_target, dtype=float)
-    diff, r2 = _pair_geometry(x, rows)
-    w = pair_weight(r2, a, b, c)
+    lead, n = x.shape[:-2], x.shape[-2]
+    kn, kf = _gain(k_n, 0), _gain(k_f, 0)
     if mask is not None:
-        w = np.where(mask, w, 0.0)
-    # the self pair has diff == 0, so it contributes nothing whatever its weight
-    pair = np.einsum('...ij,...ijk->...ik', w, diff)
-    xi = x if rows is None else x[..., rows, :]
-    return _gain(k_n, 2) * (xi - x_target[..., None, :]) + _gain(k_f, 2) * pair
+        mask = np.asarray(mask, dtype=bool)
+    if (x_target.shape[:-1] != lead or kn.ndim or kf.ndim or not _is_scalar(a)
+            or not _is_scalar(b) or not _is_scalar(c) or (mask is not None and mask.ndim > 2)):
+        full = np.broadcast_shapes(lead, x_target.shape[:-1], kn.shape, kf.shape, np.shape(a),
+                                   np.shape(b), np.shape(c),
+                                   () if mask is None else mask.shape[:-2])
+        if full != lead:            # more runs in the target, gains or mask than in x
+            return gradient(np.broadcast_to(x, full + (n, 3)), x_target, k_n=k_n, k_f=k_f,
+                            a=a, b=b, c=c, rows=rows, mask=mask)
+        x_target = np.broadcast_to(x_target, lead + (3,))
+    B = x.size // (3 * n) if n else 1                   # runs in the batch
+    if n < _SMALL_N and (B < _LOOP_MIN_RUNS or mask is not None):
+        # few trackers, few runs: arrays in their own layout, pair arrays (..., m, n, 3)
+        xi = x if rows is None else x[..., rows, :]
+        d = xi[..., :, None, :] - x[..., None, :, :]
+        w = pair_weight(np.add.reduce(d * d, axis=-1), a, b, c)
+        if mask is not None:
+            w = np.where(mask, w, 0.0)
+        # the self pair has d == 0, so it contributes nothing whatever its weight
+        d *= w[..., None]
+        pair = np.add.reduce(d, axis=-2)
+        rel = xi - x_target[..., None, :]
+        if kn.ndim or float(kn) != 1.0:        # (a product by 1.0 changes nothing)
+            rel *= kn[..., None, None]
+        if kf.ndim or float(kf) != 1.0:
+            pair *= kf[..., None, None]
+        rel += pair
+        return rel
+    # component-major copy, logical shape (3, n, B): physically (3, n, B) when the runs go
+    # innermost, (B, 3, n) otherwise; numpy keeps that memory order in every temporary
+    xb = x.reshape((B, n, 3))
+    runs_inner = B > 1 and B >= n
+    if runs_inner:
+        X = xb.transpose(2, 1, 0).copy()
+    else:
+        X = xb.transpose(0, 2, 1).copy().transpose(1, 2, 0)
+    Xi = X if rows is None else X[:, rows]             # (3, m, B)
+    if n < _SMALL_N:
+        pair = _pair_sums_by_pair(X, rows, lead, a, b, c)
+    else:
+        pair = _pair_sums_by_rows(X, Xi, lead, a, b, c, mask)
+    rel = Xi - x_target.reshape((B, 3)).T[:, None, :]   # x_i - x_N, (3, m, B)
+    if kn.ndim or float(kn) != 1.0:
+        rel *= kn.reshape(B) if kn.ndim else kn
+    if kf.ndim or float(kf) != 1.0:
+        pair *= kf.reshape(B) if kf.ndim else kf
+    out = np.empty(lead + (Xi.shape[1], 3))
+    np.add(rel, pair, out=out.reshape((B, -1, 3)).transpose(2, 1, 0))
+    return out
+
+
+def _is_scalar(value: ArrayLike) -> bool:
+    kind = type(value)
+    if kind is np.ndarray:
+        return not value.ndim
+    return kind is float or np.ndim(value) == 0
+
+
+def _pair_sums_by_rows(X: NDArray[np.float64], Xi: NDArray[np.float64], lead: tuple[int, ...],
+                       a: ArrayLike, b: ArrayLike, c: ArrayLike,
+                       mask: NDArray[np.bool_] | None) -> NDArray[np.float64]:
+    """``sum_j (x_i - x_j) pair_weight_ij`` for the rows ``Xi`` (3, m, B) against ``X``
+    (3, n, B), in blocks of rows, as whole (3, rows, n, B) arrays; returns (3, m, B)."""
+    _, n, B = X.shape
+    m = Xi.shape[1]
+    step = max(1, _PAIR_BLOCK // (3 * n * B))
+    parts = []
+    for r0 in range(0, m, step):
+        d = (Xi if step >= m else Xi[:, r0:r0 + step])[:, :, None, :] - X[:, None, :, :]
+        sq = d * d
+        r2 = sq[0] + sq[1]
+        r2 += sq[2]                                     # (mb, n, B), same sum as a reduce
+        mb = r2.shape[0]
+        # pair_weight sees the usual (..., mb, n) axes, for per-run gains of shape (...)
+        w = pair_weight(r2.transpose(2, 0, 1).reshape(lead + (mb, n)), a, b, c)
+        if mask is not None:
+            w = np.where(mask[..., r0:r0 + mb, :], w, 0.0)
+        # the self pair has d == 0, so it contributes nothing whatever its weight
+        d *= w.reshape((B, mb, n)).transpose(1, 2, 0)
+        parts.append(np.add.reduce(d, axis=2))          # (3, mb, B)
+    return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
+
+
+def _pair_sums_by_pair(X: NDArray[np.float64], rows: ArrayLike | None, lead: tuple[int, ...],
+                       a: ArrayLike, b: ArrayLike, c: ArrayLike) -> NDArray[np.float64]:
+    """The same sums as :func:`_pair_sums_by_rows`, one pair at a time, vectorized over the
+    runs of a batch (X of shape (3, n, B), runs innermost): for few trackers and many runs.
+
+    Without ``rows`` each unordered pair is evaluated once and its term added to row i and
+    subtracted from row j (``x_j - x_i = -(x_i - x_j)`` and ``r^2`` are exact under
+    negation). Each row still receives its terms in the order j = 0, 1, ..., n-1, the
+    left-to-right order in which numpy reduces fewer than 8 terms, so for n < 8 this gives
+    the same bits as the whole-array forms.
+    """
+    _, n, B = X.shape
+    wshape = lead + (1, 1)
+
+    def term(i: int, j: int) -> NDArray[np.float64]:
+        """(x_i - x_j) pair_weight_ij of every run, shape (3, B)."""
+        d = X[:, i] - X[:, j]
+        sq = d * d
+        r2 = sq[0] + sq[1]
+        r2 += sq[2]
+        d *= pair_weight(r2.reshape(wshape), a, b, c).reshape(B)
+        return d
+
+    if rows is None:
+        acc = np.zeros((3, n, B))
+        for i in range(n):
+            for j in range(i + 1, n):
+                t = term(i, j)
+                acc[:, i] += t
+                acc[:, j] -= t
+        return acc
+    index = np.arange(n)[rows].reshape(-1)             # any index form -> tracker numbers
+    acc = np.zeros((3, len(index), B))
+    for p, i in enumerate(index.tolist()):
+        for j in range(n):
+            if j != i:
+                acc[:, p] += term(i, j)
+    return acc
 
 
 def target_gradient(x: ArrayLike, x_target: ArrayLike, *,
