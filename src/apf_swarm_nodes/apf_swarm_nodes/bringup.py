@@ -24,6 +24,7 @@ What a run does, in order:
 
 Exit codes: 0 success, 2 bad input or graph not ready in time, 3 a child died (without
 ``--respawn``, or after ``--max-respawns``), 4 no ``/swarm/state`` for ``--stall-timeout``,
+5 a lockstep run completed but ``/swarm/state`` samples were lost (``trajectory.npz`` has gaps),
 130 interrupted (SIGINT or SIGTERM).
 
 This module imports rclpy only inside :func:`run`, so the ``apf-swarm`` parser stays light, and
@@ -63,6 +64,7 @@ EXIT_OK = 0
 EXIT_BAD_INPUT = 2
 EXIT_CHILD_DIED = 3
 EXIT_STALLED = 4
+EXIT_LOST_SAMPLES = 5
 EXIT_INTERRUPTED = 130
 
 #: escalation of :meth:`ProcessGroup.stop_all`: (signal, seconds to wait after it)
@@ -1045,6 +1047,10 @@ class Bringup:
             self.signals.restore()
         if self.leftovers and code == EXIT_OK:
             code, status = EXIT_CHILD_DIED, 'leftover_processes'
+        if code == EXIT_OK and self.mode == 'lockstep' and self.acc.dropped:
+            code, status = EXIT_LOST_SAMPLES, 'lost_samples'
+            self.say(f'error: {self.acc.dropped} /swarm/state samples were lost; the trajectory '
+                     'has gaps (a starved or paused bring-up: rerun on a quieter machine)')
         if status in ('not_ready',):
             return code
         if self.t_start is not None:

@@ -11,7 +11,7 @@ topic                  lockstep                    realtime
 /uav_<i>/force_cmd     reliable, keep last 10      best effort, keep last 1 (latest wins)
 /clock                 reliable, keep last 10      (not published)
 /swarm/odom            reliable, keep last 10      best effort, keep last 1
-/swarm/state           reliable, keep last 100     reliable, keep last 100 (recorded, summed)
+/swarm/state           reliable, keep last 5000    reliable, keep last 5000 (recorded, summed)
 /swarm/start           reliable, transient local, keep last 1 (late joiners see the start)
 =====================  ==========================  =========================================
 
@@ -50,8 +50,10 @@ INPUTS = ('aggregate', 'odom')
 SWARM_START = '/swarm/start'
 CLOCK = '/clock'
 
+#: deep enough that a reader paused for seconds loses nothing in lockstep (5000 steps, about
+#: 1.5 MB for 3 trackers); measured: depth 100 lost 358 of 3000 samples over a 3 s pause
 STATE_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                       depth=100, durability=DurabilityPolicy.VOLATILE)
+                       depth=5000, durability=DurabilityPolicy.VOLATILE)
 START_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                        depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CLOCK_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
@@ -85,7 +87,8 @@ def spin(node: Node, kind: str = 'single') -> None:
 
     ``events`` (the nodes' default): ``rclpy.experimental.EventsExecutor`` driven by a
     ``spin_once`` loop (its ``spin()`` busy-loops and ignores SIGINT in these wheels, SPEC
-    section 4); ``single``: SingleThreadedExecutor; ``multi``: MultiThreadedExecutor.
+    section 4); ``single``: SingleThreadedExecutor; ``multi``: MultiThreadedExecutor (measured
+    here 6-78 lockstep steps/s against about 300 for events: kept only for comparison).
     """
     if kind == 'events':
         from rclpy.experimental import EventsExecutor

@@ -155,10 +155,11 @@ class PlantNode(Node):
         k = self.model.k
         stamp = step_stamp(k, self.dt_ns)
         self.step_started = time.monotonic()
-        self.clock_pub.publish(clock_msg(stamp))
-        self._publish_odoms(stamp)
+        # what the trackers wait for goes out first
         self.odom_sent = False
         self._maybe_publish_swarm_odom()
+        self.clock_pub.publish(clock_msg(stamp))
+        self._publish_odoms(stamp)
 
     def _maybe_publish_swarm_odom(self) -> None:
         """Lockstep: ``/swarm/odom`` of step k once the target state of step k is held."""

@@ -1,0 +1,337 @@
+"""The bring-up (``scripts/swarm_up.py``) as a user runs it: a real subprocess per run.
+
+Every run gets its own ``--domain-id`` (102..201, away from ``make test``'s 1..100) and its own
+``--out`` under ``tmp_path``; waits are bounded polls of the run's stderr / ``/proc``, never
+fixed sleeps; every process a run started (the bring-up and every node, found by the run's
+``config.yaml`` path on their command lines) is stopped by PID at the end, also on failure.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from itertools import combinations
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pytest
+
+from apf_swarm_core.config import load_config
+from apf_swarm_core.simulator import TRAJECTORY_KEYS, simulate
+from apf_swarm_nodes.bringup import pick_domain_id
+
+ROOT = Path(__file__).resolve().parents[2]
+SWARM_UP = ROOT / 'scripts' / 'swarm_up.py'
+
+#: fields the bring-up adds to the simulator's summary.json schema
+RUN_FIELDS = ('status', 'mode', 'domain_id', 'wall_time', 'missed_deadlines', 'stale_inputs',
+              'rejected_inputs', 'respawns', 'messages')
+
+
+# --------------------------------------------------------------------------------------------
+# processes, from /proc
+# --------------------------------------------------------------------------------------------
+
+def _stat(pid: int) -> tuple[str, int] | None:
+    """(state, start time in ticks) of a process, None when it does not exist."""
+    try:
+        with open(f'/proc/{pid}/stat', encoding='ascii', errors='replace') as f:
+            fields = f.read().rsplit(')', 1)[-1].split()
+    except OSError:
+        return None
+    return fields[0], int(fields[19])
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f'/proc/{pid}/cmdline', 'rb') as f:
+            return f.read().replace(b'\0', b' ').decode(errors='replace')
+    except OSError:
+        return ''
+
+
+def processes_with(needle: str) -> dict[int, int]:
+    """{pid: start time} of every live (non-zombie) process whose command line has ``needle``."""
+    out = {}
+    for entry in os.listdir('/proc'):
+        if entry.isdigit() and needle in _cmdline(int(entry)):
+            st = _stat(int(entry))
+            if st is not None and st[0] != 'Z':
+                out[int(entry)] = st[1]
+    return out
+
+
+def alive(pid: int, start: int) -> bool:
+    """True while the process ``pid`` started at ``start`` exists and is not a zombie."""
+    st = _stat(pid)
+    return st is not None and st[0] != 'Z' and st[1] == start
+
+
+def wait_for(cond: Callable[[], bool], timeout: float, what: str,
+             run: 'BringupRun | None' = None) -> None:
+    """Poll ``cond`` every 50 ms; fail naming ``what`` (and the run's stderr) after ``timeout``."""
+    end = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > end:
+            detail = f'\n--- stderr of the bring-up ---\n{run.stderr()}' if run else ''
+            raise AssertionError(f'timed out after {timeout:g} s waiting for {what}{detail}')
+        if run is not None and run.popen.poll() is not None and not cond():
+            raise AssertionError(f'the bring-up exited ({run.popen.returncode}) while waiting '
+                                 f'for {what}\n--- stderr ---\n{run.stderr()}')
+        time.sleep(0.05)
+
+
+# --------------------------------------------------------------------------------------------
+# one bring-up
+# --------------------------------------------------------------------------------------------
+
+class BringupRun:
+    """``python scripts/swarm_up.py ARGS --domain-id D --out DIR`` with stdout / stderr in files."""
+
+    def __init__(self, tmp: Path, name: str, *args: str) -> None:
+        self.out = (tmp / name).resolve()
+        self.config = str(self.out / 'config.yaml')
+        self.domain_id = pick_domain_id(lo=102, hi=201)
+        self.err_path, self.out_path = tmp / f'{name}.stderr', tmp / f'{name}.stdout'
+        self.argv = [sys.executable, str(SWARM_UP), *args, '--domain-id', str(self.domain_id),
+                     '--out', str(self.out), '--no-plots']
+        self.nodes: dict[int, int] = {}     # every node process seen while it ran
+        with open(self.err_path, 'wb') as err, open(self.out_path, 'wb') as out:
+            # own session: a Ctrl-C of pytest does not reach it; the test signals it by PID
+            self.popen = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=out,
+                                          stderr=err, env=dict(os.environ), cwd=ROOT,
+                                          start_new_session=True)
+        self.start_tick = _stat(self.popen.pid)[1]
+
+    def stderr(self) -> str:
+        return self.err_path.read_text(errors='replace')
+
+    def stdout(self) -> str:
+        return self.out_path.read_text(errors='replace')
+
+    def summary(self) -> dict:
+        return json.loads((self.out / 'summary.json').read_text())
+
+    def collect_nodes(self) -> dict[int, int]:
+        """Node processes running now (their command lines name this run's config.yaml)."""
+        now = processes_with(self.config)
+        self.nodes.update(now)
+        return now
+
+    def wait_running(self, timeout: float = 90.0) -> None:
+        """Until the bring-up printed a progress line of the running swarm (steps/s)."""
+        wait_for(lambda: 'steps/s' in self.stderr(), timeout, 'a progress line', self)
+
+    def wait(self, timeout: float) -> int:
+        try:
+            return self.popen.wait(timeout)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f'the bring-up did not exit within {timeout:g} s\n--- stderr '
+                                 f'---\n{self.stderr()}') from None
+
+    def left_behind(self) -> list[int]:
+        """Live processes of this run (nodes seen, anything naming its config, the bring-up)."""
+        left = [p for p, t in {**self.nodes, **processes_with(self.config)}.items()
+                if alive(p, t)]
+        if alive(self.popen.pid, self.start_tick):
+            left.append(self.popen.pid)
+        return left
+
+    def cleanup(self) -> None:
+        """Stop whatever is still running, by PID: SIGINT the bring-up, then SIGKILL all."""
+        if self.popen.poll() is None:
+            self.popen.send_signal(signal.SIGINT)
+            try:
+                self.popen.wait(15)
+            except subprocess.TimeoutExpired:
+                self.popen.kill()
+                self.popen.wait(5)
+        self.collect_nodes()
+        for pid, start in list(self.nodes.items()) + list(processes_with(self.config).items()):
+            if alive(pid, start):
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+
+
+@pytest.fixture
+def bringup(tmp_path: Path):
+    """Factory of :class:`BringupRun`; every run is stopped (by PID) after the test."""
+    runs: list[BringupRun] = []
+
+    def start(name: str, *args: str) -> BringupRun:
+        run = BringupRun(tmp_path, name, *args)
+        runs.append(run)
+        return run
+
+    yield start
+    for run in runs:
+        run.cleanup()
+
+
+def kill_tracker(run: BringupRun, uav_id: int) -> int:
+    """SIGKILL the process of tracker ``uav_id`` of this run; returns its PID."""
+    run.collect_nodes()
+    pids = [p for p in run.nodes if '/tracker ' in _cmdline(p)
+            and f'uav_id:={uav_id} ' in _cmdline(p) + ' ']
+    assert len(pids) == 1, (pids, {p: _cmdline(p) for p in run.nodes})
+    os.kill(pids[0], signal.SIGKILL)
+    return pids[0]
+
+
+# --------------------------------------------------------------------------------------------
+# the tests
+# --------------------------------------------------------------------------------------------
+
+def test_lockstep_bringup_forms_the_triangle_and_equals_the_simulator(bringup) -> None:
+    """3 trackers, triangle preset, 4 s simulated: exit 0, the triangle, the simulator's run."""
+    run = bringup('tri', '--preset', 'triangle', '--n-trackers', '3', '--duration', '4')
+    rc = run.wait(240)
+    assert rc == 0, run.stderr()
+    assert 'Traceback' not in run.stderr()
+    assert run.left_behind() == []
+
+    summary = run.summary()
+    cfg = load_config(run.out / 'config.yaml')        # the file every node read
+    assert (cfg.n_trackers, cfg.duration, cfg.steps) == (3, 4.0, 4000)
+    sim = simulate(cfg)
+    sim_summary = sim.summary()
+    with np.load(run.out / 'trajectory.npz') as data:
+        ros = {k: data[k] for k in data.files}
+
+    # the formation: every steady pair distance within 2 % of the analytic side
+    d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
+    assert d == pytest.approx(1.599, abs=5e-4)
+    steady = slice(int(len(ros['t']) * (1 - cfg.steady_fraction)), None)
+    x = ros['x'][steady]
+    pairs = np.stack([np.linalg.norm(x[:, i] - x[:, j], axis=-1)
+                      for i, j in combinations(range(3), 2)])
+    assert np.max(np.abs(pairs - d)) <= 0.02 * d, (pairs.min(), pairs.max(), d)
+    assert summary['formation']['pair_distance_expected'] == pytest.approx(d, rel=1e-9)
+    assert summary['converged'] is True
+
+    # tracking: steady centroid error no worse than the headless simulator's + 0.05 m
+    centroid_err = np.linalg.norm(x.mean(axis=1) - ros['target_x'][steady], axis=-1)
+    rms = float(np.sqrt(np.mean(centroid_err ** 2)))
+    assert rms <= sim_summary['centroid_error']['rms_steady'] + 0.05
+    assert summary['centroid_error']['rms_steady'] <= \
+        sim_summary['centroid_error']['rms_steady'] + 0.05
+
+    # lockstep with no missed deadline reproduces the simulator
+    assert summary['missed_deadlines'] == 0
+    assert summary['messages']['received'] == summary['messages']['expected'] == 4000
+    assert summary['messages']['dropped'] == 0
+    assert set(ros) == set(TRAJECTORY_KEYS)          # the schema of trajectory.npz
+    for key in TRAJECTORY_KEYS:
+        ref = sim.trajectory[key]
+        assert ros[key].shape == np.shape(ref), key
+        assert np.max(np.abs(ros[key] - ref)) <= 1e-9, key
+
+    # summary.json: the simulator's schema (same keys, same nested keys) plus the run fields
+    for key, val in sim_summary.items():
+        assert key in summary, key
+        if isinstance(val, dict):
+            assert set(summary[key]) == set(val), key
+    assert set(RUN_FIELDS) <= set(summary) - set(sim_summary)
+    assert summary['status'] == 'completed' and summary['mode'] == 'lockstep'
+    assert summary['domain_id'] == run.domain_id
+    assert summary['respawns'] == 0 and summary['stale_inputs'] == 0
+    for key in ('formation', 'centroid_error'):
+        for sub, val in sim_summary[key].items():
+            if isinstance(val, float):
+                assert summary[key][sub] == pytest.approx(val, rel=1e-6, abs=1e-9), (key, sub)
+
+
+def test_sigint_stops_the_bringup_and_every_node(bringup) -> None:
+    run = bringup('int', '--preset', 'triangle', '--duration', '60')
+    run.wait_running()
+    wait_for(lambda: len(run.collect_nodes()) == 5, 10, 'the 5 node processes', run)
+    assert run.popen.poll() is None
+    run.popen.send_signal(signal.SIGINT)
+    assert run.wait(25) == 130, run.stderr()
+    err = run.stderr()
+    assert 'interrupted by SIGINT' in err and 'Traceback' not in err, err
+    assert run.left_behind() == [], run.left_behind()
+    summary = run.summary()                     # what ran so far is kept
+    assert summary['status'] == 'interrupted'
+    assert 0 < summary['messages']['received'] < 60000
+
+
+def test_a_killed_tracker_stops_the_run_naming_it(bringup) -> None:
+    run = bringup('kill', '--preset', 'triangle', '--duration', '60')
+    run.wait_running()
+    wait_for(lambda: len(run.collect_nodes()) == 5, 10, 'the 5 node processes', run)
+    pid = kill_tracker(run, 2)
+    assert run.wait(30) == 3, run.stderr()
+    err = run.stderr()
+    assert f'tracker_2 (pid {pid}) died unexpectedly: killed by SIGKILL' in err, err
+    assert 'error: tracker_2 died (killed by SIGKILL)' in err, err
+    assert 'Traceback' not in err
+    assert run.left_behind() == [], run.left_behind()
+    assert run.summary()['status'] == 'child_died'
+
+
+def test_respawn_replaces_a_killed_tracker_and_completes(bringup) -> None:
+    run = bringup('respawn', '--preset', 'triangle', '--duration', '2.5', '--respawn')
+    run.wait_running()
+    wait_for(lambda: len(run.collect_nodes()) == 5, 10, 'the 5 node processes', run)
+    pid = kill_tracker(run, 2)
+    wait_for(lambda: 'respawned tracker_2' in run.stderr(), 10, 'the respawn', run)
+    # the new tracker_2 is another process of the same run
+    wait_for(lambda: any(p != pid and 'uav_id:=2 ' in _cmdline(p) + ' '
+                         for p in run.collect_nodes()), 10, 'the new tracker_2', run)
+    rc = run.wait(150)
+    assert rc == 0, run.stderr()
+    summary = run.summary()
+    assert summary['respawns'] == 1 and summary['respawned'] == {'tracker_2': 1}
+    assert summary['status'] == 'completed'
+    # every step ran and every sample arrived (the state topic is deep enough)
+    msgs = summary['messages']
+    assert msgs['expected'] == 2500 and msgs['received'] == 2500 and msgs['dropped'] == 0, msgs
+    assert run.left_behind() == [], run.left_behind()
+
+
+def test_a_slow_bringup_never_reports_a_lossy_lockstep_run_as_success(bringup) -> None:
+    """The bring-up stopped (SIGSTOP) for 3 s, i.e. hundreds of steps: either no sample is
+    lost, or the run is not reported as a success."""
+    run = bringup('stop', '--preset', 'triangle', '--duration', '3')
+    run.wait_running()
+    os.kill(run.popen.pid, signal.SIGSTOP)
+    t_stop = time.monotonic()
+    try:
+        wait_for(lambda: time.monotonic() - t_stop > 3.0 or run.popen.poll() is not None,
+                 10, 'the end of the pause')
+    finally:
+        os.kill(run.popen.pid, signal.SIGCONT)
+    rc = run.wait(120)
+    summary = run.summary()
+    msgs = summary['messages']
+    lossless = msgs['dropped'] == 0 and msgs['received'] == msgs['expected']
+    assert lossless or (rc != 0 and summary['status'] != 'completed'), (rc, summary['status'],
+                                                                          msgs)
+    if lossless:
+        assert rc == 0, run.stderr()
+    assert run.left_behind() == []
+
+
+@pytest.mark.parametrize('args, needle', [
+    (('--preset', 'no_such_preset'), "unknown preset 'no_such_preset'"),
+    (('--preset', 'triangle', '--n-trackers', '0'), 'n_trackers'),
+])
+def test_bad_input_exits_2_with_one_error_line(bringup, args: tuple[str, ...],
+                                               needle: str) -> None:
+    run = bringup('bad', *args)
+    assert run.wait(60) == 2
+    lines = run.stderr().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith('swarm_up.py: error: ') and needle in lines[0], lines
+    assert run.stdout() == ''
+    assert not run.out.exists()          # nothing was started, nothing written
+    assert run.left_behind() == []
