@@ -354,6 +354,23 @@ def graph_missing(present_nodes: Iterable[str], counts: Mapping[str, tuple[int, 
 # the run's data
 # --------------------------------------------------------------------------------------------
 
+@dataclass
+class RawSample:
+    """A serialized ``/swarm/state`` message and its step; ``sample`` deserializes it."""
+
+    step: int
+    raw: bytes
+
+    @property
+    def sample(self) -> Any:
+        from rclpy.serialization import deserialize_message
+
+        from apf_swarm_msgs.msg import SwarmState
+
+        from .conversions import swarm_state_arrays
+        return swarm_state_arrays(deserialize_message(self.raw, SwarmState))
+
+
 class StateAccumulator:
     """Collects ``/swarm/state`` samples (:class:`~apf_swarm_nodes.conversions.SwarmSample`).
 
@@ -373,9 +390,21 @@ class StateAccumulator:
         self.out_of_order = 0
         self.repeated = 0
         self.gaps: list[tuple[int, int]] = []
-        self.last: Any = None
+        self._last: Any = None
         self.last_step = -1
         self.last_time: float | None = None
+
+    def add_raw(self, raw: bytes) -> None:
+        """A serialized SwarmState: kept as bytes, deserialized only when needed (the
+        bring-up shares the CPU with the swarm; deserializing every step costs ~0.4 ms)."""
+        from .conversions import swarm_state_step
+        try:
+            step = swarm_state_step(raw)
+        except ValueError:
+            self.received += 1
+            self.out_of_order += 1
+            return
+        self.add(RawSample(step, raw))
 
     def add(self, sample: Any) -> None:
         self.received += 1
@@ -396,17 +425,25 @@ class StateAccumulator:
                 self.repeated += 1
                 return
             self.last_step = step
-        self.last = sample
+        self._last = sample
         self.samples.append(sample)
+
+    @property
+    def last(self) -> Any:
+        """The newest sample as arrays (a SwarmSample), or None."""
+        s = self._last
+        return s.sample if isinstance(s, RawSample) else s
 
     @property
     def complete(self) -> bool:
         return self.mode == 'lockstep' and self.last_step >= self.steps - 1
 
     def kept(self) -> list[Any]:
+        """The samples of the trajectory, as arrays."""
+        samples = self.samples
         if self.mode == 'lockstep' and self.record_every > 1:
-            return [s for s in self.samples if int(s.step) % self.record_every == 0]
-        return self.samples
+            samples = [s for s in samples if int(s.step) % self.record_every == 0]
+        return [s.sample if isinstance(s, RawSample) else s for s in samples]
 
     def trajectory(self) -> dict[str, Any] | None:
         """Arrays of the ``trajectory.npz`` schema, or None without samples."""
@@ -762,7 +799,6 @@ class Bringup:
 
         from apf_swarm_msgs.msg import SwarmState
 
-        from .conversions import swarm_state_arrays
         from .node_common import START_QOS, STATE_QOS, SWARM_START, SWARM_STATE
 
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
@@ -770,7 +806,7 @@ class Bringup:
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
         self.state_sub = self.node.create_subscription(
-            SwarmState, SWARM_STATE, lambda m: self.acc.add(swarm_state_arrays(m)), STATE_QOS)
+            SwarmState, SWARM_STATE, self.acc.add_raw, STATE_QOS, raw=True)
         self.start_pub = self.node.create_publisher(Empty, SWARM_START, START_QOS)
         self._empty_msg = Empty
 

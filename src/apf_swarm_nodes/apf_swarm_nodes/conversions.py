@@ -22,7 +22,7 @@ from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 __all__ = ['WORLD', 'dt_to_ns', 'step_stamp', 'stamp_ns', 'step_of', 'odom_msg', 'odom_arrays',
            'force_msg', 'ForceArrays', 'force_arrays', 'clock_msg', 'swarm_state_msg',
            'SwarmSample', 'swarm_state_arrays', 'is_finite', 'LAW_CODES', 'swarm_odom_msg',
-           'swarm_odom_arrays', 'markers_msg']
+           'swarm_odom_arrays', 'markers_msg', 'swarm_state_step']
 
 WORLD = 'world'
 LAW_CODES = {'proposed': ForceCommand.LAW_PROPOSED, 'traditional': ForceCommand.LAW_TRADITIONAL}
@@ -59,14 +59,20 @@ def _set_vec(msg: Any, v: NDArray[np.float64]) -> Any:
 
 
 def odom_msg(position: NDArray[np.float64], velocity: NDArray[np.float64], stamp: Time,
-             child_frame_id: str) -> Odometry:
-    """``nav_msgs/Odometry`` in ``world`` with identity orientation and zero covariance."""
-    msg = Odometry()
+             child_frame_id: str, out: Odometry | None = None) -> Odometry:
+    """``nav_msgs/Odometry`` in ``world`` with identity orientation and zero covariance.
+
+    ``out``: a message made by this function before, updated in place (building a new
+    Odometry costs about 0.1 ms in Python; publishing serializes, so reuse is safe).
+    """
+    msg = out
+    if msg is None:
+        msg = Odometry()
+        msg.header.frame_id = WORLD
+        msg.child_frame_id = child_frame_id
+        msg.pose.pose.orientation.w = 1.0
     msg.header.stamp = stamp
-    msg.header.frame_id = WORLD
-    msg.child_frame_id = child_frame_id
     _set_vec(msg.pose.pose.position, position)
-    msg.pose.pose.orientation.w = 1.0
     _set_vec(msg.twist.twist.linear, velocity)
     return msg
 
@@ -84,9 +90,10 @@ def is_finite(*arrays: NDArray[np.float64]) -> bool:
 def force_msg(*, uav_id: int, step: int, law: str, stamp: Time, force: NDArray[np.float64],
               sliding_surface: NDArray[np.float64], gradient: NDArray[np.float64],
               filter_state: NDArray[np.float64], saturated: bool,
-              stale: bool = False) -> ForceCommand:
-    """``apf_swarm_msgs/ForceCommand`` from one tracker's controller output (vectors (3,))."""
-    msg = ForceCommand()
+              stale: bool = False, out: ForceCommand | None = None) -> ForceCommand:
+    """``apf_swarm_msgs/ForceCommand`` from one tracker's controller output (vectors (3,));
+    ``out``: a previous message to update in place."""
+    msg = out if out is not None else ForceCommand()
     msg.header.stamp = stamp
     msg.header.frame_id = WORLD
     msg.uav_id = int(uav_id)
@@ -128,18 +135,28 @@ def swarm_state_msg(*, step: int, sim_time: float, stamp: Time, uav_ids: Sequenc
                     s: NDArray[np.float64], target_x: NDArray[np.float64],
                     target_v: NDArray[np.float64], potential: float, centroid_error: float,
                     formation_error: float, missed_deadlines: int, stale_inputs: int,
-                    rejected_inputs: int) -> SwarmState:
-    """``apf_swarm_msgs/SwarmState`` from arrays of shape (n, 3) and (3,)."""
-    msg = SwarmState()
+                    rejected_inputs: int, out: SwarmState | None = None) -> SwarmState:
+    """``apf_swarm_msgs/SwarmState`` from arrays of shape (n, 3) and (3,).
+
+    ``out``: a message made by this function before for the same trackers, updated in place
+    (its Point / Vector3 objects are reused).
+    """
+    msg = out
+    if msg is None or len(msg.positions) != len(x) or len(msg.forces) != len(u):
+        msg = SwarmState()
+        msg.header.frame_id = WORLD
+        msg.uav_ids = [int(i) for i in uav_ids]
+        msg.positions = [Point() for _ in x]
+        msg.velocities = [Vector3() for _ in v]
+        msg.forces = [Vector3() for _ in u]
+        msg.sliding_surfaces = [Vector3() for _ in s]
     msg.header.stamp = stamp
-    msg.header.frame_id = WORLD
     msg.step = int(step)
     msg.sim_time = float(sim_time)
-    msg.uav_ids = [int(i) for i in uav_ids]
-    msg.positions = [_set_vec(Point(), p) for p in x]
-    msg.velocities = [_set_vec(Vector3(), p) for p in v]
-    msg.forces = [_set_vec(Vector3(), p) for p in u]
-    msg.sliding_surfaces = [_set_vec(Vector3(), p) for p in s]
+    for objs, arr in ((msg.positions, x), (msg.velocities, v), (msg.forces, u),
+                      (msg.sliding_surfaces, s)):
+        for o, row in zip(objs, np.asarray(arr, dtype=float).tolist()):
+            o.x, o.y, o.z = row
     _set_vec(msg.target_position, target_x)
     _set_vec(msg.target_velocity, target_v)
     msg.potential = float(potential)
@@ -254,3 +271,22 @@ def markers_msg(x: NDArray[np.float64], target_x: NDArray[np.float64], stamp: Ti
         line.points = [_set_vec(P(), p) for p in list(x) + [x[0]]]
         out.markers.append(line)
     return out
+
+
+def swarm_state_step(raw: bytes) -> int:
+    """The ``step`` field of a serialized ``SwarmState`` without deserializing it.
+
+    CDR (XCDR1): a 4-byte encapsulation header (byte 1: 1 little endian, 0 big endian), then
+    ``header.stamp`` (int32, uint32), ``header.frame_id`` (uint32 length with the NUL, then
+    the bytes), then ``step`` (uint64) aligned to 8 relative to the end of the encapsulation.
+    Raises ValueError for bytes that are too short to hold it.
+    """
+    import struct
+    if len(raw) < 16:
+        raise ValueError(f'{len(raw)} bytes cannot hold a SwarmState')
+    order = '<' if raw[1] & 1 else '>'
+    (length,) = struct.unpack_from(order + 'I', raw, 4 + 8)
+    off = (12 + length + 7) & ~7
+    if 4 + off + 8 > len(raw):
+        raise ValueError(f'{len(raw)} bytes end before the step field of a SwarmState')
+    return struct.unpack_from(order + 'Q', raw, 4 + off)[0]

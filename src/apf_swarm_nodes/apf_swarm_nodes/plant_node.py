@@ -83,6 +83,8 @@ class PlantNode(Node):
         period = self.cfg.dt if self.mode == 'lockstep' else 1.0 / float(p['publish_rate'])
         self.markers_every = max(1, round(1.0 / (rate * period))) if rate > 0 else 0
         self.state_count = 0
+        self._state_msg = None
+        self._odom_msgs: dict[int, Odometry] = {}
         self.markers_pub = self.create_publisher(MarkerArray, SWARM_MARKERS, 1) \
             if self.markers_every else None
         self.odom_sent = False
@@ -277,8 +279,9 @@ class PlantNode(Node):
         about 0.1 ms in Python, a third of a lockstep step when nobody listens)."""
         for i, pub in zip(self.model.ids, self.odom_pubs):
             if pub.get_subscription_count():
-                pub.publish(odom_msg(self.model.x[i - 1], self.model.v[i - 1], stamp,
-                                     f'uav_{i}'))
+                self._odom_msgs[i] = odom_msg(self.model.x[i - 1], self.model.v[i - 1], stamp,
+                                              f'uav_{i}', out=self._odom_msgs.get(i))
+                pub.publish(self._odom_msgs[i])
 
     def _publish_state(self, k: int, stamp) -> None:
         tx, tv = self.target[1], self.target[2]
@@ -286,12 +289,13 @@ class PlantNode(Node):
             self.markers_pub.publish(markers_msg(self.model.x, tx, stamp, self.model.ids))
         self.state_count += 1
         j, ce, fe = self.model.metrics(tx)
-        self.state_pub.publish(swarm_state_msg(
-            step=k, sim_time=k * self.cfg.dt, stamp=stamp, uav_ids=self.model.ids,
+        self._state_msg = swarm_state_msg(
+            out=self._state_msg, step=k, sim_time=k * self.cfg.dt, stamp=stamp, uav_ids=self.model.ids,
             x=self.model.x, v=self.model.v, u=self.model.u, s=self.model.s, target_x=tx,
             target_v=tv, potential=j, centroid_error=ce, formation_error=fe,
             missed_deadlines=self.model.missed, stale_inputs=self.model.stale,
-            rejected_inputs=self.model.rejected))
+            rejected_inputs=self.model.rejected)
+        self.state_pub.publish(self._state_msg)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -45,6 +45,7 @@ class TargetNode(Node):
         self.pub = self.create_publisher(Odometry, 'odom', control_qos(self.mode))
         self.t0: float | None = None
         self.next_step = 0
+        self._msg = None
         if self.mode == 'lockstep':
             self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS)
         else:
@@ -58,7 +59,8 @@ class TargetNode(Node):
 
     def _publish(self, t: float, stamp) -> None:
         x, v = self.traj.state(t)
-        self.pub.publish(odom_msg(x, v, stamp, 'target'))
+        self._msg = odom_msg(x, v, stamp, 'target', out=self._msg)
+        self.pub.publish(self._msg)
 
     def _on_clock(self, msg: Clock) -> None:
         """Step k announced: publish every state up to step k + 1 not yet published.

@@ -75,6 +75,7 @@ class TrackerNode(Node):
         else:
             self.create_subscription(SwarmOdometry, SWARM_ODOM, self._on_swarm_odom, qos)
         self._tick = 0
+        self._msg = None
         self._stale_reported = False
         if self.mode == 'realtime':
             self.create_timer(1.0 / float(p['control_rate']), self._on_timer)
@@ -121,11 +122,12 @@ class TrackerNode(Node):
 
     def _publish(self, step: int, stamp) -> None:
         out = self.agent.command(step)
-        self.pub.publish(force_msg(
-            uav_id=self.uav_id, step=step, law=self.cfg.law, stamp=stamp,
+        self._msg = force_msg(
+            out=self._msg, uav_id=self.uav_id, step=step, law=self.cfg.law, stamp=stamp,
             force=out.force[0], sliding_surface=out.sliding_surface[0],
             gradient=out.gradient[0], filter_state=out.filter_state[0],
-            saturated=bool(out.saturated[0])))
+            saturated=bool(out.saturated[0]))
+        self.pub.publish(self._msg)
 
     def _on_timer(self) -> None:
         """trigger timer: command on the latest inputs; trigger odom: watchdog only."""
