@@ -249,6 +249,41 @@ def test_lockstep_bringup_forms_the_triangle_and_equals_the_simulator(bringup) -
                 assert summary[key][sub] == pytest.approx(val, rel=1e-6, abs=1e-9), (key, sub)
 
 
+def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
+    """Realtime preset and mode, 8 s: exit 0, the triangle within 2 %, tracking within the
+    lockstep simulator's steady error + 0.1 m, samples at the plant's publish rate."""
+    run = bringup('rt', '--preset', 'realtime', '--mode', 'realtime', '--duration', '8')
+    rc = run.wait(120)
+    assert rc == 0, run.stderr()
+    assert 'Traceback' not in run.stderr()
+    assert run.left_behind() == []
+    summary = run.summary()
+    cfg = load_config(run.out / 'config.yaml')
+    assert summary['status'] == 'completed' and summary['mode'] == 'realtime'
+    assert summary['wall_time'] >= 8.0
+    with np.load(run.out / 'trajectory.npz') as data:
+        ros = {k: data[k] for k in data.files}
+    t = ros['t']
+    assert np.all(np.diff(t) > 0)
+    assert t[-1] == pytest.approx(8.0, abs=0.2)
+    # the plant publishes at publish_rate (100 Hz): about 800 samples, none lost
+    assert 700 <= len(t) <= 820, len(t)
+    assert summary['messages']['dropped'] == 0
+    d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
+    steady = t >= 6.0
+    x = ros['x'][steady]
+    pairs = np.stack([np.linalg.norm(x[:, i] - x[:, j], axis=-1)
+                      for i, j in combinations(range(3), 2)])
+    assert np.max(np.abs(pairs - d)) <= 0.02 * d, (pairs.min(), pairs.max(), d)
+    sim = simulate(cfg).summary()
+    assert summary['centroid_error']['rms_steady'] <= sim['centroid_error']['rms_steady'] + 0.1
+    assert summary['converged'] is True
+    # commands held for a control period chatter more than lockstep's 1 ms (SPEC 2, fact 4)
+    assert summary['chattering']['hf_velocity_rms'] >= sim['chattering']['hf_velocity_rms']
+    assert summary['missed_deadlines'] == 0
+    assert summary['stale_inputs'] <= 10          # only before the first odometry arrives
+
+
 def test_sigint_stops_the_bringup_and_every_node(bringup) -> None:
     run = bringup('int', '--preset', 'triangle', '--duration', '60')
     run.wait_running()

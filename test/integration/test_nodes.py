@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -147,3 +148,76 @@ def test_bad_parameter_stops_the_node_naming_it(graph, args: tuple[str, ...],
     log = graph.log('tracker')
     assert 'tracker: error:' in log and needle in log, log
     assert 'Traceback' not in log
+
+
+def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale(graph) -> None:
+    """Realtime: commands follow /swarm/odom; once it stops for input_timeout, the tracker
+    sends the safe brake (eq. 24 on s = v, brake_force of the last own velocity), flagged."""
+    from apf_swarm_core.agents import brake_force
+    from apf_swarm_msgs.msg import SwarmOdometry
+    from apf_swarm_nodes.conversions import swarm_odom_msg
+    cfg = load_preset('realtime')
+    timeout = 0.3
+    graph.start('tracker', 'tracker', '--params-file', str(CONFIG / 'realtime.yaml'),
+                '-p', 'uav_id:=2', '-p', 'mode:=realtime', '-p', f'input_timeout:={timeout}',
+                '-p', 'control_rate:=50.0', '-r', '__ns:=/uav_2')
+    qos = control_qos('realtime')
+    forces: list[tuple[float, ForceCommand]] = []
+    graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd',
+                                   lambda m: forces.append((time.monotonic(), m)), qos)
+    spub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
+    graph.spin_until(lambda: spub.get_subscription_count() == 1
+                     and graph.node.count_publishers('/uav_2/force_cmd') == 1, 30,
+                     'the tracker endpoints')
+    rng = np.random.default_rng(3)
+    x = rng.normal(scale=2.0, size=(3, 3))
+    v = np.array([[0.3, -0.2, 0.1], [0.5, -0.4, 0.2], [0.0, 0.1, -0.3]])
+    tx, tv = np.array([0.5, -0.2, 4.0]), np.array([1.0, 0.0, 0.0])
+    sent = 0
+
+    def publish() -> None:
+        nonlocal sent
+        spub.publish(swarm_odom_msg(step=sent, stamp=graph.node.get_clock().now().to_msg(),
+                                    uav_ids=[1, 2, 3], x=x, v=v, target_x=tx, target_v=tv))
+        sent += 1
+
+    # fresh inputs at ~100 Hz for 40 messages: every command is a controller command
+    graph.node.create_timer(0.01, lambda: publish() if sent < 40 else None)
+    graph.spin_until(lambda: sent >= 40, 20, '40 odometry messages')
+    stopped = time.monotonic()
+    # before the first input the watchdog brakes (nothing is known yet); from the first
+    # controller command on, every command is one while the inputs keep coming
+    assert forces and any(not m.stale for _, m in forces)
+    first = next(i for i, (_, m) in enumerate(forces) if not m.stale)
+    fresh = [m for _, m in forces[first:]]
+    assert len(fresh) >= 20, len(fresh)                   # trigger:=odom, best effort
+    assert not any(m.stale for m in fresh)
+    ref = TrackerAgent(cfg, 2)
+    for j in (1, 2, 3):
+        ref.offer(j, -1, x[j - 1], v[j - 1], 0.0)
+    ref.offer(0, -1, tx, tv, 0.0)
+    grad = ref.command(-1).gradient[0]
+    for m in fresh:
+        assert np.allclose([m.gradient.x, m.gradient.y, m.gradient.z], grad, atol=1e-12)
+        f = np.array([m.force.x, m.force.y, m.force.z])
+        assert np.all(np.isfinite(f))
+        # eq. 24: -u0 sign(s) + drag v, componentwise
+        assert np.allclose(np.abs(f - cfg.drag * v[1]), cfg.u0, atol=1e-9), f
+    # inputs stop: within the timeout plus a watchdog period or two, the brake goes out
+    graph.spin_until(lambda: any(m.stale for t, m in forces if t > stopped), 10,
+                     'a stale-flagged command')
+    first_stale = next(t for t, m in forces if m.stale and t > stopped)
+    assert timeout <= first_stale - stopped + 0.02 <= timeout + 1.0, first_stale - stopped
+    graph.spin_until(lambda: sum(m.stale for t, m in forces if t > stopped) >= 5, 10,
+                     'a stream of brakes')
+    stale = [m for t, m in forces if m.stale and t > stopped]
+    brake = brake_force(v[1], u0=cfg.u0, drag=cfg.drag)
+    for m in stale:
+        assert np.array_equal([m.force.x, m.force.y, m.force.z], brake)
+        assert [m.sliding_surface.x, m.sliding_surface.y, m.sliding_surface.z] == [0, 0, 0]
+    assert 'stale inputs' in graph.log('tracker') and 'safe brake' in graph.log('tracker')
+    # fresh inputs again: controller commands resume
+    n_before = len(forces)
+    publish()
+    graph.spin_until(lambda: any(not m.stale for _, m in forces[n_before:]), 10,
+                     'a controller command after the inputs came back')
