@@ -221,3 +221,65 @@ def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale
     publish()
     graph.spin_until(lambda: any(not m.stale for _, m in forces[n_before:]), 10,
                      'a controller command after the inputs came back')
+
+
+def test_parameters_set_at_run_time_are_applied_or_refused_with_a_reason(graph) -> None:
+    """A running tracker takes a valid gain at once, refuses a bad one with the core's
+    reason, and refuses read-only keys; the plant and the target refuse every key."""
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    from apf_swarm_msgs.msg import SwarmOdometry
+    from apf_swarm_nodes.conversions import swarm_odom_msg
+    cfg = load_preset('triangle')
+    graph.start('tracker', 'tracker', '--params-file', str(CONFIG / 'triangle.yaml'),
+                '-p', 'uav_id:=2', '-r', '__ns:=/uav_2')
+    qos = control_qos('lockstep')
+    forces: list[ForceCommand] = []
+    graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
+    spub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
+    client = AsyncParameterClient(graph.node, '/uav_2/tracker')
+    graph.spin_until(lambda: spub.get_subscription_count() == 1
+                     and graph.node.count_publishers('/uav_2/force_cmd') == 1
+                     and client.services_are_ready(), 30, 'the tracker endpoints')
+
+    def set_params(**values) -> list:
+        future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+        graph.spin_until(future.done, 10, f'the answer to setting {values}')
+        return future.result().results
+
+    x = np.array([[3.0, 0.0, 0.0], [0.0, 2.0, 0.5], [-1.0, -1.0, 0.0]])
+    v = np.array([[0.0, 0.0, 0.0], [0.4, -0.3, 0.2], [0.0, 0.0, 0.0]])
+    tx, tv = np.array([0.0, 0.0, 4.0]), np.zeros(3)
+
+    def command(step: int) -> np.ndarray:
+        spub.publish(swarm_odom_msg(step=step, stamp=step_stamp(step, dt_to_ns(cfg.dt)),
+                                    uav_ids=[1, 2, 3], x=x, v=v, target_x=tx, target_v=tv))
+        graph.spin_until(lambda: any(m.step == step for m in forces), 10, f'step {step}')
+        m = next(m for m in forces if m.step == step)
+        return np.array([m.force.x, m.force.y, m.force.z])
+
+    f0 = command(0)
+    assert np.allclose(np.abs(f0 - cfg.drag * v[1]), cfg.u0, atol=1e-9)
+    # a bad value: refused with the core's reason, nothing changes
+    (res,) = set_params(gamma=-1.0)
+    assert not res.successful and 'gamma' in res.reason, res.reason
+    (res,) = set_params(u0=-5.0)
+    assert not res.successful and 'u0' in res.reason, res.reason
+    # read-only: refused by rclpy
+    (res,) = set_params(dt=0.002)
+    assert not res.successful and 'read-only' in res.reason, res.reason
+    assert np.allclose(np.abs(command(1) - cfg.drag * v[1]), cfg.u0, atol=1e-9)
+    # a good value: applied from the next command on
+    (res,) = set_params(u0=40.0)
+    assert res.successful, res.reason
+    assert np.allclose(np.abs(command(2) - cfg.drag * v[1]), 40.0, atol=1e-9)
+    graph.spin_until(lambda: 'retuned: u0 = 40.0' in graph.log('tracker'), 10, 'the log line')
+    # the target's parameters are all read-only
+    graph.start('target', 'target', '--params-file', str(CONFIG / 'triangle.yaml'),
+                '-r', '__ns:=/target')
+    tclient = AsyncParameterClient(graph.node, '/target/target')
+    graph.spin_until(tclient.services_are_ready, 30, 'the target parameter services')
+    future = tclient.set_parameters([Parameter('target_speed', value=3.0)])
+    graph.spin_until(future.done, 10, 'the target answer')
+    (res,) = future.result().results
+    assert not res.successful and 'read-only' in res.reason, res.reason

@@ -77,6 +77,28 @@ class TrackerAgent:
         self.controller = make_controller(self.cfg, (1, 3))
         self.params = self.cfg.potential_params()
 
+    #: configuration keys a running tracker takes over at once (:meth:`retune`): the
+    #: controller's gains (eq. 22-28, 31, 24, 26) and the potential (eq. 2 / 44)
+    RETUNABLE = ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'k_n', 'k_f', 'a',
+                 'b', 'c')
+
+    def retune(self, cfg: SwarmConfig) -> list[str]:
+        """Take over the gains and potential of ``cfg``; returns the keys that changed.
+
+        The filter state and the held inputs are kept, so the controller continues from
+        where it is. Only :data:`RETUNABLE` keys may differ from the current configuration.
+        """
+        changed = [k for k in self.RETUNABLE if getattr(cfg, k) != getattr(self.cfg, k)]
+        others = [f for f in ('n_trackers', 'law', 'saturation', 'dt', 'seed')
+                  if getattr(cfg, f) != getattr(self.cfg, f)]
+        if others:
+            raise ValueError(f'{", ".join(others)} cannot change while the tracker runs')
+        for key in ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag'):
+            setattr(self.controller, key, getattr(cfg, key))
+        self.cfg = cfg
+        self.params = cfg.potential_params()
+        return changed
+
     def reset(self) -> None:
         """Forget every input and zero the filter state (after a restart)."""
         self.inputs.clear()

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
@@ -49,15 +49,17 @@ def _descriptor(name: str, ptype: int, meta: Mapping[str, Any], read_only: bool,
     return d
 
 
-def declare_config(node: Node, *, read_only: bool = False) -> None:
+def declare_config(node: Node, *, writable: tuple[str, ...] = ()) -> None:
     """Declare every SwarmConfig key as a parameter with the preset-independent default.
 
-    Sequence keys (``mass``, ``target_start``, ...) accept a number or a list
-    (dynamic typing); the core validates the length.
+    Keys in ``writable`` may be set while the node runs (the node applies them, see
+    :func:`install_validator`); every other key is read-only. Sequence keys (``mass``,
+    ``target_start``, ...) accept a number or a list (dynamic typing); the core validates
+    the length.
     """
     for name, f in _FIELDS.items():
         default = getattr(_DEFAULTS, name)
-        ro = read_only or bool(f.metadata.get('read_only'))
+        ro = name not in writable or bool(f.metadata.get('read_only'))
         if isinstance(default, tuple):
             if default:
                 desc = _descriptor(name, ParameterType.PARAMETER_DOUBLE_ARRAY, f.metadata, ro,
@@ -133,8 +135,13 @@ def read_config(node: Node) -> SwarmConfig:
                                require_all=False)
 
 
-def install_validator(node: Node) -> None:
-    """Reject a run-time parameter change that the core would reject, with its reason."""
+def install_validator(node: Node, apply: Callable[[SwarmConfig], None]) -> None:
+    """Reject a run-time parameter change that the core would reject, with its reason, and
+    hand every accepted change to ``apply`` as the new validated configuration.
+
+    Read-only keys never get here: rclpy refuses them itself ("parameter ... cannot be set
+    because it is read-only").
+    """
 
     def check(params: list[Parameter]) -> SetParametersResult:
         changed = {p.name: p.value for p in params if p.name in _FIELDS}
@@ -147,4 +154,9 @@ def install_validator(node: Node) -> None:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
+    def applied(params: list[Parameter]) -> None:
+        if any(p.name in _FIELDS for p in params):
+            apply(read_config(node))
+
     node.add_on_set_parameters_callback(check)
+    node.add_post_set_parameters_callback(applied)

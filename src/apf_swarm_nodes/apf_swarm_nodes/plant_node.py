@@ -63,7 +63,7 @@ class PlantNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('plant', **kwargs)
-        declare_config(self, read_only=True)
+        declare_config(self)
         p = declare_node_params(self, NODE_PARAMS)
         self.cfg = read_config(self)
         self.mode = p['mode']

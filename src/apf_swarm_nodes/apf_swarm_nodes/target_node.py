@@ -36,7 +36,7 @@ class TargetNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('target', **kwargs)
-        declare_config(self, read_only=True)
+        declare_config(self)
         p = declare_node_params(self, NODE_PARAMS)
         self.cfg = read_config(self)
         self.mode = p['mode']

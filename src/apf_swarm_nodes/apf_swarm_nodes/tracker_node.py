@@ -50,10 +50,9 @@ class TrackerNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('tracker', **kwargs)
-        declare_config(self)
+        declare_config(self, writable=TrackerAgent.RETUNABLE)
         p = declare_node_params(self, NODE_PARAMS)
         self.cfg = read_config(self)
-        install_validator(self)
         self.mode = p['mode']
         self.uav_id = int(p['uav_id'])
         self.timeout = float(p['input_timeout'])
@@ -61,6 +60,7 @@ class TrackerNode(Node):
         self.control_rate = float(p['control_rate'])
         self._last_command = 0.0
         self.agent = TrackerAgent(self.cfg, self.uav_id)
+        install_validator(self, self._retune)
         self.dt_ns = dt_to_ns(self.cfg.dt)
         qos = control_qos(self.mode)
         self.pub = self.create_publisher(ForceCommand, 'force_cmd', qos)
@@ -82,6 +82,14 @@ class TrackerNode(Node):
         self.get_logger().info(
             f'uav_{self.uav_id}: {self.cfg.law} law, {self.mode}, neighbours '
             f'{[j for j in self.agent.ids if j != self.uav_id]}, dt {self.cfg.dt:g} s')
+
+    def _retune(self, cfg) -> None:
+        """An accepted parameter change: the controller and potential use it from now on."""
+        changed = self.agent.retune(cfg)
+        self.cfg = cfg
+        if changed:
+            self.get_logger().info('retuned: ' + ', '.join(
+                f'{k} = {getattr(cfg, k)!r}' for k in changed))
 
     def _on_odom(self, source: int, msg: Odometry) -> None:
         x, v = odom_arrays(msg)

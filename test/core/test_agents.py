@@ -1,0 +1,112 @@
+"""The ROS-free logic of the nodes: TrackerAgent and PlantModel against the simulator."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from apf_swarm_core import load_preset
+from apf_swarm_core.agents import PlantModel, TrackerAgent, brake_force
+from apf_swarm_core.simulator import BatchSimulator
+
+
+@pytest.fixture
+def cfg():
+    return load_preset('triangle')
+
+
+def feed(agent: TrackerAgent, step: int, x, v, tx, tv, now: float = 0.0) -> None:
+    for j in range(1, agent.cfg.n_trackers + 1):
+        assert agent.offer(j, step, x[j - 1], v[j - 1], now)
+    assert agent.offer(0, step, tx, tv, now)
+
+
+def test_trackers_and_plant_reproduce_the_simulator_bit_for_bit(cfg) -> None:
+    """Three agents and a PlantModel stepped by hand == BatchSimulator, 300 steps, exactly."""
+    sim = BatchSimulator([cfg])
+    agents = [TrackerAgent(cfg, i) for i in (1, 2, 3)]
+    plant = PlantModel(cfg)
+    assert np.array_equal(plant.x, sim.x[0])
+    for k in range(300):
+        tx, tv = sim.target_state(k)
+        for a in agents:
+            feed(a, k, plant.x, plant.v, tx[0], tv[0])
+            assert a.ready(k)
+        outs = [a.command(k) for a in agents]
+        for i, (a, out) in enumerate(zip(agents, outs), start=1):
+            assert not a.ready(k)                     # answered once
+            assert plant.offer_command(i, k, out.force[0], out.sliding_surface[0])
+        assert plant.missing(k) == []
+        ref, _, _ = sim.step()
+        assert np.array_equal(np.concatenate([o.force for o in outs]), ref.force[0])
+        plant.advance()
+        assert np.array_equal(plant.x, sim.x[0]) and np.array_equal(plant.v, sim.v[0])
+    assert plant.k == 300
+
+
+def test_offer_refuses_non_finite_unknown_and_out_of_order_inputs(cfg) -> None:
+    a = TrackerAgent(cfg, 2)
+    ok = np.zeros(3)
+    assert not a.offer(1, 0, np.array([0.0, math.nan, 0.0]), ok, 0.0)
+    assert not a.offer(0, 0, ok, np.array([math.inf, 0.0, 0.0]), 0.0)
+    assert not a.offer(7, 0, ok, ok, 0.0)             # no tracker 7 in a swarm of 3
+    assert a.rejected == 3
+    assert a.offer(1, 5, ok, ok, 0.0)
+    assert not a.offer(1, 4, ok, ok, 0.0)             # older than the held step 5
+    assert a.rejected == 4
+    assert not a.ready(5)                             # 0, 2 and 3 are still missing
+    with pytest.raises(ValueError, match='uav_id = 4'):
+        TrackerAgent(cfg, 4)
+
+
+def test_stale_sources_and_the_brake(cfg) -> None:
+    a = TrackerAgent(cfg, 1)
+    assert a.stale_sources(0.0, 0.5) == [0, 1, 2, 3]  # nothing known yet
+    assert np.array_equal(a.safe_command(), np.zeros(3))
+    x = np.eye(3)
+    v = np.array([[0.2, -0.1, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    feed(a, -1, x, v, np.zeros(3), np.zeros(3), now=10.0)
+    assert a.stale_sources(10.4, 0.5) == []
+    assert a.offer(2, -1, x[1], v[1], 10.8)
+    assert a.stale_sources(10.6, 0.5) == [0, 1, 3]
+    # eq. 24 on s = v: -u0 sign(v) + drag v; a zero component gets no switching force
+    expect = -cfg.u0 * np.sign(v[0]) + cfg.drag * v[0]
+    assert np.array_equal(a.safe_command(), expect)
+    assert np.array_equal(brake_force(v[0], u0=cfg.u0, drag=cfg.drag), expect)
+
+
+def test_retune_changes_gains_and_keeps_the_filter_state(cfg) -> None:
+    a = TrackerAgent(cfg, 2)
+    x = np.array([[3.0, 0.0, 0.0], [0.0, 2.0, 0.5], [-1.0, -1.0, 0.0]])
+    v = np.array([[0.0, 0.0, 0.0], [0.4, -0.3, 0.2], [0.0, 0.0, 0.0]])
+    feed(a, 0, x, v, np.zeros(3), np.zeros(3))
+    out0 = a.command(0)
+    z = a.controller.z.copy()
+    assert a.retune(cfg.replace(u0=40.0, b=7.0)) == ['u0', 'b']
+    assert np.array_equal(a.controller.z, z)
+    feed(a, 1, x, v, np.zeros(3), np.zeros(3))
+    out1 = a.command(1)
+    assert np.allclose(np.abs(out1.force[0] - cfg.drag * v[1]), 40.0)
+    fresh = TrackerAgent(cfg.replace(u0=40.0, b=7.0), 2)
+    feed(fresh, 1, x, v, np.zeros(3), np.zeros(3))
+    assert np.array_equal(fresh.command(1).gradient, out1.gradient)
+    assert not np.array_equal(out0.gradient, out1.gradient)     # b moved the potential
+    with pytest.raises(ValueError, match='seed cannot change'):
+        a.retune(cfg.replace(seed=9))
+
+
+def test_plant_refuses_bad_commands_and_holds_missing_ones(cfg) -> None:
+    p = PlantModel(cfg)
+    assert not p.offer_command(4, 0, np.ones(3), np.ones(3))
+    assert not p.offer_command(1, 0, np.array([math.nan, 0, 0]), np.ones(3))
+    assert p.rejected == 2
+    assert p.offer_command(1, 3, np.ones(3), np.ones(3))
+    assert not p.offer_command(1, 2, np.ones(3), np.ones(3))     # out of order
+    assert p.missing(3) == [2, 3]
+    x0 = p.x.copy()
+    p.advance()                                   # 2 and 3 hold their zero command
+    assert p.k == 1 and not np.array_equal(p.x, x0)
+    j, ce, fe = p.metrics(np.array([0.0, 0.0, 5.0]))
+    assert j > 0 and ce > 0 and math.isfinite(fe)
