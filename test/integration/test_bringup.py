@@ -284,15 +284,16 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     assert summary['stale_inputs'] <= 10          # only before the first odometry arrives
 
 
-def test_sigint_stops_the_bringup_and_every_node(bringup) -> None:
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_a_signal_stops_the_bringup_and_every_node(bringup, sig: signal.Signals) -> None:
     run = bringup('int', '--preset', 'triangle', '--duration', '60')
     run.wait_running()
     wait_for(lambda: len(run.collect_nodes()) == 5, 10, 'the 5 node processes', run)
     assert run.popen.poll() is None
-    run.popen.send_signal(signal.SIGINT)
+    run.popen.send_signal(sig)
     assert run.wait(25) == 130, run.stderr()
     err = run.stderr()
-    assert 'interrupted by SIGINT' in err and 'Traceback' not in err, err
+    assert f'interrupted by {sig.name}' in err and 'Traceback' not in err, err
     assert run.left_behind() == [], run.left_behind()
     summary = run.summary()                     # what ran so far is kept
     assert summary['status'] == 'interrupted'
