@@ -25,6 +25,8 @@ setup(
             'tracker = apf_swarm_nodes.tracker_node:main',
             'plant = apf_swarm_nodes.plant_node:main',
             'target = apf_swarm_nodes.target_node:main',
+            'recorder = apf_swarm_nodes.recorder_node:main',
+            'player = apf_swarm_nodes.player_node:main',
         ],
     },
 )

@@ -22,6 +22,12 @@ What a run does, in order:
 7. write ``trajectory.npz`` and ``summary.json`` (the schema of ``apf-swarm simulate`` plus the
    run fields listed in :func:`run_fields`) and the figures.
 
+With ``--record`` the recorder (``recorder`` executable, bag ``DIR/bag/``) starts first, in a
+group of its own; step 4 also waits until its ``/recorder/status`` shows every swarm topic
+recorded with every publisher matched; it is stopped last (SIGINT, it drains and closes the
+bag) and its received / written / dropped counts go into ``summary.json`` (``recording``).
+A recorder that dies stops the run (a restarted one could not continue the bag).
+
 Exit codes: 0 success, 2 bad input or graph not ready in time, 3 a child died (without
 ``--respawn``, or after ``--max-respawns``), 4 no ``/swarm/state`` for ``--stall-timeout``,
 5 a lockstep run completed but ``/swarm/state`` samples were lost (``trajectory.npz`` has gaps),
@@ -347,6 +353,48 @@ def graph_missing(present_nodes: Iterable[str], counts: Mapping[str, tuple[int, 
             need = f' (need >= {t.subscribers})' if t.subscribers else ''
             out.append(f'topic {t.topic}: publishers {pubs} (need {t.publishers}), '
                        f'subscribers {sub_text}{need}')
+    return out
+
+
+RECORDER_STATUS = '/recorder/status'
+#: the recorder drains its queues and writes the MCAP summary after SIGINT
+RECORDER_STOP_SEQUENCE = ((signal.SIGINT, 20.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0))
+
+
+def recorder_missing(status: Mapping[str, Any] | None, topics: Sequence[str]) -> list[str]:
+    """What the recorder has not got yet: ``topics`` it does not record, or a publisher it
+    has not matched (``status``: its last ``/recorder/status`` document, None before one)."""
+    if status is None:
+        return ['recorder: no /recorder/status yet']
+    rec = status.get('topics', {})
+    out = [f'recorder: not recording {t} yet' for t in topics if t not in rec]
+    for t, v in sorted(rec.items()):
+        if v.get('matched', 0) < v.get('publishers', 0):
+            out.append(f'recorder: {t} matched {v.get("matched")} of {v.get("publishers")} '
+                       'publishers')
+    return out
+
+
+def recording_fields(bag: Path) -> dict[str, Any]:
+    """summary.json ``recording``: the bag and the recorder's counts (its metadata.yaml)."""
+    import json
+
+    import yaml
+    out: dict[str, Any] = {'bag': str(bag)}
+    try:
+        meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        out['error'] = (f'no readable {bag / "metadata.yaml"} (the recorder did not close the '
+                        f'bag); `apf-swarm bag reindex {bag}` recovers its flushed chunks')
+        return out
+    out['messages'] = int(meta.get('message_count', 0))
+    out['topics'] = len(meta.get('topics_with_message_count') or [])
+    try:
+        counts = json.loads((meta.get('custom_data') or {}).get('apf_swarm.recorder', '{}'))
+    except ValueError:
+        counts = {}
+    for key in ('received', 'written', 'lost', 'dropped'):
+        out[key] = counts.get(key)
     return out
 
 
@@ -709,6 +757,9 @@ class Bringup:
         self.out: Path = args.out
         self.n = cfg.n_trackers
         self.group = ProcessGroup()
+        #: the recorder: started first, stopped last, given time to close the bag
+        self.rec_group = ProcessGroup(RECORDER_STOP_SEQUENCE)
+        self.rec_status: dict[str, Any] | None = None
         self.signals = _Signals()
         self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
         self.domain_id: int | None = None
@@ -739,11 +790,10 @@ class Bringup:
         prefix = package_prefix()
         names = ['target', 'plant', 'tracker']
         if self.args.record:
-            rec = executable_path(prefix, 'recorder')
-            if not rec.is_file():
-                raise CliError(f'--record: recording is not available yet: the recorder node '
-                               f'({rec}) is not installed; run without --record')
             names.append('recorder')
+            if (self.out / 'bag').exists():
+                raise CliError(f'--record: {self.out / "bag"} exists already; a bag is never '
+                               'overwritten: choose a new --out directory')
         for name in names:
             path = executable_path(prefix, name)
             if not (path.is_file() and os.access(path, os.X_OK)):
@@ -777,17 +827,21 @@ class Bringup:
         env = self.child_env()
         cmds = node_commands(self.prefix, self.config_file.resolve(), self.n, self.mode,
                              self.node_params)
+        self.t_launch = time.monotonic()
         if self.args.record:
-            # provisional: the recorder's interface is fixed by its own issue
-            cmds.append(('recorder', [
-                str(executable_path(self.prefix, 'recorder')), '--ros-args', '--params-file',
-                str(self.config_file.resolve()), '-r', '__node:=recorder',
-                '-p', f'mode:={self.mode}', '-p', f'output:={(self.out / "bag").resolve()}']))
+            # first, so that it subscribes to every topic as soon as its publisher appears
+            rec = Child('recorder', [
+                str(executable_path(self.prefix, 'recorder')), '--ros-args',
+                '-r', '__node:=recorder', '-p', f'mode:={self.mode}',
+                '-p', f'output:={(self.out / "bag").resolve()}',
+                '-p', f'config_file:={self.config_file.resolve()}'],
+                self.out / 'logs' / 'recorder.log', env)
+            self.rec_group.add(rec)
+            self.rec_group.start_all()
         for name, argv in cmds:
             self.group.add(Child(name, argv, self.out / 'logs' / f'{name}.log', env))
-        self.t_launch = time.monotonic()
         self.group.start_all()
-        self.say(f'started {len(cmds)} processes on ROS_DOMAIN_ID={self.domain_id} '
+        self.say(f'started {len(cmds) + len(self.rec_group.children)} processes on ROS_DOMAIN_ID={self.domain_id} '
                  f'({self.args.discovery_range}), {self.mode}, {self.n} trackers, '
                  f'logs in {self.out / "logs"}')
 
@@ -807,6 +861,17 @@ class Bringup:
         self.executor.add_node(self.node)
         self.state_sub = self.node.create_subscription(
             SwarmState, SWARM_STATE, self.acc.add_raw, STATE_QOS, raw=True)
+        if self.args.record:
+            import json
+
+            from std_msgs.msg import String
+
+            def on_status(msg: Any) -> None:
+                try:
+                    self.rec_status = json.loads(msg.data)
+                except ValueError:
+                    pass
+            self.node.create_subscription(String, RECORDER_STATUS, on_status, START_QOS)
         self.start_pub = self.node.create_publisher(Empty, SWARM_START, START_QOS)
         self._empty_msg = Empty
 
@@ -818,6 +883,12 @@ class Bringup:
                         f'interrupted by {signal.Signals(sig).name}')
 
     def supervise(self) -> None:
+        for child, rc in self.rec_group.poll():
+            self.say(child.death_report(rc))
+            raise _Stop(EXIT_CHILD_DIED, 'child_died',
+                        f'{child.name} died ({_describe_rc(rc)}); stopping the run (a restarted '
+                        f'recorder could not continue the bag; `apf-swarm bag reindex '
+                        f'{self.out / "bag"}` recovers what it flushed)')
         for child, rc in self.group.poll():
             self.say(child.death_report(rc))
             if not self.args.respawn:
@@ -864,6 +935,9 @@ class Bringup:
         if nstart < want:
             miss.append(f'topic /swarm/start: matched subscribers {nstart} (need >= {want}: '
                         f'{who})')
+        if self.args.record:
+            miss += recorder_missing(self.rec_status, [t.topic for t in topics if t.publishers
+                                                       and not t.optional])
         return miss
 
     def wait_ready(self) -> None:
@@ -953,8 +1027,10 @@ class Bringup:
     def stop_children(self) -> None:
         t0 = time.monotonic()
         self.stop_how = self.group.stop_all(hurry=lambda: len(self.signals.received))
+        # the recorder last: it takes what is still queued and closes the bag
+        self.stop_how.update(self.rec_group.stop_all(hurry=lambda: len(self.signals.received)))
         self.stop_seconds = time.monotonic() - t0
-        self.leftovers = self.group.leftovers()
+        self.leftovers = self.group.leftovers() + self.rec_group.leftovers()
         by: dict[str, list[str]] = {}
         for name, how in self.stop_how.items():
             by.setdefault(how, []).append(name)
@@ -999,33 +1075,21 @@ class Bringup:
                 'rate': round(len(self.acc.samples) / run_s, 1) if run_s > 0 else None,
             },
             'stopped_by': self.stop_how,
+            **({'recording': recording_fields(self.out / 'bag')} if self.args.record else {}),
         }
 
     def write_outputs(self, status: str) -> dict[str, Path]:
-        from apf_swarm_core.checks import check_config
-        from apf_swarm_core.metrics import summarize
-        from apf_swarm_core.simulator import expected_pairs
-
-        from .runio import format_summary, write_run
+        from .runio import format_summary, run_summary, write_run
         traj = self.acc.trajectory()
         if traj is None:
             self.say(f'no /swarm/state samples: wrote no trajectory.npz / summary.json '
                      f'(config and logs are in {self.out})')
             return {}
         cfg = self.cfg
-        warnings = list(check_config(cfg).warnings)
-        if status != 'completed':
-            warnings.append(f'incomplete run ({status}): {len(self.acc.samples)} samples')
-        if self.acc.dropped:
-            warnings.append(f'{self.acc.dropped} /swarm/state steps were not received')
-        respawned = [c.name for c in self.group if c.respawns]
-        if respawned:
-            warnings.append(f'respawned during the run: {", ".join(respawned)} (a restarted '
-                            'node starts from its initial state)')
-        summary = summarize(traj, law=cfg.law, dt=cfg.dt, seed=cfg.seed,
-                            potential_params=cfg.potential_params(),
-                            expected_pairs=expected_pairs(cfg),
-                            steady_fraction=cfg.steady_fraction, warnings=warnings)
+        # the same function computes `apf-swarm bag metrics` from a recorded bag
+        summary = run_summary(traj, cfg, status=status, n_samples=len(self.acc.samples),
+                              dropped=self.acc.dropped,
+                              respawned=[c.name for c in self.group if c.respawns])
         summary.update(self.run_fields(status))
         paths = write_run(self.out, traj, summary, cfg)
         if not self.args.no_plots and len(traj['t']) > 1:
@@ -1047,6 +1111,11 @@ class Bringup:
               f"dropped, missed deadlines {summary['missed_deadlines']}, stale "
               f"{summary['stale_inputs']}, rejected {summary['rejected_inputs']}, respawns "
               f"{summary['respawns']}")
+        rec = summary.get('recording')
+        if rec is not None:
+            print(f"  recording        {rec['bag']}: " + (rec['error'] if 'error' in rec else
+                  f"{rec['messages']} messages on {rec['topics']} topics, received "
+                  f"{rec['received']}, written {rec['written']}, dropped {rec['dropped']}"))
         figs = [p.name for k, p in paths.items() if p.suffix == '.png']
         print(f'wrote {self.out / "trajectory.npz"}, {self.out / "summary.json"}'
               + (f' and {", ".join(figs)}' if figs else ''))

@@ -105,9 +105,11 @@ def spin(node: Node, kind: str = 'single') -> None:
     executor.spin()
 
 
-def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = None) -> int:
+def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = None,
+             run: Callable[[Node], None] | None = None) -> int:
     """The Jazzy ``main()``: init, build the node, spin, and always clean up.
 
+    ``run``: what to do with the node instead of spinning it (the player's timed loop).
     A configuration error (bad parameter value or type) stops the node with one line on
     stderr naming the parameter, and exit code 2.
     """
@@ -116,9 +118,12 @@ def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = No
     code = 0
     try:
         node = factory()
-        kind = node.get_parameter('executor').value if node.has_parameter('executor') \
-            else 'single'
-        spin(node, kind)
+        if run is not None:
+            run(node)
+        else:
+            kind = node.get_parameter('executor').value if node.has_parameter('executor') \
+                else 'single'
+            spin(node, kind)
     except (ApfSwarmError, ParameterException, ValueError) as exc:
         print(f'{name}: error: {exc}', file=sys.stderr)
         code = 2

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import yaml
@@ -14,7 +14,7 @@ from apf_swarm_core.simulator import TRAJECTORY_KEYS
 
 from .errors import CliError
 
-__all__ = ['write_run', 'read_trajectory', 'format_summary']
+__all__ = ['write_run', 'read_trajectory', 'format_summary', 'run_summary']
 
 
 def write_run(out: Path, traj: Mapping[str, Any], summary: Mapping[str, Any],
@@ -28,6 +28,34 @@ def write_run(out: Path, traj: Mapping[str, Any], summary: Mapping[str, Any],
         paths['config'] = out / 'config.yaml'
         paths['config'].write_text(yaml.safe_dump(to_ros_params(cfg), sort_keys=False))
     return paths
+
+
+def run_summary(traj: Mapping[str, Any], cfg: SwarmConfig, *, status: str = 'completed',
+                n_samples: int | None = None, dropped: int = 0,
+                respawned: Sequence[str] = ()) -> dict[str, Any]:
+    """summary.json (the simulator's schema) of a ROS run from its ``/swarm/state`` trajectory.
+
+    The one function behind the bring-up's ``summary.json`` and ``apf-swarm bag metrics``, so
+    that a bag recorded by the bring-up gives the live run's summary by construction. Warnings:
+    the configuration's, then an incomplete run (``status``), lost samples, respawns.
+    """
+    from apf_swarm_core.checks import check_config
+    from apf_swarm_core.metrics import summarize
+    from apf_swarm_core.simulator import expected_pairs
+
+    warnings = list(check_config(cfg).warnings)
+    if status != 'completed':
+        n = len(traj['t']) if n_samples is None else n_samples
+        warnings.append(f'incomplete run ({status}): {n} samples')
+    if dropped:
+        warnings.append(f'{dropped} /swarm/state steps were not received')
+    if respawned:
+        warnings.append(f'respawned during the run: {", ".join(respawned)} (a restarted '
+                        'node starts from its initial state)')
+    return summarize(traj, law=cfg.law, dt=cfg.dt, seed=cfg.seed,
+                     potential_params=cfg.potential_params(),
+                     expected_pairs=expected_pairs(cfg),
+                     steady_fraction=cfg.steady_fraction, warnings=warnings)
 
 
 def read_trajectory(path: Path) -> dict[str, np.ndarray]:

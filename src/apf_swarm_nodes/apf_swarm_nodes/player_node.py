@@ -1,0 +1,236 @@
+"""Player node: republishes a bag's raw CDR messages with their recorded timing.
+
+Schedule: message i goes out at ``t0 + (stamp_i - stamp_first) / rate`` on the monotonic clock,
+computed from the start every time (an absolute schedule: lateness never accumulates), after
+waiting (``wait_for``) until the listed topics have a matched subscriber. ``start_offset``
+skips the first seconds of the bag; ``loop`` plays it again (each pass starting where the
+previous one ended); ``topics`` selects topics; ROS remapping (``-r FROM:=TO``) renames
+them. With ``clock`` > 0 it publishes ``/clock`` (the bag time being played) at that rate, so
+that nodes with ``use_sim_time`` follow, and does not replay a recorded ``/clock``.
+
+Each topic gets a publisher with its first recorded publisher's reliability and durability
+and keep-last ``max(recorded depth, queue_depth)``. At the end it waits (bounded) until the
+reliable subscribers acknowledged everything. ``apf-swarm bag play`` runs this node in-process.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import rclpy
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+from .bags import BagInfo, iter_raw, open_bag
+from .errors import CliError
+from .node_common import CLOCK, CLOCK_QOS, run_node
+from .params import EXECUTOR_PARAM, NodeParam, declare_node_params
+
+__all__ = ['PlayerNode', 'msg_class', 'main', 'PRELOAD_BYTES']
+
+#: bags up to this size are read into memory before the start (no reading on the schedule)
+PRELOAD_BYTES = 256 << 20
+
+NODE_PARAMS = (
+    EXECUTOR_PARAM,
+    NodeParam('bag', '', 'the bag directory to play'),
+    NodeParam('rate', 1.0, 'playback speed factor', lo=1e-3, hi=1e3),
+    NodeParam('loop', False, 'play the bag again and again'),
+    NodeParam('start_offset', 0.0, 'skip this many seconds from the start of the bag [s]',
+              lo=0.0, hi=1e9),
+    NodeParam('clock', 0.0, 'publish /clock at this rate [Hz] (0: no clock)', lo=0.0, hi=10000.0),
+    NodeParam('queue_depth', 100, 'minimum keep-last depth of every publisher', lo=1,
+              hi=100000),
+    NodeParam('wait_timeout', 30.0, 'how long to wait for the wait_for subscribers [s]', lo=0.0,
+              hi=3600.0),
+    NodeParam('ack_timeout', 5.0, 'at the end, how long to wait for reliable acknowledgements '
+              '[s]', lo=0.0, hi=600.0),
+    NodeParam('exit_when_done', True, 'exit after the last message (false: stay up)'),
+)
+
+
+def msg_class(msgtype: str) -> Any:
+    """The rclpy message class of ``pkg/msg/Name`` (CliError when it is not installed)."""
+    pkg, _, name = msgtype.partition('/msg/')
+    try:
+        return getattr(importlib.import_module(f'{pkg}.msg'), name)
+    except (ImportError, AttributeError, ValueError):
+        raise CliError(f'message type {msgtype} is not installed here (no Python module '
+                       f'{pkg}.msg with {name or "?"}); source the workspace that defines it, '
+                       'or leave its topic out with --topics') from None
+
+
+def _qos(offered: Sequence[dict[str, Any]], depth: int) -> QoSProfile:
+    q = offered[0] if offered else {}
+    rel = ReliabilityPolicy.BEST_EFFORT if q.get('reliability') == 'best_effort' \
+        else ReliabilityPolicy.RELIABLE
+    dur = DurabilityPolicy.TRANSIENT_LOCAL if q.get('durability') == 'transient_local' \
+        else DurabilityPolicy.VOLATILE
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST,
+                      depth=max(int(depth), int(q.get('depth', 0) or 0)),
+                      reliability=rel, durability=dur)
+
+
+def _str_array(node: Node, name: str, text: str) -> list[str]:
+    from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+    node.declare_parameter(name, [''], ParameterDescriptor(
+        name=name, type=ParameterType.PARAMETER_STRING_ARRAY, description=text, read_only=True))
+    return [t for t in node.get_parameter(name).value if t]
+
+
+class PlayerNode(Node):
+    """Publishers for the bag's topics and the timed replay (:meth:`play`)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('player', **kwargs)
+        p = declare_node_params(self, NODE_PARAMS)
+        self.p = p
+        self.topic_filter = _str_array(self, 'topics', 'play only these topics (empty: all)')
+        self.wait_for = _str_array(self, 'wait_for', 'before the start, wait until each of these '
+                                   'topics (as published, after remapping) has a subscriber')
+        if not p['bag']:
+            raise CliError('parameter bag: the bag directory to play is required '
+                           '(-p bag:=DIR)')
+        self.info: BagInfo = open_bag(Path(p['bag']))
+        for t in self.topic_filter:
+            self.info.topic(t)
+        self.rate = float(p['rate'])
+        self.clock_hz = float(p['clock'])
+        names = self.topic_filter or [t.name for t in self.info.topics]
+        if self.clock_hz > 0:
+            names = [n for n in names if n != CLOCK]
+        self.pubs: dict[str, Any] = {}
+        for name in names:
+            t = self.info.topic(name)
+            self.pubs[name] = self.create_publisher(msg_class(t.type), name,
+                                                    _qos(t.offered_qos, p['queue_depth']))
+        self.clock_pub = self.create_publisher(Clock, CLOCK, CLOCK_QOS) if self.clock_hz > 0 \
+            else None
+        self.lateness_ns: list[int] = []
+        self.published = 0
+        self.get_logger().info(f'playing {self.info.path}: {len(self.pubs)} topics, '
+                               f'{self.info.duration:.2f} s at rate {self.rate:g}'
+                               + (f', /clock at {self.clock_hz:g} Hz' if self.clock_pub else ''))
+
+    # --- the messages ---------------------------------------------------------------------
+    def messages(self) -> Any:
+        """``(stamp_ns, topic, bytes)`` from ``start_offset`` on, in time order."""
+        t_from = self.info.start_ns + int(round(float(self.p['start_offset']) * 1e9))
+        for topic, _type, ts, raw in iter_raw(self.info.path, list(self.pubs), info=self.info):
+            if ts >= t_from:
+                yield ts, topic, raw
+
+    def wait_subscribers(self) -> None:
+        topics = [self.resolve_topic_name(t) for t in self.wait_for]
+        end = time.monotonic() + float(self.p['wait_timeout'])
+        by_name = {pub.topic_name: pub for pub in self.pubs.values()}
+        missing = [t for t in topics if t not in by_name]
+        if missing:
+            raise CliError(f'wait_for {missing}: not topics this player publishes '
+                           f'({", ".join(sorted(by_name))})')
+        while rclpy.ok():
+            left = [t for t in topics if by_name[t].get_subscription_count() < 1]
+            if not left:
+                return
+            if time.monotonic() > end:
+                raise CliError(f'no subscriber on {", ".join(left)} after '
+                               f'{self.p["wait_timeout"]:g} s (wait_timeout)')
+            time.sleep(0.01)
+
+    # --- the schedule ---------------------------------------------------------------------
+    def _publish_clock(self, t_bag_ns: int) -> None:
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(int(t_bag_ns), 1_000_000_000)
+        self.clock_pub.publish(msg)
+
+    def _wait_until(self, due_ns: int, bag_at: Any) -> bool:
+        """Sleep until ``due_ns`` (monotonic), publishing /clock on the way; False on shutdown."""
+        period = int(1e9 / self.clock_hz) if self.clock_pub is not None else 0
+        while True:
+            now = time.monotonic_ns()
+            if period and now >= self._next_clock:
+                self._publish_clock(bag_at(now))
+                self._next_clock += period * max(1, (now - self._next_clock) // period + 1)
+            target = min(due_ns, self._next_clock) if period else due_ns
+            rem = target - time.monotonic_ns()
+            if rem <= 0:
+                if time.monotonic_ns() >= due_ns:
+                    return True
+                continue
+            if not rclpy.ok():
+                return False
+            if rem > 50_000_000:
+                time.sleep(0.05)
+            elif rem > 300_000:
+                time.sleep((rem - 200_000) / 1e9)
+            # else: the last 0.3 ms without sleeping (sleep overshoots by ~0.1 ms)
+
+    def play(self) -> int:
+        """Play (``loop``: forever); returns the number of messages published."""
+        self.wait_subscribers()
+        preload = self.info.size <= PRELOAD_BYTES
+        cached = list(self.messages()) if preload else None
+        t0 = time.monotonic_ns()
+        self._next_clock = t0
+        while rclpy.ok():
+            items = cached if cached is not None else self.messages()
+            first = None
+            last_due = t0
+            for ts, topic, raw in items:
+                if first is None:
+                    first = ts
+
+                def bag_at(now: int, first: int = first, t0: int = t0) -> int:
+                    return first + int((now - t0) * self.rate)
+
+                due = t0 + int((ts - first) / self.rate)
+                if not self._wait_until(due, bag_at):
+                    return self.published
+                self.pubs[topic].publish(raw)
+                self.lateness_ns.append(time.monotonic_ns() - due)
+                self.published += 1
+                last_due = due
+            if not self.p['loop'] or first is None:
+                break
+            t0 = last_due + int(1e9 / max(self.clock_hz, 100.0))   # next pass right after
+        self._wait_acked()
+        return self.published
+
+    def _wait_acked(self) -> None:
+        timeout = Duration(seconds=float(self.p['ack_timeout']))
+        for pub in self.pubs.values():
+            if pub.qos_profile.reliability == ReliabilityPolicy.RELIABLE and \
+                    pub.get_subscription_count():
+                pub.wait_for_all_acked(timeout)
+
+    def report(self) -> str:
+        if not self.lateness_ns:
+            return 'published nothing'
+        late = np.asarray(self.lateness_ns) / 1e6
+        return (f'published {self.published} messages; lateness against the schedule p50 '
+                f'{np.percentile(late, 50):.3f} ms, p99 {np.percentile(late, 99):.3f} ms, max '
+                f'{late.max():.3f} ms')
+
+
+def _run(node: PlayerNode) -> None:
+    node.play()
+    node.get_logger().info(node.report())
+    if not node.p['exit_when_done']:
+        while rclpy.ok():
+            time.sleep(0.1)
+
+
+def main(args: list[str] | None = None) -> None:
+    """``player --ros-args -p bag:=DIR [-p rate:=2.0] [-r /a:=/b] ...``"""
+    sys.exit(run_node('player', PlayerNode, args, run=_run))
+
+
+if __name__ == '__main__':
+    main()
