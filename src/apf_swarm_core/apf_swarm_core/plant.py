@@ -160,6 +160,10 @@ class DisturbanceSource:
         return out
 
 
+#: dt -> (dt, dt^2 / 2) as 0-d arrays, prepared once per step length
+_STEP_LENGTHS: dict[float, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+
+
 def plant_step(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike, dt: float,
                drag: ArrayLike = 0.0, disturbance: ArrayLike | float = 0.0
                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -185,8 +189,35 @@ def plant_step(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike,
     """
     x = np.asarray(x, dtype=float)
     v = np.asarray(v, dtype=float)
-    acc = (np.asarray(force, dtype=float) - _known(v, _g(drag))   # laws.known_force
-           - np.asarray(disturbance, dtype=float)) / np.asarray(mass, dtype=float)
+    force = np.asarray(force, dtype=float)
+    disturbance = np.asarray(disturbance, dtype=float)
+    mass = np.asarray(mass, dtype=float)
     # 0-d arrays: cheaper than Python floats in numpy arithmetic on small arrays, same values
-    h, half_h2 = np.asarray(dt, dtype=float), np.asarray(0.5 * dt * dt, dtype=float)
-    return x + v * h + half_h2 * acc, v + acc * h
+    steps = _STEP_LENGTHS.get(dt) if type(dt) is float else None
+    if steps is None:
+        steps = (np.asarray(dt, dtype=float), np.asarray(0.5 * dt * dt, dtype=float))
+        if type(dt) is float:
+            if len(_STEP_LENGTHS) >= 64:
+                _STEP_LENGTHS.clear()
+            _STEP_LENGTHS[dt] = steps
+    h, half_h2 = steps
+    acc = _known(v, drag if type(drag) is np.ndarray and not drag.ndim else _g(drag))
+    shape = acc.shape
+    if not (x.shape == shape and (force.shape == shape or not force.ndim)
+            and (disturbance.shape == shape or not disturbance.ndim)
+            and (mass.shape == shape or not mass.ndim)):
+        # operands that broadcast beyond v: the same expressions, allocating
+        acc = (force - acc - disturbance) / mass
+        return x + v * h + half_h2 * acc, v + acc * h
+    # the same expressions in the same order, in place on two temporaries (on the arrays of
+    # a small swarm a numpy call that writes into an array it is given costs less than one
+    # that allocates); a division by a unit mass (a 0-d 1.0) changes nothing and is skipped
+    np.subtract(force, acc, acc)                # u - f_known (laws.known_force)
+    np.subtract(acc, disturbance, acc)          # - f_unknown
+    if mass.ndim or float(mass) != 1.0:
+        np.divide(acc, mass, acc)               # acc
+    x_next = v * h
+    np.add(x, x_next, x_next)                   # x + v dt
+    np.add(x_next, half_h2 * acc, x_next)       # ... + acc dt^2 / 2
+    np.multiply(acc, h, acc)
+    return x_next, np.add(v, acc, acc)          # v + acc dt

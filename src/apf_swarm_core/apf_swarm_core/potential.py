@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['pair_weight', 'potential', 'gradient', 'target_gradient']
+__all__ = ['pair_weight', 'potential', 'gradient', 'target_gradient', 'obstacle_gradient']
 
 
 #: elements of the pair arrays (3, rows, n, runs) of one block of rows in :func:`gradient`
@@ -34,6 +34,11 @@ _PAIR_BLOCK = 1 << 16
 #: vectorized over the runs otherwise
 _SMALL_N = 8
 _LOOP_MIN_RUNS = 64
+_F64 = np.dtype(np.float64)
+#: three trackers, all rows (the paper's swarm): pairs (i, i+1 mod 3) along the tracker axis
+_NEXT3 = np.array([1, 2, 0])
+_PREV3 = np.array([2, 0, 1])
+_ZERO3 = np.zeros(3, dtype=np.intp)
 
 
 def _gain(value: ArrayLike, extra_dims: int) -> NDArray[np.float64]:
@@ -60,16 +65,28 @@ def pair_weight(r2: ArrayLike, a: ArrayLike, b: ArrayLike, c: ArrayLike) -> NDAr
     a, b, c : float or array of shape (...)
         Potential parameters (a, b dimensionless, c in m^2).
     """
-    r2 = np.asarray(r2, dtype=float)
-    a, b = _gain(a, 2), _gain(b, 2)
-    w = np.divide(r2, np.negative(_gain(c, 2)))        # r2/(-c) == -r2/c exactly
-    # the rest in place on the one temporary when the shapes allow
+    return _pair_weight_neg(np.negative(np.asarray(r2, dtype=float)), a, b, c)
+
+
+def _pair_weight_neg(neg_r2: NDArray[np.float64], a: ArrayLike, b: ArrayLike, c: ArrayLike
+                     ) -> NDArray[np.float64]:
+    """:func:`pair_weight` from ``-r^2`` (the form in which :func:`gradient`'s strategy for
+    three trackers obtains it from its reduction, a negation fewer): ``a - b exp(-r^2 / c)``.
+
+    ``(-r^2)/c`` equals ``-(r^2/c)`` and ``r^2/(-c)`` exactly (rounding is symmetric), so
+    the weight has the same bits whichever way the sign enters. Works in place on one
+    temporary when the shapes allow (``out`` given positionally: cheaper on small arrays).
+    """
+    a = a if type(a) is np.ndarray and a.dtype is _F64 and not a.ndim else _gain(a, 2)
+    b = b if type(b) is np.ndarray and b.dtype is _F64 and not b.ndim else _gain(b, 2)
+    c = c if type(c) is np.ndarray and c.dtype is _F64 and not c.ndim else _gain(c, 2)
+    w = np.divide(neg_r2, c)
     if type(w) is not np.ndarray or (a.ndim | b.ndim and w.shape != np.broadcast_shapes(
             w.shape, a.shape, b.shape)):
         return a - b * np.exp(w)
-    np.exp(w, out=w)
-    np.multiply(b, w, out=w)
-    return np.subtract(a, w, out=w)
+    np.exp(w, w)
+    np.multiply(b, w, w)
+    return np.subtract(a, w, w)
 
 
 def _pair_geometry(x: NDArray[np.float64], rows: ArrayLike | None):
@@ -136,9 +153,11 @@ def gradient(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Ar
     Evaluation strategy (performance only; the same terms, ``d_ij = x_i - x_j``,
     ``r_ij^2 = (d_x^2 + d_y^2) + d_z^2``, ``d_ij * pair_weight_ij`` summed over j):
 
-    * fewer than 8 trackers and fewer than 64 runs (a single run of the paper's swarm):
-      whole pair arrays of shape (..., m, n, 3) in the arrays' own layout, the fewest numpy
-      calls;
+    * exactly 3 trackers, every row, fewer than 64 runs (a single run of the paper's
+      swarm): the three pairs (i, i+1 mod 3) once each, every array of the run's own shape
+      (..., 3, 3) so that numpy takes its fast path for operands of equal shapes;
+    * otherwise fewer than 8 trackers and fewer than 64 runs: whole pair arrays of shape
+      (..., m, n, 3) in the arrays' own layout;
     * fewer than 8 trackers and at least 64 runs: a loop over the pairs, each evaluated once
       and vectorized over the runs (``_pair_sums_by_pair``);
     * 8 trackers or more: a component-major copy of the positions and whole pair arrays for
@@ -176,11 +195,16 @@ def gradient(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Ar
     x = np.asarray(x, dtype=float)
     x_target = np.asarray(x_target, dtype=float)
     lead, n = x.shape[:-2], x.shape[-2]
-    kn, kf = _gain(k_n, 0), _gain(k_f, 0)
+    # (0-d float64 arrays, the simulator's prepared gains, pass through unchanged)
+    kn = k_n if type(k_n) is np.ndarray and k_n.dtype is _F64 and not k_n.ndim else \
+        _gain(k_n, 0)
+    kf = k_f if type(k_f) is np.ndarray and k_f.dtype is _F64 and not k_f.ndim else \
+        _gain(k_f, 0)
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
-    if (x_target.shape[:-1] != lead or kn.ndim or kf.ndim or not _is_scalar(a)
-            or not _is_scalar(b) or not _is_scalar(c) or (mask is not None and mask.ndim > 2)):
+    if (x_target.shape[:-1] != lead or kn.ndim or kf.ndim or mask is not None and mask.ndim > 2
+            or not (type(a) is type(b) is type(c) is np.ndarray and not (a.ndim | b.ndim | c.ndim)
+                    or _is_scalar(a) and _is_scalar(b) and _is_scalar(c))):
         full = np.broadcast_shapes(lead, x_target.shape[:-1], kn.shape, kf.shape, np.shape(a),
                                    np.shape(b), np.shape(c),
                                    () if mask is None else mask.shape[:-2])
@@ -189,6 +213,29 @@ def gradient(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Ar
                             a=a, b=b, c=c, rows=rows, mask=mask)
         x_target = np.broadcast_to(x_target, lead + (3,))
     B = x.size // (3 * n) if n else 1                   # runs in the batch
+    if n == 3 and rows is None and mask is None and B < _LOOP_MIN_RUNS:
+        # the paper's swarm: the three pairs (i, i+1 mod 3) once each, every array of the
+        # shape (..., 3, 3), so that each numpy call takes its fast path for equal shapes
+        # (no broadcasting and one reduction). t_i = (x_i - x_{i+1}) w_{i,i+1} is row i's
+        # term for j = i+1 and -t_{i-1} its term for j = i-1 (x_i - x_{i-1} and its squared
+        # norm are exact under negation), so row i's pair sum is t_i - t_{i-1}: the two terms
+        # the whole-array form adds (its self term is a signed zero, which adds nothing), and
+        # with two terms the order of the sum is immaterial (addition commutes exactly). Same
+        # bits as every other strategy, and as rows=[i].
+        d = x - x.take(_NEXT3, axis=-2)                 # x_i - x_{i+1}
+        # -r^2 = ((0 - d_x^2) - d_y^2) - d_z^2, exactly the negated sum of the other forms;
+        # a unit last axis so that per-run gains (..., 1, 1) broadcast as in the others
+        w = _pair_weight_neg(np.subtract.reduce(d * d, -1, keepdims=True, initial=0.0),
+                             a, b, c)
+        np.multiply(d, w.take(_ZERO3, axis=-1), d)      # t_i
+        pair = d.take(_PREV3, axis=-2)
+        np.subtract(d, pair, pair)                      # t_i - t_{i-1}
+        rel = x - x_target[..., None, :].take(_ZERO3, axis=-2)      # x_i - x_N
+        if kn.ndim or float(kn) != 1.0:        # (a product by 1.0 changes nothing)
+            rel *= kn[..., None, None]
+        if kf.ndim or float(kf) != 1.0:
+            pair *= kf[..., None, None]
+        return np.add(rel, pair, rel)
     if n < _SMALL_N and (B < _LOOP_MIN_RUNS or mask is not None):
         # few trackers, few runs: arrays in their own layout, pair arrays (..., m, n, 3)
         xi = x if rows is None else x[..., rows, :]
@@ -317,3 +364,36 @@ def target_gradient(x: ArrayLike, x_target: ArrayLike, *,
     x = np.asarray(x, dtype=float)
     x_target = np.asarray(x_target, dtype=float)
     return -_gain(k_n, 1) * np.sum(x - x_target[..., None, :], axis=-2)
+
+
+def obstacle_gradient(x: ArrayLike, obstacles: ArrayLike, *, k_f: ArrayLike = 1.0,
+                      b: ArrayLike = 6.0, c: ArrayLike = 1.7) -> NDArray[np.float64]:
+    """Gradient of the repulsive half of the pair term of eq. 44 with respect to ``x``,
+    from bodies that repel but do not attract (not in the paper; used for a tracker whose
+    controller is silent, see :mod:`apf_swarm_core.agents`).
+
+    .. math::
+
+        \\nabla_{x_i} \\, k_f \\sum_o \\tfrac{bc}{2} e^{-\\|x_i - x_o\\|^2/c}
+            = k_f \\sum_o (x_i - x_o)\\,(0 - b\\,e^{-\\|x_i - x_o\\|^2/c})
+
+    i.e. :func:`pair_weight` with ``a = 0``.
+
+    Parameters
+    ----------
+    x : array, shape (m, 3)
+        Positions whose gradient is wanted [m].
+    obstacles : array, shape (k, 3)
+        Positions of the repelling bodies [m] (k may be 0).
+    k_f, b, c : float
+        Formation weight and the repulsion parameters of eq. 44.
+
+    Returns
+    -------
+    array, shape (m, 3) [m with unit gains]
+    """
+    x = np.asarray(x, dtype=float)
+    obstacles = np.asarray(obstacles, dtype=float).reshape(-1, 3)
+    d = x[:, None, :] - obstacles[None, :, :]
+    w = pair_weight(np.einsum('mok,mok->mo', d, d), 0.0, b, c)
+    return float(k_f) * np.einsum('mok,mo->mk', d, w)

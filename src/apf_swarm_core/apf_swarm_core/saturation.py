@@ -26,26 +26,60 @@ def _gamma(gamma: ArrayLike, extra: int = 2) -> NDArray[np.float64]:
     return g if g.ndim == 0 else g.reshape(g.shape + (1,) * extra)
 
 
-def _norm(g: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Euclidean norm over the last axis, the very arithmetic of ``np.linalg.norm(g, axis=-1)``
-    (``sqrt(add.reduce(g * g))``) without its overhead.
+def _sq_norm(g: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Squared Euclidean norm over the last axis, the very arithmetic of
+    ``np.linalg.norm(g, axis=-1)`` before its square root (``add.reduce(g * g)``).
 
     numpy reduces fewer than 8 elements left to right, so for 3-vectors of many rows the sum
     is written out as ``(g0^2 + g1^2) + g2^2``: the same value, with long inner loops instead
     of one reduction of length 3 per row.
     """
     sq = g * g
-    if g.shape[-1] != 3 or sq.size <= 96:
-        n2 = np.add.reduce(sq, axis=-1)
-    else:
-        n2 = sq[..., 0] + sq[..., 1]
-        n2 += sq[..., 2]
-    return np.sqrt(n2, out=n2) if type(n2) is np.ndarray else np.sqrt(n2)
+    if sq.size <= 96 or g.shape[-1] != 3:
+        return np.add.reduce(sq, axis=-1)
+    n2 = sq[..., 0] + sq[..., 1]
+    n2 += sq[..., 2]
+    return n2
 
 
-def _outside(g: NDArray[np.float64], gamma_rows: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """Boundary-layer test of eq. 8 with ``gamma`` already shaped by ``_gamma(gamma, 1)``."""
-    return _norm(g) >= gamma_rows
+def _norm(g: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Euclidean norm over the last axis, as ``np.linalg.norm(g, axis=-1)`` computes it
+    (``sqrt(add.reduce(g * g))``) without its overhead."""
+    n2 = _sq_norm(g)
+    return np.sqrt(n2, n2) if type(n2) is np.ndarray else np.sqrt(n2)
+
+
+def _layer_bound(gamma: ArrayLike) -> NDArray[np.float64]:
+    """The smallest double ``q`` with ``sqrt(q) >= gamma``, elementwise (``-inf`` for
+    ``gamma < 0``, NaN for NaN): ``||g|| >= gamma`` holds exactly when
+    ``||g||^2 >= q``, so the layer test needs no square root per step.
+
+    Exact, not approximate: float64 ``sqrt`` is correctly rounded, hence non-decreasing, so
+    the ``q`` with ``sqrt(q) >= gamma`` form the interval ``[bound, inf)``; ``gamma^2``
+    rounded is within an ulp or two of its lower end, which the loops below step to with
+    ``nextafter``, testing with ``np.sqrt`` itself.
+    """
+    g = np.asarray(gamma, dtype=float)
+    with np.errstate(invalid='ignore', over='ignore'):   # sqrt of a negative is NaN: fails
+        q = np.where(g < 0, -np.inf, g * g)
+        while True:                             # up while sqrt(q) < gamma
+            low = np.sqrt(q) < g
+            if not np.any(low):
+                break
+            q = np.where(low, np.nextafter(q, np.inf), q)
+        while True:                             # down while the double below still passes
+            below = np.nextafter(q, -np.inf)
+            ok = (np.sqrt(below) >= g) & (g >= 0)
+            if not np.any(ok):
+                break
+            q = np.where(ok, below, q)
+    return q
+
+
+def _outside(g: NDArray[np.float64], bound: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Boundary-layer test of eq. 8, ``||g|| >= gamma``, with ``bound`` =
+    ``_layer_bound(_gamma(gamma, 1))``: the same answer for every g as comparing the norm."""
+    return _sq_norm(g) >= bound
 
 
 def sign(g: ArrayLike) -> NDArray[np.float64]:
@@ -65,7 +99,7 @@ def outside_layer(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.bool_]:
     -------
     array of bool, shape (..., m)
     """
-    return _outside(np.asarray(g, dtype=float), _gamma(gamma, 1))
+    return _outside(np.asarray(g, dtype=float), _layer_bound(_gamma(gamma, 1)))
 
 
 def sat(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:

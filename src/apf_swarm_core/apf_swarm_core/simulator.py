@@ -81,8 +81,11 @@ def make_controller(cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, 
     cfgs = [cfg] if isinstance(cfg, SwarmConfig) else list(cfg)
 
     def gain(name: str) -> float | NDArray[np.float64]:
+        # one value for every run: a scalar (0-d once prepared), not an (R,) array, whose
+        # (R, 1, 1) broadcast makes every numpy call on a small run about 3x dearer
         vals = np.array([getattr(c, name) for c in cfgs], dtype=float)
-        return float(vals[0]) if isinstance(cfg, SwarmConfig) else vals
+        return float(vals[0]) if isinstance(cfg, SwarmConfig) or np.all(vals == vals[0]) \
+            else vals
 
     return SlidingModeController(
         law=cfgs[0].law, alpha=gain('alpha'), beta=gain('beta'), gamma=gain('gamma'),
@@ -116,6 +119,10 @@ def integrate(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike, 
                                                                 NDArray[np.float64]]:
     """Advance the plant one step (eq. 19-21); see :func:`apf_swarm_core.plant.plant_step`."""
     return plant_step(x, v, force, mass=mass, dt=dt, drag=drag, disturbance=disturbance)
+
+
+#: doubles per record array held by reference before they are copied (see BatchSimulator.run)
+_RECORD_CHUNK = 1 << 16
 
 
 def _param_array(cfgs: Sequence[SwarmConfig], name: str) -> NDArray[np.float64]:
@@ -170,7 +177,9 @@ class BatchSimulator:
         self.R, self.n, self.dt = len(self.cfgs), first.n_trackers, first.dt
         self.params = {k: _param_array(self.cfgs, k) for k in ('k_n', 'k_f', 'a', 'b', 'c')}
         self.drag = _param_array(self.cfgs, 'drag')
-        self.mass = np.array([c.mass_matrix_diag() for c in self.cfgs])  # (R, n, 3)
+        mass = np.array([c.mass_matrix_diag() for c in self.cfgs])       # (R, n, 3)
+        # one mass for every axis, tracker and run: a 0-d array (plant_step skips a unit one)
+        self.mass = np.array(mass.flat[0]) if np.all(mass == mass.flat[0]) else mass
         self.controller = make_controller(self.cfgs, (self.R, self.n, 3))
         if len({c.noise for c in self.cfgs}) > 1:
             raise ValueError('every run of a batch must share the noise kind')
@@ -234,33 +243,68 @@ class BatchSimulator:
         steps = self.cfgs[0].steps if steps is None else steps
         every = self.cfgs[0].record_every
         T = (steps + every - 1) // every if record else 0
-        shape = (self.R, T, self.n, 3)
+        R, n, dt = self.R, self.n, self.dt
+        shape = (R, T, n, 3)
         rec = {'t': np.empty(T), 'x': np.empty(shape), 'v': np.empty(shape),
-               'u': np.empty(shape), 's': np.empty(shape), 'target_x': np.empty((self.R, T, 3)),
-               'target_v': np.empty((self.R, T, 3)), 'saturated': np.empty((self.R, T, self.n),
-                                                                          dtype=bool)}
-        # step-major views: sample j of every run is rec_*[j], one copy per array and sample
-        rec_t = rec['t']
-        rec_x, rec_v, rec_u, rec_s = (rec[key].swapaxes(0, 1) for key in ('x', 'v', 'u', 's'))
-        rec_tx, rec_tv, rec_sat = (rec[key].swapaxes(0, 1)
-                                   for key in ('target_x', 'target_v', 'saturated'))
-        step = self.step
-        for i in range(steps):
-            k = self.k
-            x, v = self.x, self.v
-            out, tx, tv = step()
-            if record and k % every == 0:
-                j = i // every
-                rec_t[j] = k * self.dt
-                rec_x[j] = x
-                rec_v[j] = v
-                rec_u[j] = out.force
-                rec_s[j] = out.sliding_surface
-                rec_tx[j] = tx
-                rec_tv[j] = tv
-                rec_sat[j] = out.saturated
-            if progress is not None and (i + 1) % progress_every == 0:
-                progress(i + 1, steps)
+               'u': np.empty(shape), 's': np.empty(shape), 'target_x': np.empty((R, T, 3)),
+               'target_v': np.empty((R, T, 3)), 'saturated': np.empty((R, T, n), dtype=bool)}
+        # The samples are kept by reference and copied in chunks: every array a step records
+        # is a new one that nothing modifies afterwards (the state, the command and the
+        # target block are replaced, never written to), so a reference is as good as a copy
+        # and costs a list append instead of a numpy assignment per array and step. Chunks
+        # of at most _RECORD_CHUNK doubles per array (1024 samples at n = 3), copied into
+        # step-major views of the record arrays.
+        keys = ('x', 'v', 'u', 's', 'target_x', 'target_v', 'saturated')
+        views = [rec[key].swapaxes(0, 1) for key in keys]      # sample j of every run: [j]
+        chunk = max(1, min(1024, _RECORD_CHUNK // (R * n * 3)))
+        held: list[list[Any]] = [[] for _ in keys]
+        xs, vs, us, ss, txs, tvs, sats = held
+        ks: list[int] = []
+        j0 = 0
+
+        def flush() -> None:
+            nonlocal j0
+            m = len(ks)
+            if not m:
+                return
+            for view, arrays in zip(views, held):
+                view[j0:j0 + m] = np.concatenate(arrays).reshape((m,) + view.shape[1:])
+                arrays.clear()
+            rec['t'][j0:j0 + m] = np.asarray(ks, dtype=float) * dt     # k dt, as k * dt
+            ks.clear()
+            j0 += m
+
+        # step() inlined (the same calls in the same order), state in locals
+        controller, params, noise, target_state = (self.controller, self.params, self.noise,
+                                                   self.target_state)
+        mass, drag = self.mass, self.drag
+        x, v, k = self.x, self.v, self.k
+        try:
+            for i in range(steps):
+                tx, tv = target_state(k)
+                out = control_step(controller, x, v, tx, params)
+                x_next, v_next = integrate(x, v, out.force, mass=mass, dt=dt, drag=drag,
+                                           disturbance=noise.next())
+                if record and k % every == 0:
+                    if not ks:
+                        j0 = i // every
+                    xs.append(x)
+                    vs.append(v)
+                    us.append(out.force)
+                    ss.append(out.sliding_surface)
+                    txs.append(tx)
+                    tvs.append(tv)
+                    sats.append(out.saturated)
+                    ks.append(k)
+                    if len(ks) >= chunk:
+                        flush()
+                x, v, k = x_next, v_next, k + 1
+                if progress is not None and (i + 1) % progress_every == 0:
+                    self.x, self.v, self.k = x, v, k
+                    progress(i + 1, steps)
+        finally:
+            self.x, self.v, self.k = x, v, k
+            flush()
         if progress is not None:
             progress(steps, steps)
         return rec

@@ -1,0 +1,191 @@
+"""Bit-for-bit invariants the fast paths rely on (a lockstep ROS run must reproduce the
+simulator exactly, and sign() in sliding mode turns any rounding difference into another
+trajectory): every check here is exact equality, not a tolerance."""
+
+import numpy as np
+import pytest
+
+from apf_swarm_core import load_preset, simulate, simulate_batch
+from apf_swarm_core.laws import SlidingModeController
+from apf_swarm_core.plant import DisturbanceSource, plant_step
+from apf_swarm_core.potential import _pair_weight_neg, gradient, pair_weight
+from apf_swarm_core.saturation import _layer_bound, outside_layer
+from apf_swarm_core.simulator import BatchSimulator, TRAJECTORY_KEYS
+
+
+def _params(rng, R=None):
+    size = None if R is None else R
+    return dict(k_n=rng.uniform(0.2, 3.0, size), k_f=rng.uniform(0.2, 3.0, size),
+                a=rng.uniform(0.2, 2.0, size), b=rng.uniform(0.5, 8.0, size),
+                c=rng.uniform(0.3, 3.0, size))
+
+
+def _whole_array_gradient(x, xt, k_n, k_f, a, b, c):
+    """The whole-array form for one run (x (n, 3)): d_ij, r^2 by add.reduce, the weight, the
+    sum over j by add.reduce -- the arithmetic of the general small-n strategy."""
+    d = x[:, None, :] - x[None, :, :]
+    w = a - b * np.exp(np.add.reduce(d * d, axis=-1) / (-c))
+    pair = np.add.reduce(d * w[..., None], axis=-2)
+    return k_n * (x - xt) + k_f * pair
+
+
+@pytest.mark.parametrize('unit', [False, True])
+def test_three_tracker_gradient_equals_the_whole_array_form_and_its_rows(unit):
+    rng = np.random.default_rng([3, unit])
+    for trial in range(300):
+        p = _params(rng)
+        if unit:
+            p.update(k_n=1.0, k_f=1.0)
+        scale = 10.0 ** rng.uniform(-3, 2)
+        x = rng.normal(scale=scale, size=(3, 3))
+        if trial % 10 == 0:
+            x[1] = x[0]                          # coincident trackers: zero differences
+        xt = rng.normal(scale=scale, size=3)
+        full = gradient(x, xt, **p)
+        assert np.array_equal(full, _whole_array_gradient(x, xt, **p)), trial
+        for i in range(3):
+            assert np.array_equal(gradient(x, xt, **p, rows=[i])[0], full[i]), (trial, i)
+        # prepared 0-d gains (what the simulator passes) give the same bits as floats
+        p0 = {k: np.asarray(v, dtype=float) for k, v in p.items()}
+        assert np.array_equal(gradient(x[None], xt[None], **p0)[0], full)
+
+
+@pytest.mark.parametrize('n', [2, 3, 4, 5, 7])
+@pytest.mark.parametrize('R', [5, 70])
+def test_a_run_inside_a_batch_equals_the_run_alone(n, R):
+    rng = np.random.default_rng([n, R, 7])
+    x = rng.normal(scale=1.5, size=(R, n, 3))
+    xt = rng.normal(size=(R, 3))
+    per_run = _params(rng, R)
+    shared = {k: float(v[0]) for k, v in per_run.items()}
+    g_per_run = gradient(x, xt, **per_run)
+    g_shared = gradient(x, xt, **shared)
+    for r in range(R):
+        alone = {k: float(v[r]) for k, v in per_run.items()}
+        assert np.array_equal(g_per_run[r], gradient(x[r], xt[r], **alone)), r
+        assert np.array_equal(g_shared[r], gradient(x[r], xt[r], **shared)), r
+    for i in range(n):
+        assert np.array_equal(gradient(x, xt, **per_run, rows=[i])[:, 0], g_per_run[:, i])
+
+
+def test_pair_weight_forms_agree():
+    rng = np.random.default_rng(11)
+    r2 = rng.uniform(0, 20, size=(4, 5, 5))
+    a, b, c = 1.3, 6.0, 1.7
+    w = pair_weight(r2, a, b, c)
+    assert np.array_equal(w, a - b * np.exp(r2 / (-c)))
+    assert np.array_equal(w, _pair_weight_neg(-r2, np.asarray(a), np.asarray(b), np.asarray(c)))
+    assert pair_weight(2.0, a, b, c) == a - b * np.exp(2.0 / (-c))
+
+
+def test_layer_bound_gives_the_norm_test_exactly():
+    rng = np.random.default_rng(5)
+    gammas = np.concatenate([rng.uniform(1e-3, 10, 400), 10.0 ** rng.uniform(-160, 150, 200),
+                             [0.0, 0.2, 1.0, 3.0, 5e-324, 1e-310, 1e300, np.inf, -1.0]])
+    bound = _layer_bound(gammas)
+    for g, q in zip(gammas, bound):
+        cands = [0.0, np.inf]
+        with np.errstate(over='ignore'):
+            square = g * g
+        for centre in (q, square):
+            up = dn = centre
+            for _ in range(6):
+                cands += [up, dn]
+                up, dn = np.nextafter(up, np.inf), np.nextafter(dn, -np.inf)
+        n2 = np.array([c for c in cands if c >= 0])
+        assert np.array_equal(n2 >= q, np.sqrt(n2) >= g), g
+    assert np.isnan(_layer_bound(np.nan))
+    # outside_layer against np.linalg.norm on vectors with norms right at gamma
+    v = rng.normal(size=(20000, 3))
+    gam = 0.2
+    v *= gam / np.linalg.norm(v, axis=-1, keepdims=True)
+    v *= 1 + rng.integers(-3, 4, size=(20000, 1)) * 2.0 ** -52
+    assert np.array_equal(outside_layer(v, gam), np.linalg.norm(v, axis=-1) >= gam)
+
+
+@pytest.mark.parametrize('law, saturation', [('proposed', 'paper'), ('traditional', 'paper'),
+                                             ('proposed', 'continuous')])
+def test_controller_on_one_row_equals_that_row_of_all_rows(law, saturation):
+    rng = np.random.default_rng(9)
+    gains = dict(law=law, alpha=0.01, beta=2.0, gamma=0.2, lambda_filter=0.1, u0=125.0,
+                 drag=0.1, dt=1e-3, saturation=saturation)
+    whole = SlidingModeController(**gains, shape=(3, 3))
+    rows = [SlidingModeController(**gains, shape=(1, 3)) for _ in range(3)]
+    for step in range(300):
+        v = rng.normal(size=(3, 3))
+        g = rng.normal(scale=0.3 if step % 2 else 0.05, size=(3, 3))
+        out = whole.step(v, g)
+        for i, ctl in enumerate(rows):
+            o = ctl.step(v[i:i + 1], g[i:i + 1])
+            for name in ('force', 'sliding_surface', 'filter_state', 'saturated'):
+                assert np.array_equal(getattr(o, name)[0], getattr(out, name)[i]), (step, i)
+    assert all(np.array_equal(ctl.z[0], whole.z[i]) for i, ctl in enumerate(rows))
+
+
+def test_plant_step_in_place_and_allocating_paths_agree():
+    rng = np.random.default_rng(2)
+    x, v, u, d = (rng.normal(size=(4, 3, 3)) for _ in range(4))
+    mass = rng.uniform(0.5, 1.5, size=(4, 3, 3))
+
+    def formula(x, v, u, mass, drag, d, dt):
+        acc = (u - drag * v - d) / mass
+        return x + v * dt + 0.5 * dt * dt * acc, v + acc * dt
+
+    for m in (mass, 1.0, np.asarray(1.0), np.ones((4, 3, 3)), 1.3):
+        for drag in (0.1, np.asarray(0.1), np.array([0.1, 0.2, 0.0, 0.3])):
+            dr = np.asarray(drag)[..., None, None] if np.ndim(drag) else drag
+            want = formula(x, v, u, m, dr, d, 1e-3)
+            got = plant_step(x, v, u, mass=m, dt=1e-3, drag=drag, disturbance=d)
+            assert all(np.array_equal(a, b) for a, b in zip(got, want))
+    # an unbatched state with a batched force: the allocating path
+    got = plant_step(x[0], v[0], u, mass=1.0, dt=1e-3, drag=0.1, disturbance=0.0)
+    want = formula(x[0], v[0], u, 1.0, 0.1, 0.0, 1e-3)
+    assert all(np.array_equal(a, b) for a, b in zip(got, want))
+
+
+@pytest.mark.parametrize('every', [1, 3])
+def test_run_equals_repeated_steps(every):
+    """run() inlines step() and records by reference in chunks: the same trajectory, bit
+    for bit, over more than one chunk and across two calls."""
+    cfg = load_preset('triangle').replace(duration=2.6, record_every=every)
+    sim = BatchSimulator([cfg])
+    rec = sim.run(1500)
+    rec2 = sim.run(1100)
+    ref = BatchSimulator([cfg])
+    samples = {key: [] for key in TRAJECTORY_KEYS + ('saturated',)}
+    for k in range(2600):
+        x, v = ref.x, ref.v
+        out, tx, tv = ref.step()
+        if k % every == 0:
+            for key, val in (('t', k * cfg.dt), ('x', x), ('v', v), ('u', out.force),
+                             ('s', out.sliding_surface), ('target_x', tx), ('target_v', tv),
+                             ('saturated', out.saturated)):
+                samples[key].append(np.copy(val))
+    for key, vals in samples.items():
+        got = np.concatenate([rec[key], rec2[key]], axis=0 if key == 't' else 1)
+        want = np.array(vals) if key == 't' else np.stack(vals, axis=1)
+        assert np.array_equal(got, want), key
+    assert np.array_equal(sim.x, ref.x) and np.array_equal(sim.v, ref.v)
+    assert np.array_equal(sim.controller.z, ref.controller.z) and sim.k == ref.k == 2600
+
+
+def test_batch_and_single_runs_agree_bit_for_bit():
+    base = load_preset('triangle').replace(duration=1.5)
+    cfgs = [base, base.replace(seed=7, gamma=0.5), base.replace(seed=3, mass=(1.2,)),
+            base.replace(seed=4, b=5.0)]
+    batch = simulate_batch(cfgs).trajectory
+    for r, cfg in enumerate(cfgs):
+        single = simulate(cfg).trajectory
+        for key in TRAJECTORY_KEYS + ('saturated',):
+            assert np.array_equal(batch[key] if key == 't' else batch[key][r], single[key]), \
+                (r, key)
+
+
+def test_disturbance_views_stay_valid():
+    """The recording keeps references: arrays handed out earlier must not change."""
+    src = DisturbanceSource([1, 2], 3, [1.0, 1.0], block=4)
+    first = [src.next() for _ in range(10)]
+    kept = [f.copy() for f in first]
+    for _ in range(20):
+        src.next()
+    assert all(np.array_equal(a, b) for a, b in zip(first, kept))
