@@ -110,3 +110,70 @@ def test_plant_refuses_bad_commands_and_holds_missing_ones(cfg) -> None:
     assert p.k == 1 and not np.array_equal(p.x, x0)
     j, ce, fe = p.metrics(np.array([0.0, 0.0, 5.0]))
     assert j > 0 and ce > 0 and math.isfinite(fe)
+
+
+def test_obstacle_gradient_matches_finite_differences_of_the_repulsion() -> None:
+    from apf_swarm_core.potential import obstacle_gradient
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(2, 3))
+    obs = rng.normal(size=(3, 3))
+    k_f, b, c = 1.3, 6.0, 1.7
+
+    def rep(xi):
+        r2 = np.sum((xi - obs) ** 2, axis=-1)
+        return k_f * np.sum(0.5 * b * c * np.exp(-r2 / c))
+
+    g = obstacle_gradient(x, obs, k_f=k_f, b=b, c=c)
+    h = 1e-6
+    for m in range(2):
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = h
+            fd = (rep(x[m] + e) - rep(x[m] - e)) / (2 * h)
+            assert g[m, k] == pytest.approx(fd, rel=1e-7, abs=1e-9)
+    assert np.array_equal(obstacle_gradient(x, np.zeros((0, 3))), np.zeros((2, 3)))
+
+
+def test_an_inactive_neighbour_leaves_the_formation_term_and_repels(cfg) -> None:
+    """With uav_3 inactive, uav_2's gradient is that of the pair (1, 2) plus the repulsion
+    of uav_3 only: far away uav_3 changes nothing, close by it pushes uav_2 away."""
+    from apf_swarm_core.potential import gradient
+    p = cfg.potential_params()
+    x = np.array([[1.0, 0.0, 5.0], [-1.0, 0.0, 5.0], [30.0, 0.0, 5.0]])
+    v = np.zeros((3, 3))
+    tx = np.array([0.0, 0.0, 5.0])
+    a = TrackerAgent(cfg, 2)
+    for j in (1, 2, 3):
+        assert a.offer(j, 0, x[j - 1], v[j - 1], 0.0, active=j != 3)
+    assert a.offer(0, 0, tx, np.zeros(3), 0.0)
+    g = a.command(0).gradient[0]
+    assert a.neighbours_used == 1
+    assert np.allclose(g, gradient(x[:2], tx, **p)[1], atol=1e-12)   # uav_3 is 29 m away
+    near = x.copy()
+    near[2] = [-1.5, 0.0, 5.0]                                        # 0.5 m from uav_2
+    b = TrackerAgent(cfg, 2)
+    for j in (1, 2, 3):
+        assert b.offer(j, 0, near[j - 1], v[j - 1], 0.0, active=j != 3)
+    assert b.offer(0, 0, tx, np.zeros(3), 0.0)
+    g_near = b.command(0).gradient[0]
+    # descent direction -grad points away from uav_3 (towards +x) more than without it
+    assert -g_near[0] > -g[0] + 1.0
+    # an active uav_3 at the same place would attract too: the full potential differs
+    c3 = TrackerAgent(cfg, 2)
+    for j in (1, 2, 3):
+        assert c3.offer(j, 0, near[j - 1], v[j - 1], 0.0)
+    assert c3.offer(0, 0, tx, np.zeros(3), 0.0)
+    assert np.allclose(c3.command(0).gradient[0], gradient(near, tx, **p)[1], atol=1e-12)
+
+
+def test_plant_follows_one_tracker_process_per_id(cfg) -> None:
+    p = PlantModel(cfg)
+    f = np.ones(3)
+    assert p.offer_command(2, 0, f, f, instance=11)
+    assert not p.offer_command(2, 1, f, f, instance=22)          # a second process
+    assert 'duplicate uav_id 2' in p.last_rejection
+    assert p.offer_command(2, 1, f, f, instance=11)
+    p.deactivate([2])                                            # the followed one is silent
+    assert p.offer_command(2, 0, f, f, instance=22)              # a respawn starts anew
+    assert p.active[1] and p.instances[2] == 22
+    assert not p.offer_command(2, 5, f, f, instance=11)

@@ -9,6 +9,23 @@ headless simulator.
 Safe command: when an input a tracker needs is stale (older than its timeout) the tracker
 commands :func:`brake_force`, the switching law on the manifold ``s = v``: it drives the
 UAV's velocity to zero (hover in place) with the same bounded force ``u0``.
+
+Faults (docs/RELIABILITY.md):
+
+* Input checks: a value that is not finite, a position beyond :data:`MAX_POSITION`, a speed
+  beyond :data:`MAX_SPEED`, a force beyond :data:`MAX_FORCE`, an unknown source, an input
+  older than the one held (out of order) and a second command for a lockstep step already
+  answered (a duplicate ``uav_id``) are refused, counted and described in ``last_rejection``.
+* A tracker whose command is missing past the deadline (lockstep) or stale (realtime) is
+  *inactive* in :class:`PlantModel`: its UAV gets zero force (it drifts under drag and
+  noise), the lockstep barrier stops waiting for it, and the plant flags it inactive in what
+  it publishes. The other trackers take inactive neighbours out of the formation term of
+  their potential (the neighbour set shrinks: the rest form the formation of one tracker
+  fewer around the target, three trackers become a pair) but keep them as obstacles, with
+  the repulsive half of the pair term only
+  (:func:`~apf_swarm_core.potential.obstacle_gradient`): a drifting UAV is avoided, not
+  followed. A command from an inactive tracker makes it active again (a respawned tracker
+  rejoins).
 """
 
 from __future__ import annotations
@@ -23,10 +40,30 @@ from .config import SwarmConfig
 from .laws import ControlOutput, switching_force
 from .metrics import centroid_error, formation_error
 from .plant import DisturbanceSource
-from .potential import potential
+from .potential import gradient, obstacle_gradient, potential
 from .simulator import control_step, expected_pairs, initial_positions, integrate, make_controller
 
-__all__ = ['brake_force', 'Sample', 'TrackerAgent', 'PlantModel']
+__all__ = ['brake_force', 'input_problem', 'Sample', 'TrackerAgent', 'PlantModel',
+           'MAX_POSITION', 'MAX_SPEED', 'MAX_FORCE']
+
+#: inputs beyond these magnitudes are refused as not physical (componentwise) [m, m/s, N]
+MAX_POSITION = 1.0e6
+MAX_SPEED = 1.0e4
+MAX_FORCE = 1.0e6
+
+
+def input_problem(**arrays: NDArray[np.float64]) -> str | None:
+    """Why an input is refused, or ``None``: ``x``/``target_x`` positions, ``v`` speeds,
+    ``force`` and ``s`` forces and surfaces, each checked for finite values and magnitude."""
+    limits = {'x': MAX_POSITION, 'v': MAX_SPEED, 'force': MAX_FORCE, 's': MAX_SPEED}
+    for name, arr in arrays.items():
+        a = np.asarray(arr, dtype=float)
+        if not np.all(np.isfinite(a)):
+            return f'{name} is not finite ({a.tolist()})'
+        lim = limits[name]
+        if np.any(np.abs(a) > lim):
+            return f'{name} = {a.tolist()} exceeds {lim:g} in magnitude'
+    return None
 
 
 def brake_force(v: NDArray[np.float64], *, u0: float, drag: float) -> NDArray[np.float64]:
@@ -36,12 +73,16 @@ def brake_force(v: NDArray[np.float64], *, u0: float, drag: float) -> NDArray[np
 
 @dataclass
 class Sample:
-    """The latest value of one input: step (lockstep) or -1, arrays, and arrival time [s]."""
+    """The latest value of one input: step (lockstep) or -1, arrays, the time it was produced
+    [s] (on the clock the caller uses for ``now``), its order key, and whether its tracker is
+    active (commanding; always True for the target)."""
 
     step: int
     x: NDArray[np.float64]
     v: NDArray[np.float64]
     received: float
+    seq: int = -1
+    active: bool = True
 
 
 @dataclass
@@ -64,6 +105,8 @@ class TrackerAgent:
     stale: int = 0
     inputs: dict[int, Sample] = field(default_factory=dict)   # latest per source, 0 = target
     pending: dict[int, dict[int, Sample]] = field(default_factory=dict)  # lockstep: by step
+    last_rejection: str = ''
+    neighbours_used: int = -1            # neighbours in the potential of the last command
     _last_step: int = -1
 
     def __post_init__(self) -> None:
@@ -106,24 +149,23 @@ class TrackerAgent:
         self._last_step = -1
 
     def offer(self, source: int, step: int, x: NDArray[np.float64], v: NDArray[np.float64],
-              now: float) -> bool:
+              now: float, *, seq: int | None = None, active: bool = True) -> bool:
         """Store an input (``source`` = tracker id, 0 = target); False if rejected.
 
-        Non-finite values and unknown sources are rejected and counted; an older step than
-        the one held is ignored (out of order). Lockstep inputs (``step >= 0``) are also kept
-        by step, a few steps deep, because the target publishes one step ahead.
+        ``now``: when the input was produced, on the caller's clock (arrival time minus the
+        age the message reports). ``seq``: order key (default: ``step``; realtime passes
+        the stamp in ns); an input with a smaller key than the one held is out of order.
+        ``active``: False when the plant reports that this neighbour's tracker is silent.
+        Non-finite or out-of-range values, unknown sources and out-of-order inputs are
+        rejected, counted and described in ``last_rejection``. Lockstep inputs
+        (``step >= 0``) are also kept by step, a few steps deep, because the target
+        publishes one step ahead.
         """
-        if source != 0 and source not in self.ids:
-            self.rejected += 1
+        seq = step if seq is None else int(seq)
+        if not self._acceptable(source, x, v, seq):
             return False
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
-            self.rejected += 1
-            return False
-        held = self.inputs.get(source)
-        if held is not None and step >= 0 and step < held.step:
-            self.rejected += 1
-            return False
-        sample = Sample(step, np.asarray(x, float), np.asarray(v, float), now)
+        sample = Sample(step, np.asarray(x, float), np.asarray(v, float), now, seq,
+                        bool(active) or source in (0, self.uav_id))
         self.inputs[source] = sample
         if step >= 0:
             by_step = self.pending.setdefault(step, {})
@@ -131,6 +173,50 @@ class TrackerAgent:
             for old in [k for k in self.pending if k < self._last_step - 1]:
                 del self.pending[old]
         return True
+
+    def offer_swarm(self, step: int, ids: Sequence[int], x: NDArray[np.float64],
+                    v: NDArray[np.float64], active: Sequence[bool],
+                    target_x: NDArray[np.float64], target_v: NDArray[np.float64], now: float,
+                    target_time: float, *, seq: int | None = None) -> bool:
+        """Store one aggregated message (every tracker's state and the target's) as a whole:
+        if any part would be refused, nothing is stored and it counts as one rejection.
+
+        ``now`` / ``target_time``: when the trackers' and the target's states were produced.
+        Rows of trackers that are not neighbours of this one are ignored.
+        """
+        seq = step if seq is None else int(seq)
+        rows = [(j, x[r], v[r], bool(active[r])) for r, j in enumerate(ids) if j in self.ids]
+        missing = sorted(set(self.ids) - {j for j, *_ in rows})
+        if missing:
+            return self._reject(f'the message has no state of {[f"uav_{j}" for j in missing]}')
+        before = self.rejected
+        for source, xs, vs in [(0, target_x, target_v)] + [(j, xj, vj) for j, xj, vj, _ in rows]:
+            if not self._acceptable(source, xs, vs, seq):
+                self.rejected = before + 1
+                return False
+        self.offer(0, step, target_x, target_v, target_time, seq=seq)
+        for j, xj, vj, act in rows:
+            self.offer(j, step, xj, vj, now, seq=seq, active=act)
+        return True
+
+    def _acceptable(self, source: int, x: NDArray[np.float64], v: NDArray[np.float64],
+                    seq: int) -> bool:
+        """The checks of :meth:`offer` without storing (counts and records a rejection)."""
+        name = 'target' if source == 0 else f'uav_{source}'
+        if source != 0 and source not in self.ids:
+            return self._reject(f'{name} is not in this swarm (ids {self.ids})')
+        problem = input_problem(x=x, v=v)
+        if problem is not None:
+            return self._reject(f'{name}: {problem}')
+        held = self.inputs.get(source)
+        if held is not None and seq >= 0 and seq < held.seq:
+            return self._reject(f'{name}: out of order ({seq} after {held.seq})')
+        return True
+
+    def _reject(self, why: str) -> bool:
+        self.rejected += 1
+        self.last_rejection = why
+        return False
 
     def ready(self, step: int) -> bool:
         """Lockstep: every input of ``step`` has arrived and no command was sent for it yet."""
@@ -143,11 +229,29 @@ class TrackerAgent:
         """The controller's command from the held inputs (one row, shape (1, 3) arrays)."""
         held = self.pending.pop(step, None) if step >= 0 else None
         src = held if held is not None else self.inputs
-        x = np.stack([src[j].x for j in self.ids])
-        out = control_step(self.controller, x, src[self.uav_id].v[None, :], src[0].x,
-                           self.params, rows=[self.row])
+        ids = [j for j in self.ids if src[j].active]
+        x = np.stack([src[j].x for j in ids])
+        v = src[self.uav_id].v[None, :]
+        if len(ids) == len(self.ids):
+            out = control_step(self.controller, x, v, src[0].x, self.params, rows=[self.row])
+        else:
+            # inactive neighbours leave the formation term and stay as obstacles
+            row = ids.index(self.uav_id)
+            grad = gradient(x, src[0].x, **self.params, rows=[row])
+            obstacles = np.stack([src[j].x for j in self.ids if not src[j].active])
+            grad += obstacle_gradient(x[row:row + 1], obstacles, k_f=self.params['k_f'],
+                                      b=self.params['b'], c=self.params['c'])
+            out = self.controller.step(v, grad)
         self._last_step = step
+        self.neighbours_used = len(ids) - 1
         return out
+
+    def brake(self, step: int) -> NDArray[np.float64]:
+        """Answer ``step`` with :meth:`safe_command` (lockstep: an input is stale, but the
+        barrier must still get a command for this step)."""
+        self.pending.pop(step, None)
+        self._last_step = step
+        return self.safe_command()
 
     def stale_sources(self, now: float, timeout: float) -> list[int]:
         """Inputs missing or older than ``timeout`` seconds (0 = the target)."""
@@ -167,8 +271,10 @@ class PlantModel:
     """Dynamics of all trackers (eq. 19-21), as the simulator integrates them.
 
     Holds x, v (n, 3), the disturbance source and the latest commands. Lockstep: collect the
-    commands of step k, then :meth:`advance`. A command that never arrives is held from the
-    previous step (zero-order hold) and counted in ``missed``.
+    commands of step k from the active trackers (:meth:`missing`), then :meth:`advance`; a
+    tracker still silent after the deadline is deactivated (:meth:`deactivate`). Realtime:
+    :meth:`expire` deactivates the trackers whose latest command is older than the timeout.
+    An inactive tracker's UAV gets zero force until its next command, which reactivates it.
     """
 
     cfg: SwarmConfig
@@ -176,6 +282,7 @@ class PlantModel:
     missed: int = 0
     stale: int = 0
     rejected: int = 0
+    last_rejection: str = ''
 
     def __post_init__(self) -> None:
         n = self.cfg.n_trackers
@@ -187,29 +294,76 @@ class PlantModel:
         self.u = np.zeros((n, 3))
         self.s = np.zeros((n, 3))
         self.got: dict[int, int] = {}       # uav_id -> step of the latest command
+        self.instances: dict[int, int] = {}  # uav_id -> the tracker process it follows
+        self.active = np.ones(n, dtype=bool)
+        self.command_time = np.zeros(n)     # realtime: when each latest command arrived
         self.stale_flags = np.zeros(n, dtype=bool)
         pairs = expected_pairs(self.cfg)
         self.expected_pairs = None if pairs is None else np.asarray(pairs)
 
+    def refuse(self, why: str) -> bool:
+        """Count a refused input and keep its reason in ``last_rejection``; returns False."""
+        self.rejected += 1
+        self.last_rejection = why
+        return False
+
     def offer_command(self, uav_id: int, step: int, force: NDArray[np.float64],
-                      s: NDArray[np.float64], stale: bool = False) -> bool:
-        """Store the command of one tracker; False (and counted) if invalid."""
-        if uav_id not in self.ids or not (np.all(np.isfinite(force)) and np.all(np.isfinite(s))):
-            self.rejected += 1
-            return False
+                      s: NDArray[np.float64], stale: bool = False, now: float = 0.0,
+                      instance: int = 0) -> bool:
+        """Store the command of one tracker; False (counted, ``last_rejection`` says why) if
+        the id is unknown, a value is not finite or out of range, the command comes from
+        another tracker process (``instance``) than the one this ``uav_id`` follows (a
+        duplicate ``uav_id``), the step is older than the one held, or (lockstep) this step
+        was answered already. An accepted command makes its tracker active; an inactive
+        tracker follows the next instance that commands (a respawned tracker)."""
+        if uav_id not in self.ids:
+            return self.refuse(f'uav_id {uav_id} is not in this swarm (ids 1..{len(self.ids)})')
+        problem = input_problem(force=force, s=s)
+        if problem is not None:
+            return self.refuse(f'command of uav_{uav_id}: {problem}')
         j = uav_id - 1
-        if step >= 0 and step < self.got.get(uav_id, -1):
-            self.rejected += 1
-            return False
+        followed = self.instances.get(uav_id)
+        if followed is not None and instance != followed:
+            if self.active[j]:
+                return self.refuse(f'duplicate uav_id {uav_id}: a command from a second '
+                                   f'tracker process (instance {instance:x}; following '
+                                   f'{followed:x})')
+            self.got.pop(uav_id, None)          # a new process starts its own sequence
+        self.instances[uav_id] = instance
+        held = self.got.get(uav_id, -1)
+        if step >= 0 and step < held:
+            return self.refuse(f'command of uav_{uav_id} for step {step} is out of order '
+                                f'(step {held} held)')
+        if step >= 0 and step == held:
+            return self.refuse(f'second command of uav_{uav_id} for step {step}: another '
+                                f'tracker with the same uav_id? (the first one is used)')
         self.u[j], self.s[j] = force, s
         self.got[uav_id] = step
+        self.active[j] = True
+        self.command_time[j] = now
         if stale:
             self.stale += 1
         return True
 
     def missing(self, step: int) -> list[int]:
-        """Trackers whose command for ``step`` has not arrived."""
-        return [i for i in self.ids if self.got.get(i, -1) != step]
+        """Active trackers whose command for ``step`` has not arrived (inactive ones are not
+        waited for)."""
+        return [i for i in self.ids if self.active[i - 1] and self.got.get(i, -1) != step]
+
+    def deactivate(self, ids: Sequence[int]) -> None:
+        """Trackers silent past the deadline: zero force from now on, left out of the
+        neighbour sets, not waited for, until their next command."""
+        for i in ids:
+            self.active[i - 1] = False
+            self.u[i - 1] = 0.0
+
+    def expire(self, now: float, timeout: float) -> list[int]:
+        """Realtime: deactivate the trackers whose latest command is older than ``timeout``
+        seconds at ``now``; returns the ids that have just become inactive."""
+        old = (now - self.command_time) > timeout
+        newly = [i for i in self.ids if old[i - 1] and self.active[i - 1]]
+        self.deactivate([i for i in self.ids if old[i - 1]])
+        return newly
 
     def advance(self, steps: int = 1) -> None:
         """Integrate ``steps`` steps with the held commands (lockstep: one)."""

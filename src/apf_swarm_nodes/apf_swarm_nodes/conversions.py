@@ -22,7 +22,7 @@ from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 __all__ = ['WORLD', 'dt_to_ns', 'step_stamp', 'stamp_ns', 'step_of', 'odom_msg', 'odom_arrays',
            'force_msg', 'ForceArrays', 'force_arrays', 'clock_msg', 'swarm_state_msg',
            'SwarmSample', 'swarm_state_arrays', 'is_finite', 'LAW_CODES', 'swarm_odom_msg',
-           'swarm_odom_arrays', 'markers_msg', 'swarm_state_step']
+           'swarm_odom_arrays', 'SwarmOdom', 'markers_msg', 'swarm_state_step']
 
 WORLD = 'world'
 LAW_CODES = {'proposed': ForceCommand.LAW_PROPOSED, 'traditional': ForceCommand.LAW_TRADITIONAL}
@@ -90,7 +90,8 @@ def is_finite(*arrays: NDArray[np.float64]) -> bool:
 def force_msg(*, uav_id: int, step: int, law: str, stamp: Time, force: NDArray[np.float64],
               sliding_surface: NDArray[np.float64], gradient: NDArray[np.float64],
               filter_state: NDArray[np.float64], saturated: bool,
-              stale: bool = False, out: ForceCommand | None = None) -> ForceCommand:
+              stale: bool = False, rejected_inputs: int = 0, instance: int = 0,
+              out: ForceCommand | None = None) -> ForceCommand:
     """``apf_swarm_msgs/ForceCommand`` from one tracker's controller output (vectors (3,));
     ``out``: a previous message to update in place."""
     msg = out if out is not None else ForceCommand()
@@ -105,6 +106,8 @@ def force_msg(*, uav_id: int, step: int, law: str, stamp: Time, force: NDArray[n
     _set_vec(msg.filter_state, filter_state)
     msg.saturated = bool(saturated)
     msg.stale = bool(stale)
+    msg.rejected_inputs = int(rejected_inputs)
+    msg.instance = int(instance)
     return msg
 
 
@@ -117,12 +120,16 @@ class ForceArrays:
     force: NDArray[np.float64]
     sliding_surface: NDArray[np.float64]
     stale: bool
+    rejected_inputs: int = 0
+    stamp_ns: int = 0
+    instance: int = 0
 
 
 def force_arrays(msg: ForceCommand) -> ForceArrays:
     """Numbers of a ``ForceCommand``."""
     return ForceArrays(int(msg.uav_id), int(msg.step), _vec(msg.force),
-                       _vec(msg.sliding_surface), bool(msg.stale))
+                       _vec(msg.sliding_surface), bool(msg.stale), int(msg.rejected_inputs),
+                       stamp_ns(msg.header.stamp), int(msg.instance))
 
 
 def clock_msg(stamp: Time) -> Clock:
@@ -135,7 +142,8 @@ def swarm_state_msg(*, step: int, sim_time: float, stamp: Time, uav_ids: Sequenc
                     s: NDArray[np.float64], target_x: NDArray[np.float64],
                     target_v: NDArray[np.float64], potential: float, centroid_error: float,
                     formation_error: float, missed_deadlines: int, stale_inputs: int,
-                    rejected_inputs: int, out: SwarmState | None = None) -> SwarmState:
+                    rejected_inputs: int, active: Sequence[bool] | None = None,
+                    target_age: float = 0.0, out: SwarmState | None = None) -> SwarmState:
     """``apf_swarm_msgs/SwarmState`` from arrays of shape (n, 3) and (3,).
 
     ``out``: a message made by this function before for the same trackers, updated in place
@@ -165,6 +173,8 @@ def swarm_state_msg(*, step: int, sim_time: float, stamp: Time, uav_ids: Sequenc
     msg.missed_deadlines = int(missed_deadlines)
     msg.stale_inputs = int(stale_inputs)
     msg.rejected_inputs = int(rejected_inputs)
+    msg.active = [True] * len(x) if active is None else [bool(a) for a in active]
+    msg.target_age = float(target_age)
     return msg
 
 
@@ -187,6 +197,8 @@ class SwarmSample:
     missed_deadlines: int
     stale_inputs: int
     rejected_inputs: int
+    active: tuple[bool, ...] = ()
+    target_age: float = 0.0
 
 
 def _rows(seq: Sequence[Any]) -> NDArray[np.float64]:
@@ -200,13 +212,17 @@ def swarm_state_arrays(msg: SwarmState) -> SwarmSample:
         _rows(msg.positions), _rows(msg.velocities), _rows(msg.forces),
         _rows(msg.sliding_surfaces), _vec(msg.target_position), _vec(msg.target_velocity),
         float(msg.potential), float(msg.centroid_error), float(msg.formation_error),
-        int(msg.missed_deadlines), int(msg.stale_inputs), int(msg.rejected_inputs))
+        int(msg.missed_deadlines), int(msg.stale_inputs), int(msg.rejected_inputs),
+        tuple(bool(a) for a in getattr(msg, 'active', ())),   # absent in older bags
+        float(getattr(msg, 'target_age', 0.0)))
 
 
 def swarm_odom_msg(*, step: int, stamp: Time, uav_ids: Sequence[int], x: NDArray[np.float64],
                    v: NDArray[np.float64], target_x: NDArray[np.float64],
-                   target_v: NDArray[np.float64]) -> SwarmOdometry:
-    """``apf_swarm_msgs/SwarmOdometry`` from arrays x, v (n, 3) and the target (3,)."""
+                   target_v: NDArray[np.float64], active: Sequence[bool] | None = None,
+                   target_age: float = 0.0) -> SwarmOdometry:
+    """``apf_swarm_msgs/SwarmOdometry`` from arrays x, v (n, 3) and the target (3,);
+    ``active`` defaults to every tracker active."""
     msg = SwarmOdometry()
     msg.header.stamp = stamp
     msg.header.frame_id = WORLD
@@ -216,15 +232,31 @@ def swarm_odom_msg(*, step: int, stamp: Time, uav_ids: Sequence[int], x: NDArray
     msg.velocities = np.ascontiguousarray(v, dtype=float).ravel().tolist()
     msg.target_position = np.asarray(target_x, dtype=float)
     msg.target_velocity = np.asarray(target_v, dtype=float)
+    msg.active = [True] * len(msg.uav_ids) if active is None else [bool(a) for a in active]
+    msg.target_age = float(target_age)
     return msg
 
 
-def swarm_odom_arrays(msg: SwarmOdometry) -> tuple[int, list[int], NDArray[np.float64],
-                                                   NDArray[np.float64], NDArray[np.float64],
-                                                   NDArray[np.float64]]:
-    """step, uav_ids, x (n, 3), v (n, 3), target_x (3,), target_v (3,) of a SwarmOdometry.
+@dataclass(frozen=True)
+class SwarmOdom:
+    """One SwarmOdometry as arrays: x, v (n, 3), target (3,), per-row active flags."""
 
-    Raises ValueError when the arrays do not have 3 values per id.
+    step: int
+    stamp_ns: int
+    uav_ids: list[int]
+    x: NDArray[np.float64]
+    v: NDArray[np.float64]
+    target_x: NDArray[np.float64]
+    target_v: NDArray[np.float64]
+    active: list[bool]
+    target_age: float
+
+
+def swarm_odom_arrays(msg: SwarmOdometry) -> SwarmOdom:
+    """The arrays of a SwarmOdometry.
+
+    Raises ValueError when the arrays do not have 3 values per id, when ``active`` has
+    neither 0 (every tracker active) nor one flag per id, or when an id appears twice.
     """
     ids = [int(i) for i in msg.uav_ids]
     x = np.asarray(msg.positions, dtype=float)
@@ -232,9 +264,15 @@ def swarm_odom_arrays(msg: SwarmOdometry) -> tuple[int, list[int], NDArray[np.fl
     if x.size != 3 * len(ids) or v.size != 3 * len(ids):
         raise ValueError(f'SwarmOdometry with {len(ids)} ids has {x.size} position and '
                          f'{v.size} velocity values; expected {3 * len(ids)} each')
-    return (int(msg.step), ids, x.reshape(-1, 3), v.reshape(-1, 3),
-            np.asarray(msg.target_position, dtype=float),
-            np.asarray(msg.target_velocity, dtype=float))
+    if len(set(ids)) != len(ids):
+        raise ValueError(f'SwarmOdometry lists a uav_id twice: {ids}')
+    active = [bool(a) for a in msg.active] or [True] * len(ids)
+    if len(active) != len(ids):
+        raise ValueError(f'SwarmOdometry with {len(ids)} ids has {len(active)} active flags')
+    return SwarmOdom(int(msg.step), stamp_ns(msg.header.stamp), ids, x.reshape(-1, 3),
+                     v.reshape(-1, 3), np.asarray(msg.target_position, dtype=float),
+                     np.asarray(msg.target_velocity, dtype=float), active,
+                     float(msg.target_age))
 
 
 def markers_msg(x: NDArray[np.float64], target_x: NDArray[np.float64], stamp: Time,

@@ -27,7 +27,9 @@ ones, so its control topics are best effort with depth 1.
 
 from __future__ import annotations
 
+import re
 import sys
+import time
 from typing import Callable
 
 import rclpy
@@ -40,7 +42,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from apf_swarm_core.errors import ApfSwarmError
 
 __all__ = ['EXECUTORS', 'EXECUTOR_PARAM', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
-           'force_topic', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'run_node']
+           'force_topic', 'RejectionLog', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'run_node']
 
 TARGET_ODOM = '/target/odom'
 SWARM_STATE = '/swarm/state'
@@ -67,6 +69,24 @@ def control_qos(mode: str) -> QoSProfile:
                           history=HistoryPolicy.KEEP_LAST, depth=10)
     return QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT,
                       history=HistoryPolicy.KEEP_LAST, depth=1)
+
+
+class RejectionLog:
+    """Warn about refused inputs without flooding: each kind of reason (the reason with its
+    numbers left out) at most once per ``period`` seconds, with the running total."""
+
+    _NUMBER = re.compile(r'[-+]?\d[\d.e+-]*')
+
+    def __init__(self, node: Node, period: float = 1.0) -> None:
+        self.node, self.period = node, float(period)
+        self._last: dict[str, float] = {}
+
+    def __call__(self, why: str, total: int) -> None:
+        kind = self._NUMBER.sub('#', why)
+        now = time.monotonic()
+        if now - self._last.get(kind, -1e9) >= self.period:
+            self._last[kind] = now
+            self.node.get_logger().warn(f'rejected: {why}; {total} rejected so far')
 
 
 def odom_topic(uav_id: int) -> str:

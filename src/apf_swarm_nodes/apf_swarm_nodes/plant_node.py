@@ -5,14 +5,28 @@ state, one message), ``/swarm/state``, ``/swarm/markers`` (RViz / Foxglove) and,
 subscribes ``/uav_<i>/force_cmd`` and ``/target/odom``.
 
 Lockstep barrier, step k: publish ``/clock`` (k dt) and the odometry of step k; wait until the
-command of step k of every tracker and the target state of step k have arrived; publish the
-``/swarm/state`` sample of step k; integrate to k + 1. A command (or target state) still
-missing ``command_timeout`` seconds of wall time after the step was published is counted in
-``missed_deadlines``, logged, and the previous command is held (zero-order hold).
+command of step k of every active tracker and the target state of step k have arrived;
+publish the ``/swarm/state`` sample of step k; integrate to k + 1. Past ``command_timeout``
+seconds of wall time the step is published once more; still missing after another
+``command_timeout``, the input is counted in ``missed_deadlines`` and logged, and its
+source is no longer waited for: a silent tracker becomes inactive (zero force, left out of
+the other trackers' potential, see :mod:`apf_swarm_core.agents`), a silent target's last
+state is held and its age grows in ``/swarm/odom`` (trackers brake once it exceeds their
+``input_timeout``). A command or target state that arrives again ends that.
 
 Realtime: a physics timer integrates the steps of dt that wall time has advanced (held
-commands; a command older than ``command_timeout`` is stale: zero force, counted); a publish
-timer publishes odometry and ``/swarm/state`` at ``publish_rate``.
+commands; a tracker whose latest command is older than ``command_timeout`` becomes inactive:
+zero force, counted in ``missed_deadlines``); a publish timer publishes odometry and
+``/swarm/state`` at ``publish_rate``; commands and target states whose stamp is older than
+``command_timeout``, or older than the one held, are refused.
+
+Every refused input (non-finite, out of range, unknown or mismatched ``uav_id``, a second
+command for a lockstep step, out of order, stale) is logged with its reason and counted; the
+``rejected_inputs`` of ``/swarm/state`` is the plant's count plus the latest count each
+tracker reports in its commands. Each command names the tracker process that sent it
+(``instance``): the plant follows one process per ``uav_id`` and refuses the commands of any
+other (two trackers started with one ``uav_id``) until the followed one falls silent. A force
+topic with more than one publisher is also logged as an error once a second while it lasts.
 """
 
 from __future__ import annotations
@@ -28,13 +42,13 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Empty
 from visualization_msgs.msg import MarkerArray
 
-from apf_swarm_core.agents import PlantModel
+from apf_swarm_core.agents import PlantModel, input_problem
 from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 
 from .conversions import (clock_msg, dt_to_ns, force_arrays, odom_arrays, odom_msg,
-                          markers_msg, step_of, step_stamp, swarm_odom_msg,
+                          markers_msg, stamp_ns, step_of, step_stamp, swarm_odom_msg,
                           swarm_state_msg)
-from .node_common import (CLOCK, CLOCK_QOS, INPUTS, START_QOS, STATE_QOS, SWARM_ODOM, SWARM_MARKERS,
+from .node_common import (CLOCK, CLOCK_QOS, INPUTS, RejectionLog, START_QOS, STATE_QOS, SWARM_ODOM, SWARM_MARKERS,
                           SWARM_START, SWARM_STATE,
                           TARGET_ODOM, control_qos, force_topic, odom_topic, run_node)
 from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
@@ -89,7 +103,13 @@ class PlantNode(Node):
             if self.markers_every else None
         self.odom_sent = False
         for i in self.model.ids:
-            self.create_subscription(ForceCommand, force_topic(i), self._on_force, qos)
+            self.create_subscription(ForceCommand, force_topic(i),
+                                     lambda m, i=i: self._on_force(i, m), qos)
+        self.tracker_rejected: dict[int, int] = {}
+        self._log_rejection = RejectionLog(self)
+        self.target_absent = False      # lockstep: the target missed a deadline
+        self._duplicates: dict[int, int] = {}
+        self.create_timer(1.0, self._check_duplicates)
         self.create_subscription(Odometry, TARGET_ODOM, self._on_target, qos)
         self.target = (-1, np.zeros(3), np.zeros(3), 0.0)   # step, x, v, received
         self.targets: dict[int, tuple] = {}   # lockstep: target states by step (one ahead)
@@ -103,7 +123,7 @@ class PlantNode(Node):
         else:
             self.create_timer(1.0 / float(p['physics_rate']), self._on_physics)
             self.create_timer(1.0 / float(p['publish_rate']), self._on_publish)
-            self.cmd_received = np.zeros(self.cfg.n_trackers)
+            self._target_seq = -1
         if p['wait_for_start']:
             self.create_subscription(Empty, SWARM_START, self._on_start, START_QOS)
             self.get_logger().info('waiting for /swarm/start')
@@ -133,6 +153,7 @@ class PlantNode(Node):
             self._start_when_matched()
         else:
             self.wall0 = time.monotonic()
+            self.model.command_time[:] = self.wall0     # a first command has until the timeout
 
     def _matched(self) -> bool:
         """Lockstep: every tracker's command has a publisher and every step-k reader a match."""
@@ -166,42 +187,93 @@ class PlantNode(Node):
     def _maybe_publish_swarm_odom(self) -> None:
         """Lockstep: ``/swarm/odom`` of step k once the target state of step k is held."""
         k = self.model.k
-        if self.running and not self.done and not self.odom_sent and self.target[0] == k:
+        if self.running and not self.done and not self.odom_sent and (
+                self.target[0] == k or self.target_absent):
             self._publish_swarm_odom(k, step_stamp(k, self.dt_ns))
             self.odom_sent = True
+
+    def _target_age(self) -> float:
+        """Age of the held target state [s]: simulated (lockstep) or wall time (realtime)."""
+        if self.mode == 'lockstep':
+            return max(0, self.model.k - self.target[0]) * self.cfg.dt
+        return max(0.0, time.monotonic() - self.target[3])
 
     def _publish_swarm_odom(self, k: int, stamp) -> None:
         self.swarm_odom_pub.publish(swarm_odom_msg(
             step=k, stamp=stamp, uav_ids=self.model.ids, x=self.model.x, v=self.model.v,
-            target_x=self.target[1], target_v=self.target[2]))
+            target_x=self.target[1], target_v=self.target[2], active=self.model.active,
+            target_age=self._target_age()))
 
-    def _on_force(self, msg: ForceCommand) -> None:
+    def _refuse(self, why: str) -> None:
+        self.model.refuse(why)
+        self._log_rejection(why, self.model.rejected)
+
+    def _stale_stamp(self, stamp) -> float | None:
+        """Realtime: the age [s] of a stamp older than command_timeout, else None."""
+        if self.mode == 'lockstep':
+            return None
+        age = (self.get_clock().now().nanoseconds - stamp_ns(stamp)) * 1e-9
+        return age if age > self.timeout else None
+
+    def _on_force(self, topic_id: int, msg: ForceCommand) -> None:
         f = force_arrays(msg)
-        if not self.model.offer_command(f.uav_id, f.step, f.force, f.sliding_surface,
-                                        f.stale and self.running):
-            self.get_logger().warn(f'rejected command from uav_{f.uav_id} (non-finite, unknown '
-                                   f'id or out of order); {self.model.rejected} so far',
-                                   throttle_duration_sec=1.0)
+        if f.uav_id != topic_id:
+            self._refuse(f'a command on {force_topic(topic_id)} claims uav_id {f.uav_id}')
             return
+        age = self._stale_stamp(msg.header.stamp)
+        if age is not None:
+            self._refuse(f'command of uav_{f.uav_id} is stale: stamped {age:.3f} s ago '
+                         f'(command_timeout {self.timeout:g} s)')
+            return
+        was_active = bool(self.model.active[f.uav_id - 1])
+        if not self.model.offer_command(f.uav_id, f.step, f.force, f.sliding_surface,
+                                        f.stale and self.running, now=time.monotonic(),
+                                        instance=f.instance):
+            self._log_rejection(self.model.last_rejection, self.model.rejected)
+            return
+        self.tracker_rejected[f.uav_id] = f.rejected_inputs
+        if not was_active and self.running:
+            self.get_logger().info(f'uav_{f.uav_id} commands again: active, back in the '
+                                   f'neighbour sets')
         if self.mode == 'lockstep':
             self._maybe_finish()
-        else:
-            self.cmd_received[f.uav_id - 1] = time.monotonic()
 
     def _on_target(self, msg: Odometry) -> None:
         x, v = odom_arrays(msg)
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
-            self.model.rejected += 1
+        problem = input_problem(x=x, v=v)
+        if problem is not None:
+            self._refuse(f'target state: {problem}')
             return
         if self.mode == 'lockstep':
             step = step_of(msg.header.stamp, self.dt_ns)
             self.targets[step] = (step, x, v, time.monotonic())
             if self.target[0] != self.model.k and self.model.k in self.targets:
                 self.target = self.targets.pop(self.model.k)
+                if self.target_absent:
+                    self.target_absent = False
+                    self.get_logger().info(f'step {self.model.k}: the target publishes again')
             self._maybe_publish_swarm_odom()
             self._maybe_finish()
         else:
-            self.target = (-1, x, v, time.monotonic())
+            age = self._stale_stamp(msg.header.stamp)
+            seq = stamp_ns(msg.header.stamp)
+            if age is not None:
+                self._refuse(f'target state is stale: stamped {age:.3f} s ago')
+            elif seq < self._target_seq:
+                self._refuse(f'target state out of order (stamp {seq} ns after {self._target_seq})')
+            else:
+                self._target_seq = seq
+                self.target = (-1, x, v, time.monotonic())
+
+    def _check_duplicates(self) -> None:
+        """1 Hz: a force topic with more than one publisher means two trackers share an id."""
+        for i in self.model.ids:
+            count = self.count_publishers(force_topic(i))
+            if count > 1:
+                self.get_logger().error(
+                    f'duplicate uav_id {i}: {count} publishers on {force_topic(i)}; '
+                    'following the first tracker process that commanded, refusing the others')
+            self._duplicates[i] = count
 
     def _maybe_finish(self, force: bool = False) -> None:
         if not self.running or self.done:
@@ -209,18 +281,36 @@ class PlantNode(Node):
         k = self.model.k
         missing = self.model.missing(k)
         target_late = self.target[0] != k
+        target_late = target_late and not self.target_absent
         if (missing or target_late) and not force:
             return
-        if missing or target_late:
-            self.model.missed += len(missing) + int(target_late)
-            what = [f'uav_{i}' for i in missing] + (['target'] if target_late else [])
-            self.get_logger().warn(f'step {k}: no input from {what} within '
-                                   f'{self.timeout:g} s; holding the previous values '
-                                   f'({self.model.missed} missed so far)')
+        if target_late:
+            # /swarm/odom of step k waits for the target, so no tracker has seen step k yet:
+            # only the target missed it. Hold its last state and let the trackers answer.
+            self.model.missed += 1
+            self.target_absent = True
+            self.get_logger().warn(
+                f'step {k}: no target state within 2 x {self.timeout:g} s ({self.model.missed} '
+                f'missed so far); holding the last one (its age grows in /swarm/odom) and '
+                f'not waiting for the target any more')
+            self.step_started = time.monotonic()
+            self.republished = False
+            self._maybe_publish_swarm_odom()
+            return
+        if missing:
+            self.model.missed += len(missing)
+            self.model.deactivate(missing)
+            self.get_logger().warn(
+                f'step {k}: no command from {[f"uav_{i}" for i in missing]} within 2 x '
+                f'{self.timeout:g} s ({self.model.missed} missed so far): zero force, left '
+                f'out of the neighbour sets, not waited for until they command again')
         self._publish_state(k, step_stamp(k, self.dt_ns))
         self.model.advance()
         if self.model.k in self.targets:
             self.target = self.targets.pop(self.model.k)
+            if self.target_absent:
+                self.target_absent = False
+                self.get_logger().info(f'step {self.model.k}: the target publishes again')
         for old in [j for j in self.targets if j < self.model.k]:
             del self.targets[old]
         if self.model.k >= self.steps:
@@ -247,16 +337,19 @@ class PlantNode(Node):
     def _late(self) -> list[str]:
         k = self.model.k
         return [f'uav_{i}' for i in self.model.missing(k)] + (
-            ['target'] if self.target[0] != k else [])
+            ['target'] if self.target[0] != k and not self.target_absent else [])
 
     # --- realtime ------------------------------------------------------------------------
     def _on_physics(self) -> None:
         if not self.running or self.done:
             return
         now = time.monotonic()
-        stale = (now - self.cmd_received) > self.timeout
-        if np.any(stale):
-            self.model.u[stale] = 0.0
+        newly = self.model.expire(now, self.timeout)
+        if newly:
+            self.model.missed += len(newly)
+            self.get_logger().warn(
+                f'no command from {[f"uav_{i}" for i in newly]} for {self.timeout:g} s: zero '
+                f'force, left out of the neighbour sets ({self.model.missed} missed so far)')
         due = int(math.floor((now - self.wall0) / self.cfg.dt)) - self.model.k
         if due > 0:
             self.model.advance(min(due, 1000))
@@ -294,7 +387,8 @@ class PlantNode(Node):
             x=self.model.x, v=self.model.v, u=self.model.u, s=self.model.s, target_x=tx,
             target_v=tv, potential=j, centroid_error=ce, formation_error=fe,
             missed_deadlines=self.model.missed, stale_inputs=self.model.stale,
-            rejected_inputs=self.model.rejected)
+            rejected_inputs=self.model.rejected + sum(self.tracker_rejected.values()),
+            active=self.model.active, target_age=self._target_age())
         self.state_pub.publish(self._state_msg)
 
 

@@ -13,6 +13,7 @@ latest inputs; an input older than ``input_timeout`` is stale and the safe comma
 
 from __future__ import annotations
 
+import random
 import sys
 import time
 
@@ -22,8 +23,9 @@ from rclpy.node import Node
 from apf_swarm_core.agents import TrackerAgent
 from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry
 
-from .conversions import dt_to_ns, force_msg, odom_arrays, step_of, swarm_odom_arrays
-from .node_common import INPUTS, SWARM_ODOM, TARGET_ODOM, control_qos, odom_topic, run_node
+from .conversions import (dt_to_ns, force_msg, odom_arrays, stamp_ns, step_of,
+                          swarm_odom_arrays)
+from .node_common import INPUTS, RejectionLog, SWARM_ODOM, TARGET_ODOM, control_qos, odom_topic, run_node
 from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, install_validator, \
     read_config
 
@@ -40,8 +42,9 @@ NODE_PARAMS = (
     NodeParam('trigger', 'odom', 'realtime: odom computes on every new own odometry (lowest '
               'latency); timer computes at control_rate on the latest inputs',
               choices=('odom', 'timer')),
-    NodeParam('input_timeout', 0.5, 'realtime: an input older than this is stale [s]',
-              lo=0.001, hi=60.0),
+    NodeParam('input_timeout', 0.5, 'an input older than this is stale and the safe brake '
+              'is sent [s; lockstep: of simulated time, which only the target\'s state can '
+              'exceed when the target is silent]', lo=0.001, hi=60.0),
 )
 
 
@@ -77,6 +80,9 @@ class TrackerNode(Node):
         self._tick = 0
         self._msg = None
         self._stale_reported = False
+        self._neighbours = -1
+        self._log_rejection = RejectionLog(self)
+        self.instance = random.getrandbits(63)   # tells this process apart at the plant
         if self.mode == 'realtime':
             self.create_timer(1.0 / float(p['control_rate']), self._on_timer)
         self.get_logger().info(
@@ -91,51 +97,75 @@ class TrackerNode(Node):
             self.get_logger().info('retuned: ' + ', '.join(
                 f'{k} = {getattr(cfg, k)!r}' for k in changed))
 
+    def _now_and_age(self, stamp) -> tuple[float, float]:
+        """(now, age of a message with this stamp) [s]: lockstep on the simulated clock
+        (the stamp is the step's time, age 0), realtime on the monotonic clock (age = ROS
+        time now - stamp, never negative)."""
+        if self.mode == 'lockstep':
+            return stamp_ns(stamp) * 1e-9, 0.0
+        age = (self.get_clock().now().nanoseconds - stamp_ns(stamp)) * 1e-9
+        return time.monotonic(), max(0.0, age)
+
+    def _warn_rejected(self) -> None:
+        self._log_rejection(self.agent.last_rejection, self.agent.rejected)
+
     def _on_odom(self, source: int, msg: Odometry) -> None:
         x, v = odom_arrays(msg)
         step = step_of(msg.header.stamp, self.dt_ns) if self.mode == 'lockstep' else -1
-        if not self.agent.offer(source, step, x, v, time.monotonic()):
-            name = 'target' if source == 0 else f'uav_{source}'
-            self.get_logger().warn(f'rejected odometry from {name} (non-finite, unknown or out '
-                                   f'of order); {self.agent.rejected} rejected so far',
-                                   throttle_duration_sec=1.0)
+        now, age = self._now_and_age(msg.header.stamp)
+        if not self.agent.offer(source, step, x, v, now - age,
+                                seq=step if step >= 0 else stamp_ns(msg.header.stamp)):
+            self._warn_rejected()
             return
         if self.mode == 'lockstep' and self.agent.ready(step):
-            self._publish(step, msg.header.stamp)
+            self._publish(step, msg.header.stamp, now)
         elif self.mode == 'realtime' and self.on_odom and source == self.uav_id:
             self._realtime_command(msg.header.stamp)
 
     def _on_swarm_odom(self, msg: SwarmOdometry) -> None:
         try:
-            k, ids, xs, vs, tx, tv = swarm_odom_arrays(msg)
+            m = swarm_odom_arrays(msg)
         except ValueError as exc:
             self.agent.rejected += 1
-            self.get_logger().warn(f'rejected /swarm/odom: {exc}', throttle_duration_sec=1.0)
+            self._log_rejection(f'/swarm/odom: {exc}', self.agent.rejected)
             return
-        step = k if self.mode == 'lockstep' else -1
-        now = time.monotonic()
-        ok = self.agent.offer(0, step, tx, tv, now)
-        for j, x, v in zip(ids, xs, vs):
-            if j in self.agent.ids:
-                ok = self.agent.offer(j, step, x, v, now) and ok
-        if not ok:
-            self.get_logger().warn(f'rejected part of /swarm/odom (non-finite or out of order); '
-                                   f'{self.agent.rejected} rejected so far',
-                                   throttle_duration_sec=1.0)
+        step = m.step if self.mode == 'lockstep' else -1
+        seq = step if step >= 0 else m.stamp_ns
+        now, age = self._now_and_age(msg.header.stamp)
+        if not self.agent.offer_swarm(step, m.uav_ids, m.x, m.v, m.active, m.target_x,
+                                      m.target_v, now - age, now - age - m.target_age,
+                                      seq=seq):
+            self._warn_rejected()
             return
         if self.mode == 'lockstep' and self.agent.ready(step):
-            self._publish(step, msg.header.stamp)
+            self._publish(step, msg.header.stamp, now)
         elif self.mode == 'realtime' and self.on_odom:
             self._realtime_command(msg.header.stamp)
 
-    def _publish(self, step: int, stamp) -> None:
+    def _publish(self, step: int, stamp, now: float | None = None) -> None:
+        """The command of ``step``; lockstep with a stale input (the target silent for
+        longer than input_timeout of simulated time): the safe brake, flagged stale."""
+        if self.mode == 'lockstep' and self.agent.stale_sources(now, self.timeout):
+            self._send_brake(step, stamp, self.agent.stale_sources(now, self.timeout))
+            self.agent.brake(step)
+            return
         out = self.agent.command(step)
         self._msg = force_msg(
             out=self._msg, uav_id=self.uav_id, step=step, law=self.cfg.law, stamp=stamp,
             force=out.force[0], sliding_surface=out.sliding_surface[0],
             gradient=out.gradient[0], filter_state=out.filter_state[0],
-            saturated=bool(out.saturated[0]))
+            saturated=bool(out.saturated[0]), rejected_inputs=self.agent.rejected,
+            instance=self.instance)
         self.pub.publish(self._msg)
+        self._stale_reported = False
+        if self.agent.neighbours_used != self._neighbours:
+            if self._neighbours >= 0:
+                self.get_logger().warn(
+                    f'potential over {self.agent.neighbours_used} neighbours (was '
+                    f'{self._neighbours}): the plant reports '
+                    + ('a tracker silent' if self.agent.neighbours_used < self._neighbours
+                       else 'a tracker back'))
+            self._neighbours = self.agent.neighbours_used
 
     def _on_timer(self) -> None:
         """trigger timer: command on the latest inputs; trigger odom: watchdog only."""
@@ -158,20 +188,26 @@ class TrackerNode(Node):
         self._last_command = now
         stale = self.agent.stale_sources(now, self.timeout)
         if not stale:
-            self._stale_reported = False
             self._publish(self._tick, stamp)
             return
+        self._send_brake(self._tick, stamp, stale)
+
+    def _send_brake(self, step: int, stamp, stale: list[int]) -> None:
+        """Publish the safe brake (:func:`apf_swarm_core.agents.brake_force`), flagged stale."""
         self.agent.stale += 1
         if not self._stale_reported:
             names = ['target' if s == 0 else f'uav_{s}' for s in stale]
-            self.get_logger().warn(f'stale inputs {names} (older than {self.timeout:g} s): '
-                                   'commanding the safe brake')
+            unit = 's of simulated time' if self.mode == 'lockstep' else 's'
+            self.get_logger().warn(f'stale inputs {names} (older than {self.timeout:g} '
+                                   f'{unit}): commanding the safe brake')
             self._stale_reported = True
         u = self.agent.safe_command()
         zero = u * 0.0
-        self.pub.publish(force_msg(uav_id=self.uav_id, step=self._tick, law=self.cfg.law,
+        self.pub.publish(force_msg(uav_id=self.uav_id, step=step, law=self.cfg.law,
                                    stamp=stamp, force=u, sliding_surface=zero, gradient=zero,
-                                   filter_state=zero, saturated=False, stale=True))
+                                   filter_state=zero, saturated=False, stale=True,
+                                   rejected_inputs=self.agent.rejected,
+                                   instance=self.instance))
 
 
 def main(args: list[str] | None = None) -> None:
