@@ -508,7 +508,10 @@ class StateAccumulator:
                 'x': np.stack([s.x for s in kept]), 'v': np.stack([s.v for s in kept]),
                 'u': np.stack([s.u for s in kept]), 's': np.stack([s.s for s in kept]),
                 'target_x': np.stack([s.target_x for s in kept]),
-                'target_v': np.stack([s.target_v for s in kept])}
+                'target_v': np.stack([s.target_v for s in kept]),
+                # not saved to trajectory.npz: the fault report of summary.json
+                'active': np.array([s.active or (True,) * n for s in kept], dtype=bool),
+                'target_age': np.array([s.target_age for s in kept], dtype=float)}
 
     def messages(self) -> dict[str, Any]:
         out: dict[str, Any] = {'received': self.received, 'dropped': self.dropped,
@@ -524,6 +527,29 @@ class StateAccumulator:
 # --------------------------------------------------------------------------------------------
 # configuration, isolation, command lines
 # --------------------------------------------------------------------------------------------
+
+#: tracker processes per CPU core the bring-up starts without --allow-overload. Measured on
+#: the 2-core development machine (SPEC section 4, docs/PERFORMANCE.md): a full mesh of
+#: separate rclpy processes at 50 Hz saturates it at 13-15 processes with the events
+#: executor; with the aggregated /swarm/odom a tracker reads one message per step, and 8 per
+#: core (16 here, plus plant and target) is what still runs without missed deadlines.
+TRACKERS_PER_CORE = 8
+
+
+def tracker_capacity() -> int:
+    """The most trackers the bring-up starts on this machine without --allow-overload."""
+    return TRACKERS_PER_CORE * (os.cpu_count() or 1)
+
+
+def check_capacity(n_trackers: int, *, allow_overload: bool = False) -> None:
+    """Refuse more tracker processes than this machine runs (CliError naming the limit)."""
+    limit = tracker_capacity()
+    if n_trackers > limit and not allow_overload:
+        raise CliError(f'n_trackers = {n_trackers} is more than this machine runs as separate '
+                       f'processes: the measured limit is {TRACKERS_PER_CORE} per core, '
+                       f'{limit} on these {os.cpu_count()} cores (docs/RELIABILITY.md); use '
+                       f'fewer trackers, or --allow-overload to start them anyway')
+
 
 def resolve_config(args: argparse.Namespace) -> SwarmConfig:
     """Preset or file, then ``--set``, then ``--n-trackers`` / ``--seed`` / ``--duration``."""
@@ -682,6 +708,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='ROS_AUTOMATIC_DISCOVERY_RANGE (default LOCALHOST)')
     p.add_argument('--record', action='store_true',
                    help='also record a rosbag2 (MCAP) with the recorder node')
+    p.add_argument('--allow-overload', action='store_true',
+                   help='start more trackers than the measured limit of this machine '
+                        f'({TRACKERS_PER_CORE} per core)')
     p.add_argument('--respawn', action='store_true',
                    help='restart a node process that dies (counted in summary.json)')
     p.add_argument('--max-respawns', type=_nonneg_int, default=3, metavar='K',
@@ -1170,6 +1199,7 @@ def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
     starts); the caller prints it and exits 2.
     """
     cfg = resolve_config(args)
+    check_capacity(cfg.n_trackers, allow_overload=args.allow_overload)
     return Bringup(args, cfg, prog=prog).execute()
 
 

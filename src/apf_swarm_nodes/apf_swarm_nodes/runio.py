@@ -14,7 +14,57 @@ from apf_swarm_core.simulator import TRAJECTORY_KEYS
 
 from .errors import CliError
 
-__all__ = ['write_run', 'read_trajectory', 'format_summary', 'run_summary']
+__all__ = ['write_run', 'read_trajectory', 'format_summary', 'run_summary', 'fault_report',
+           'TARGET_SILENT_AGE']
+
+#: a target state older than this [s] counts as the target being silent in the fault report
+#: (ten periods of the realtime publish rate of 100 Hz; 100 steps of 1 ms in lockstep)
+TARGET_SILENT_AGE = 0.1
+
+
+def _intervals(t: np.ndarray, flag: np.ndarray) -> list[list[float]]:
+    """[t_first, t_last] of every run of consecutive samples where ``flag`` holds."""
+    out, start = [], None
+    for k, f in enumerate(flag):
+        if f and start is None:
+            start = k
+        if start is not None and (not f or k == len(flag) - 1):
+            end = k if f else k - 1
+            out.append([round(float(t[start]), 6), round(float(t[end]), 6)])
+            start = None
+    return out
+
+
+def fault_report(t: np.ndarray, active: np.ndarray | None, target_age: np.ndarray | None,
+                 ) -> tuple[dict[str, Any], list[str]]:
+    """The ``faults`` field of summary.json and its warning lines, from the ``active``
+    flags (T, n) and the ``target_age`` (T,) of ``/swarm/state``: when each tracker was
+    inactive (silent past the deadline, zero force, out of the formation) and when the
+    target was silent (its state older than :data:`TARGET_SILENT_AGE`)."""
+    faults: dict[str, Any] = {'inactive': {}, 'target_silent': [], 'target_age_max': 0.0}
+    warnings: list[str] = []
+    t = np.asarray(t, dtype=float)
+    if active is not None and len(active):
+        act = np.asarray(active, dtype=bool)
+        for j in range(act.shape[1]):
+            spans = _intervals(t, ~act[:, j])
+            if spans:
+                faults['inactive'][f'uav_{j + 1}'] = spans
+                total = sum(b - a for a, b in spans)
+                warnings.append(f'uav_{j + 1} was inactive (no command) {len(spans)} time(s), '
+                                f'{total:.3g} s in all, first at t = {spans[0][0]:g} s: zero '
+                                f'force, out of the formation term of the others')
+    if target_age is not None and len(target_age):
+        age = np.asarray(target_age, dtype=float)
+        faults['target_age_max'] = round(float(age.max()), 6)
+        spans = _intervals(t, age > TARGET_SILENT_AGE)
+        faults['target_silent'] = spans
+        if spans:
+            warnings.append(f'the target was silent {len(spans)} time(s) (state up to '
+                            f'{age.max():.3g} s old), first at t = {spans[0][0]:g} s: its '
+                            f'last state was held, trackers brake past their input_timeout')
+    return faults, warnings
+
 
 
 def write_run(out: Path, traj: Mapping[str, Any], summary: Mapping[str, Any],
@@ -33,7 +83,9 @@ def write_run(out: Path, traj: Mapping[str, Any], summary: Mapping[str, Any],
 def run_summary(traj: Mapping[str, Any], cfg: SwarmConfig, *, status: str = 'completed',
                 n_samples: int | None = None, dropped: int = 0,
                 respawned: Sequence[str] = ()) -> dict[str, Any]:
-    """summary.json (the simulator's schema) of a ROS run from its ``/swarm/state`` trajectory.
+    """summary.json (the simulator's schema) of a ROS run from its ``/swarm/state`` trajectory
+    (the ``trajectory.npz`` arrays, plus ``active`` (T, n) and ``target_age`` (T,) when the
+    samples carry them: they give the ``faults`` field, see :func:`fault_report`).
 
     The one function behind the bring-up's ``summary.json`` and ``apf-swarm bag metrics``, so
     that a bag recorded by the bring-up gives the live run's summary by construction. Warnings:
@@ -52,10 +104,15 @@ def run_summary(traj: Mapping[str, Any], cfg: SwarmConfig, *, status: str = 'com
     if respawned:
         warnings.append(f'respawned during the run: {", ".join(respawned)} (a restarted '
                         'node starts from its initial state)')
-    return summarize(traj, law=cfg.law, dt=cfg.dt, seed=cfg.seed,
-                     potential_params=cfg.potential_params(),
-                     expected_pairs=expected_pairs(cfg),
-                     steady_fraction=cfg.steady_fraction, warnings=warnings)
+    faults, fault_warnings = fault_report(traj['t'], traj.get('active'),
+                                          traj.get('target_age'))
+    summary = summarize({k: traj[k] for k in TRAJECTORY_KEYS}, law=cfg.law, dt=cfg.dt,
+                        seed=cfg.seed, potential_params=cfg.potential_params(),
+                        expected_pairs=expected_pairs(cfg),
+                        steady_fraction=cfg.steady_fraction,
+                        warnings=warnings + fault_warnings)
+    summary['faults'] = faults
+    return summary
 
 
 def read_trajectory(path: Path) -> dict[str, np.ndarray]:
