@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -94,10 +95,10 @@ def wait_for(cond: Callable[[], bool], timeout: float, what: str,
 class BringupRun:
     """``python scripts/swarm_up.py ARGS --domain-id D --out DIR`` with stdout / stderr in files."""
 
-    def __init__(self, tmp: Path, name: str, *args: str) -> None:
+    def __init__(self, tmp: Path, name: str, *args: str, exclude: tuple[int, ...] = ()) -> None:
         self.out = (tmp / name).resolve()
         self.config = str(self.out / 'config.yaml')
-        self.domain_id = pick_domain_id(lo=102, hi=201)
+        self.domain_id = pick_domain_id(exclude, lo=102, hi=201)
         self.err_path, self.out_path = tmp / f'{name}.stderr', tmp / f'{name}.stdout'
         self.argv = [sys.executable, str(SWARM_UP), *args, '--domain-id', str(self.domain_id),
                      '--out', str(self.out), '--no-plots']
@@ -125,8 +126,10 @@ class BringupRun:
         return now
 
     def wait_running(self, timeout: float = 90.0) -> None:
-        """Until the bring-up printed a progress line of the running swarm (steps/s)."""
-        wait_for(lambda: 'steps/s' in self.stderr(), timeout, 'a progress line', self)
+        """Until the bring-up printed a progress line of the running swarm (lockstep
+        steps/s, realtime msgs/s)."""
+        wait_for(lambda: re.search(r'(steps|msgs)/s', self.stderr()) is not None, timeout,
+                 'a progress line', self)
 
     def wait(self, timeout: float) -> int:
         try:
@@ -166,8 +169,8 @@ def bringup(tmp_path: Path):
     """Factory of :class:`BringupRun`; every run is stopped (by PID) after the test."""
     runs: list[BringupRun] = []
 
-    def start(name: str, *args: str) -> BringupRun:
-        run = BringupRun(tmp_path, name, *args)
+    def start(name: str, *args: str, exclude: tuple[int, ...] = ()) -> BringupRun:
+        run = BringupRun(tmp_path, name, *args, exclude=exclude)
         runs.append(run)
         return run
 
@@ -316,24 +319,115 @@ def test_a_killed_tracker_stops_the_run_naming_it(bringup) -> None:
     assert run.summary()['status'] == 'child_died'
 
 
-def test_respawn_replaces_a_killed_tracker_and_completes(bringup) -> None:
-    run = bringup('respawn', '--preset', 'triangle', '--duration', '2.5', '--respawn')
+def sim_time(run: BringupRun) -> float:
+    """The simulated (or wall) time of the newest progress line of a run, -1 before any."""
+    found = re.findall(r': t +([0-9.]+)/', run.stderr())
+    return float(found[-1]) if found else -1.0
+
+
+def steady_pairs(out: Path, t_from: float) -> np.ndarray:
+    """Pair distances (3, T) of trajectory.npz from ``t_from`` on."""
+    with np.load(out / 'trajectory.npz') as data:
+        t, x = data['t'], data['x']
+    x = x[t >= t_from]
+    return np.stack([np.linalg.norm(x[:, i] - x[:, j], axis=-1)
+                     for i, j in combinations(range(x.shape[1]), 2)])
+
+
+def respawn_and_recover(bringup, name: str, *args: str, kill_at: float, duration: float,
+                        recover_from: float) -> dict:
+    """Kill tracker 2 once the run passed ``kill_at``; the bring-up restarts it within 2 s,
+    the run completes, and from ``recover_from`` on the triangle is back within 5 %."""
+    cfg = load_config(ROOT / 'config' / f'{args[1]}.yaml')
+    d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
+    run = bringup(name, *args, '--duration', str(duration), '--respawn')
     run.wait_running()
     wait_for(lambda: len(run.collect_nodes()) == 5, 10, 'the 5 node processes', run)
+    wait_for(lambda: sim_time(run) >= kill_at, 60, f't >= {kill_at} s', run)
     pid = kill_tracker(run, 2)
-    wait_for(lambda: 'respawned tracker_2' in run.stderr(), 10, 'the respawn', run)
-    # the new tracker_2 is another process of the same run
+    killed = time.monotonic()
     wait_for(lambda: any(p != pid and 'uav_id:=2 ' in _cmdline(p) + ' '
                          for p in run.collect_nodes()), 10, 'the new tracker_2', run)
+    assert time.monotonic() - killed <= 2.0, 'respawn took longer than 2 s'
+    assert 'respawned tracker_2' in run.stderr()
     rc = run.wait(150)
     assert rc == 0, run.stderr()
     summary = run.summary()
     assert summary['respawns'] == 1 and summary['respawned'] == {'tracker_2': 1}
     assert summary['status'] == 'completed'
+    pairs = steady_pairs(run.out, recover_from)
+    assert pairs.shape[1] > 10
+    assert np.max(np.abs(pairs - d)) <= 0.05 * d, (pairs.min(), pairs.max(), d)
+    assert run.left_behind() == [], run.left_behind()
+    return summary
+
+
+def test_a_respawned_tracker_rejoins_and_the_triangle_recovers_lockstep(bringup) -> None:
+    summary = respawn_and_recover(bringup, 'respawn', '--preset', 'triangle', kill_at=3.0,
+                                  duration=8.0, recover_from=6.0)
     # every step ran and every sample arrived (the state topic is deep enough)
     msgs = summary['messages']
-    assert msgs['expected'] == 2500 and msgs['received'] == 2500 and msgs['dropped'] == 0, msgs
-    assert run.left_behind() == [], run.left_behind()
+    assert msgs['expected'] == 8000 and msgs['received'] == 8000 and msgs['dropped'] == 0, msgs
+    # the barrier waited 2 x command_timeout for the dead tracker at most once
+    assert summary['missed_deadlines'] <= 1
+    if summary['missed_deadlines']:
+        assert list(summary['faults']['inactive']) == ['uav_2']
+
+
+def test_a_respawned_tracker_rejoins_and_the_triangle_recovers_realtime(bringup) -> None:
+    summary = respawn_and_recover(bringup, 'respawn_rt', '--preset', 'realtime', '--mode',
+                                  'realtime', kill_at=5.0, duration=15.0, recover_from=12.5)
+    # while it was dead its command went stale at the plant: zero force, inactive
+    spans = summary['faults']['inactive'].get('uav_2', [])
+    assert summary['missed_deadlines'] == len(spans)
+    assert all(5.0 <= a <= b <= 9.0 for a, b in spans), spans
+
+
+def test_the_plant_dying_stops_the_run_with_a_report_and_an_intact_bag(bringup) -> None:
+    """The plant is never respawned; the run stops (exit 3) naming it; what ran so far is
+    in summary.json, and the bag recorded so far reads back whole."""
+    run = bringup('plant', '--preset', 'realtime', '--mode', 'realtime', '--duration', '60',
+                  '--respawn', '--record')
+    run.wait_running()
+    wait_for(lambda: sim_time(run) >= 2.0, 60, 't >= 2 s', run)
+    run.collect_nodes()
+    pids = [p for p in run.nodes if '/plant ' in _cmdline(p)]
+    assert len(pids) == 1
+    os.kill(pids[0], signal.SIGKILL)
+    assert run.wait(60) == 3, run.stderr()
+    err = run.stderr()
+    assert 'plant (pid' in err and 'died' in err and 'never respawned' in err, err
+    assert 'Traceback' not in err
+    summary = run.summary()
+    assert summary['status'] == 'child_died'
+    assert summary['respawns'] == 0
+    assert run.left_behind() == []
+    info = subprocess.run([sys.executable, '-m', 'apf_swarm_nodes.cli', 'bag', 'info',
+                           str(run.out / 'bag')], capture_output=True, text=True, timeout=60)
+    assert info.returncode == 0, info.stderr
+    n_state = int(re.search(r'/swarm/state +\S+ +(\d+)', info.stdout).group(1))
+    assert n_state >= summary['messages']['received'] - 5 > 100, (n_state, summary['messages'])
+
+
+def test_two_bringups_at_once_on_two_domains_never_see_each_other(bringup) -> None:
+    """Two lockstep runs side by side, different seeds, different domain ids: each equals its
+    own headless simulation to 1e-9 (a single foreign message would break that) and counts
+    no refused input, no missed deadline and no duplicate."""
+    a = bringup('a', '--preset', 'triangle', '--duration', '2', '--seed', '3')
+    b = bringup('b', '--preset', 'triangle', '--duration', '2', '--seed', '4',
+                exclude=(a.domain_id,))
+    assert a.domain_id != b.domain_id
+    for run in (a, b):
+        assert run.wait(240) == 0, run.stderr()
+    for run in (a, b):
+        summary = run.summary()
+        assert summary['rejected_inputs'] == 0 and summary['missed_deadlines'] == 0
+        sim = simulate(load_config(run.out / 'config.yaml')).trajectory
+        with np.load(run.out / 'trajectory.npz') as data:
+            assert np.max(np.abs(data['x'] - sim['x'])) <= 1e-9
+        assert 'duplicate' not in (run.out / 'logs' / 'plant.log').read_text()
+    with np.load(a.out / 'trajectory.npz') as da, np.load(b.out / 'trajectory.npz') as db:
+        assert not np.allclose(da['x'][0], db['x'][0])       # two different runs
 
 
 def test_a_slow_bringup_never_reports_a_lossy_lockstep_run_as_success(bringup) -> None:

@@ -923,6 +923,11 @@ class Bringup:
             if not self.args.respawn:
                 raise _Stop(EXIT_CHILD_DIED, 'child_died',
                             f'{child.name} died ({_describe_rc(rc)}); stopping the run')
+            why_not = self.not_respawnable(child.name)
+            if why_not:
+                raise _Stop(EXIT_CHILD_DIED, 'child_died',
+                            f'{child.name} died ({_describe_rc(rc)}); stopping the run: '
+                            f'{why_not}')
             if child.respawns >= self.args.max_respawns:
                 raise _Stop(EXIT_CHILD_DIED, 'child_died',
                             f'{child.name} died ({_describe_rc(rc)}) after '
@@ -931,6 +936,17 @@ class Bringup:
             child.start()
             self.say(f'respawned {child.name} (pid {child.pid}, respawn {child.respawns} of at '
                      f'most {self.args.max_respawns})')
+
+    def not_respawnable(self, name: str) -> str:
+        """Why a dead node must not be restarted ('' when it may be): the plant holds the
+        state of the whole swarm, and a realtime target restarts its trajectory from t = 0."""
+        if name == 'plant':
+            return ('the plant holds the state of every UAV; a restarted plant would start '
+                    'the world over, so it is never respawned')
+        if name == 'target' and self.mode == 'realtime':
+            return ('a restarted realtime target would fly its trajectory again from t = 0; '
+                    'only lockstep targets (driven by /clock) are respawned')
+        return ''
 
     def spin(self, timeout: float) -> None:
         self.executor.spin_once(timeout_sec=timeout)

@@ -15,7 +15,7 @@ state is held and its age grows in ``/swarm/odom`` (trackers brake once it excee
 ``input_timeout``). A command or target state that arrives again ends that.
 
 Realtime: a physics timer integrates the steps of dt that wall time has advanced (held
-commands; a tracker whose latest command is older than ``command_timeout`` becomes inactive:
+commands; a tracker whose latest command is older than ``stale_after`` becomes inactive:
 zero force, counted in ``missed_deadlines``); a publish timer publishes odometry and
 ``/swarm/state`` at ``publish_rate``; commands and target states whose stamp is older than
 ``command_timeout``, or older than the one held, are refused.
@@ -61,8 +61,13 @@ NODE_PARAMS = (
     NodeParam('wait_for_start', False, 'wait for /swarm/start before step 0'),
     NodeParam('inputs', 'aggregate', 'what the trackers read (as their inputs parameter): '
               'lockstep step 0 waits until those subscriptions are matched', choices=INPUTS),
-    NodeParam('command_timeout', 1.0, 'a command later than this is missed (lockstep) or '
-              'stale (realtime) [s of wall time]', lo=0.001, hi=600.0),
+    NodeParam('command_timeout', 1.0, 'lockstep: a command later than this is sent for '
+              'again, then missed; realtime: a command or target state stamped longer ago '
+              'is refused [s of wall time]', lo=0.001, hi=600.0),
+    NodeParam('stale_after', 0.1, 'realtime: a tracker whose latest command arrived longer '
+              'ago than this is inactive: zero force instead of holding a bang-bang command '
+              '(25 N held for 1 s would fling a 1 kg UAV 12 m) [s of wall time]', lo=0.001,
+              hi=60.0),
     NodeParam('physics_rate', 200.0, 'realtime: physics timer rate [Hz]', lo=1.0, hi=5000.0),
     NodeParam('markers_rate', 10.0, '/swarm/markers (visualization_msgs/MarkerArray) per second '
               'of simulated (lockstep) or wall (realtime) time; 0 turns them off', lo=0.0,
@@ -82,6 +87,7 @@ class PlantNode(Node):
         self.cfg = read_config(self)
         self.mode = p['mode']
         self.timeout = float(p['command_timeout'])
+        self.stale_after = float(p['stale_after'])
         self.inputs = p['inputs']
         self.waiting_for_match = False
         self.republished = False
@@ -344,11 +350,11 @@ class PlantNode(Node):
         if not self.running or self.done:
             return
         now = time.monotonic()
-        newly = self.model.expire(now, self.timeout)
+        newly = self.model.expire(now, self.stale_after)
         if newly:
             self.model.missed += len(newly)
             self.get_logger().warn(
-                f'no command from {[f"uav_{i}" for i in newly]} for {self.timeout:g} s: zero '
+                f'no command from {[f"uav_{i}" for i in newly]} for {self.stale_after:g} s: zero '
                 f'force, left out of the neighbour sets ({self.model.missed} missed so far)')
         due = int(math.floor((now - self.wall0) / self.cfg.dt)) - self.model.k
         if due > 0:
