@@ -409,6 +409,41 @@ def test_the_plant_dying_stops_the_run_with_a_report_and_an_intact_bag(bringup) 
     assert n_state >= summary['messages']['received'] - 5 > 100, (n_state, summary['messages'])
 
 
+@pytest.mark.parametrize('policy', ['stop', 'continue'])
+def test_a_dying_recorder_stops_or_not_as_configured_and_reindex_recovers(
+        bringup, policy: str) -> None:
+    run = bringup(f'rec_{policy}', '--preset', 'triangle', '--duration', '4', '--record',
+                  '--on-recorder-death', policy)
+    run.wait_running()
+    wait_for(lambda: sim_time(run) >= 1.0, 60, 't >= 1 s', run)
+    run.collect_nodes()
+    pids = [p for p in run.nodes if '/recorder ' in _cmdline(p)]
+    assert len(pids) == 1, {p: _cmdline(p) for p in run.nodes}
+    os.kill(pids[0], signal.SIGKILL)
+    rc = run.wait(120)
+    err = run.stderr()
+    assert 'recorder (pid' in err and 'Traceback' not in err, err
+    summary = run.summary()
+    if policy == 'stop':
+        assert rc == 3 and summary['status'] == 'child_died', err
+    else:
+        assert rc == 0 and summary['status'] == 'completed', err
+        assert 'the run continues without recording' in err
+        assert summary['messages']['received'] == 4000          # the swarm flew on
+    assert 'SIGKILL' in summary['recording']['recorder_died']
+    assert 'error' in summary['recording']                     # no metadata.yaml yet
+    bag = run.out / 'bag'
+    cli = [sys.executable, '-m', 'apf_swarm_nodes.cli', 'bag']
+    fixed = subprocess.run([*cli, 'reindex', str(bag)], capture_output=True, text=True,
+                           timeout=120)
+    assert fixed.returncode == 0, fixed.stderr
+    info = subprocess.run([*cli, 'info', str(bag)], capture_output=True, text=True, timeout=60)
+    assert info.returncode == 0, info.stderr
+    n_state = int(re.search(r'/swarm/state +\S+ +(\d+)', info.stdout).group(1))
+    assert 0 < n_state <= summary['messages']['received'], (n_state, summary['messages'])
+    assert run.left_behind() == []
+
+
 def test_two_bringups_at_once_on_two_domains_never_see_each_other(bringup) -> None:
     """Two lockstep runs side by side, different seeds, different domain ids: each equals its
     own headless simulation to 1e-9 (a single foreign message would break that) and counts

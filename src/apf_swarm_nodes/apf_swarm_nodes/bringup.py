@@ -711,6 +711,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--allow-overload', action='store_true',
                    help='start more trackers than the measured limit of this machine '
                         f'({TRACKERS_PER_CORE} per core)')
+    p.add_argument('--on-recorder-death', choices=('stop', 'continue'), default='stop',
+                   help='with --record: what a dying recorder does to the run (default stop; '
+                        'continue: fly on unrecorded, reindex the bag afterwards)')
     p.add_argument('--respawn', action='store_true',
                    help='restart a node process that dies (counted in summary.json)')
     p.add_argument('--max-respawns', type=_nonneg_int, default=3, metavar='K',
@@ -788,6 +791,7 @@ class Bringup:
         self.group = ProcessGroup()
         #: the recorder: started first, stopped last, given time to close the bag
         self.rec_group = ProcessGroup(RECORDER_STOP_SEQUENCE)
+        self.recorder_lost: dict[str, int] = {}    # recorder died, run went on: its exit code
         self.rec_status: dict[str, Any] | None = None
         self.signals = _Signals()
         self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
@@ -913,11 +917,20 @@ class Bringup:
 
     def supervise(self) -> None:
         for child, rc in self.rec_group.poll():
+            if child.name in self.recorder_lost:
+                continue
             self.say(child.death_report(rc))
+            self.recorder_lost[child.name] = rc
+            if self.args.on_recorder_death == 'continue':
+                self.say(f'{child.name} died ({_describe_rc(rc)}); the run continues without '
+                         f'recording (--on-recorder-death continue); `apf-swarm bag reindex '
+                         f'{self.out / "bag"}` recovers what it flushed')
+                continue
             raise _Stop(EXIT_CHILD_DIED, 'child_died',
                         f'{child.name} died ({_describe_rc(rc)}); stopping the run (a restarted '
                         f'recorder could not continue the bag; `apf-swarm bag reindex '
-                        f'{self.out / "bag"}` recovers what it flushed)')
+                        f'{self.out / "bag"}` recovers what it flushed; --on-recorder-death '
+                        f'continue keeps the swarm flying)')
         for child, rc in self.group.poll():
             self.say(child.death_report(rc))
             if not self.args.respawn:
@@ -1120,7 +1133,10 @@ class Bringup:
                 'rate': round(len(self.acc.samples) / run_s, 1) if run_s > 0 else None,
             },
             'stopped_by': self.stop_how,
-            **({'recording': recording_fields(self.out / 'bag')} if self.args.record else {}),
+            **({'recording': {**recording_fields(self.out / 'bag'),
+                              **({'recorder_died': _describe_rc(rc)
+                                  for rc in self.recorder_lost.values()})}}
+               if self.args.record else {}),
         }
 
     def write_outputs(self, status: str) -> dict[str, Path]:
