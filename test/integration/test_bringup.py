@@ -383,6 +383,43 @@ def test_a_respawned_tracker_rejoins_and_the_triangle_recovers_realtime(bringup)
     assert all(5.0 <= a <= b <= 9.0 for a, b in spans), spans
 
 
+def test_a_silent_target_is_reported_and_the_swarm_brakes_then_recovers_realtime(
+        bringup) -> None:
+    """Realtime: the target stops publishing for 2 s (SIGSTOP) and comes back (SIGCONT).
+    The plant holds its last state and publishes its age; the trackers brake once it is
+    older than input_timeout (0.5 s); summary.json reports the silence; the triangle is
+    back within 5 % by the end."""
+    run = bringup('silent_rt', '--preset', 'realtime', '--mode', 'realtime', '--duration',
+                  '14')
+    run.wait_running()
+    wait_for(lambda: sim_time(run) >= 5.0, 60, 't >= 5 s', run)
+    run.collect_nodes()
+    pids = [p for p in run.nodes if '/target ' in _cmdline(p)]
+    assert len(pids) == 1
+    os.kill(pids[0], signal.SIGSTOP)
+    try:
+        stopped = sim_time(run)
+        wait_for(lambda: sim_time(run) >= stopped + 2.0, 30, '2 s of silence', run)
+    finally:
+        os.kill(pids[0], signal.SIGCONT)
+    assert run.wait(120) == 0, run.stderr()
+    summary = run.summary()
+    spans = summary['faults']['target_silent']
+    assert len(spans) == 1, spans
+    (a, b), = spans
+    assert 4.5 <= a <= 7.0 and 1.5 <= b - a <= 4.0, spans
+    assert summary['faults']['target_age_max'] >= 1.5
+    assert summary['stale_inputs'] >= 3 * 10        # every tracker braked, 100 Hz watchdog
+    assert any('the target was silent' in w for w in summary['warnings'])
+    cfg = load_config(run.out / 'config.yaml')
+    d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
+    pairs = steady_pairs(run.out, 12.5)
+    assert np.max(np.abs(pairs - d)) <= 0.05 * d, (pairs.min(), pairs.max(), d)
+    for i in (1, 2, 3):
+        log = (run.out / 'logs' / f'tracker_{i}.log').read_text()
+        assert "stale inputs ['target']" in log, log[-2000:]
+
+
 def test_the_plant_dying_stops_the_run_with_a_report_and_an_intact_bag(bringup) -> None:
     """The plant is never respawned; the run stops (exit 3) naming it; what ran so far is
     in summary.json, and the bag recorded so far reads back whole."""
