@@ -376,7 +376,7 @@ def test_a_respawned_tracker_rejoins_and_the_triangle_recovers_lockstep(bringup)
 
 def test_a_respawned_tracker_rejoins_and_the_triangle_recovers_realtime(bringup) -> None:
     summary = respawn_and_recover(bringup, 'respawn_rt', '--preset', 'realtime', '--mode',
-                                  'realtime', kill_at=5.0, duration=15.0, recover_from=12.5)
+                                  'realtime', kill_at=5.0, duration=18.0, recover_from=15.5)
     # while it was dead its command went stale at the plant: zero force, inactive
     spans = summary['faults']['inactive'].get('uav_2', [])
     assert summary['missed_deadlines'] == len(spans)
