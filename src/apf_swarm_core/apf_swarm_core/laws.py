@@ -319,9 +319,16 @@ class SlidingModeController:
             manifold = 0 if self.saturation == 'paper' else 2
         # np.asarray: arithmetic on 0-d arrays gives numpy scalars, which numpy treats like
         # Python floats, the slower operand (see the module docstring)
+        # the layer bound depends on gamma only: kept while gamma is the same object (a
+        # realtime tracker re-prepares for every command, with a new dt)
+        cached = self.__dict__.get('_bound_of')
+        if cached is not None and cached[0] is self.gamma:
+            bound = cached[1]
+        else:
+            bound = _layer_bound(_gamma(self.gamma, 1))
+            object.__setattr__(self, '_bound_of', (self.gamma, bound))
         gains = _ControllerGains(
-            alpha=alpha, beta=beta, gamma=self.gamma,
-            layer_bound=_layer_bound(_gamma(self.gamma, 1)),
+            alpha=alpha, beta=beta, gamma=self.gamma, layer_bound=bound,
             layer_gain=np.asarray(alpha + beta / gamma), neg_u0=np.asarray(-_g(self.u0)),
             drag=_g(self.drag), decay=np.asarray(decay),
             gain_in=np.asarray((1.0 - decay) * beta), manifold=manifold)
