@@ -30,6 +30,7 @@ names it and says what to do.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import io
@@ -137,8 +138,8 @@ def type_definition(msgtype: str) -> tuple[str, str]:
         return msgdef, store.hash_rihs01(msgtype)
     except Exception as exc:  # rosbags raises TypesysError / KeyError for missing dependencies
         raise CliError(f'message type {msgtype} is unknown: it is not a ROS 2 Jazzy type and no '
-                       f'{msgtype}.msg is in the ament index '
-                       f'({exc}); build and source the package that defines it') from None
+                       f'{msgtype}.msg is in the ament index ({_one_line(exc)}); build and '
+                       'source the package that defines it') from None
 
 
 def qos_to_dict(qos: Any) -> dict[str, Any]:
@@ -556,6 +557,20 @@ def bag_files(path: Path) -> list[Path]:
     return sorted((p for p in path.glob('*.mcap') if p.is_file()), key=key)
 
 
+def _one_line(exc: BaseException) -> str:
+    """``Type: message`` of an exception on one line (parsers report over several)."""
+    text = ' '.join(str(exc).split())
+    if len(text) > 300:
+        text = text[:297] + '...'
+    return f'{type(exc).__name__}: {text}' if text else type(exc).__name__
+
+
+def _read_error(path: Path, exc: BaseException, what: str = 'the messages') -> CliError:
+    """A failure while reading messages of an opened bag: a damaged file."""
+    return CliError(f'{path}: cannot read {what}, the file is damaged ({_one_line(exc)}); '
+                    f'{_reindex_hint(path)}')
+
+
 def _reindex_hint(path: Path) -> str:
     return f'run `apf-swarm bag reindex {path}` to rebuild it from the MCAP files'
 
@@ -587,7 +602,7 @@ def _read_metadata(path: Path) -> dict[str, Any]:
         if not isinstance(info, dict) or 'relative_file_paths' not in info:
             raise KeyError('relative_file_paths')
     except (yaml.YAMLError, KeyError, TypeError, UnicodeDecodeError) as exc:
-        raise CliError(f'{meta} is not rosbag2 metadata ({type(exc).__name__}: {exc}); '
+        raise CliError(f'{meta} is not rosbag2 metadata ({_one_line(exc)}); '
                        f'{_reindex_hint(path)}') from None
     return info
 
@@ -600,9 +615,8 @@ def _mcap_summary(file: Path) -> Any:
         with open(file, 'rb') as f:
             summary = make_reader(f).get_summary()
     except Exception as exc:  # mcap raises McapError, EndOfFile, struct.error, ValueError...
-        raise CliError(f'{file}: truncated or corrupt MCAP file ({type(exc).__name__}: '
-                       f'{str(exc) or "no footer"}); {_reindex_hint(bag)} (it keeps every '
-                       'complete chunk)') from None
+        raise CliError(f'{file}: truncated or corrupt MCAP file ({_one_line(exc)}); '
+                       f'{_reindex_hint(bag)} (it keeps every complete chunk)') from None
     if summary is None or summary.statistics is None:
         raise CliError(f'{file}: the MCAP file has no summary section (not closed?); '
                        f'{_reindex_hint(bag)}')
@@ -740,8 +754,17 @@ def format_info(info: BagInfo) -> str:
 # --------------------------------------------------------------------------------------------
 
 def _any_reader(path: Path) -> Any:
+    """An opened rosbags AnyReader (types from the bag's own definitions); opening parses
+    every stored definition, so a failure here is a broken definition, not a damaged file."""
     from rosbags.highlevel import AnyReader
-    return AnyReader([path], default_typestore=typestore())
+    reader = AnyReader([path], default_typestore=typestore())
+    try:
+        reader.open()
+    except Exception as exc:
+        raise CliError(f'{path}: cannot load the type definitions stored in the bag '
+                       f'({_one_line(exc)}); it was not written with full, valid ros2msg '
+                       'definitions') from None
+    return reader
 
 
 def iter_raw(path: Path | str, topics: Iterable[str] | None = None, *,
@@ -757,15 +780,14 @@ def iter_raw(path: Path | str, topics: Iterable[str] | None = None, *,
         for t in wanted:
             info.topic(t)
     try:
-        with _any_reader(info.path) as reader:
+        with contextlib.closing(_any_reader(info.path)) as reader:
             conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
             for conn, ts, raw in reader.messages(connections=conns):
                 yield conn.topic, conn.msgtype, int(ts), bytes(raw)
     except CliError:
         raise
     except Exception as exc:  # rosbags raises ReaderError / AnyReaderError, mcap errors
-        raise CliError(f'{info.path}: cannot read the messages ({type(exc).__name__}: {exc}); '
-                       f'{_reindex_hint(info.path)}') from None
+        raise _read_error(info.path, exc) from None
 
 
 def bag_config(info: BagInfo, config: Path | None = None) -> tuple[Any, str]:
@@ -837,7 +859,8 @@ def flatten(msg: Any, prefix: str = '') -> dict[str, Any]:
     def add(value: Any, name: str) -> None:
         if dataclasses.is_dataclass(value):
             for f in dataclasses.fields(value):
-                add(getattr(value, f.name), f'{name}.{f.name}' if name else f.name)
+                if not f.name.startswith('__'):    # rosbags' __msgtype__
+                    add(getattr(value, f.name), f'{name}.{f.name}' if name else f.name)
         elif isinstance(value, np.ndarray):
             for i, v in enumerate(value.ravel().tolist()):
                 out[f'{name}.{i}'] = v
@@ -864,15 +887,15 @@ def export_csv(path: Path | str, topic: str, out: TextIO) -> int:
     rows: list[dict[str, Any]] = []
     columns: dict[str, None] = {'timestamp_ns': None}
     try:
-        with _any_reader(info.path) as reader:
+        with contextlib.closing(_any_reader(info.path)) as reader:
             conns = [c for c in reader.connections if c.topic == topic]
             for conn, ts, raw in reader.messages(connections=conns):
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
                 except Exception as exc:
-                    raise CliError(f'{topic}: cannot decode type {t.type} ({type(exc).__name__}:'
-                                   f' {exc}); the bag\'s definition of it is missing or wrong'
-                                   ) from None
+                    raise CliError(f'{topic}: cannot decode type {t.type} '
+                                   f'({_one_line(exc)}); the bag\'s definition of it is '
+                                   'missing or wrong') from None
                 row = {'timestamp_ns': int(ts), **flatten(msg)}
                 for k in row:
                     if k not in columns:
@@ -881,8 +904,7 @@ def export_csv(path: Path | str, topic: str, out: TextIO) -> int:
     except CliError:
         raise
     except Exception as exc:
-        raise CliError(f'{info.path}: cannot read {topic} ({type(exc).__name__}: {exc}); '
-                       f'{_reindex_hint(info.path)}') from None
+        raise _read_error(info.path, exc, topic) from None
     w = csv.DictWriter(out, fieldnames=list(columns), restval='', lineterminator='\n')
     w.writeheader()
     w.writerows(rows)

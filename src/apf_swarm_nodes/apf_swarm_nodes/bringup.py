@@ -867,7 +867,8 @@ class Bringup:
                 str(executable_path(self.prefix, 'recorder')), '--ros-args',
                 '-r', '__node:=recorder', '-p', f'mode:={self.mode}',
                 '-p', f'output:={(self.out / "bag").resolve()}',
-                '-p', f'config_file:={self.config_file.resolve()}'],
+                '-p', f'config_file:={self.config_file.resolve()}',
+                *[a for p in self.node_params for a in ('-p', p)]],
                 self.out / 'logs' / 'recorder.log', env)
             self.rec_group.add(rec)
             self.rec_group.start_all()

@@ -217,8 +217,9 @@ def cmd_bag_reindex(args: argparse.Namespace) -> int:
 def cmd_bag_play(args: argparse.Namespace) -> int:
     from .bags import open_bag
     info = open_bag(args.bag)          # bad input: one line and exit 2, before ROS starts
-    for t in args.topics or []:
-        info.topic(t)
+    from .player_node import msg_class
+    for t in args.topics or [t.name for t in info.topics]:
+        msg_class(info.topic(t).type)   # a type that is not installed: one line, exit 2
     for rule in args.remap:
         if ':=' not in rule:
             raise ApfSwarmError(f'--remap {rule!r}: expected FROM:=TO')
@@ -233,7 +234,7 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
         ros += ['-r', rule]
     from .node_common import run_node
     from .player_node import PlayerNode, _run
-    code = run_node(f'{PROG} bag play', PlayerNode, [PROG] + ros, run=_run)
+    code = run_node(PROG, PlayerNode, [PROG] + ros, run=_run)
     return code
 
 
