@@ -8,7 +8,15 @@ as every input of step k has arrived. Realtime: with ``trigger:=odom`` (default)
 it commands on every new own odometry, with ``trigger:=timer`` at ``control_rate`` on the
 latest inputs; an input older than ``input_timeout`` is stale and the safe command
 (:func:`apf_swarm_core.agents.brake_force`, hover in place) is sent with ``stale = true``
-(the ``control_rate`` timer is then the watchdog that keeps sending it).
+(the ``control_rate`` timer is then the watchdog that keeps sending it). In lockstep only the
+target can be stale: the plant holds a silent target's last state and publishes its age in
+simulated time, and past ``input_timeout`` the tracker answers each step with the brake.
+
+Neighbours the plant flags inactive (their tracker is silent) leave the formation term of the
+potential and stay as obstacles (:mod:`apf_swarm_core.agents`). Refused inputs are logged
+with their reason and counted in every ForceCommand (``rejected_inputs``); each command
+carries the process's random ``instance`` so that the plant can tell two trackers started
+with one ``uav_id`` apart.
 """
 
 from __future__ import annotations
