@@ -289,6 +289,25 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     assert summary['stale_inputs'] <= 10          # only before the first odometry arrives
 
 
+def test_trackers_hosted_several_to_a_process_reproduce_the_simulator(bringup) -> None:
+    """--trackers-per-process 2 with 5 trackers: 3 tracker processes (2 + 2 + 1), each node
+    still /uav_<i>/tracker with its own parameters; the run equals the simulator exactly."""
+    run = bringup('grouped', '--preset', 'triangle', '--n-trackers', '5',
+                  '--trackers-per-process', '2', '--duration', '1.5')
+    run.wait_running()
+    names = sorted(Path(p).name for p in (run.out / 'logs').glob('*.log'))
+    assert [n for n in names if n.startswith('tracker')] == [
+        'trackers_1-2.log', 'trackers_3-4.log', 'trackers_5-5.log'], names
+    assert len(run.collect_nodes()) == 5                  # plant, target, 3 tracker hosts
+    assert run.wait(240) == 0, run.stderr()
+    cfg = load_config(run.out / 'config.yaml')
+    sim = simulate(cfg).trajectory
+    with np.load(run.out / 'trajectory.npz') as data:
+        assert data['x'].shape == (1500, 5, 3)
+        assert np.max(np.abs(data['x'] - sim['x'])) <= 1e-9
+    assert run.left_behind() == []
+
+
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
 def test_a_signal_stops_the_bringup_and_every_node(bringup, sig: signal.Signals) -> None:
     run = bringup('int', '--preset', 'triangle', '--duration', '60')
@@ -528,7 +547,9 @@ def test_a_slow_bringup_never_reports_a_lossy_lockstep_run_as_success(bringup) -
 @pytest.mark.parametrize('args, needle', [
     (('--preset', 'no_such_preset'), "unknown preset 'no_such_preset'"),
     (('--preset', 'triangle', '--n-trackers', '0'), 'n_trackers'),
-    (('--preset', 'triangle', '--n-trackers', '500'), 'the measured limit is 8 per core'),
+    (('--preset', 'triangle', '--n-trackers', '500'), 'the measured limit is 8 tracker'),
+    (('--preset', 'triangle', '--n-trackers', '500', '--trackers-per-process', '4'),
+     '500 in 125 processes'),
     (('--preset', 'triangle', '--set', 'gamma=-1'), 'gamma'),
     (('--preset', 'triangle', '--set', 'gama=0.1'), "unknown key 'gama'"),
     (('--preset', 'triangle', '--set', 'beta=fast'), 'beta'),

@@ -541,14 +541,21 @@ def tracker_capacity() -> int:
     return TRACKERS_PER_CORE * (os.cpu_count() or 1)
 
 
-def check_capacity(n_trackers: int, *, allow_overload: bool = False) -> None:
-    """Refuse more tracker processes than this machine runs (CliError naming the limit)."""
+def check_capacity(n_trackers: int, *, allow_overload: bool = False,
+                   per_process: int = 1) -> None:
+    """Refuse more tracker processes than this machine runs (CliError naming the limit).
+
+    The limit counts processes (``ceil(n_trackers / per_process)``): what several trackers
+    in one process cost is not measured yet (issue 7)."""
     limit = tracker_capacity()
-    if n_trackers > limit and not allow_overload:
-        raise CliError(f'n_trackers = {n_trackers} is more than this machine runs as separate '
-                       f'processes: the measured limit is {TRACKERS_PER_CORE} per core, '
-                       f'{limit} on these {os.cpu_count()} cores (docs/RELIABILITY.md); use '
-                       f'fewer trackers, or --allow-overload to start them anyway')
+    procs = -(-n_trackers // per_process)
+    if procs > limit and not allow_overload:
+        raise CliError(f'n_trackers = {n_trackers} in {procs} processes is more than this '
+                       f'machine runs: the measured limit is {TRACKERS_PER_CORE} tracker '
+                       f'processes per core, {limit} on these {os.cpu_count()} cores '
+                       f'(docs/RELIABILITY.md); use fewer trackers, --trackers-per-process K '
+                       f'to host several in one process, or --allow-overload to start them '
+                       f'anyway')
 
 
 def resolve_config(args: argparse.Namespace) -> SwarmConfig:
@@ -629,10 +636,14 @@ def package_prefix() -> Path:
 
 
 def node_commands(prefix: Path, config_file: Path, n: int, mode: str,
-                  node_params: Sequence[str] = ()) -> list[tuple[str, list[str]]]:
+                  node_params: Sequence[str] = (), per_process: int = 1
+                  ) -> list[tuple[str, list[str]]]:
     """(log name, argv) of every node process of the swarm.
 
     ``node_params`` (``NAME:=VALUE``) go to every node, e.g. ``executor:=events``.
+    ``per_process`` > 1: the trackers are hosted that many to a process (executable
+    ``trackers``, log names ``trackers_<first>-<last>``), each still its own node
+    ``/uav_<i>/tracker`` with its own parameters.
     """
     cfg = str(config_file)
     extra = [a for p in node_params for a in ('-p', p)]
@@ -646,6 +657,13 @@ def node_commands(prefix: Path, config_file: Path, n: int, mode: str,
             ('plant', [exe('plant'), '--ros-args', '--params-file', cfg,
                        '-r', '__node:=plant', '-p', f'mode:={mode}', '-p', 'wait_for_start:=true',
                        *extra])]
+    if per_process > 1:
+        for first in range(1, n + 1, per_process):
+            last = min(n, first + per_process - 1)
+            cmds.append((f'trackers_{first}-{last}',
+                         [exe('trackers'), '--uav-ids', f'{first}-{last}', '--ros-args',
+                          '--params-file', cfg, '-p', f'mode:={mode}', *extra]))
+        return cmds
     for i in range(1, n + 1):
         cmds.append((f'tracker_{i}', [exe('tracker'), '--ros-args', '--params-file', cfg,
                                       '-r', f'__ns:=/uav_{i}', '-r', '__node:=tracker',
@@ -674,6 +692,13 @@ def _domain(text: str) -> int:
         raise argparse.ArgumentTypeError(f'{text!r} is not an integer') from None
     if not 0 <= val <= 232:
         raise argparse.ArgumentTypeError(f'{val}: a ROS domain id is 0..232')
+    return val
+
+
+def _positive_int(text: str) -> int:
+    val = _nonneg_int(text)
+    if val < 1:
+        raise argparse.ArgumentTypeError(f'{val}: must be >= 1')
     return val
 
 
@@ -708,6 +733,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='ROS_AUTOMATIC_DISCOVERY_RANGE (default LOCALHOST)')
     p.add_argument('--record', action='store_true',
                    help='also record a rosbag2 (MCAP) with the recorder node')
+    p.add_argument('--trackers-per-process', type=_positive_int, default=1, metavar='K',
+                   help='host the trackers K to a process (executable trackers; each still '
+                        'its own node with its own namespace and parameters); default 1')
     p.add_argument('--allow-overload', action='store_true',
                    help='start more trackers than the measured limit of this machine '
                         f'({TRACKERS_PER_CORE} per core)')
@@ -859,7 +887,7 @@ class Bringup:
     def launch(self) -> None:
         env = self.child_env()
         cmds = node_commands(self.prefix, self.config_file.resolve(), self.n, self.mode,
-                             self.node_params)
+                             self.node_params, per_process=self.args.trackers_per_process)
         self.t_launch = time.monotonic()
         if self.args.record:
             # first, so that it subscribes to every topic as soon as its publisher appears
@@ -1232,7 +1260,8 @@ def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
     starts); the caller prints it and exits 2.
     """
     cfg = resolve_config(args)
-    check_capacity(cfg.n_trackers, allow_overload=args.allow_overload)
+    check_capacity(cfg.n_trackers, allow_overload=args.allow_overload,
+                   per_process=args.trackers_per_process)
     return Bringup(args, cfg, prog=prog).execute()
 
 

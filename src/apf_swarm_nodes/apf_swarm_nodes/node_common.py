@@ -30,7 +30,7 @@ from __future__ import annotations
 import re
 import sys
 import time
-from typing import Callable
+from typing import Callable, Sequence
 
 import rclpy
 from rclpy.exceptions import ParameterException
@@ -42,7 +42,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from apf_swarm_core.errors import ApfSwarmError
 
 __all__ = ['EXECUTORS', 'EXECUTOR_PARAM', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
-           'force_topic', 'RejectionLog', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'run_node']
+           'force_topic', 'RejectionLog', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'run_node', 'run_nodes']
 
 TARGET_ODOM = '/target/odom'
 SWARM_STATE = '/swarm/state'
@@ -109,18 +109,21 @@ def force_topic(uav_id: int) -> str:
 EXECUTORS = ('single', 'events', 'multi')
 
 
-def spin(node: Node, kind: str = 'single') -> None:
-    """Spin ``node`` with the chosen executor until shutdown.
+def spin(node: Node | Sequence[Node], kind: str = 'single') -> None:
+    """Spin ``node`` (or several nodes on one executor) with the chosen executor until
+    shutdown.
 
     ``events`` (the nodes' default): ``rclpy.experimental.EventsExecutor`` driven by a
     ``spin_once`` loop (its ``spin()`` busy-loops and ignores SIGINT in these wheels, SPEC
     section 4); ``single``: SingleThreadedExecutor; ``multi``: MultiThreadedExecutor (measured
     here 6-78 lockstep steps/s against about 300 for events: kept only for comparison).
     """
+    nodes = [node] if isinstance(node, Node) else list(node)
     if kind == 'events':
         from rclpy.experimental import EventsExecutor
         executor = EventsExecutor()
-        executor.add_node(node)
+        for n in nodes:
+            executor.add_node(n)
         try:
             while rclpy.ok():
                 executor.spin_once(timeout_sec=0.1)
@@ -128,8 +131,35 @@ def spin(node: Node, kind: str = 'single') -> None:
             executor.shutdown()
         return
     executor = MultiThreadedExecutor() if kind == 'multi' else SingleThreadedExecutor()
-    executor.add_node(node)
+    for n in nodes:
+        executor.add_node(n)
     executor.spin()
+
+
+def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
+              args: list[str] | None = None) -> int:
+    """:func:`run_node` for several nodes in one process, spun together on one executor
+    (the executor parameter of the first node decides); every node is destroyed at the end."""
+    rclpy.init(args=args)
+    nodes: list[Node] = []
+    code = 0
+    try:
+        for factory in factories:
+            nodes.append(factory())
+        first = nodes[0]
+        kind = first.get_parameter('executor').value if first.has_parameter('executor') \
+            else 'single'
+        spin(nodes, kind)
+    except (ApfSwarmError, ParameterException, ValueError) as exc:
+        print(f'{name}: error: {exc}', file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()
+    return code
 
 
 def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = None,

@@ -33,11 +33,12 @@ from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry
 
 from .conversions import (dt_to_ns, force_msg, odom_arrays, stamp_ns, step_of,
                           swarm_odom_arrays)
-from .node_common import INPUTS, RejectionLog, SWARM_ODOM, TARGET_ODOM, control_qos, odom_topic, run_node
+from .node_common import (INPUTS, RejectionLog, SWARM_ODOM, TARGET_ODOM, control_qos, odom_topic,
+                          run_node, run_nodes)
 from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, install_validator, \
     read_config
 
-__all__ = ['TrackerNode', 'main']
+__all__ = ['TrackerNode', 'main', 'group_main', 'parse_uav_ids']
 
 NODE_PARAMS = (
     EXECUTOR_PARAM,
@@ -220,6 +221,48 @@ class TrackerNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     sys.exit(run_node('tracker', TrackerNode, args))
+
+
+def parse_uav_ids(text: str) -> list[int]:
+    """``1,2,3`` or ``4-6`` or a mix: the ids a ``trackers`` process hosts (ValueError if bad)."""
+    ids: list[int] = []
+    for part in text.split(','):
+        lo, _, hi = part.strip().partition('-')
+        try:
+            a, b = int(lo), int(hi or lo)
+        except ValueError:
+            raise ValueError(f'--uav-ids {text!r}: expected ids like 1,2,3 or 1-3') from None
+        if a < 1 or b < a:
+            raise ValueError(f'--uav-ids {text!r}: ids are 1-based, ranges ascending')
+        ids.extend(range(a, b + 1))
+    if len(set(ids)) != len(ids):
+        raise ValueError(f'--uav-ids {text!r}: an id appears twice')
+    return ids
+
+
+def group_main(args: list[str] | None = None) -> None:
+    """``trackers --uav-ids 1,2,3 --ros-args ...``: several tracker nodes in one process.
+
+    Each is its own node ``/uav_<i>/tracker`` with its own parameters (the params file's
+    ``/**`` and ``/uav_<i>/tracker`` sections, ``uav_id`` = i), spun on one executor. Do not
+    remap ``__ns`` or ``__node`` here: that would rename every node of the process.
+    """
+    from rclpy.parameter import Parameter
+    from rclpy.utilities import remove_ros_args
+    argv = sys.argv if args is None else args
+    own = remove_ros_args(argv)[1:]
+    usage = 'usage: trackers --uav-ids IDS [--ros-args ...]'
+    if len(own) != 2 or own[0] != '--uav-ids':
+        print(f'trackers: error: {usage}', file=sys.stderr)
+        sys.exit(2)
+    try:
+        ids = parse_uav_ids(own[1])
+    except ValueError as exc:
+        print(f'trackers: error: {exc}', file=sys.stderr)
+        sys.exit(2)
+    factories = [lambda i=i: TrackerNode(namespace=f'/uav_{i}', parameter_overrides=[
+        Parameter('uav_id', value=i)]) for i in ids]
+    sys.exit(run_nodes('trackers', factories, argv))
 
 
 if __name__ == '__main__':
