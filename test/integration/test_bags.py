@@ -278,6 +278,29 @@ def test_play_delivers_every_message_in_order_on_time(graph, tmp_path: Path) -> 
     raise AssertionError(f'p99 schedule error / drift over 2 attempts: {results} ms')
 
 
+def test_play_offset_loop_clock_and_remap(graph, tmp_path: Path) -> None:
+    """start_offset skips, loop repeats, /clock follows the bag time, -r renames."""
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import Int64
+    stamps = _timing_bag(tmp_path / 'small', 50, 100.0)        # 0.49 s of bag time
+    got: list[int] = []
+    clocks: list[int] = []
+    graph.node.create_subscription(Int64, '/renamed', lambda m: got.append(m.data),
+                                   QoSProfile(depth=1000))
+    graph.node.create_subscription(Clock, '/clock', lambda m: clocks.append(
+        m.clock.sec * 1_000_000_000 + m.clock.nanosec), QoSProfile(depth=1000))
+    graph.start('player', 'player', '-p', f'bag:={tmp_path / "small"}', '-p', 'loop:=true',
+                '-p', 'start_offset:=0.2', '-p', 'clock:=50.0', '-r', '/timing:=/renamed',
+                '-p', 'wait_for:=[/renamed]')
+    graph.spin_until(lambda: len(got) >= 75, 30, 'two and a half passes')
+    assert graph.stop('player') == 0
+    first = got[:60]
+    assert first == list(range(20, 50)) * 2              # 0.2 s skipped, then again
+    assert clocks and all(stamps[0] + 200_000_000 - 1 <= c <= stamps[-1] + 20_000_000
+                          for c in clocks)
+    assert len(clocks) >= 20                              # about 50 Hz over >= 0.6 s
+
+
 # --------------------------------------------------------------------------------------------
 # a recorder killed by SIGKILL
 # --------------------------------------------------------------------------------------------
