@@ -317,8 +317,6 @@ class SlidingModeController:
         else:
             _check_saturation(self.saturation)
             manifold = 0 if self.saturation == 'paper' else 2
-        # np.asarray: arithmetic on 0-d arrays gives numpy scalars, which numpy treats like
-        # Python floats, the slower operand (see the module docstring)
         # the layer bound depends on gamma only: kept while gamma is the same object (a
         # realtime tracker re-prepares for every command, with a new dt)
         cached = self.__dict__.get('_bound_of')
@@ -327,6 +325,8 @@ class SlidingModeController:
         else:
             bound = _layer_bound(_gamma(self.gamma, 1))
             object.__setattr__(self, '_bound_of', (self.gamma, bound))
+        # np.asarray: arithmetic on 0-d arrays gives numpy scalars, which numpy treats like
+        # Python floats, the slower operand (see the module docstring)
         gains = _ControllerGains(
             alpha=alpha, beta=beta, gamma=self.gamma, layer_bound=bound,
             layer_gain=np.asarray(alpha + beta / gamma), neg_u0=np.asarray(-_g(self.u0)),

@@ -32,7 +32,7 @@ def _sq_norm(g: NDArray[np.float64]) -> NDArray[np.float64]:
 
     numpy reduces fewer than 8 elements left to right, so for 3-vectors of many rows the sum
     is written out as ``(g0^2 + g1^2) + g2^2``: the same value, with long inner loops instead
-    of one reduction of length 3 per row.
+    of one reduction of length 3 per row (a few rows: the one reduction, fewer numpy calls).
     """
     sq = g * g
     if sq.size <= 96 or g.shape[-1] != 3:

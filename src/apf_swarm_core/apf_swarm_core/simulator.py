@@ -179,7 +179,8 @@ class BatchSimulator:
         self.drag = _param_array(self.cfgs, 'drag')
         mass = np.array([c.mass_matrix_diag() for c in self.cfgs])       # (R, n, 3)
         # one mass for every axis, tracker and run: a 0-d array (plant_step skips a unit one)
-        self.mass = np.array(mass.flat[0]) if np.all(mass == mass.flat[0]) else mass
+        self.mass = np.array(mass.flat[0]) if mass.size and np.all(mass == mass.flat[0]) \
+            else mass
         self.controller = make_controller(self.cfgs, (self.R, self.n, 3))
         if len({c.noise for c in self.cfgs}) > 1:
             raise ValueError('every run of a batch must share the noise kind')
