@@ -177,3 +177,20 @@ def test_plant_follows_one_tracker_process_per_id(cfg) -> None:
     assert p.offer_command(2, 0, f, f, instance=22)              # a respawn starts anew
     assert p.active[1] and p.instances[2] == 22
     assert not p.offer_command(2, 5, f, f, instance=11)
+
+
+def test_realtime_expiry_zeroes_first_and_deactivates_later(cfg) -> None:
+    p = PlantModel(cfg)
+    f = np.ones(3)
+    for i in (1, 2, 3):
+        assert p.offer_command(i, i, f, f, now=10.0)
+    assert p.expire(10.05, 0.1, 1.0) == []              # fresh: the commands are held
+    assert np.array_equal(p.u, np.ones((3, 3)))
+    assert p.expire(10.2, 0.1, 1.0) == []               # 0.2 s: zero force, still active
+    assert np.array_equal(p.u, np.zeros((3, 3))) and p.active.all()
+    for i in (1, 3):
+        assert p.offer_command(i, 10 + i, f, f, now=10.9)
+    assert p.expire(11.05, 0.1, 1.0) == [2]             # uav_2 silent 1.05 s: inactive
+    assert list(p.active) == [True, False, True]
+    assert np.array_equal(p.u[1], np.zeros(3))
+    assert p.expire(11.1, 0.1, 1.0) == []               # reported once

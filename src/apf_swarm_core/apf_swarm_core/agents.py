@@ -357,10 +357,14 @@ class PlantModel:
             self.active[i - 1] = False
             self.u[i - 1] = 0.0
 
-    def expire(self, now: float, timeout: float) -> list[int]:
-        """Realtime: deactivate the trackers whose latest command is older than ``timeout``
-        seconds at ``now``; returns the ids that have just become inactive."""
-        old = (now - self.command_time) > timeout
+    def expire(self, now: float, zero_after: float, inactive_after: float) -> list[int]:
+        """Realtime: the trackers whose latest command is older than ``zero_after`` seconds
+        at ``now`` get zero force (a held bang-bang command would fling the UAV); older than
+        ``inactive_after`` they are deactivated (left out of the others' formation: a short
+        hiccup does not reshape the formation). Returns the ids just deactivated."""
+        age = now - self.command_time
+        self.u[age > zero_after] = 0.0
+        old = age > inactive_after
         newly = [i for i in self.ids if old[i - 1] and self.active[i - 1]]
         self.deactivate([i for i in self.ids if old[i - 1]])
         return newly

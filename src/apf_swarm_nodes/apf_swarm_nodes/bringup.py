@@ -695,6 +695,24 @@ def _domain(text: str) -> int:
     return val
 
 
+def node_netns(name: str, rules: Sequence[str] | None) -> str | None:
+    """The network namespace a node process runs in: the first ``PATTERN=NETNS`` rule whose
+    shell pattern matches its log name (``tracker_3``, ``trackers_1-2``, ``plant``), or None."""
+    import fnmatch
+    for rule in rules or ():
+        pattern, _, ns = rule.partition('=')
+        if fnmatch.fnmatchcase(name, pattern):
+            return ns
+    return None
+
+
+def _netns_rule(text: str) -> str:
+    pattern, sep, ns = text.partition('=')
+    if not sep or not pattern or not ns:
+        raise argparse.ArgumentTypeError(f'{text!r}: expected PATTERN=NETNS, e.g. tracker_*=h2')
+    return text
+
+
 def _positive_int(text: str) -> int:
     val = _nonneg_int(text)
     if val < 1:
@@ -736,6 +754,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--trackers-per-process', type=_positive_int, default=1, metavar='K',
                    help='host the trackers K to a process (executable trackers; each still '
                         'its own node with its own namespace and parameters); default 1')
+    p.add_argument('--node-netns', type=_netns_rule, action='append', default=[],
+                   metavar='PATTERN=NETNS',
+                   help='run the node processes whose name matches PATTERN in that network '
+                        'namespace (`ip netns exec`; root): simulated hosts, see '
+                        'scripts/multihost.py; repeatable, first match wins')
     p.add_argument('--allow-overload', action='store_true',
                    help='start more trackers than the measured limit of this machine '
                         f'({TRACKERS_PER_CORE} per core)')
@@ -901,6 +924,9 @@ class Bringup:
             self.rec_group.add(rec)
             self.rec_group.start_all()
         for name, argv in cmds:
+            ns = node_netns(name, self.args.node_netns)
+            if ns is not None:          # a simulated host (scripts/multihost.py)
+                argv = ['ip', 'netns', 'exec', ns, *argv]
             self.group.add(Child(name, argv, self.out / 'logs' / f'{name}.log', env))
         self.group.start_all()
         self.say(f'started {len(cmds) + len(self.rec_group.children)} processes on ROS_DOMAIN_ID={self.domain_id} '

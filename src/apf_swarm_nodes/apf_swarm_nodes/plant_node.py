@@ -15,8 +15,8 @@ state is held and its age grows in ``/swarm/odom`` (trackers brake once it excee
 ``input_timeout``). A command or target state that arrives again ends that.
 
 Realtime: a physics timer integrates the steps of dt that wall time has advanced (held
-commands; a tracker whose latest command is older than ``stale_after`` becomes inactive:
-zero force, counted in ``missed_deadlines``); a publish timer publishes odometry and
+commands; a tracker whose latest command is older than ``stale_after`` gets zero force, older
+than ``command_timeout`` it becomes inactive, counted in ``missed_deadlines``); a publish timer publishes odometry and
 ``/swarm/state`` at ``publish_rate``; commands and target states whose stamp is older than
 ``command_timeout``, or older than the one held, are refused.
 
@@ -62,12 +62,12 @@ NODE_PARAMS = (
     NodeParam('inputs', 'aggregate', 'what the trackers read (as their inputs parameter): '
               'lockstep step 0 waits until those subscriptions are matched', choices=INPUTS),
     NodeParam('command_timeout', 1.0, 'lockstep: a command later than this is sent for '
-              'again, then missed; realtime: a command or target state stamped longer ago '
-              'is refused [s of wall time]', lo=0.001, hi=600.0),
+              'again, then missed; realtime: a tracker silent for this long is inactive, and '
+              'a command or target state stamped longer ago is refused [s of wall time]',
+              lo=0.001, hi=600.0),
     NodeParam('stale_after', 0.1, 'realtime: a tracker whose latest command arrived longer '
-              'ago than this is inactive: zero force instead of holding a bang-bang command '
-              '(25 N held for 1 s would fling a 1 kg UAV 12 m) [s of wall time]', lo=0.001,
-              hi=60.0),
+              'ago than this gets zero force instead of its held bang-bang command (25 N held '
+              'for 1 s would fling a 1 kg UAV 12 m) [s of wall time]', lo=0.001, hi=60.0),
     NodeParam('physics_rate', 200.0, 'realtime: physics timer rate [Hz]', lo=1.0, hi=5000.0),
     NodeParam('markers_rate', 10.0, '/swarm/markers (visualization_msgs/MarkerArray) per second '
               'of simulated (lockstep) or wall (realtime) time; 0 turns them off', lo=0.0,
@@ -350,12 +350,13 @@ class PlantNode(Node):
         if not self.running or self.done:
             return
         now = time.monotonic()
-        newly = self.model.expire(now, self.stale_after)
+        newly = self.model.expire(now, self.stale_after, self.timeout)
         if newly:
             self.model.missed += len(newly)
             self.get_logger().warn(
-                f'no command from {[f"uav_{i}" for i in newly]} for {self.stale_after:g} s: zero '
-                f'force, left out of the neighbour sets ({self.model.missed} missed so far)')
+                f'no command from {[f"uav_{i}" for i in newly]} for {self.timeout:g} s: '
+                f'inactive, left out of the neighbour sets (zero force since '
+                f'{self.stale_after:g} s; {self.model.missed} missed so far)')
         due = int(math.floor((now - self.wall0) / self.cfg.dt)) - self.model.k
         if due > 0:
             self.model.advance(min(due, 1000))
