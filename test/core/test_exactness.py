@@ -145,8 +145,8 @@ def test_plant_step_in_place_and_allocating_paths_agree():
 
 @pytest.mark.parametrize('every', [1, 3])
 def test_run_equals_repeated_steps(every):
-    """run() inlines step() and records by reference in chunks: the same trajectory, bit
-    for bit, over more than one chunk and across two calls."""
+    """run() inlines step() and copies the times and the target's samples in slices of its
+    blocks: the same trajectory, bit for bit, over several target blocks and two calls."""
     cfg = load_preset('triangle').replace(duration=2.6, record_every=every)
     sim = BatchSimulator([cfg])
     rec = sim.run(1500)
@@ -182,7 +182,8 @@ def test_batch_and_single_runs_agree_bit_for_bit():
 
 
 def test_disturbance_views_stay_valid():
-    """The recording keeps references: arrays handed out earlier must not change."""
+    """Arrays handed out earlier are not overwritten by later refills (the plant node and
+    the simulator may hold them past the next step)."""
     src = DisturbanceSource([1, 2], 3, [1.0, 1.0], block=4)
     first = [src.next() for _ in range(10)]
     kept = [f.copy() for f in first]

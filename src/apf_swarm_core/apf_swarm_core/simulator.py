@@ -121,10 +121,6 @@ def integrate(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike, 
     return plant_step(x, v, force, mass=mass, dt=dt, drag=drag, disturbance=disturbance)
 
 
-#: doubles per record array held by reference before they are copied (see BatchSimulator.run)
-_RECORD_CHUNK = 1 << 16
-
-
 def _param_array(cfgs: Sequence[SwarmConfig], name: str) -> NDArray[np.float64]:
     """One parameter of every run: a 0-d array if all runs share it, else shape (R,).
 
@@ -223,6 +219,13 @@ class BatchSimulator:
                                                                              shape)
         return pos[k - base][self._traj_index], vel[k - base][self._traj_index]
 
+    def _gather(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Rows of a target block, shape (m, trajectories, 3), for every run: (m, R, 3) or
+        (m, 1, 3) when one trajectory serves every run (broadcast on assignment)."""
+        if self._traj_identity or len(self._trajs) == 1:
+            return rows
+        return rows[:, self._traj_index]
+
     def step(self) -> tuple[ControlOutput, NDArray[np.float64], NDArray[np.float64]]:
         """Advance every run by one step; returns the command and the target state used."""
         tx, tv = self.target_state(self.k)
@@ -249,63 +252,60 @@ class BatchSimulator:
         rec = {'t': np.empty(T), 'x': np.empty(shape), 'v': np.empty(shape),
                'u': np.empty(shape), 's': np.empty(shape), 'target_x': np.empty((R, T, 3)),
                'target_v': np.empty((R, T, 3)), 'saturated': np.empty((R, T, n), dtype=bool)}
-        # The samples are kept by reference and copied in chunks: every array a step records
-        # is a new one that nothing modifies afterwards (the state, the command and the
-        # target block are replaced, never written to), so a reference is as good as a copy
-        # and costs a list append instead of a numpy assignment per array and step. Chunks
-        # of at most _RECORD_CHUNK doubles per array (1024 samples at n = 3), copied into
-        # step-major views of the record arrays.
-        keys = ('x', 'v', 'u', 's', 'target_x', 'target_v', 'saturated')
-        views = [rec[key].swapaxes(0, 1) for key in keys]      # sample j of every run: [j]
-        chunk = max(1, min(1024, _RECORD_CHUNK // (R * n * 3)))
-        held: list[list[Any]] = [[] for _ in keys]
-        xs, vs, us, ss, txs, tvs, sats = held
-        ks: list[int] = []
-        j0 = 0
+        # step-major views: sample j of every run is rec_*[j]. Per step, one copy each of
+        # the state, the command and the mask; the times and the target's samples are
+        # copied in slices: t_k = k dt afterwards, the target rows from each block of the
+        # target's path when the block is replaced (and at the end)
+        rec_x, rec_v, rec_u, rec_s, rec_sat = (rec[key].swapaxes(0, 1)
+                                               for key in ('x', 'v', 'u', 's', 'saturated'))
+        rec_tx, rec_tv = (rec[key].swapaxes(0, 1) for key in ('target_x', 'target_v'))
+        k0 = self.k
+        first = (-k0) % every                       # the first recorded step is k0 + first
+        held = [0, 0]                               # samples from the current block: j, count
 
-        def flush() -> None:
-            nonlocal j0
-            m = len(ks)
-            if not m:
-                return
-            for view, arrays in zip(views, held):
-                view[j0:j0 + m] = np.concatenate(arrays).reshape((m,) + view.shape[1:])
-                arrays.clear()
-            rec['t'][j0:j0 + m] = np.asarray(ks, dtype=float) * dt     # k dt, as k * dt
-            ks.clear()
-            j0 += m
+        def target_samples(block: tuple[int, Any, Any]) -> None:
+            j, m = held
+            if m:
+                base, pos, vel = block
+                k = k0 + first + j * every - base   # row of sample j in the block
+                rows = slice(k, k + (m - 1) * every + 1, every)
+                rec_tx[j:j + m] = self._gather(pos[rows])
+                rec_tv[j:j + m] = self._gather(vel[rows])
+                held[:] = [j + m, 0]
 
-        # step() inlined (the same calls in the same order), state in locals
+        # step() inlined (the same calls in the same order), the state in locals
         controller, params, noise, target_state = (self.controller, self.params, self.noise,
                                                    self.target_state)
         mass, drag = self.mass, self.drag
-        x, v, k = self.x, self.v, self.k
+        x, v, k = self.x, self.v, k0
         try:
             for i in range(steps):
+                block = self._tblock
                 tx, tv = target_state(k)
                 out = control_step(controller, x, v, tx, params)
                 x_next, v_next = integrate(x, v, out.force, mass=mass, dt=dt, drag=drag,
                                            disturbance=noise.next())
-                if record and k % every == 0:
-                    if not ks:
-                        j0 = i // every
-                    xs.append(x)
-                    vs.append(v)
-                    us.append(out.force)
-                    ss.append(out.sliding_surface)
-                    txs.append(tx)
-                    tvs.append(tv)
-                    sats.append(out.saturated)
-                    ks.append(k)
-                    if len(ks) >= chunk:
-                        flush()
+                if record:
+                    if self._tblock is not block:       # a new block: the old one's samples
+                        target_samples(block)
+                    if k % every == 0:
+                        j = i // every
+                        rec_x[j] = x
+                        rec_v[j] = v
+                        rec_u[j] = out.force
+                        rec_s[j] = out.sliding_surface
+                        rec_sat[j] = out.saturated
+                        held[1] += 1
                 x, v, k = x_next, v_next, k + 1
                 if progress is not None and (i + 1) % progress_every == 0:
                     self.x, self.v, self.k = x, v, k
                     progress(i + 1, steps)
         finally:
             self.x, self.v, self.k = x, v, k
-            flush()
+        if record:
+            target_samples(self._tblock)
+            m = held[0]
+            rec['t'][:m] = (k0 + first + every * np.arange(m)) * dt      # k dt, as k * dt
         if progress is not None:
             progress(steps, steps)
         return rec
