@@ -1,7 +1,8 @@
 """Player node: republishes a bag's raw CDR messages with their recorded timing.
 
 Schedule: message i goes out at ``t0 + (stamp_i - stamp_first) / rate`` on the monotonic clock,
-computed from the start every time (an absolute schedule: lateness never accumulates), after
+``t0`` being when the first message was out, computed from the start every time (an absolute
+schedule: lateness never accumulates), after
 waiting (``wait_for``) until the listed topics have a matched subscriber. ``start_offset``
 skips the first seconds of the bag; ``loop`` plays it again (each pass starting where the
 previous one ended); ``topics`` selects topics; ROS remapping (``-r FROM:=TO``) renames
@@ -179,6 +180,7 @@ class PlayerNode(Node):
         cached = list(self.messages()) if preload else None
         t0 = time.monotonic_ns()
         self._next_clock = t0
+        started = False
         while rclpy.ok():
             items = cached if cached is not None else self.messages()
             first = None
@@ -186,6 +188,18 @@ class PlayerNode(Node):
             for ts, topic, raw in items:
                 if first is None:
                     first = ts
+                    if not started:
+                        # the schedule starts when the first message is out: the first
+                        # write to a newly matched reader can take tens of ms (measured:
+                        # up to 0.2 s under load), which would make every later one late
+                        started = True
+                        self.pubs[topic].publish(raw)
+                        t0 = time.monotonic_ns()
+                        self._next_clock = t0
+                        self.lateness_ns.append(0)
+                        self.published += 1
+                        last_due = t0
+                        continue
 
                 def bag_at(now: int, first: int = first, t0: int = t0) -> int:
                     return first + int((now - t0) * self.rate)
