@@ -15,7 +15,7 @@ Before timing anything the bench checks that the loop reproduces the simulator's
 
 Timing: ``time.perf_counter`` around ``BatchSimulator.run(steps, record=...)`` and around the
 loop's ``run(steps)``, after a warm-up, alternating the two, several repeats; the table gives
-the median time per step. Both sides draw the disturbance in the timed region; the target's
+the best and the median time per step, and the floors are judged on the ratio of the bests. Both sides draw the disturbance in the timed region; the target's
 trajectory is evaluated inside the simulator's timed region and precomputed for the loop.
 
 Output: Markdown tables on stdout (``--plain`` for aligned text), progress on stderr. Exit
