@@ -180,17 +180,34 @@ def test_plant_follows_one_tracker_process_per_id(cfg) -> None:
 
 
 def test_realtime_expiry_zeroes_first_and_deactivates_later(cfg) -> None:
+    """Judged against publications: a tracker that has not answered the state published
+    0.1 s ago gets zero force; not answered one published 1 s ago, it is inactive."""
     p = PlantModel(cfg)
     f = np.ones(3)
+    assert p.expire(100.0, 0.1, 1.0) == []              # nothing published yet
+    for k in range(0, 21):                              # the state goes out every 50 ms
+        p.published(10.0 + 0.05 * k)
     for i in (1, 2, 3):
-        assert p.offer_command(i, i, f, f, now=10.0)
-    assert p.expire(10.05, 0.1, 1.0) == []              # fresh: the commands are held
+        assert p.offer_command(i, i, f, f, now=10.02)   # all answered the 10.00 state
+    assert p.expire(10.1, 0.1, 1.0) == []               # asked at 10.00: answered
     assert np.array_equal(p.u, np.ones((3, 3)))
-    assert p.expire(10.2, 0.1, 1.0) == []               # 0.2 s: zero force, still active
+    assert p.expire(10.2, 0.1, 1.0) == []               # asked at 10.10: no answer, zero
     assert np.array_equal(p.u, np.zeros((3, 3))) and p.active.all()
     for i in (1, 3):
-        assert p.offer_command(i, 10 + i, f, f, now=10.9)
-    assert p.expire(11.05, 0.1, 1.0) == [2]             # uav_2 silent 1.05 s: inactive
+        assert p.offer_command(i, 10 + i, f, f, now=10.96)
+    assert p.expire(11.05, 0.1, 1.0) == [2]             # uav_2 never answered 10.05
     assert list(p.active) == [True, False, True]
-    assert np.array_equal(p.u[1], np.zeros(3))
-    assert p.expire(11.1, 0.1, 1.0) == []               # reported once
+    assert np.array_equal(p.u[0], f)                    # uav_1 answered 10.95
+    assert p.expire(11.06, 0.1, 1.0) == []              # reported once
+
+
+def test_a_late_plant_does_not_blame_the_trackers(cfg) -> None:
+    """The plant published nothing for 2 s (itself starved): no tracker is zeroed or
+    deactivated for not answering states that were never sent."""
+    p = PlantModel(cfg)
+    f = np.ones(3)
+    p.published(10.0)
+    for i in (1, 2, 3):
+        assert p.offer_command(i, i, f, f, now=10.01)
+    assert p.expire(12.0, 0.1, 1.0) == []
+    assert p.active.all() and np.array_equal(p.u, np.ones((3, 3)))

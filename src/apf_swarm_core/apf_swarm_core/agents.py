@@ -30,6 +30,7 @@ Faults (docs/RELIABILITY.md):
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
@@ -282,6 +283,7 @@ class PlantModel:
     missed: int = 0
     stale: int = 0
     rejected: int = 0
+    zeroed: int = 0          # realtime: held commands zeroed because their tracker was late
     last_rejection: str = ''
 
     def __post_init__(self) -> None:
@@ -297,6 +299,7 @@ class PlantModel:
         self.instances: dict[int, int] = {}  # uav_id -> the tracker process it follows
         self.active = np.ones(n, dtype=bool)
         self.command_time = np.zeros(n)     # realtime: when each latest command arrived
+        self._asked: list[float] = []       # realtime: when the state went out, ascending
         self.stale_flags = np.zeros(n, dtype=bool)
         pairs = expected_pairs(self.cfg)
         self.expected_pairs = None if pairs is None else np.asarray(pairs)
@@ -357,14 +360,37 @@ class PlantModel:
             self.active[i - 1] = False
             self.u[i - 1] = 0.0
 
+    def published(self, now: float) -> None:
+        """Realtime: the state went out to the trackers at ``now`` (they answer it)."""
+        self._asked.append(now)
+
+    def _asked_before(self, t: float) -> float | None:
+        """The latest time the state went out no later than ``t`` (None: never)."""
+        k = bisect.bisect_right(self._asked, t)
+        return self._asked[k - 1] if k else None
+
     def expire(self, now: float, zero_after: float, inactive_after: float) -> list[int]:
-        """Realtime: the trackers whose latest command is older than ``zero_after`` seconds
-        at ``now`` get zero force (a held bang-bang command would fling the UAV); older than
-        ``inactive_after`` they are deactivated (left out of the others' formation: a short
-        hiccup does not reshape the formation). Returns the ids just deactivated."""
-        age = now - self.command_time
-        self.u[age > zero_after] = 0.0
-        old = age > inactive_after
+        """Realtime: a tracker that has not answered a state published ``zero_after`` seconds
+        ago or earlier gets zero force (a held bang-bang command would fling the UAV); one
+        that has not answered a state published ``inactive_after`` ago is deactivated (left
+        out of the others' formation: a short hiccup does not reshape it). Measured from the
+        publications (:meth:`published`), not from the clock alone, so a plant that was
+        itself late in publishing does not blame the trackers. Returns the ids just
+        deactivated."""
+        zero_ref = self._asked_before(now - zero_after)
+        if zero_ref is None:
+            return []
+        late = self.command_time < zero_ref
+        self.zeroed += int(np.count_nonzero(late & np.any(self.u != 0.0, axis=1)))
+        self.u[late] = 0.0
+        ref = self._asked_before(now - inactive_after)
+        # forget publications no longer needed
+        keep = bisect.bisect_right(self._asked, now - inactive_after) - 1
+        if keep > 0:
+            del self._asked[:keep]
+        if ref is None:
+            return []
+        old = self.command_time < ref
         newly = [i for i in self.ids if old[i - 1] and self.active[i - 1]]
         self.deactivate([i for i in self.ids if old[i - 1]])
         return newly

@@ -159,7 +159,6 @@ class PlantNode(Node):
             self._start_when_matched()
         else:
             self.wall0 = time.monotonic()
-            self.model.command_time[:] = self.wall0     # a first command has until the timeout
 
     def _matched(self) -> bool:
         """Lockstep: every tracker's command has a publisher and every step-k reader a match."""
@@ -362,7 +361,9 @@ class PlantNode(Node):
             self.model.advance(min(due, 1000))
         if self.model.k >= self.steps:
             self.done = True
-            self.get_logger().info(f'done: {self.steps} steps of {self.cfg.dt:g} s')
+            self.get_logger().info(f'done: {self.steps} steps of {self.cfg.dt:g} s; '
+                                   f'{self.model.zeroed} held commands zeroed (tracker later '
+                                   f'than stale_after = {self.stale_after:g} s)')
 
     def _on_publish(self) -> None:
         if not self.running or self.published_final or self.target[3] == 0.0:
@@ -371,6 +372,7 @@ class PlantNode(Node):
         stamp = self.get_clock().now().to_msg()
         self._publish_odoms(stamp)
         self._publish_swarm_odom(self.model.k, stamp)
+        self.model.published(time.monotonic())
         self._publish_state(self.model.k, stamp)
 
     # --- shared ------------------------------------------------------------------------------
