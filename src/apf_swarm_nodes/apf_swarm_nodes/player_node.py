@@ -16,6 +16,7 @@ reliable subscribers acknowledged everything. ``apf-swarm bag play`` runs this n
 
 from __future__ import annotations
 
+import gc
 import importlib
 import sys
 import time
@@ -178,6 +179,11 @@ class PlayerNode(Node):
         self.wait_subscribers()
         preload = self.info.size <= PRELOAD_BYTES
         cached = list(self.messages()) if preload else None
+        # the start-up heap (the rosbags type store alone is thousands of classes) out of the
+        # collector's reach: a full collection of it stalled the schedule by ~0.3 s in 3 of 5
+        # runs under load; none in 3 runs with it frozen
+        gc.collect()
+        gc.freeze()
         t0 = time.monotonic_ns()
         self._next_clock = t0
         started = False
