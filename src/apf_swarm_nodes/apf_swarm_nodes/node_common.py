@@ -137,9 +137,16 @@ def spin(node: Node | Sequence[Node], kind: str = 'single') -> None:
 
 
 def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
-              args: list[str] | None = None) -> int:
-    """:func:`run_node` for several nodes in one process, spun together on one executor
-    (the executor parameter of the first node decides); every node is destroyed at the end."""
+              args: list[str] | None = None,
+              run: Callable[[Node], None] | None = None) -> int:
+    """The Jazzy ``main()`` for one or several nodes in one process: init, build the nodes,
+    spin them together on one executor (the ``executor`` parameter of the first decides),
+    and always destroy them and shut down.
+
+    ``run``: what to do with the (single) node instead of spinning it (the player's timed
+    loop). A configuration error (bad parameter value or type) stops the process with one
+    line on stderr naming the parameter, and exit code 2.
+    """
     rclpy.init(args=args)
     nodes: list[Node] = []
     code = 0
@@ -147,9 +154,12 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
         for factory in factories:
             nodes.append(factory())
         first = nodes[0]
-        kind = first.get_parameter('executor').value if first.has_parameter('executor') \
-            else 'single'
-        spin(nodes, kind)
+        if run is not None:
+            run(first)
+        else:
+            kind = first.get_parameter('executor').value if first.has_parameter('executor') \
+                else 'single'
+            spin(nodes, kind)
     except (ApfSwarmError, ParameterException, ValueError) as exc:
         print(f'{name}: error: {exc}', file=sys.stderr)
         code = 2
@@ -164,30 +174,5 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
 
 def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = None,
              run: Callable[[Node], None] | None = None) -> int:
-    """The Jazzy ``main()``: init, build the node, spin, and always clean up.
-
-    ``run``: what to do with the node instead of spinning it (the player's timed loop).
-    A configuration error (bad parameter value or type) stops the node with one line on
-    stderr naming the parameter, and exit code 2.
-    """
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = factory()
-        if run is not None:
-            run(node)
-        else:
-            kind = node.get_parameter('executor').value if node.has_parameter('executor') \
-                else 'single'
-            spin(node, kind)
-    except (ApfSwarmError, ParameterException, ValueError) as exc:
-        print(f'{name}: error: {exc}', file=sys.stderr)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    """:func:`run_nodes` for one node (every node's ``main()``)."""
+    return run_nodes(name, [factory], args, run)
