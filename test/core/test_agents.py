@@ -211,3 +211,60 @@ def test_a_late_plant_does_not_blame_the_trackers(cfg) -> None:
         assert p.offer_command(i, i, f, f, now=10.01)
     assert p.expire(12.0, 0.1, 1.0) == []
     assert p.active.all() and np.array_equal(p.u, np.ones((3, 3)))
+
+
+@pytest.mark.parametrize('rule', [{'neighbours': 'nearest', 'neighbour_count': 2},
+                                  {'neighbours': 'radius', 'sensing_radius': 1.7}])
+def test_limited_neighbour_sets_agents_equal_the_simulator(cfg, rule) -> None:
+    """6 trackers, each seeing only its 2 nearest (or those within 1.7 m): trackers and
+    plant stepped by hand equal the batch simulator bit for bit, and the sets are used."""
+    c = cfg.replace(n_trackers=6, **rule)
+    sim = BatchSimulator([c])
+    agents = [TrackerAgent(c, i) for i in range(1, 7)]
+    plant = PlantModel(c)
+    used = set()
+    for k in range(200):
+        tx, tv = sim.target_state(k)
+        for a in agents:
+            feed(a, k, plant.x, plant.v, tx[0], tv[0])
+        outs = [a.command(k) for a in agents]
+        used.update(a.neighbours_used for a in agents)
+        for i, out in enumerate(outs, start=1):
+            plant.offer_command(i, k, out.force[0], out.sliding_surface[0])
+        ref, _, _ = sim.step()
+        assert np.array_equal(np.concatenate([o.force for o in outs]), ref.force[0])
+        plant.advance()
+        assert np.array_equal(plant.x, sim.x[0])
+    if rule['neighbours'] == 'nearest':
+        assert used == {2}
+    else:
+        assert min(used) < 5
+
+
+def test_neighbour_mask_rules() -> None:
+    from apf_swarm_core.potential import neighbour_mask
+    x = np.array([[0.0, 0, 0], [1.0, 0, 0], [3.0, 0, 0], [10.0, 0, 0]])
+    near = neighbour_mask(x, rule='nearest', count=2)
+    assert near.tolist() == [[False, True, True, False], [True, False, True, False],
+                             [True, True, False, False], [False, True, True, False]]
+    assert neighbour_mask(x, rule='radius', radius=2.5).sum(axis=1).tolist() == [1, 2, 1, 0]
+    assert neighbour_mask(x, rule='all').sum() == 12
+    assert neighbour_mask(x, rule='nearest', count=1, rows=[3]).tolist() == [
+        [False, False, True, False]]
+    assert neighbour_mask(x, rule='nearest', count=9).sum(axis=1).tolist() == [3, 3, 3, 3]
+    with pytest.raises(ValueError, match='neighbours must be one of'):
+        neighbour_mask(x, rule='psychic')
+
+
+def test_simulate_honours_the_neighbour_rule_like_step(cfg) -> None:
+    """BatchSimulator.run (the recorded fast path) and step() apply the same rule."""
+    c = cfg.replace(n_trackers=5, neighbours='nearest', neighbour_count=2, duration=0.3)
+    traj = BatchSimulator([c]).run()
+    stepped = BatchSimulator([c])
+    xs = []
+    for _ in range(c.steps):
+        xs.append(stepped.x[0].copy())
+        stepped.step()
+    assert np.array_equal(traj['x'][0], np.array(xs))
+    other = BatchSimulator([c.replace(neighbours='all')]).run()
+    assert np.max(np.abs(other['x'][0, -1] - traj['x'][0, -1])) > 1e-4

@@ -290,10 +290,12 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
 
 
 def test_trackers_hosted_several_to_a_process_reproduce_the_simulator(bringup) -> None:
-    """--trackers-per-process 2 with 5 trackers: 3 tracker processes (2 + 2 + 1), each node
-    still /uav_<i>/tracker with its own parameters; the run equals the simulator exactly."""
+    """--trackers-per-process 2 with 5 trackers, each seeing only its 2 nearest neighbours:
+    3 tracker processes (2 + 2 + 1), each node still /uav_<i>/tracker with its own
+    parameters; the run equals the simulator (same neighbour rule) exactly."""
     run = bringup('grouped', '--preset', 'triangle', '--n-trackers', '5',
-                  '--trackers-per-process', '2', '--duration', '1.5')
+                  '--trackers-per-process', '2', '--duration', '1.5',
+                  '--set', 'neighbours=nearest', '--set', 'neighbour_count=2')
     run.wait_running()
     names = sorted(Path(p).name for p in (run.out / 'logs').glob('*.log'))
     assert [n for n in names if n.startswith('tracker')] == [
@@ -301,7 +303,10 @@ def test_trackers_hosted_several_to_a_process_reproduce_the_simulator(bringup) -
     assert len(run.collect_nodes()) == 5                  # plant, target, 3 tracker hosts
     assert run.wait(240) == 0, run.stderr()
     cfg = load_config(run.out / 'config.yaml')
+    assert (cfg.neighbours, cfg.neighbour_count) == ('nearest', 2)
     sim = simulate(cfg).trajectory
+    assert np.max(np.abs(simulate(cfg.replace(neighbours='all')).trajectory['x'][-1]
+                         - sim['x'][-1])) > 1e-3        # the rule changes the flight
     with np.load(run.out / 'trajectory.npz') as data:
         assert data['x'].shape == (1500, 5, 3)
         assert np.max(np.abs(data['x'] - sim['x'])) <= 1e-9

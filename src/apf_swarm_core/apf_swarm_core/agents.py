@@ -41,7 +41,7 @@ from .config import SwarmConfig
 from .laws import ControlOutput, switching_force
 from .metrics import centroid_error, formation_error
 from .plant import DisturbanceSource
-from .potential import gradient, obstacle_gradient, potential
+from .potential import gradient, neighbour_mask, obstacle_gradient, potential
 from .simulator import control_step, expected_pairs, initial_positions, integrate, make_controller
 
 __all__ = ['brake_force', 'input_problem', 'Sample', 'TrackerAgent', 'PlantModel',
@@ -107,7 +107,8 @@ class TrackerAgent:
     inputs: dict[int, Sample] = field(default_factory=dict)   # latest per source, 0 = target
     pending: dict[int, dict[int, Sample]] = field(default_factory=dict)  # lockstep: by step
     last_rejection: str = ''
-    neighbours_used: int = -1            # neighbours in the potential of the last command
+    neighbours_used: int = -1            # neighbours in the formation term of the last command
+    active_neighbours: int = -1          # neighbours the plant reported active then
     _last_step: int = -1
 
     def __post_init__(self) -> None:
@@ -233,18 +234,27 @@ class TrackerAgent:
         ids = [j for j in self.ids if src[j].active]
         x = np.stack([src[j].x for j in ids])
         v = src[self.uav_id].v[None, :]
+        rule = self.cfg.neighbour_rule()
         if len(ids) == len(self.ids):
-            out = control_step(self.controller, x, v, src[0].x, self.params, rows=[self.row])
+            # a limited neighbour set (cfg.neighbours): the row of the simulator's mask
+            mask = neighbour_mask(x, **rule, rows=[self.row]) if rule else None
+            out = control_step(self.controller, x, v, src[0].x, self.params, rows=[self.row],
+                               mask=mask)
+            self.neighbours_used = (len(ids) - 1 if mask is None else
+                                    int(np.count_nonzero(mask)))
         else:
             # inactive neighbours leave the formation term and stay as obstacles
             row = ids.index(self.uav_id)
-            grad = gradient(x, src[0].x, **self.params, rows=[row])
             obstacles = np.stack([src[j].x for j in self.ids if not src[j].active])
+            mask = neighbour_mask(x, **rule, rows=[row]) if rule else None
+            grad = gradient(x, src[0].x, **self.params, rows=[row], mask=mask)
             grad += obstacle_gradient(x[row:row + 1], obstacles, k_f=self.params['k_f'],
                                       b=self.params['b'], c=self.params['c'])
             out = self.controller.step(v, grad)
+            self.neighbours_used = (len(ids) - 1 if mask is None else
+                                    int(np.count_nonzero(mask)))
+        self.active_neighbours = len(ids) - 1
         self._last_step = step
-        self.neighbours_used = len(ids) - 1
         return out
 
     def brake(self, step: int) -> NDArray[np.float64]:

@@ -31,6 +31,7 @@ import yaml
 from .errors import ConfigError, UnknownPresetError
 from .laws import LAWS
 from .plant import NOISE_KINDS
+from .potential import NEIGHBOUR_RULES
 from .saturation import SATURATIONS
 from .target import TRAJECTORIES, Trajectory, make_trajectory
 
@@ -70,6 +71,14 @@ class SwarmConfig:
     b: float = _p(6.0, lo=0.0, required=True, help='repulsion gain of eq. 44')
     c: float = _p(1.7, unit='m^2', lo=0.0, lo_open=True, required=True,
                   help='repulsion range of eq. 44')
+    # neighbour set of each tracker's potential (not in the paper: the paper's is all-to-all)
+    neighbours: str = _p('all', choices=NEIGHBOUR_RULES,
+                         help='which trackers enter a tracker\'s formation term: all (eq. 2), '
+                              'nearest (the neighbour_count nearest) or radius (those within '
+                              'sensing_radius)')
+    neighbour_count: int = _p(2, lo=1, help='neighbours = nearest: how many')
+    sensing_radius: float = _p(5.0, unit='m', lo=0.0, lo_open=True,
+                               help='neighbours = radius: the sensing range')
     # sliding-mode controller
     alpha: float = _p(0.01, unit='1/s', lo=0.0, required=True, help='linear gain of eq. 7 / 22')
     beta: float = _p(2.0, unit='m/s', lo=0.0, lo_open=True, required=True,
@@ -159,6 +168,14 @@ class SwarmConfig:
     def potential_params(self) -> dict[str, float]:
         """Keyword arguments of :func:`apf_swarm_core.potential.gradient`."""
         return {'k_n': self.k_n, 'k_f': self.k_f, 'a': self.a, 'b': self.b, 'c': self.c}
+
+    def neighbour_rule(self) -> dict[str, Any]:
+        """Keyword arguments of :func:`apf_swarm_core.potential.neighbour_mask`, or ``{}``
+        for the paper's all-to-all potential."""
+        if self.neighbours == 'all':
+            return {}
+        return {'rule': self.neighbours, 'count': self.neighbour_count,
+                'radius': self.sensing_radius}
 
     def replace(self, **changes: Any) -> 'SwarmConfig':
         """A copy with some keys changed (validated)."""

@@ -28,7 +28,7 @@ from .design import equilibrium_formation, triangle_spacing
 from .laws import ControlOutput, SlidingModeController
 from .metrics import summarize
 from .plant import DisturbanceSource, plant_step, uniform_ball
-from .potential import gradient
+from .potential import gradient, neighbour_mask
 
 __all__ = ['initial_positions', 'expected_pairs', 'make_controller', 'control_step',
            'integrate', 'BatchSimulator', 'SimResult', 'simulate', 'simulate_batch',
@@ -166,12 +166,14 @@ class BatchSimulator:
         self.cfgs = list(cfgs)
         first = self.cfgs[0]
         for c in self.cfgs[1:]:
-            for key in ('n_trackers', 'law', 'saturation', 'dt', 'duration', 'record_every'):
+            for key in ('n_trackers', 'law', 'saturation', 'dt', 'duration', 'record_every',
+                        'neighbours', 'neighbour_count', 'sensing_radius'):
                 if getattr(c, key) != getattr(first, key):
                     raise ValueError(f'every run of a batch must share {key}; got '
                                      f'{getattr(first, key)!r} and {getattr(c, key)!r}')
         self.R, self.n, self.dt = len(self.cfgs), first.n_trackers, first.dt
         self.params = {k: _param_array(self.cfgs, k) for k in ('k_n', 'k_f', 'a', 'b', 'c')}
+        self.neighbour_rule = first.neighbour_rule()     # {} = all-to-all (eq. 2)
         self.drag = _param_array(self.cfgs, 'drag')
         mass = np.array([c.mass_matrix_diag() for c in self.cfgs])       # (R, n, 3)
         # one mass for every axis, tracker and run: a 0-d array (plant_step skips a unit one)
@@ -229,7 +231,8 @@ class BatchSimulator:
     def step(self) -> tuple[ControlOutput, NDArray[np.float64], NDArray[np.float64]]:
         """Advance every run by one step; returns the command and the target state used."""
         tx, tv = self.target_state(self.k)
-        out = control_step(self.controller, self.x, self.v, tx, self.params)
+        mask = neighbour_mask(self.x, **self.neighbour_rule) if self.neighbour_rule else None
+        out = control_step(self.controller, self.x, self.v, tx, self.params, mask=mask)
         dist = self.noise.next()
         self.x, self.v = integrate(self.x, self.v, out.force, mass=self.mass, dt=self.dt,
                                    drag=self.drag, disturbance=dist)
@@ -276,13 +279,14 @@ class BatchSimulator:
         # step() inlined (the same calls in the same order), the state in locals
         controller, params, noise, target_state = (self.controller, self.params, self.noise,
                                                    self.target_state)
-        mass, drag = self.mass, self.drag
+        mass, drag, rule = self.mass, self.drag, self.neighbour_rule
         x, v, k = self.x, self.v, k0
         try:
             for i in range(steps):
                 block = self._tblock
                 tx, tv = target_state(k)
-                out = control_step(controller, x, v, tx, params)
+                mask = neighbour_mask(x, **rule) if rule else None
+                out = control_step(controller, x, v, tx, params, mask=mask)
                 x_next, v_next = integrate(x, v, out.force, mass=mass, dt=dt, drag=drag,
                                            disturbance=noise.next())
                 if record:

@@ -167,14 +167,14 @@ class TrackerNode(Node):
             instance=self.instance)
         self.pub.publish(self._msg)
         self._stale_reported = False
-        if self.agent.neighbours_used != self._neighbours:
+        if self.agent.active_neighbours != self._neighbours:
             if self._neighbours >= 0:
                 self.get_logger().warn(
-                    f'potential over {self.agent.neighbours_used} neighbours (was '
+                    f'potential over {self.agent.active_neighbours} neighbours (was '
                     f'{self._neighbours}): the plant reports '
-                    + ('a tracker silent' if self.agent.neighbours_used < self._neighbours
+                    + ('a tracker silent' if self.agent.active_neighbours < self._neighbours
                        else 'a tracker back'))
-            self._neighbours = self.agent.neighbours_used
+            self._neighbours = self.agent.active_neighbours
 
     def _on_timer(self) -> None:
         """trigger timer: command on the latest inputs; trigger odom: watchdog only."""
