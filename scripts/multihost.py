@@ -224,8 +224,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.domain_id is not None:
             cmd += ['--domain-id', str(args.domain_id)]
         if args.rate is not None:
-            cmd += ['--node-param', f'publish_rate:={args.rate:g}',
-                    '--node-param', f'control_rate:={args.rate:g}']
+            cmd += ['--node-param', f'publish_rate:={float(args.rate)!r}',
+                    '--node-param', f'control_rate:={float(args.rate)!r}']
         for name, ns in placement.items():
             cmd += ['--node-netns', f'{name}={ns}']
         say(f'{args.hosts} hosts on {lab.net}.0/24 ({", ".join(f"{ns}={a}" for ns, a in lab.addr.items())}), '

@@ -47,6 +47,9 @@ from .simulator import control_step, expected_pairs, initial_positions, integrat
 __all__ = ['brake_force', 'input_problem', 'Sample', 'TrackerAgent', 'PlantModel',
            'MAX_POSITION', 'MAX_SPEED', 'MAX_FORCE']
 
+#: the plant computes the formation error of /swarm/state up to this many trackers
+PLANT_FORMATION_METRIC_MAX = 12
+
 #: inputs beyond these magnitudes are refused as not physical (componentwise) [m, m/s, N]
 MAX_POSITION = 1.0e6
 MAX_SPEED = 1.0e4
@@ -311,7 +314,10 @@ class PlantModel:
         self.command_time = np.zeros(n)     # realtime: when each latest command arrived
         self._asked: list[float] = []       # realtime: when the state went out, ascending
         self.stale_flags = np.zeros(n, dtype=bool)
-        pairs = expected_pairs(self.cfg)
+        # the formation error published every step needs the design shape; for more than
+        # 12 trackers it is a numerical minimization of seconds, which would delay the
+        # plant's start: /swarm/state then carries NaN (summary.json still has the metric)
+        pairs = expected_pairs(self.cfg) if n <= PLANT_FORMATION_METRIC_MAX else None
         self.expected_pairs = None if pairs is None else np.asarray(pairs)
 
     def refuse(self, why: str) -> bool:

@@ -34,6 +34,9 @@ __all__ = ['initial_positions', 'expected_pairs', 'make_controller', 'control_st
            'integrate', 'BatchSimulator', 'SimResult', 'simulate', 'simulate_batch',
            'TRAJECTORY_KEYS']
 
+#: up to this many trackers expected_pairs minimizes J from 4 random shapes, above from one
+EXPECTED_PAIRS_MULTISTART = 12
+
 #: arrays of trajectory.npz
 TRAJECTORY_KEYS = ('t', 'x', 'v', 'u', 's', 'target_x', 'target_v')
 
@@ -71,7 +74,8 @@ def expected_pairs(cfg: SwarmConfig) -> NDArray[np.float64] | None:
     if n == 3:
         d = triangle_spacing(p['a'], p['b'], p['c'], p['k_n'], p['k_f'])
         return None if d is None else np.full(3, d)
-    f = equilibrium_formation(n, **p, starts=4)
+    # a 150-dimensional minimization takes seconds per start at n = 50: one start past 12
+    f = equilibrium_formation(n, **p, starts=4 if n <= EXPECTED_PAIRS_MULTISTART else 1)
     return f.pair_distances if f.spacing > 1e-6 else None
 
 

@@ -133,6 +133,8 @@ def _fmt(v: Any) -> str:
         return '-'
     if isinstance(v, float):
         return f'{v:.4g}'
+    if isinstance(v, (list, tuple)) and v and all(isinstance(e, float) for e in v):
+        return f'{len(v)} distances in [{min(v):.4g}, {max(v):.4g}]'   # n > 3 designs
     return str(v)
 
 
