@@ -1,7 +1,8 @@
 # apf_swarm workspace: virtual environment (ROS 2 Jazzy from PyPI wheels) + colcon build.
 #
 #   make setup      create .venv, install requirements.txt, colcon build into install/
-#   make test       setup, then run the tests (extra pytest arguments: PYTEST_ARGS="...")
+#   make test       setup, then run the tests (extra pytest arguments: PYTEST_ARGS="...",
+#                   other paths than test/: TESTS="test/core test/nodes")
 #   make run        setup, then the ROS 2 swarm: `apf-swarm up --preset triangle --duration 30
 #                   --out runs/<timestamp>` (extra arguments: RUN_ARGS)
 #   make reproduce  setup, then `apf-swarm reproduce --out runs/<timestamp>-reproduce`
@@ -44,6 +45,7 @@ ifneq ($(origin ROS_DOMAIN_ID),command line)
 ROS_DOMAIN_ID := $(shell echo $$(( RANDOM % 100 + 1 )))
 endif
 PYTEST_ARGS ?=
+TESTS ?= test
 RUN_ARGS ?=
 TIMESTAMP := $(shell date +%Y%m%d-%H%M%S)
 RUN_DIR ?= runs/$(TIMESTAMP)
@@ -100,7 +102,7 @@ test: setup
 	@echo "==> pytest (ROS_DOMAIN_ID=$(ROS_DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)"
 	@cd '$(ROOT)' && source scripts/activate.sh && \
 	  export ROS_DOMAIN_ID='$(ROS_DOMAIN_ID)' ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST && \
-	  python -m pytest -q test $(PYTEST_ARGS)
+	  python -m pytest -q $(TESTS) $(PYTEST_ARGS)
 
 run: setup
 	@echo "==> apf-swarm up --preset triangle --duration 30 --out $(RUN_DIR) (ROS_DOMAIN_ID=$(ROS_DOMAIN_ID))"
