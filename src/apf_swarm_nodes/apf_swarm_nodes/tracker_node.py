@@ -154,8 +154,9 @@ class TrackerNode(Node):
     def _publish(self, step: int, stamp, now: float | None = None) -> None:
         """The command of ``step``; lockstep with a stale input (the target silent for
         longer than input_timeout of simulated time): the safe brake, flagged stale."""
-        if self.mode == 'lockstep' and self.agent.stale_sources(now, self.timeout):
-            self._send_brake(step, stamp, self.agent.stale_sources(now, self.timeout))
+        stale = self.agent.stale_sources(now, self.timeout) if self.mode == 'lockstep' else []
+        if stale:
+            self._send_brake(step, stamp, stale)
             self.agent.brake(step)
             return
         out = self.agent.command(step)
