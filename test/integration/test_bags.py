@@ -345,6 +345,43 @@ def test_sigkilled_recorder_leaves_a_bag_that_reindex_recovers(graph, tmp_path: 
     assert len(backups) == 1 and backups[0].read_bytes() == before
 
 
+def test_recorder_selects_compresses_and_splits(graph, tmp_path: Path) -> None:
+    """regex and exclude select the topics; zstd chunks; a new file every 0.2 s of messages;
+    SIGINT closes the bag with every message."""
+    import time
+
+    from std_msgs.msg import Int64
+    bag = tmp_path / 'sel'
+    pubs = {t: graph.node.create_publisher(Int64, t, QoSProfile(depth=100))
+            for t in ('/sel/a', '/sel/b', '/other')}
+    graph.start('recorder', 'recorder', '-p', f'output:={bag}', '-p', 'regex:=^/sel/',
+                '-p', 'exclude:=b$', '-p', 'compress:=true', '-p', 'split_duration:=0.2')
+    graph.spin_until(lambda: pubs['/sel/a'].get_subscription_count() >= 1, 30,
+                     'the recorder on /sel/a')
+    sent = [0]
+    next_at = [time.monotonic()]
+
+    def publish_paced() -> bool:          # 100 Hz, driven by the spin loop
+        if time.monotonic() >= next_at[0] and sent[0] < 80:
+            for pub in pubs.values():
+                pub.publish(Int64(data=sent[0]))
+            sent[0] += 1
+            next_at[0] += 0.01
+        return sent[0] >= 80
+    graph.spin_until(publish_paced, 30, '80 messages on each topic')
+    assert pubs['/sel/b'].get_subscription_count() == 0          # excluded: no subscription
+    assert pubs['/other'].get_subscription_count() == 0          # not matching the regex
+    assert graph.stop('recorder') == 0
+    info = bags.open_bag(bag)
+    assert [t.name for t in info.topics] == ['/sel/a']
+    assert info.topic('/sel/a').count == 80
+    assert len(info.files) >= 3 and {f.compression for f in info.files} == {'zstd'}
+    values = [deserialize_message(raw, Int64).data for *_x, raw in bags.iter_raw(bag)]
+    assert values == list(range(80))
+    rec = json.loads(info.custom_data[bags.CUSTOM_RECORDER])
+    assert rec['received'] == rec['written'] == 80 and rec['dropped'] == 0
+
+
 def test_recorder_refuses_an_existing_output(graph, tmp_path: Path) -> None:
     (tmp_path / 'exists').mkdir()
     graph.start('recorder', 'recorder', '-p', f'output:={tmp_path / "exists"}')
