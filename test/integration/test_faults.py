@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import os
 import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -95,17 +96,17 @@ def test_a_killed_tracker_drops_out_and_the_others_form_the_pair(graph) -> None:
     assert np.allclose([pair(x, 0, 1), pair(x, 0, 2), pair(x, 1, 2)], d3, rtol=0.01)
     os.kill(graph.procs['tracker3'].pid, signal.SIGKILL)
     graph.procs.pop('tracker3').wait(5)
-    killed_at = log.step()
+    killed = time.monotonic()
     graph.spin_until(lambda: log.last is not None and not log.last.active[2], 30,
                      'uav_3 marked inactive')
+    # the barrier waited 2 x command_timeout (0.2 s each), then went on without uav_3
+    assert time.monotonic() - killed < 2 * 0.2 + 3.0
     gone = log.step()
     graph.spin_until(lambda: log.step() >= gone + 8000, 90, '8 s more of simulated flight')
     assert 'no command from' in graph.log('plant') and "['uav_3']" in graph.log('plant')
     last = log.last
     assert last.missed_deadlines == 1
     assert last.active == (True, True, False)
-    # the run went on at full speed: no step after the deactivation waited for uav_3
-    assert gone - killed_at < 50
     after = [log.by_step[k] for k in range(gone, log.step() + 1) if k in log.by_step]
     xa = np.array([s.x for s in after])
     # uav_3 is avoided, not followed: the others never come close to the drifting UAV
@@ -167,9 +168,10 @@ def test_a_silent_target_is_held_then_the_trackers_brake_and_recover(graph) -> N
         os.killpg(target.pid, signal.SIGCONT)
     graph.spin_until(lambda: log.last.target_age == 0.0, 30, 'the target back')
     back = log.step()
-    n_stale = len(stale)
     graph.spin_until(lambda: log.step() >= back + 500, 30, '0.5 s more')
-    assert len(stale) == n_stale                      # no brake since the target is back
+    # no brake for any step after the target came back (by step: answers still in flight
+    # for the steps before may arrive late)
+    assert not [k for k, _ in stale if k > back], sorted(k for k, _ in stale)[-5:]
     assert 'the target publishes again' in graph.log('plant')
 
 
