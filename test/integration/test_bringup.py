@@ -410,9 +410,10 @@ def test_a_respawned_tracker_rejoins_and_the_triangle_recovers_lockstep(bringup)
 def test_a_respawned_tracker_rejoins_and_the_triangle_recovers_realtime(bringup) -> None:
     summary = respawn_and_recover(bringup, 'respawn_rt', '--preset', 'realtime', '--mode',
                                   'realtime', kill_at=5.0, duration=18.0, recover_from=15.5)
-    # while it was dead its command went stale at the plant: zero force, inactive
+    # while it was dead its command went stale at the plant: zero force, then inactive
+    # (counted in missed_deadlines; a span shorter than a publish period leaves no sample)
     spans = summary['faults']['inactive'].get('uav_2', [])
-    assert summary['missed_deadlines'] == len(spans)
+    assert len(spans) <= summary['missed_deadlines'] <= 1
     assert all(5.0 <= a <= b <= 9.0 for a, b in spans), spans
 
 
@@ -421,9 +422,9 @@ def test_a_silent_target_is_reported_and_the_swarm_brakes_then_recovers_realtime
     """Realtime: the target stops publishing for 2 s (SIGSTOP) and comes back (SIGCONT).
     The plant holds its last state and publishes its age; the trackers brake once it is
     older than input_timeout (0.5 s); summary.json reports the silence; the triangle is
-    back within 5 % by the end."""
+    back within 5 % over the last 2 s."""
     run = bringup('silent_rt', '--preset', 'realtime', '--mode', 'realtime', '--duration',
-                  '14')
+                  '18')
     run.wait_running()
     wait_for(lambda: sim_time(run) >= 5.0, 60, 't >= 5 s', run)
     run.collect_nodes()
@@ -447,7 +448,9 @@ def test_a_silent_target_is_reported_and_the_swarm_brakes_then_recovers_realtime
     assert any('the target was silent' in w for w in summary['warnings'])
     cfg = load_config(run.out / 'config.yaml')
     d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
-    pairs = steady_pairs(run.out, 12.5)
+    # the target resumes 2 s further along its path (its clock kept running): the
+    # trackers catch up within about 6 s
+    pairs = steady_pairs(run.out, 16.0)
     assert within(pairs, d, 0.05, realtime=True), (pairs.min(), pairs.max(), d)
     for i in (1, 2, 3):
         log = (run.out / 'logs' / f'tracker_{i}.log').read_text()
