@@ -36,6 +36,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_graph import machine, rss_mb  # noqa: E402
+from soak import node_pids  # noqa: E402  (the same /proc lookup)
 
 from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
 
@@ -45,22 +46,12 @@ def log(msg: str) -> None:
 
 
 def node_rss(config: str) -> dict[str, float]:
-    """{process kind: RSS MB} of the live processes naming this run's config."""
+    """{process name:pid: RSS MB} of the live node processes naming this run's config."""
     out = {}
-    for entry in os.listdir('/proc'):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f'/proc/{entry}/cmdline', 'rb') as f:
-                args = [a.decode(errors='replace') for a in f.read().split(b'\0') if a]
-        except OSError:
-            continue
-        if not any(config in a for a in args) or any('swarm_up.py' in a for a in args):
-            continue
-        rss = rss_mb(int(entry))
+    for pid, name in node_pids(config).items():
+        rss = rss_mb(pid)
         if rss is not None:
-            out[f'{Path(args[1] if len(args) > 1 and args[0].endswith("python") else args[0]).name}'
-                f':{entry}'] = rss
+            out[f'{name}:{pid}'] = rss
     return out
 
 
