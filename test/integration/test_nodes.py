@@ -181,9 +181,19 @@ def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale
                                     uav_ids=[1, 2, 3], x=x, v=v, target_x=tx, target_v=tv))
         sent += 1
 
-    # fresh inputs at ~100 Hz for 40 messages: every command is a controller command
-    graph.node.create_timer(0.01, lambda: publish() if sent < 40 else None)
-    graph.spin_until(lambda: sent >= 40, 20, '40 odometry messages')
+    # fresh inputs at ~100 Hz until 20 controller commands came back (the first messages may
+    # go out before both sides of the best-effort topics are matched): every command from
+    # the first controller command on is one while the inputs keep coming
+    feeding = [True]
+
+    def fresh_commands() -> int:
+        first = next((i for i, (_, m) in enumerate(forces) if not m.stale), None)
+        return 0 if first is None else len(forces) - first
+
+    graph.node.create_timer(0.01, lambda: publish() if feeding[0] else None)
+    graph.spin_until(lambda: sent >= 40 and fresh_commands() >= 20, 30,
+                     '20 controller commands on fresh inputs')
+    feeding[0] = False
     stopped = time.monotonic()
     # before the first input the watchdog brakes (nothing is known yet); from the first
     # controller command on, every command is one while the inputs keep coming
