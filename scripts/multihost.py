@@ -270,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
                   args.trackers_per_process, 'wall_s': round(wall, 2), 'bringup_exit': rc}
         out.mkdir(parents=True, exist_ok=True)
         (out / 'multihost.json').write_text(json.dumps(result, indent=2) + '\n')
-        print(f'\n| host | address | runs | node processes | CPU [% of a core] |')
+        print('\n| host | address | runs | node processes | CPU [% of a core] |')
         print('|---:|---|---|---:|---:|')
         for r in hosts:
             print(f"| {r['host']} | {r['address']} | {r['runs']} | {r['processes']} | "

@@ -189,6 +189,12 @@ def kill_tracker(run: BringupRun, uav_id: int) -> int:
     return pids[0]
 
 
+def triangle_side(cfg) -> float:
+    """SPEC section 2, fact 1: the side of the equilateral triangle of three trackers around
+    the target, sqrt(c ln(b / (a + k_N / (3 k_f)))), written out independently of the core."""
+    return math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
+
+
 # --------------------------------------------------------------------------------------------
 # the tests
 # --------------------------------------------------------------------------------------------
@@ -210,7 +216,7 @@ def test_lockstep_bringup_forms_the_triangle_and_equals_the_simulator(bringup) -
         ros = {k: data[k] for k in data.files}
 
     # the formation: every steady pair distance within 2 % of the analytic side
-    d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
+    d = triangle_side(cfg)
     assert d == pytest.approx(1.599, abs=5e-4)
     steady = slice(int(len(ros['t']) * (1 - cfg.steady_fraction)), None)
     x = ros['x'][steady]
@@ -274,7 +280,7 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     # the plant publishes at publish_rate (100 Hz): about 800 samples, none lost
     assert 700 <= len(t) <= 820, len(t)
     assert summary['messages']['dropped'] == 0
-    d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
+    d = triangle_side(cfg)
     steady = t >= 6.0
     x = ros['x'][steady]
     pairs = np.stack([np.linalg.norm(x[:, i] - x[:, j], axis=-1)
@@ -372,7 +378,7 @@ def respawn_and_recover(bringup, name: str, *args: str, kill_at: float, duration
     """Kill tracker 2 once the run passed ``kill_at``; the bring-up restarts it within 2 s,
     the run completes, and from ``recover_from`` on the triangle is back within 5 %."""
     cfg = load_config(ROOT / 'config' / f'{args[1]}.yaml')
-    d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
+    d = triangle_side(cfg)
     run = bringup(name, *args, '--duration', str(duration), '--respawn')
     run.wait_running()
     wait_for(lambda: len(run.collect_nodes()) == 5, 10, 'the 5 node processes', run)
@@ -447,7 +453,7 @@ def test_a_silent_target_is_reported_and_the_swarm_brakes_then_recovers_realtime
     assert summary['stale_inputs'] >= 3 * 10        # every tracker braked, 100 Hz watchdog
     assert any('the target was silent' in w for w in summary['warnings'])
     cfg = load_config(run.out / 'config.yaml')
-    d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
+    d = triangle_side(cfg)
     # the target resumes 2 s further along its path (its clock kept running): the
     # trackers catch up within about 6 s
     pairs = steady_pairs(run.out, 16.0)

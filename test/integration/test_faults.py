@@ -11,14 +11,15 @@ import os
 import signal
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import rclpy.duration
-import pytest
 from nav_msgs.msg import Odometry
 from std_msgs.msg import Empty
 
 from apf_swarm_core import load_preset, simulate
+from apf_swarm_core.agents import brake_force
 from apf_swarm_core.design import expected_spacing
 from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 from apf_swarm_nodes.conversions import (dt_to_ns, force_msg, odom_msg, step_stamp,
@@ -325,37 +326,39 @@ def test_realtime_tracker_treats_old_stamps_as_stale_and_refuses_out_of_order(gr
     graph.spin_until(lambda: spub.get_subscription_count() == 1
                      and graph.node.count_publishers('/uav_1/force_cmd') == 1, 30,
                      'the tracker endpoints')
+    cfg = load_preset('realtime')
     x = np.array([[3.0, 0.0, 0.0], [0.0, 2.0, 0.5], [-1.0, -1.0, 0.0]])
     v = np.full((3, 3), 0.2)
     clock = graph.node.get_clock()
 
     def send(offset_s: float) -> None:
         stamp = (clock.now() - rclpy.duration.Duration(seconds=offset_s)).to_msg()
-
         spub.publish(swarm_odom_msg(step=0, stamp=stamp, uav_ids=[1, 2, 3], x=x, v=v,
                                     target_x=np.zeros(3), target_v=np.zeros(3)))
 
-    old = [0]
+    def stream(offset_of: Callable[[int], float], until: Callable[[], bool], what: str) -> None:
+        """Publish at 100 Hz, message k stamped offset_of(k) s ago, until ``until()``."""
+        sent = [0]
 
-    def tick() -> None:
-        if old[0] < 30:
-            send(2.0 - 0.001 * old[0])      # 2 s old, each a little newer than the last
-            old[0] += 1
-    timer = graph.node.create_timer(0.01, tick)
-    graph.spin_until(lambda: old[0] >= 30, 10, '30 old messages')
-    timer.cancel()
+        def tick() -> None:
+            send(offset_of(sent[0]))
+            sent[0] += 1
+        timer = graph.node.create_timer(0.01, tick)
+        graph.spin_until(lambda: sent[0] >= 30 and until(), 20, what)
+        timer.cancel()
+
+    # 2 s old (each message a little newer than the last): received, but stale. The brake is
+    # that of the received own velocity, -u0 sign(v) + drag v (with nothing received it
+    # would be zero), so these commands prove the old states arrived and were judged stale
+    brake = brake_force(v[0], u0=cfg.u0, drag=cfg.drag)
+
+    def brakes_on_old_input() -> bool:
+        return sum(np.array_equal([m.force.x, m.force.y, m.force.z], brake) for m in forces) >= 5
+    stream(lambda k: 2.0 - 0.001 * k, brakes_on_old_input, 'brakes on the old states')
     n_old = len(forces)
-    assert n_old >= 10 and all(m.stale for m in forces), [m.stale for m in forces]
-    fresh = [0]
-
-    def tick2() -> None:
-        if fresh[0] < 20:
-            send(0.0)
-            fresh[0] += 1
-    timer2 = graph.node.create_timer(0.01, tick2)
-    graph.spin_until(lambda: fresh[0] >= 20 and any(not m.stale for m in forces[n_old:]), 10,
-                     'controller commands on fresh inputs')
-    timer2.cancel()
+    assert all(m.stale for m in forces), [m.stale for m in forces]
+    stream(lambda k: 0.0, lambda: any(not m.stale for m in forces[n_old:]),
+           'controller commands on fresh inputs')
     before = forces[-1].rejected_inputs
 
     def older() -> bool:                                 # older than the newest held

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import bisect
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
+from typing import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,7 +41,7 @@ from .config import SwarmConfig
 from .laws import ControlOutput, switching_force
 from .metrics import centroid_error, formation_error
 from .plant import DisturbanceSource
-from .potential import gradient, neighbour_mask, obstacle_gradient, potential
+from .potential import neighbour_mask, potential
 from .simulator import control_step, expected_pairs, initial_positions, integrate, make_controller
 
 __all__ = ['brake_force', 'input_problem', 'Sample', 'TrackerAgent', 'PlantModel',
@@ -121,7 +121,6 @@ class TrackerAgent:
         if self.neighbour_ids is None:
             self.neighbour_ids = [j for j in range(1, self.cfg.n_trackers + 1) if j != self.uav_id]
         self.ids = sorted({self.uav_id, *self.neighbour_ids})
-        self.row = self.ids.index(self.uav_id)
         self.controller = make_controller(self.cfg, (1, 3))
         self.params = self.cfg.potential_params()
 
@@ -169,6 +168,12 @@ class TrackerAgent:
         seq = step if seq is None else int(seq)
         if not self._acceptable(source, x, v, seq):
             return False
+        self._store(source, step, x, v, now, seq, active)
+        return True
+
+    def _store(self, source: int, step: int, x: NDArray[np.float64], v: NDArray[np.float64],
+               now: float, seq: int, active: bool) -> None:
+        """Keep an input already checked by :meth:`_acceptable`."""
         sample = Sample(step, np.asarray(x, float), np.asarray(v, float), now, seq,
                         bool(active) or source in (0, self.uav_id))
         self.inputs[source] = sample
@@ -177,7 +182,6 @@ class TrackerAgent:
             by_step[source] = sample
             for old in [k for k in self.pending if k < self._last_step - 1]:
                 del self.pending[old]
-        return True
 
     def offer_swarm(self, step: int, ids: Sequence[int], x: NDArray[np.float64],
                     v: NDArray[np.float64], active: Sequence[bool],
@@ -199,9 +203,9 @@ class TrackerAgent:
             if not self._acceptable(source, xs, vs, seq):
                 self.rejected = before + 1
                 return False
-        self.offer(0, step, target_x, target_v, target_time, seq=seq)
+        self._store(0, step, target_x, target_v, target_time, seq, True)
         for j, xj, vj, act in rows:
-            self.offer(j, step, xj, vj, now, seq=seq, active=act)
+            self._store(j, step, xj, vj, now, seq, act)
         return True
 
     def _acceptable(self, source: int, x: NDArray[np.float64], v: NDArray[np.float64],
@@ -235,27 +239,17 @@ class TrackerAgent:
         held = self.pending.pop(step, None) if step >= 0 else None
         src = held if held is not None else self.inputs
         ids = [j for j in self.ids if src[j].active]
+        row = ids.index(self.uav_id)
         x = np.stack([src[j].x for j in ids])
-        v = src[self.uav_id].v[None, :]
         rule = self.cfg.neighbour_rule()
-        if len(ids) == len(self.ids):
-            # a limited neighbour set (cfg.neighbours): the row of the simulator's mask
-            mask = neighbour_mask(x, **rule, rows=[self.row]) if rule else None
-            out = control_step(self.controller, x, v, src[0].x, self.params, rows=[self.row],
-                               mask=mask)
-            self.neighbours_used = (len(ids) - 1 if mask is None else
-                                    int(np.count_nonzero(mask)))
-        else:
-            # inactive neighbours leave the formation term and stay as obstacles
-            row = ids.index(self.uav_id)
-            obstacles = np.stack([src[j].x for j in self.ids if not src[j].active])
-            mask = neighbour_mask(x, **rule, rows=[row]) if rule else None
-            grad = gradient(x, src[0].x, **self.params, rows=[row], mask=mask)
-            grad += obstacle_gradient(x[row:row + 1], obstacles, k_f=self.params['k_f'],
-                                      b=self.params['b'], c=self.params['c'])
-            out = self.controller.step(v, grad)
-            self.neighbours_used = (len(ids) - 1 if mask is None else
-                                    int(np.count_nonzero(mask)))
+        # a limited neighbour set (cfg.neighbours): this row of the simulator's mask
+        mask = neighbour_mask(x, **rule, rows=[row]) if rule else None
+        # inactive neighbours leave the formation term and stay as obstacles
+        silent = [src[j].x for j in self.ids if not src[j].active]
+        out = control_step(self.controller, x, src[self.uav_id].v[None, :], src[0].x,
+                           self.params, rows=[row], mask=mask,
+                           obstacles=np.stack(silent) if silent else None)
+        self.neighbours_used = len(ids) - 1 if mask is None else int(np.count_nonzero(mask))
         self.active_neighbours = len(ids) - 1
         self._last_step = step
         return out
@@ -313,7 +307,6 @@ class PlantModel:
         self.active = np.ones(n, dtype=bool)
         self.command_time = np.zeros(n)     # realtime: when each latest command arrived
         self._asked: list[float] = []       # realtime: when the state went out, ascending
-        self.stale_flags = np.zeros(n, dtype=bool)
         # the formation error published every step needs the design shape; for more than
         # 12 trackers it is a numerical minimization of seconds, which would delay the
         # plant's start: /swarm/state then carries NaN (summary.json still has the metric)

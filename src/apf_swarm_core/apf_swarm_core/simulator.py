@@ -28,7 +28,7 @@ from .design import equilibrium_formation, triangle_spacing
 from .laws import ControlOutput, SlidingModeController
 from .metrics import summarize
 from .plant import DisturbanceSource, plant_step, uniform_ball
-from .potential import gradient, neighbour_mask
+from .potential import gradient, neighbour_mask, obstacle_gradient
 
 __all__ = ['initial_positions', 'expected_pairs', 'make_controller', 'control_step',
            'integrate', 'BatchSimulator', 'SimResult', 'simulate', 'simulate_batch',
@@ -99,7 +99,8 @@ def make_controller(cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, 
 
 def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
                  target_x: ArrayLike, potential_params: dict[str, Any], *,
-                 rows: ArrayLike | None = None, mask: ArrayLike | None = None) -> ControlOutput:
+                 rows: ArrayLike | None = None, mask: ArrayLike | None = None,
+                 obstacles: ArrayLike | None = None) -> ControlOutput:
     """Commands of the trackers in ``rows`` (default all) at one step.
 
     Parameters
@@ -113,8 +114,17 @@ def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
     target_x : array (..., 3)
     potential_params : keyword arguments of :func:`apf_swarm_core.potential.gradient`
     rows, mask : see :func:`apf_swarm_core.potential.gradient`
+    obstacles : array (k, 3), optional
+        Bodies that only repel (silent trackers, see :mod:`apf_swarm_core.agents`): their
+        :func:`~apf_swarm_core.potential.obstacle_gradient` is added to the gradient of the
+        selected rows (a single run).
     """
     grad = gradient(x, target_x, **potential_params, rows=rows, mask=mask)
+    if obstacles is not None and len(obstacles):
+        xi = np.asarray(x, dtype=float)
+        xi = xi if rows is None else xi[..., rows, :]
+        grad = grad + obstacle_gradient(xi, obstacles, k_f=potential_params['k_f'],
+                                        b=potential_params['b'], c=potential_params['c'])
     return controller.step(v, grad)
 
 

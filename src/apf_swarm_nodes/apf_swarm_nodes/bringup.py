@@ -58,6 +58,7 @@ from apf_swarm_core.config import (SwarmConfig, apply_overrides, load_config, lo
                                    parse_set, preset_names, to_ros_params)
 from apf_swarm_core.errors import ApfSwarmError
 
+from .argtypes import domain_id, nonneg_int, positive_float, positive_int
 from .errors import CliError
 
 __all__ = ['EXIT_OK', 'EXIT_BAD_INPUT', 'EXIT_CHILD_DIED', 'EXIT_STALLED', 'EXIT_INTERRUPTED',
@@ -675,24 +676,8 @@ def node_commands(prefix: Path, config_file: Path, n: int, mode: str,
 # command line
 # --------------------------------------------------------------------------------------------
 
-def _positive(text: str) -> float:
-    try:
-        val = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
-    if not (val > 0 and math.isfinite(val)):
-        raise argparse.ArgumentTypeError(f'{text}: must be a positive number')
-    return val
 
 
-def _domain(text: str) -> int:
-    try:
-        val = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not an integer') from None
-    if not 0 <= val <= 232:
-        raise argparse.ArgumentTypeError(f'{val}: a ROS domain id is 0..232')
-    return val
 
 
 def node_netns(name: str, rules: Sequence[str] | None) -> str | None:
@@ -713,21 +698,8 @@ def _netns_rule(text: str) -> str:
     return text
 
 
-def _positive_int(text: str) -> int:
-    val = _nonneg_int(text)
-    if val < 1:
-        raise argparse.ArgumentTypeError(f'{val}: must be >= 1')
-    return val
 
 
-def _nonneg_int(text: str) -> int:
-    try:
-        val = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not an integer') from None
-    if val < 0:
-        raise argparse.ArgumentTypeError(f'{val}: must be >= 0')
-    return val
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -742,16 +714,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep',
                    help='lockstep: simulated time, reproduces the simulator (default); '
                         'realtime: wall-clock timers')
-    p.add_argument('--duration', type=_positive, metavar='S',
+    p.add_argument('--duration', type=positive_float, metavar='S',
                    help='simulated (lockstep) or wall (realtime) seconds')
     p.add_argument('--seed', type=int, metavar='N')
-    p.add_argument('--domain-id', type=_domain, metavar='N',
+    p.add_argument('--domain-id', type=domain_id, metavar='N',
                    help='ROS_DOMAIN_ID of the run (default: a random unused-looking one, 1..101)')
     p.add_argument('--discovery-range', choices=DISCOVERY_RANGES, default='LOCALHOST',
                    help='ROS_AUTOMATIC_DISCOVERY_RANGE (default LOCALHOST)')
     p.add_argument('--record', action='store_true',
                    help='also record a rosbag2 (MCAP) with the recorder node')
-    p.add_argument('--trackers-per-process', type=_positive_int, default=1, metavar='K',
+    p.add_argument('--trackers-per-process', type=positive_int, default=1, metavar='K',
                    help='host the trackers K to a process (executable trackers; each still '
                         'its own node with its own namespace and parameters); default 1')
     p.add_argument('--node-netns', type=_netns_rule, action='append', default=[],
@@ -767,12 +739,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         'continue: fly on unrecorded, reindex the bag afterwards)')
     p.add_argument('--respawn', action='store_true',
                    help='restart a node process that dies (counted in summary.json)')
-    p.add_argument('--max-respawns', type=_nonneg_int, default=3, metavar='K',
+    p.add_argument('--max-respawns', type=nonneg_int, default=3, metavar='K',
                    help='with --respawn: give up (exit 3) after K restarts of one node '
                         '(default 3)')
-    p.add_argument('--ready-timeout', type=_positive, default=30.0, metavar='S',
+    p.add_argument('--ready-timeout', type=positive_float, default=30.0, metavar='S',
                    help='how long to wait for every node and topic (default 30)')
-    p.add_argument('--stall-timeout', type=_positive, default=20.0, metavar='S',
+    p.add_argument('--stall-timeout', type=positive_float, default=20.0, metavar='S',
                    help='stop when no /swarm/state arrives for this long (default 20)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
     p.add_argument('--node-param', action='append', default=[], metavar='NAME:=VALUE',

@@ -22,6 +22,7 @@ from apf_swarm_core.design import (b_for_spacing, equilibrium_formation, triangl
 from apf_swarm_core.errors import ApfSwarmError
 from apf_swarm_core.simulator import simulate
 
+from .argtypes import nonneg_float, positive_float
 from .progress import Progress
 from .runio import format_summary, write_run
 
@@ -238,24 +239,8 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
     return code
 
 
-def _positive_float(text: str) -> float:
-    try:
-        val = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
-    if not (val > 0 and np.isfinite(val)):
-        raise argparse.ArgumentTypeError(f'{text}: must be a positive number')
-    return val
 
 
-def _nonneg_float(text: str) -> float:
-    try:
-        val = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
-    if not (val >= 0 and np.isfinite(val)):
-        raise argparse.ArgumentTypeError(f'{text}: must be >= 0')
-    return val
 
 
 def _add_bag_parser(sub: Any) -> None:
@@ -298,11 +283,11 @@ def _add_bag_parser(sub: Any) -> None:
 
     q = bsub.add_parser('play', help='republish the bag with its recorded timing (ROS graph)')
     q.add_argument('bag', type=Path, metavar='BAG')
-    q.add_argument('--rate', type=_positive_float, default=1.0, metavar='R')
+    q.add_argument('--rate', type=positive_float, default=1.0, metavar='R')
     q.add_argument('--loop', action='store_true')
-    q.add_argument('--start-offset', type=_nonneg_float, default=0.0, metavar='S')
+    q.add_argument('--start-offset', type=nonneg_float, default=0.0, metavar='S')
     q.add_argument('--topics', nargs='+', metavar='T', help='play only these topics')
-    q.add_argument('--clock', type=_positive_float, nargs='?', const=100.0, default=None,
+    q.add_argument('--clock', type=positive_float, nargs='?', const=100.0, default=None,
                    metavar='HZ', help='publish /clock at HZ (default 100) instead of the '
                    'recorded /clock')
     q.add_argument('--remap', nargs='+', default=[], metavar='FROM:=TO')

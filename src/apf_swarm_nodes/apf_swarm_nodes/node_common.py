@@ -41,7 +41,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 
 from apf_swarm_core.errors import ApfSwarmError
 
-__all__ = ['EXECUTORS', 'EXECUTOR_PARAM', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
+__all__ = ['EXECUTORS', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
            'force_topic', 'RejectionLog', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'run_node', 'run_nodes']
 
 TARGET_ODOM = '/target/odom'

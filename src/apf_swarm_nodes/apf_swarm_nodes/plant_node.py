@@ -114,7 +114,6 @@ class PlantNode(Node):
         self.tracker_rejected: dict[int, int] = {}
         self._log_rejection = RejectionLog(self)
         self.target_absent = False      # lockstep: the target missed a deadline
-        self._duplicates: dict[int, int] = {}
         self.create_timer(1.0, self._check_duplicates)
         self.create_subscription(Odometry, TARGET_ODOM, self._on_target, qos)
         self.target = (-1, np.zeros(3), np.zeros(3), 0.0)   # step, x, v, received
@@ -278,15 +277,13 @@ class PlantNode(Node):
                 self.get_logger().error(
                     f'duplicate uav_id {i}: {count} publishers on {force_topic(i)}; '
                     'following the first tracker process that commanded, refusing the others')
-            self._duplicates[i] = count
 
     def _maybe_finish(self, force: bool = False) -> None:
         if not self.running or self.done:
             return
         k = self.model.k
         missing = self.model.missing(k)
-        target_late = self.target[0] != k
-        target_late = target_late and not self.target_absent
+        target_late = self._target_late()
         if (missing or target_late) and not force:
             return
         if target_late:
@@ -339,10 +336,13 @@ class PlantNode(Node):
             else:
                 self._maybe_finish(force=True)
 
+    def _target_late(self) -> bool:
+        """Lockstep: the target state of step k is awaited and has not arrived."""
+        return self.target[0] != self.model.k and not self.target_absent
+
     def _late(self) -> list[str]:
-        k = self.model.k
-        return [f'uav_{i}' for i in self.model.missing(k)] + (
-            ['target'] if self.target[0] != k and not self.target_absent else [])
+        return [f'uav_{i}' for i in self.model.missing(self.model.k)] + (
+            ['target'] if self._target_late() else [])
 
     # --- realtime ------------------------------------------------------------------------
     def _on_physics(self) -> None:

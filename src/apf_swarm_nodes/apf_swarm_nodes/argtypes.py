@@ -1,0 +1,37 @@
+"""argparse ``type=`` converters shared by ``apf-swarm`` and the bring-up: each names what it
+expected in the message argparse prints."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Callable
+
+__all__ = ['positive_float', 'nonneg_float', 'positive_int', 'nonneg_int', 'domain_id']
+
+
+def _number(kind: type, lo: float, strict: bool, what: str) -> Callable[[str], float]:
+    def convert(text: str):
+        try:
+            val = kind(text)
+        except ValueError:
+            name = 'a number' if kind is float else 'an integer'
+            raise argparse.ArgumentTypeError(f'{text!r} is not {name}') from None
+        if not (math.isfinite(val) and (val > lo if strict else val >= lo)):
+            raise argparse.ArgumentTypeError(f'{text}: {what}')
+        return val
+    return convert
+
+
+positive_float = _number(float, 0.0, True, 'must be a positive number')
+nonneg_float = _number(float, 0.0, False, 'must be >= 0')
+positive_int = _number(int, 1, False, 'must be >= 1')
+nonneg_int = _number(int, 0, False, 'must be >= 0')
+
+
+def domain_id(text: str) -> int:
+    """A ROS domain id, 0..232."""
+    val = nonneg_int(text)
+    if val > 232:
+        raise argparse.ArgumentTypeError(f'{val}: a ROS domain id is 0..232')
+    return val
