@@ -116,6 +116,12 @@ class BringupRun:
     def stdout(self) -> str:
         return self.out_path.read_text(errors='replace')
 
+    def exception_lines(self) -> list[str]:
+        """Node logs that report an exception (a clean stop between callbacks has none)."""
+        return [f'{p.name}: {line}' for p in sorted((self.out / 'logs').glob('*.log'))
+                for line in p.read_text(errors='replace').splitlines()
+                if 'FATAL' in line or 'Exception in' in line or 'Traceback' in line]
+
     def summary(self) -> dict:
         return json.loads((self.out / 'summary.json').read_text())
 
@@ -210,6 +216,8 @@ def test_lockstep_bringup_forms_the_triangle_and_equals_the_simulator(bringup) -
     summary = run.summary()
     cfg = load_config(run.out / 'config.yaml')        # the file every node read
     assert (cfg.n_trackers, cfg.duration, cfg.steps) == (3, 4.0, 4000)
+    # every node stopped by SIGINT between two callbacks: no exception in any node log
+    assert run.exception_lines() == []
     sim = simulate(cfg)
     sim_summary = sim.summary()
     with np.load(run.out / 'trajectory.npz') as data:
@@ -271,6 +279,7 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     summary = run.summary()
     cfg = load_config(run.out / 'config.yaml')
     assert summary['status'] == 'completed' and summary['mode'] == 'realtime'
+    assert run.exception_lines() == []
     assert summary['wall_time'] >= 8.0
     with np.load(run.out / 'trajectory.npz') as data:
         ros = {k: data[k] for k in data.files}

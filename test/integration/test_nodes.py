@@ -44,7 +44,7 @@ def test_lockstep_equals_headless_simulator(graph) -> None:
                                  for i in (1, 2, 3))
                      and node.count_subscribers('/swarm/odom') == 3
                      and node.count_publishers('/swarm/state') == 1
-                     and node.count_subscribers('/clock') >= 1
+                     and node.count_subscribers('/target/request') >= 1
                      and node.count_subscribers('/swarm/start') >= 1, 30, 'the graph')
     start.publish(Empty())
     graph.spin_until(lambda: steps - 1 in got, 120, f'{steps} steps of /swarm/state')

@@ -56,15 +56,21 @@ MAX_SPEED = 1.0e4
 MAX_FORCE = 1.0e6
 
 
+_LIMITS = {'x': MAX_POSITION, 'v': MAX_SPEED, 'force': MAX_FORCE, 's': MAX_SPEED}
+
+
 def input_problem(**arrays: NDArray[np.float64]) -> str | None:
     """Why an input is refused, or ``None``: ``x``/``target_x`` positions, ``v`` speeds,
     ``force`` and ``s`` forces and surfaces, each checked for finite values and magnitude."""
-    limits = {'x': MAX_POSITION, 'v': MAX_SPEED, 'force': MAX_FORCE, 's': MAX_SPEED}
     for name, arr in arrays.items():
         a = np.asarray(arr, dtype=float)
+        lim = _LIMITS[name]
+        # one reduction for the common case: the largest magnitude is NaN when any value is
+        # NaN, so a finite, in-range input is exactly one whose maximum is <= the limit
+        if a.size and np.abs(a).max() <= lim:
+            continue
         if not np.all(np.isfinite(a)):
             return f'{name} is not finite ({a.tolist()})'
-        lim = limits[name]
         if np.any(np.abs(a) > lim):
             return f'{name} = {a.tolist()} exceeds {lim:g} in magnitude'
     return None
@@ -199,8 +205,12 @@ class TrackerAgent:
         if missing:
             return self._reject(f'the message has no state of {[f"uav_{j}" for j in missing]}')
         before = self.rejected
+        # the values of every row at once (two reductions); only a message that fails this is
+        # checked row by row, for the reason and for rows that are not this tracker's inputs
+        clean = input_problem(x=x, v=v) is None and \
+            input_problem(x=target_x, v=target_v) is None
         for source, xs, vs in [(0, target_x, target_v)] + [(j, xj, vj) for j, xj, vj, _ in rows]:
-            if not self._acceptable(source, xs, vs, seq):
+            if not self._acceptable(source, xs, vs, seq, checked=clean):
                 self.rejected = before + 1
                 return False
         self._store(0, step, target_x, target_v, target_time, seq, True)
@@ -209,12 +219,13 @@ class TrackerAgent:
         return True
 
     def _acceptable(self, source: int, x: NDArray[np.float64], v: NDArray[np.float64],
-                    seq: int) -> bool:
-        """The checks of :meth:`offer` without storing (counts and records a rejection)."""
+                    seq: int, checked: bool = False) -> bool:
+        """The checks of :meth:`offer` without storing (counts and records a rejection);
+        ``checked``: the values are known to pass :func:`input_problem`."""
         name = 'target' if source == 0 else f'uav_{source}'
         if source != 0 and source not in self.ids:
             return self._reject(f'{name} is not in this swarm (ids {self.ids})')
-        problem = input_problem(x=x, v=v)
+        problem = None if checked else input_problem(x=x, v=v)
         if problem is not None:
             return self._reject(f'{name}: {problem}')
         held = self.inputs.get(source)
@@ -411,10 +422,13 @@ class PlantModel:
                                        drag=self.cfg.drag, disturbance=self.noise.next())
             self.k += 1
 
-    def metrics(self, target_x: NDArray[np.float64]) -> tuple[float, float, float]:
-        """J, centroid error and formation error (NaN without a design) of the current state."""
-        j = float(potential(self.x, target_x, **self.cfg.potential_params()))
-        ce = float(centroid_error(self.x, target_x))
-        fe = float(formation_error(self.x, self.expected_pairs)) if (
+    def metrics(self, target_x: NDArray[np.float64], x: NDArray[np.float64] | None = None
+                ) -> tuple[float, float, float]:
+        """J, centroid error and formation error (NaN without a design) of positions ``x``
+        (n, 3) [m] (default: the current state) around the target at ``target_x``."""
+        x = self.x if x is None else x
+        j = float(potential(x, target_x, **self.cfg.potential_params()))
+        ce = float(centroid_error(x, target_x))
+        fe = float(formation_error(x, self.expected_pairs)) if (
             self.expected_pairs is not None) else float('nan')
         return j, ce, fe

@@ -7,6 +7,7 @@ Arrays follow the trajectory schema: ``t (T,)``, ``x (T, n, 3)``, ``v (T, n, 3)`
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from typing import Any, Mapping
 
 import numpy as np
@@ -30,9 +31,16 @@ def centroid_error(x: ArrayLike, target_x: ArrayLike) -> NDArray[np.float64]:
 def pair_distances(x: ArrayLike) -> NDArray[np.float64]:
     """Distances of every unordered pair, ``(..., n(n-1)/2)`` in ``triu`` order [m]."""
     x = np.asarray(x, dtype=float)
-    n = x.shape[-2]
-    i, j = np.triu_indices(n, 1)
+    i, j = _pairs(x.shape[-2])
     return np.linalg.norm(x[..., i, :] - x[..., j, :], axis=-1)
+
+
+@lru_cache(maxsize=64)
+def _pairs(n: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """``np.triu_indices(n, 1)``, computed once per n (read-only: shared between calls)."""
+    i, j = np.triu_indices(n, 1)
+    i.flags.writeable = j.flags.writeable = False
+    return i, j
 
 
 def formation_error(x: ArrayLike, expected_pairs: ArrayLike) -> NDArray[np.float64]:

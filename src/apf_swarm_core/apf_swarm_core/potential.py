@@ -20,6 +20,8 @@ full gradient equals ``gradient(..., rows=[i])`` bit for bit) is described in it
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -97,6 +99,14 @@ def _pair_geometry(x: NDArray[np.float64], rows: ArrayLike | None):
     return diff, r2
 
 
+@lru_cache(maxsize=64)
+def _off_diagonal(n: int) -> NDArray[np.bool_]:
+    """``~np.eye(n, dtype=bool)``, computed once per n (read-only: shared between calls)."""
+    out = ~np.eye(n, dtype=bool)
+    out.flags.writeable = False
+    return out
+
+
 def potential(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0,
               k_f: ArrayLike = 1.0, a: ArrayLike = 1.0, b: ArrayLike = 6.0,
               c: ArrayLike = 1.7, mask: ArrayLike | None = None) -> NDArray[np.float64]:
@@ -127,8 +137,7 @@ def potential(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0,
     track = 0.5 * np.einsum('...ik,...ik->...', rel, rel)
     _, r2 = _pair_geometry(x, None)
     pair = 0.5 * _gain(a, 2) * r2 + 0.5 * _gain(b, 2) * _gain(c, 2) * np.exp(-r2 / _gain(c, 2))
-    n = x.shape[-2]
-    offdiag = ~np.eye(n, dtype=bool)
+    offdiag = _off_diagonal(x.shape[-2])
     if mask is not None:
         offdiag = offdiag & np.asarray(mask, dtype=bool)
     # each unordered pair appears twice in the full (n, n) matrix

@@ -330,7 +330,8 @@ def expected_graph(n: int, mode: str) -> tuple[list[str], list[TopicExpectation]
     topics.append(TopicExpectation('/target/odom', 1, n + 1, or_subscribers_of=SWARM_ODOM))
     topics.append(TopicExpectation(SWARM_ODOM, 1, 0, optional=True))
     if mode == 'lockstep':
-        topics.append(TopicExpectation('/clock', 1, 1))
+        topics.append(TopicExpectation('/clock', 1, 0))
+        topics.append(TopicExpectation('/target/request', 1, 1))
     topics.append(TopicExpectation('/swarm/state', 1, 1))
     return nodes, topics
 
@@ -985,7 +986,7 @@ class Bringup:
                     'the world over, so it is never respawned')
         if name == 'target' and self.mode == 'realtime':
             return ('a restarted realtime target would fly its trajectory again from t = 0; '
-                    'only lockstep targets (driven by /clock) are respawned')
+                    'only lockstep targets (driven by the plant\'s requests) are respawned')
         return ''
 
     def spin(self, timeout: float) -> None:
@@ -1014,7 +1015,7 @@ class Bringup:
             miss.append(f'topic /swarm/state: this bring-up\'s subscription matched to '
                         f'{nstate} publishers (need 1: the plant)')
         # the plant waits for the start in both modes; the target only in realtime (in
-        # lockstep it is driven by /clock)
+        # lockstep it is driven by the plant's /target/request)
         nstart = self.start_pub.get_subscription_count()
         want, who = (2, 'plant, target') if self.mode == 'realtime' else (1, 'plant')
         if nstart < want:

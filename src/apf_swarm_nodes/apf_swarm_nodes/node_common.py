@@ -10,6 +10,8 @@ topic                  lockstep                    realtime
 /target/odom           reliable, keep last 1000    best effort, keep last 1
 /uav_<i>/force_cmd     reliable, keep last 1000    best effort, keep last 1 (latest wins)
 /clock                 reliable, keep last 1000    (not published)
+/target/request        reliable, transient local,  (not published)
+                       keep last 1
 /swarm/odom            reliable, keep last 1000    best effort, keep last 1
 /swarm/state           reliable, keep last 5000    reliable, keep last 5000 (recorded, summed)
 /swarm/start           reliable, transient local, keep last 1 (late joiners see the start)
@@ -23,12 +25,22 @@ cuts the deliveries per step from n(n + 1) to n.
 Lockstep needs every message of every step (a lost one would stall the barrier), so its
 control topics are reliable; realtime control wants the newest sample, never a queue of old
 ones, so its control topics are best effort with depth 1.
+
+Lockstep target: the plant asks for the target's states ahead of the step it integrates
+(``/target/request``, std_msgs/UInt64: the last step it wants, about ``TARGET_LOOKAHEAD``
+steps ahead, sent again every ``TARGET_LOOKAHEAD / 2`` steps); the target answers with the
+states it has not sent yet, at most ``TARGET_LOOKAHEAD`` of them. The target's trajectory does
+not depend on the swarm, so this takes the target and its two deliveries per step off the
+barrier: ``/clock`` has no reader in the swarm itself (it is still published every step, for
+recorders and ``use_sim_time`` nodes).
 """
 
 from __future__ import annotations
 
 import re
+import signal
 import sys
+import threading
 import time
 from typing import Callable, Sequence
 
@@ -38,11 +50,13 @@ from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
                              SingleThreadedExecutor)
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rclpy.signals import SignalHandlerOptions
 
 from apf_swarm_core.errors import ApfSwarmError
 
 __all__ = ['EXECUTORS', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
-           'force_topic', 'RejectionLog', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'run_node', 'run_nodes']
+           'force_topic', 'RejectionLog', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'TARGET_REQUEST', 'REQUEST_QOS',
+           'TARGET_LOOKAHEAD', 'run_node', 'run_nodes']
 
 TARGET_ODOM = '/target/odom'
 SWARM_STATE = '/swarm/state'
@@ -51,6 +65,9 @@ SWARM_MARKERS = '/swarm/markers'
 INPUTS = ('aggregate', 'odom')
 SWARM_START = '/swarm/start'
 CLOCK = '/clock'
+TARGET_REQUEST = '/target/request'
+#: lockstep: how many steps ahead the plant asks for the target's states
+TARGET_LOOKAHEAD = 64
 
 #: deep enough that a reader paused for seconds loses nothing in lockstep (5000 steps, about
 #: 1.5 MB for 3 trackers); measured: depth 100 lost 358 of 3000 samples over a 3 s pause
@@ -58,6 +75,8 @@ STATE_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPo
                        depth=5000, durability=DurabilityPolicy.VOLATILE)
 START_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                        depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: only the latest request matters; a (re)started target gets it on joining
+REQUEST_QOS = START_QOS
 #: lockstep control topics and /clock: a reliable keep-last writer drops what a reader has not
 #: acknowledged once ``depth`` newer samples exist, so a reader starved for ``depth`` steps
 #: (the recorder on a loaded machine: 10 steps are 17 ms at 600 steps/s; measured: 2126 of
@@ -111,29 +130,36 @@ EXECUTORS = ('single', 'events', 'multi')
 
 def spin(node: Node | Sequence[Node], kind: str = 'single') -> None:
     """Spin ``node`` (or several nodes on one executor) with the chosen executor until
-    shutdown.
+    shutdown or until SIGINT / SIGTERM (:func:`run_nodes`), always between callbacks.
 
-    ``events`` (the nodes' default): ``rclpy.experimental.EventsExecutor`` driven by a
-    ``spin_once`` loop (its ``spin()`` busy-loops and ignores SIGINT in these wheels, SPEC
-    section 4); ``single``: SingleThreadedExecutor; ``multi``: MultiThreadedExecutor (measured
+    ``events`` (the nodes' default): ``rclpy.experimental.EventsExecutor``;
+    ``single``: SingleThreadedExecutor; ``multi``: MultiThreadedExecutor (measured
     here 6-78 lockstep steps/s against about 300 for events: kept only for comparison).
+    Each is driven by a ``spin_once`` loop with a 0.1 s timeout (the EventsExecutor's
+    ``spin()`` busy-loops and ignores SIGINT in these wheels, SPEC section 4), so a stop
+    request is seen within 0.1 s.
     """
     nodes = [node] if isinstance(node, Node) else list(node)
     if kind == 'events':
         from rclpy.experimental import EventsExecutor
         executor = EventsExecutor()
-        for n in nodes:
-            executor.add_node(n)
-        try:
-            while rclpy.ok():
-                executor.spin_once(timeout_sec=0.1)
-        finally:
-            executor.shutdown()
-        return
-    executor = MultiThreadedExecutor() if kind == 'multi' else SingleThreadedExecutor()
+    else:
+        executor = MultiThreadedExecutor() if kind == 'multi' else SingleThreadedExecutor()
     for n in nodes:
         executor.add_node(n)
-    executor.spin()
+    try:
+        while rclpy.ok() and not _STOP.is_set():
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.shutdown()
+
+
+#: set by SIGINT / SIGTERM in a spinning node process (see :func:`run_nodes`)
+_STOP = threading.Event()
+
+
+def _stop_between_callbacks(signum: int, _frame) -> None:
+    _STOP.set()
 
 
 def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
@@ -147,7 +173,15 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
     loop). A configuration error (bad parameter value or type) stops the process with one
     line on stderr naming the parameter, and exit code 2.
     """
-    rclpy.init(args=args)
+    if run is None:
+        # SIGINT / SIGTERM end the spin loop between two callbacks; rclpy's own handler would
+        # shut the context down under a running callback, whose next rcl call (a publish, a
+        # log line) then fails and is reported as a FATAL exception on every clean stop
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        signal.signal(signal.SIGINT, _stop_between_callbacks)
+        signal.signal(signal.SIGTERM, _stop_between_callbacks)
+    else:
+        rclpy.init(args=args)
     nodes: list[Node] = []
     code = 0
     try:

@@ -4,9 +4,12 @@ Publishes ``/uav_<i>/odom`` for every tracker, ``/swarm/odom`` (all of them and 
 state, one message), ``/swarm/state``, ``/swarm/markers`` (RViz / Foxglove) and, in lockstep, ``/clock``;
 subscribes ``/uav_<i>/force_cmd`` and ``/target/odom``.
 
-Lockstep barrier, step k: publish ``/clock`` (k dt) and the odometry of step k; wait until the
-command of step k of every active tracker and the target state of step k have arrived;
-publish the ``/swarm/state`` sample of step k; integrate to k + 1. Past ``command_timeout``
+Lockstep barrier, step k: publish ``/swarm/odom`` of step k once the target's state of step k
+is held (the target's states are asked for ahead on ``/target/request``, see
+:mod:`.node_common`), ``/clock`` (k dt) and the per-UAV odometry; wait until the command of
+step k of every active tracker has arrived; integrate to k + 1, publish step k + 1 and only
+then the ``/swarm/state`` sample of step k (its metrics are computed while the trackers
+work). Past ``command_timeout``
 seconds of wall time the step is published once more; still missing after another
 ``command_timeout``, the input is counted in ``missed_deadlines`` and logged, and its
 source is no longer waited for: a silent tracker becomes inactive (zero force, left out of
@@ -39,7 +42,7 @@ import numpy as np
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Empty
+from std_msgs.msg import Empty, UInt64
 from visualization_msgs.msg import MarkerArray
 
 from apf_swarm_core.agents import PlantModel, input_problem
@@ -48,9 +51,10 @@ from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 from .conversions import (clock_msg, dt_to_ns, force_arrays, odom_arrays, odom_msg,
                           markers_msg, stamp_ns, step_of, step_stamp, swarm_odom_msg,
                           swarm_state_msg)
-from .node_common import (CLOCK, CLOCK_QOS, INPUTS, RejectionLog, START_QOS, STATE_QOS, SWARM_ODOM, SWARM_MARKERS,
-                          SWARM_START, SWARM_STATE,
-                          TARGET_ODOM, control_qos, force_topic, odom_topic, run_node)
+from .node_common import (CLOCK, CLOCK_QOS, INPUTS, REQUEST_QOS, RejectionLog, START_QOS,
+                          STATE_QOS, SWARM_MARKERS, SWARM_ODOM, SWARM_START, SWARM_STATE,
+                          TARGET_LOOKAHEAD, TARGET_ODOM, TARGET_REQUEST, control_qos,
+                          force_topic, odom_topic, run_node)
 from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
 
 __all__ = ['PlantNode', 'main']
@@ -124,6 +128,9 @@ class PlantNode(Node):
         self.step_started = 0.0
         if self.mode == 'lockstep':
             self.clock_pub = self.create_publisher(Clock, CLOCK, CLOCK_QOS)
+            self.request_pub = self.create_publisher(UInt64, TARGET_REQUEST, REQUEST_QOS)
+            self._request = UInt64()
+            self.requested = -1         # the last step whose target state was asked for
             self.create_timer(0.01, self._check_deadline)
         else:
             self.create_timer(1.0 / float(p['physics_rate']), self._on_physics)
@@ -162,7 +169,8 @@ class PlantNode(Node):
     def _matched(self) -> bool:
         """Lockstep: every tracker's command has a publisher and every step-k reader a match."""
         n = self.cfg.n_trackers
-        if self.clock_pub.get_subscription_count() < 1 or self.count_publishers(TARGET_ODOM) < 1:
+        if self.request_pub.get_subscription_count() < 1 or \
+                self.count_publishers(TARGET_ODOM) < 1:
             return False
         if any(self.count_publishers(force_topic(i)) < 1 for i in self.model.ids):
             return False
@@ -185,8 +193,20 @@ class PlantNode(Node):
         # what the trackers wait for goes out first
         self.odom_sent = False
         self._maybe_publish_swarm_odom()
+        self._request_target(again)
         self.clock_pub.publish(clock_msg(stamp))
         self._publish_odoms(stamp)
+
+    def _request_target(self, again: bool = False) -> None:
+        """Lockstep: ask the target for its states up to ``TARGET_LOOKAHEAD`` steps ahead
+        once fewer than half of that are asked for (``again``: now, for a late target)."""
+        k = self.model.k
+        if again or self.requested - k < TARGET_LOOKAHEAD // 2:
+            want = min(k + TARGET_LOOKAHEAD - 1, self.steps)
+            if again or want > self.requested:
+                self.requested = want
+                self._request.data = want
+                self.request_pub.publish(self._request)
 
     def _maybe_publish_swarm_odom(self) -> None:
         """Lockstep: ``/swarm/odom`` of step k once the target state of step k is held."""
@@ -306,7 +326,9 @@ class PlantNode(Node):
                 f'step {k}: no command from {[f"uav_{i}" for i in missing]} within 2 x '
                 f'{self.timeout:g} s ({self.model.missed} missed so far): zero force, left '
                 f'out of the neighbour sets, not waited for until they command again')
-        self._publish_state(k, step_stamp(k, self.dt_ns))
+        # the state of step k goes out after step k + 1 (below): the trackers, which wait
+        # for /swarm/odom of k + 1, start while this process computes the metrics of k
+        state = self._state_of(k)
         self.model.advance()
         if self.model.k in self.targets:
             self.target = self.targets.pop(self.model.k)
@@ -317,9 +339,13 @@ class PlantNode(Node):
             del self.targets[old]
         if self.model.k >= self.steps:
             self.done = True
+            # logged before the last state goes out: whoever waits for that state may stop
+            # this process right after it (a log call in a shut-down context raises)
             self.get_logger().info(f'done: {self.steps} steps, {self.model.missed} missed')
+            self._publish_state(state, step_stamp(k, self.dt_ns))
             return
         self._publish_step()
+        self._publish_state(state, step_stamp(k, self.dt_ns))
 
     def _check_deadline(self) -> None:
         """10 ms timer: start when matched; past the deadline re-send step k once, then miss."""
@@ -373,7 +399,7 @@ class PlantNode(Node):
         self._publish_odoms(stamp)
         self._publish_swarm_odom(self.model.k, stamp)
         self.model.published(time.monotonic())
-        self._publish_state(self.model.k, stamp)
+        self._publish_state(self._state_of(self.model.k), stamp)
 
     # --- shared ------------------------------------------------------------------------------
     def _publish_odoms(self, stamp) -> None:
@@ -385,19 +411,27 @@ class PlantNode(Node):
                                               f'uav_{i}', out=self._odom_msgs.get(i))
                 pub.publish(self._odom_msgs[i])
 
-    def _publish_state(self, k: int, stamp) -> None:
-        tx, tv = self.target[1], self.target[2]
+    def _state_of(self, k: int) -> dict:
+        """The fields of the ``/swarm/state`` sample of step k, taken now (the model's arrays
+        are replaced by :meth:`PlantModel.advance`, the commands are copied)."""
+        m = self.model
+        return dict(step=k, sim_time=k * self.cfg.dt, x=m.x, v=m.v, u=m.u.copy(),
+                    s=m.s.copy(), target_x=self.target[1], target_v=self.target[2],
+                    missed_deadlines=m.missed, stale_inputs=m.stale,
+                    rejected_inputs=m.rejected + sum(self.tracker_rejected.values()),
+                    active=m.active.copy(), target_age=self._target_age())
+
+    def _publish_state(self, state: dict, stamp) -> None:
+        """``/swarm/state`` (and every ``markers_every``-th time the markers) of a state
+        taken by :meth:`_state_of`, with its metrics."""
+        x, tx = state['x'], state['target_x']
         if self.markers_pub is not None and self.state_count % self.markers_every == 0:
-            self.markers_pub.publish(markers_msg(self.model.x, tx, stamp, self.model.ids))
+            self.markers_pub.publish(markers_msg(x, tx, stamp, self.model.ids))
         self.state_count += 1
-        j, ce, fe = self.model.metrics(tx)
+        j, ce, fe = self.model.metrics(tx, x)
         self._state_msg = swarm_state_msg(
-            out=self._state_msg, step=k, sim_time=k * self.cfg.dt, stamp=stamp, uav_ids=self.model.ids,
-            x=self.model.x, v=self.model.v, u=self.model.u, s=self.model.s, target_x=tx,
-            target_v=tv, potential=j, centroid_error=ce, formation_error=fe,
-            missed_deadlines=self.model.missed, stale_inputs=self.model.stale,
-            rejected_inputs=self.model.rejected + sum(self.tracker_rejected.values()),
-            active=self.model.active, target_age=self._target_age())
+            out=self._state_msg, stamp=stamp, uav_ids=self.model.ids, potential=j,
+            centroid_error=ce, formation_error=fe, **state)
         self.state_pub.publish(self._state_msg)
 
 

@@ -1,8 +1,11 @@
 """Target node: flies the target along its trajectory (eq. 1), publishes ``odom`` (relative;
 ``/target/odom`` with the namespace ``/target``).
 
-Lockstep: when ``/clock`` announces step k, publishes the states of steps k and k + 1
-(stamps ``k dt``), one step ahead so that the target is off the barrier's critical path.
+Lockstep: when the plant asks for the states up to step K (``request``, std_msgs/UInt64,
+``/target/request``), publishes the states of the steps up to K it has not published yet, at
+most ``TARGET_LOOKAHEAD`` of them (stamps ``k dt``). The plant asks a few dozen steps ahead,
+so the target is off the barrier's critical path and is woken once per batch, not per step;
+a restarted target starts at the plant's latest request, not at step 0.
 Realtime: publishes at ``publish_rate`` with the wall-clock time since the start. With
 ``wait_for_start`` it waits for ``/swarm/start`` before the trajectory's time 0.
 """
@@ -14,11 +17,11 @@ import time
 
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Empty
+from std_msgs.msg import Empty, UInt64
 
-from .conversions import dt_to_ns, odom_msg, stamp_ns, step_stamp
-from .node_common import CLOCK, CLOCK_QOS, START_QOS, SWARM_START, control_qos, run_node
+from .conversions import dt_to_ns, odom_msg, step_stamp
+from .node_common import (REQUEST_QOS, START_QOS, SWARM_START, TARGET_LOOKAHEAD, control_qos,
+                          run_node)
 from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
 
 __all__ = ['TargetNode', 'main']
@@ -47,7 +50,7 @@ class TargetNode(Node):
         self.next_step = 0
         self._msg = None
         if self.mode == 'lockstep':
-            self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS)
+            self.create_subscription(UInt64, 'request', self._on_request, REQUEST_QOS)
         else:
             if p['wait_for_start']:
                 self.create_subscription(Empty, SWARM_START, self._on_start, START_QOS)
@@ -62,15 +65,13 @@ class TargetNode(Node):
         self._msg = odom_msg(x, v, stamp, 'target', out=self._msg)
         self.pub.publish(self._msg)
 
-    def _on_clock(self, msg: Clock) -> None:
-        """Step k announced: publish every state up to step k + 1 not yet published.
-
-        Publishing one step ahead takes the target off the critical path of the lockstep
-        barrier (the plant and the trackers hold inputs by step); the state of step k is
-        still exactly ``trajectory.state(k dt)``.
-        """
-        k = stamp_ns(msg.clock) // self.dt_ns
-        while self.next_step <= k + 1:
+    def _on_request(self, msg: UInt64) -> None:
+        """The plant wants the states up to step K: publish those not yet published (at
+        most the last ``TARGET_LOOKAHEAD``). The state of step k is exactly
+        ``trajectory.state(k dt)`` whenever it is published."""
+        last = int(msg.data)
+        self.next_step = max(self.next_step, last + 1 - TARGET_LOOKAHEAD)
+        while self.next_step <= last:
             j = self.next_step
             self._publish(j * self.cfg.dt, step_stamp(j, self.dt_ns))
             self.next_step += 1
