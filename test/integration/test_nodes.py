@@ -9,13 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from nav_msgs.msg import Odometry
-from std_msgs.msg import Empty
+from std_msgs.msg import Empty, UInt64
 
 from apf_swarm_core import load_preset, simulate
 from apf_swarm_core.agents import TrackerAgent
 from apf_swarm_msgs.msg import ForceCommand, SwarmState
 from apf_swarm_nodes.conversions import (dt_to_ns, odom_msg, step_stamp, swarm_state_arrays)
-from apf_swarm_nodes.node_common import START_QOS, STATE_QOS, control_qos
+from apf_swarm_nodes.node_common import (REQUEST_QOS, START_QOS, STATE_QOS, TARGET_LOOKAHEAD,
+                                         control_qos)
 
 CONFIG = Path(__file__).resolve().parents[2] / 'config'
 
@@ -69,6 +70,42 @@ def test_lockstep_equals_headless_simulator(graph) -> None:
     assert node.count_subscribers('/uav_3/force_cmd') == 1      # the plant
     for name in list(graph.procs):
         assert graph.stop(name) == 0, graph.log(name)
+
+
+def test_lockstep_target_answers_requests_ahead_with_the_exact_trajectory(graph) -> None:
+    """The lockstep target publishes the states the plant asks for on /target/request:
+    every step up to the request, once, each exactly trajectory.state(k dt); asked far
+    ahead of what it sent (a restarted target, or one that was stopped), it skips to the last
+    TARGET_LOOKAHEAD steps instead of replaying the run from step 0."""
+    cfg = load_preset('triangle')
+    graph.start('target', 'target', '--params-file', str(CONFIG / 'triangle.yaml'),
+                '-r', '__ns:=/target')
+    got: dict[int, list] = {}
+    dt_ns = dt_to_ns(cfg.dt)
+
+    def on_odom(msg: Odometry) -> None:
+        k = (msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec) // dt_ns
+        p, v = msg.pose.pose.position, msg.twist.twist.linear
+        got.setdefault(int(k), []).append((p.x, p.y, p.z, v.x, v.y, v.z))
+
+    graph.node.create_subscription(Odometry, '/target/odom', on_odom, control_qos('lockstep'))
+    req = graph.node.create_publisher(UInt64, '/target/request', REQUEST_QOS)
+    graph.spin_until(lambda: req.get_subscription_count() == 1
+                     and graph.node.count_publishers('/target/odom') == 1, 30, 'the target')
+    req.publish(UInt64(data=9))
+    graph.spin_until(lambda: 9 in got, 10, 'the states of steps 0..9')
+    req.publish(UInt64(data=20))
+    graph.spin_until(lambda: 20 in got, 10, 'the states of steps 10..20')
+    far = 5000
+    req.publish(UInt64(data=far))
+    graph.spin_until(lambda: far in got, 10, f'the state of step {far}')
+    expected = list(range(21)) + list(range(far + 1 - TARGET_LOOKAHEAD, far + 1))
+    assert sorted(got) == expected
+    assert all(len(v) == 1 for v in got.values())          # each step once
+    traj = cfg.target_trajectory_obj
+    for k, [(px, py, pz, vx, vy, vz)] in got.items():
+        x, v = traj.state(k * cfg.dt)
+        assert np.array_equal([px, py, pz], x) and np.array_equal([vx, vy, vz], v), k
 
 
 @pytest.mark.parametrize('inputs', ['odom', 'aggregate'])

@@ -547,8 +547,10 @@ def check_capacity(n_trackers: int, *, allow_overload: bool = False,
                    per_process: int = 1) -> None:
     """Refuse more tracker processes than this machine runs (CliError naming the limit).
 
-    The limit counts processes (``ceil(n_trackers / per_process)``): what several trackers
-    in one process cost is not measured yet (issue 7)."""
+    The limit counts processes (``ceil(n_trackers / per_process)``), the measured cost: a
+    process of K trackers takes far less CPU and memory than K processes (docs/PERFORMANCE.md,
+    "Scale"), but its trackers share one core, so ``--allow-overload`` is still needed past
+    the limit."""
     limit = tracker_capacity()
     procs = -(-n_trackers // per_process)
     if procs > limit and not allow_overload:
@@ -845,7 +847,8 @@ class Bringup:
         """Checks that need no process: executables, recorder, output directory, config."""
         import yaml
         prefix = package_prefix()
-        names = ['target', 'plant', 'tracker']
+        names = ['target', 'plant', 'tracker' if self.args.trackers_per_process == 1
+                 else 'trackers']
         if self.args.record:
             names.append('recorder')
             if (self.out / 'bag').exists():
@@ -908,7 +911,7 @@ class Bringup:
 
     def init_ros(self) -> None:
         import rclpy
-        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.experimental import EventsExecutor
         from rclpy.signals import SignalHandlerOptions
         from std_msgs.msg import Empty
 
@@ -918,7 +921,10 @@ class Bringup:
 
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('swarm_up')
-        self.executor = SingleThreadedExecutor()
+        # the events executor costs less CPU per /swarm/state sample than the single-
+        # threaded one, and the bring-up shares the cores with the swarm (measured in
+        # lockstep, 3 trackers: 1144-1218 against 1000-1090 steps/s)
+        self.executor = EventsExecutor()
         self.executor.add_node(self.node)
         self.state_sub = self.node.create_subscription(
             SwarmState, SWARM_STATE, self.acc.add_raw, STATE_QOS, raw=True)
