@@ -12,7 +12,8 @@ LOCALHOST``, reads its ``summary.json`` and samples the case's processes from ``
 
 * **ladder**: realtime at 50 and 100 Hz (plant ``publish_rate`` = tracker ``control_rate``),
   executor ``single`` / ``events`` x inputs ``aggregate`` / ``odom`` with one tracker per
-  process (``K = 1``), and ``K = 4`` (``--trackers-per-process 4``) for events / aggregate; n
+  process (``K = 1``), and for events / aggregate also ``K = 4`` (``--trackers-per-process
+  4``) and the control topics' QoS depth 10 instead of 1 (``qos_depth:=10``); n
   climbs 4, 8, ..., 24 and stops at the first size that does not fly. "Flies": exit 0, no
   missed deadline (trackers the plant found silent), at most 3 stale (brake) commands per
   tracker (the watchdogs' brakes before a tracker's first input), at least 95 % of the
@@ -98,6 +99,7 @@ class UpCase:
     executor: str = 'events'
     inputs: str = 'aggregate'
     part: str = 'ladder'
+    depth: int = 1               # realtime qos_depth of the control topics
     result: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -105,12 +107,12 @@ class UpCase:
         if self.mode == 'lockstep':
             return f'lockstep n={self.n} K={self.k} ({self.flight:g} s simulated)'
         return (f'realtime {self.rate:g} Hz n={self.n} K={self.k} executor={self.executor} '
-                f'inputs={self.inputs} ({self.flight:g} s)')
+                f'inputs={self.inputs} depth={self.depth} ({self.flight:g} s)')
 
     @property
     def slug(self) -> str:
         return (f'{self.part}_{self.mode}_{self.rate:g}hz_{self.executor}_{self.inputs}'
-                f'_n{self.n}_k{self.k}')
+                f'_d{self.depth}_n{self.n}_k{self.k}')
 
     @property
     def processes(self) -> int:
@@ -118,8 +120,8 @@ class UpCase:
         return 2 + -(-self.n // self.k)
 
     @property
-    def key(self) -> tuple[float, str, str, int]:
-        return (self.rate, self.executor, self.inputs, self.k)
+    def key(self) -> tuple[float, str, str, int, int]:
+        return (self.rate, self.executor, self.inputs, self.k, self.depth)
 
 
 def bringup_argv(case: UpCase, out: Path, domain: int) -> list[str]:
@@ -129,7 +131,8 @@ def bringup_argv(case: UpCase, out: Path, domain: int) -> list[str]:
            str(case.k), '--duration', str(case.flight), '--domain-id', str(domain),
            '--out', str(out), '--no-plots', '--allow-overload',
            '--ready-timeout', str(READY_TIMEOUT)]
-    params = [f'executor:={case.executor}', f'inputs:={case.inputs}']
+    params = [f'executor:={case.executor}', f'inputs:={case.inputs}',
+              f'qos_depth:={case.depth}']
     if case.mode == 'realtime':
         params += [f'publish_rate:={float(case.rate)!r}', f'control_rate:={float(case.rate)!r}']
     for p in params:
@@ -421,28 +424,29 @@ def short(case: UpCase) -> str:
 # the parts
 # --------------------------------------------------------------------------------------------
 
-def run_ladder(bench: Bench, rate: float, executor: str, inputs: str, k: int,
+def run_ladder(bench: Bench, rate: float, executor: str, inputs: str, k: int, depth: int,
                sizes: Iterable[int], flight: float) -> list[UpCase]:
     """Climb n until the first size that does not fly."""
     cases = []
     for n in sizes:
-        c = bench.up(UpCase('realtime', n, k, flight, rate, executor, inputs))
+        c = bench.up(UpCase('realtime', n, k, flight, rate, executor, inputs, depth=depth))
         cases.append(c)
         if not c.result.get('flies'):
             break
     return cases
 
 
-def ladder_plan(quick: bool, rates: list[float]) -> list[tuple[float, str, str, int]]:
-    """(rate, executor, inputs, K) of every ladder."""
+def ladder_plan(quick: bool, rates: list[float]) -> list[tuple[float, str, str, int, int]]:
+    """(rate, executor, inputs, K, QoS depth) of every ladder."""
     if quick:
-        return [(rates[0], 'events', 'aggregate', k) for k in (1, 4)]
+        return [(rates[0], 'events', 'aggregate', k, 1) for k in (1, 4)]
     plan = []
     for rate in rates:
         for executor in ('single', 'events'):
             for inputs in ('aggregate', 'odom'):
-                plan.append((rate, executor, inputs, 1))
-        plan.append((rate, 'events', 'aggregate', 4))
+                plan.append((rate, executor, inputs, 1, 1))
+        plan.append((rate, 'events', 'aggregate', 1, 10))
+        plan.append((rate, 'events', 'aggregate', 4, 1))
     return plan
 
 
@@ -454,7 +458,7 @@ def run_discovery(bench: Bench, done: list[UpCase], sizes: Iterable[int]
     for k in (1, 4):
         for n in sizes:
             found = [c for c in done if c.mode == 'realtime' and c.n == n and c.k == k
-                     and c.key == (DISCOVERY_RATE, 'events', 'aggregate', k)
+                     and c.key == (DISCOVERY_RATE, 'events', 'aggregate', k, 1)
                      and c.result.get('ready_s') is not None]
             if found:
                 rows.append((found[0], 'ladder case'))
@@ -492,9 +496,9 @@ def cpu_cell(cpu: dict[str, float] | None) -> str:
 
 
 def ladder_summary(ladders: list[list[UpCase]], multi: UpCase | None) -> list[str]:
-    out = ['| rate [Hz] | executor | inputs | trackers per process | largest flying / first '
-           'failing | why the first failing size fails | sizes tried |',
-           '|---:|---|---|---:|---|---|---|']
+    out = ['| rate [Hz] | executor | inputs | QoS depth | trackers per process | largest '
+           'flying / first failing | why the first failing size fails | sizes tried |',
+           '|---:|---|---|---:|---:|---|---|---|']
     for cases in ladders:
         c0 = cases[0]
         flying = [c.n for c in cases if c.result.get('flies')]
@@ -502,24 +506,26 @@ def ladder_summary(ladders: list[list[UpCase]], multi: UpCase | None) -> list[st
         top = str(max(flying)) if flying else 'none'
         first = (f'{failing[0].n}' if failing else f'none up to {cases[-1].n}')
         why = ', '.join(failing[0].result.get('why', [])) if failing else '-'
-        out.append(f'| {c0.rate:g} | {c0.executor} | {c0.inputs} | {c0.k} | {top} / {first} | '
+        out.append(f'| {c0.rate:g} | {c0.executor} | {c0.inputs} | {c0.depth} | {c0.k} | '
+                   f'{top} / {first} | '
                    f'{why} | {", ".join(str(c.n) for c in cases)} |')
     if multi is not None:
         r = multi.result
         verdict = 'flies' if r.get('flies') else 'does not fly'
-        out.append(f'| {multi.rate:g} | multi | {multi.inputs} | {multi.k} | n = {multi.n} '
+        out.append(f'| {multi.rate:g} | multi | {multi.inputs} | {multi.depth} | {multi.k} | '
+                   f'n = {multi.n} '
                    f'only: {verdict} | {", ".join(r.get("why", [])) or "-"} | {multi.n} |')
     return out
 
 
 def realtime_rows(cases: list[UpCase]) -> list[str]:
-    out = ['| rate [Hz] | executor | inputs | K | trackers | flies | exit | missed | stale | '
-           'samples / expected | graph ready [s] | CPU nodes / harness / other [%] | RSS per '
-           'tracker [MB] | plant RSS [MB] |',
-           '|---:|---|---|---:|---:|---|---:|---:|---:|---:|---:|---|---:|---:|']
+    out = ['| rate [Hz] | executor | inputs | depth | K | trackers | flies | exit | missed | '
+           'stale | samples / expected | graph ready [s] | CPU nodes / harness / other [%] | '
+           'RSS per tracker [MB] | plant RSS [MB] |',
+           '|---:|---|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---|---:|---:|']
     for c in cases:
         r = c.result
-        head = f'| {c.rate:g} | {c.executor} | {c.inputs} | {c.k} | {c.n} |'
+        head = f'| {c.rate:g} | {c.executor} | {c.inputs} | {c.depth} | {c.k} | {c.n} |'
         if 'missed' not in r:
             out.append(f'{head} no | {r["exit"]} | failed: {r.get("error", "")} '
                        '| | | | | | |')
@@ -625,6 +631,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help='wall seconds of flight per ladder case (default 6; --quick 5)')
     ap.add_argument('--only', type=parse_parts, default=list(PARTS), metavar='PARTS',
                     help=f'comma-separated subset of {",".join(PARTS)}')
+    ap.add_argument('--ladder', metavar='TEXT', action='append', default=[],
+                    help='only the ladders whose label contains TEXT (repeatable), e.g. '
+                    '"depth=10"; labels: "<rate> Hz <executor> <inputs> K=<k> depth=<d>"')
     ap.add_argument('--keep', type=Path, metavar='DIR',
                     help='keep every bring-up case\'s output and logs under DIR')
     return ap
@@ -638,9 +647,13 @@ def run_parts(bench: Bench, args: argparse.Namespace) -> dict[str, Any]:
     res: dict[str, Any] = {'rates': rates, 'flight': flight, 'ladders': [], 'multi': None,
                            'latency': ([], None), 'discovery': [], 'lockstep': []}
     if 'ladder' in args.only:
-        for rate, executor, inputs, k in ladder_plan(q, rates):
-            res['ladders'].append(run_ladder(bench, rate, executor, inputs, k, sizes, flight))
-        if not q:
+        for rate, executor, inputs, k, depth in ladder_plan(q, rates):
+            label = f'{rate:g} Hz {executor} {inputs} K={k} depth={depth}'
+            if args.ladder and not any(t in label for t in args.ladder):
+                continue
+            res['ladders'].append(run_ladder(bench, rate, executor, inputs, k, depth, sizes,
+                                             flight))
+        if not q and not args.ladder:
             res['multi'] = bench.up(UpCase('realtime', 4, 1, flight, 50.0, 'multi'))
     if 'discovery' in args.only:
         done = [c for cases in res['ladders'] for c in cases]

@@ -174,6 +174,7 @@ def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: st
     (('-p', 'mode:=sometimes'), 'mode'),
     (('-p', 'n_trackers:=0'), 'n_trackers'),
     (('-p', 'gamma:=not_a_number'), 'gamma'),  # wrong type (without a file, see below)
+    (('-p', 'qos_depth:=0'), 'qos_depth'),
 ])
 def test_bad_parameter_stops_the_node_naming_it(graph, args: tuple[str, ...],
                                                 needle: str) -> None:
@@ -185,6 +186,28 @@ def test_bad_parameter_stops_the_node_naming_it(graph, args: tuple[str, ...],
     log = graph.log('tracker')
     assert 'tracker: error:' in log and needle in log, log
     assert 'Traceback' not in log
+
+
+def test_qos_depth_sets_the_realtime_control_topics_depth(graph) -> None:
+    """qos_depth: 7: a realtime tracker's command publisher and its /swarm/odom subscription
+    are best effort, keep last 7; lockstep ignores it (reliable, keep last 1000). The nodes
+    are built in this process (remote endpoint info does not carry the depth)."""
+    from rclpy.parameter import Parameter
+    from rclpy.qos import ReliabilityPolicy
+
+    from apf_swarm_nodes.tracker_node import TrackerNode
+
+    for mode, want in (('realtime', (ReliabilityPolicy.BEST_EFFORT, 7)),
+                       ('lockstep', (ReliabilityPolicy.RELIABLE, 1000))):
+        node = TrackerNode(context=graph.node.context, namespace='/uav_2',
+                           parameter_overrides=[Parameter('uav_id', value=2),
+                                                Parameter('mode', value=mode),
+                                                Parameter('qos_depth', value=7)])
+        try:
+            qos = [node.pub.qos_profile] + [sub.qos_profile for sub in node.subscriptions]
+            assert {(q.reliability, q.depth) for q in qos} == {want}, mode
+        finally:
+            node.destroy_node()
 
 
 def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale(graph) -> None:

@@ -88,13 +88,14 @@ CLOCK_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPo
                        depth=LOCKSTEP_DEPTH)
 
 
-def control_qos(mode: str) -> QoSProfile:
-    """QoS of odometry and force commands for a timing mode."""
+def control_qos(mode: str, depth: int = 1) -> QoSProfile:
+    """QoS of odometry and force commands for a timing mode; ``depth``: realtime keep-last
+    depth (the nodes' ``qos_depth``; 1, the newest sample, is the default and measured best)."""
     if mode == 'lockstep':
         return QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
                           history=HistoryPolicy.KEEP_LAST, depth=LOCKSTEP_DEPTH)
     return QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT,
-                      history=HistoryPolicy.KEEP_LAST, depth=1)
+                      history=HistoryPolicy.KEEP_LAST, depth=int(depth))
 
 
 class RejectionLog:
@@ -135,9 +136,9 @@ def spin(node: Node | Sequence[Node], kind: str = 'single') -> None:
     ``events`` (the nodes' default): ``rclpy.experimental.EventsExecutor``;
     ``single``: SingleThreadedExecutor; ``multi``: MultiThreadedExecutor (measured
     here 6-78 lockstep steps/s against about 300 for events: kept only for comparison).
-    Each is driven by a ``spin_once`` loop with a 0.1 s timeout (the EventsExecutor's
-    ``spin()`` busy-loops and ignores SIGINT in these wheels, SPEC section 4), so a stop
-    request is seen within 0.1 s.
+    Each is driven by a ``spin_once`` loop with a 0.1 s timeout that checks for a stop
+    request between callbacks (the EventsExecutor's ``spin()`` busy-loops and ignores SIGINT
+    in these wheels, SPEC section 4), so a stop is seen within 0.1 s.
     """
     nodes = [node] if isinstance(node, Node) else list(node)
     if kind == 'events':
@@ -147,6 +148,7 @@ def spin(node: Node | Sequence[Node], kind: str = 'single') -> None:
         executor = MultiThreadedExecutor() if kind == 'multi' else SingleThreadedExecutor()
     for n in nodes:
         executor.add_node(n)
+    # a timeout, because the Python signal handler only runs once the wait returns
     try:
         while rclpy.ok() and not _STOP.is_set():
             executor.spin_once(timeout_sec=0.1)

@@ -22,7 +22,7 @@ from apf_swarm_core.config import SwarmConfig, config_from_mapping
 from apf_swarm_core.errors import ConfigError
 
 __all__ = ['NodeParam', 'declare_config', 'declare_node_params', 'read_config',
-           'install_validator', 'MODES', 'EXECUTOR_PARAM']
+           'install_validator', 'MODES', 'EXECUTOR_PARAM', 'QOS_DEPTH_PARAM']
 
 MODES = ('lockstep', 'realtime')
 _FIELDS = {f.name: f for f in dataclasses.fields(SwarmConfig) if not f.metadata.get('internal')}
@@ -93,6 +93,10 @@ class NodeParam:
 EXECUTOR_PARAM = NodeParam('executor', 'events', 'executor: events (rclpy.experimental, '
                            'driven by spin_once), single or multi',
                            choices=('events', 'single', 'multi'))
+QOS_DEPTH_PARAM = NodeParam('qos_depth', 1, 'realtime: keep-last depth of the best-effort '
+                            'control topics (odometry, /swarm/odom, force commands; 1: the '
+                            'newest sample only); lockstep always uses reliable, keep last '
+                            '1000', lo=1, hi=1000)
 
 
 def declare_node_params(node: Node, params: tuple[NodeParam, ...]) -> dict[str, Any]:

@@ -55,12 +55,13 @@ from .node_common import (CLOCK, CLOCK_QOS, INPUTS, REQUEST_QOS, RejectionLog, S
                           STATE_QOS, SWARM_MARKERS, SWARM_ODOM, SWARM_START, SWARM_STATE,
                           TARGET_LOOKAHEAD, TARGET_ODOM, TARGET_REQUEST, control_qos,
                           force_topic, odom_topic, run_node)
-from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
+from .params import EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
 
 __all__ = ['PlantNode', 'main']
 
 NODE_PARAMS = (
     EXECUTOR_PARAM,
+    QOS_DEPTH_PARAM,
     NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
     NodeParam('wait_for_start', False, 'wait for /swarm/start before step 0'),
     NodeParam('inputs', 'aggregate', 'what the trackers read (as their inputs parameter): '
@@ -98,7 +99,7 @@ class PlantNode(Node):
         self.model = PlantModel(self.cfg)
         self.steps = self.cfg.steps
         self.dt_ns = dt_to_ns(self.cfg.dt)
-        qos = control_qos(self.mode)
+        qos = control_qos(self.mode, p['qos_depth'])
         self.odom_pubs = [self.create_publisher(Odometry, odom_topic(i), qos)
                           for i in self.model.ids]
         self.state_pub = self.create_publisher(SwarmState, SWARM_STATE, STATE_QOS)

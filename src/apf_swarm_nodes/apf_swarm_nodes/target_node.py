@@ -22,12 +22,13 @@ from std_msgs.msg import Empty, UInt64
 from .conversions import dt_to_ns, odom_msg, step_stamp
 from .node_common import (REQUEST_QOS, START_QOS, SWARM_START, TARGET_LOOKAHEAD, control_qos,
                           run_node)
-from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
+from .params import EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
 
 __all__ = ['TargetNode', 'main']
 
 NODE_PARAMS = (
     EXECUTOR_PARAM,
+    QOS_DEPTH_PARAM,
     NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
     NodeParam('publish_rate', 100.0, 'realtime publish rate [Hz]', lo=1.0, hi=2000.0),
     NodeParam('wait_for_start', False, 'realtime: wait for /swarm/start before t = 0'),
@@ -45,7 +46,7 @@ class TargetNode(Node):
         self.mode = p['mode']
         self.traj = self.cfg.target_trajectory_obj
         self.dt_ns = dt_to_ns(self.cfg.dt)
-        self.pub = self.create_publisher(Odometry, 'odom', control_qos(self.mode))
+        self.pub = self.create_publisher(Odometry, 'odom', control_qos(self.mode, p['qos_depth']))
         self.t0: float | None = None
         self.next_step = 0
         self._msg = None

@@ -35,13 +35,14 @@ from .conversions import (dt_to_ns, force_msg, odom_arrays, stamp_ns, step_of,
                           swarm_odom_arrays)
 from .node_common import (INPUTS, RejectionLog, SWARM_ODOM, TARGET_ODOM, control_qos, odom_topic,
                           run_node, run_nodes)
-from .params import EXECUTOR_PARAM, MODES, NodeParam, declare_config, declare_node_params, install_validator, \
+from .params import EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODES, NodeParam, declare_config, declare_node_params, install_validator, \
     read_config
 
 __all__ = ['TrackerNode', 'main', 'group_main', 'parse_uav_ids']
 
 NODE_PARAMS = (
     EXECUTOR_PARAM,
+    QOS_DEPTH_PARAM,
     NodeParam('inputs', 'aggregate', 'aggregate: one /swarm/odom message per step; odom: '
               'the n odometry topics and /target/odom', choices=INPUTS),
     NodeParam('uav_id', 1, 'id i of this tracker (namespace /uav_<i>)', lo=1, hi=10000),
@@ -74,7 +75,7 @@ class TrackerNode(Node):
         self.agent = TrackerAgent(self.cfg, self.uav_id)
         install_validator(self, self._retune)
         self.dt_ns = dt_to_ns(self.cfg.dt)
-        qos = control_qos(self.mode)
+        qos = control_qos(self.mode, p['qos_depth'])
         self.pub = self.create_publisher(ForceCommand, 'force_cmd', qos)
         if p['inputs'] == 'odom':
             self.create_subscription(Odometry, 'odom', lambda m: self._on_odom(self.uav_id, m),
