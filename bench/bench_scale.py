@@ -14,7 +14,7 @@ LOCALHOST``, reads its ``summary.json`` and samples the case's processes from ``
   executor ``single`` / ``events`` x inputs ``aggregate`` / ``odom`` with one tracker per
   process (``K = 1``), and for events / aggregate also ``K = 4`` (``--trackers-per-process
   4``) and the control topics' QoS depth 10 instead of 1 (``qos_depth:=10``); n
-  climbs 4, 8, ..., 24 and stops at the first size that does not fly. "Flies": exit 0, no
+  climbs 4, 8, ..., 24, 32, 40 and stops at the first size that does not fly. "Flies": exit 0, no
   missed deadline (trackers the plant found silent), at most 3 stale (brake) commands per
   tracker (the watchdogs' brakes before a tracker's first input), at least 95 % of the
   expected ``/swarm/state`` samples. ``multi`` (MultiThreadedExecutor, documented as
@@ -73,7 +73,7 @@ READY_TIMEOUT = 90.0          # --ready-timeout of every bring-up (32 processes 
 READY_LINE = 'published /swarm/start'
 STALE_PER_TRACKER = 3
 MIN_SAMPLES = 0.95
-LADDER = (4, 8, 12, 16, 20, 24)
+LADDER = (4, 8, 12, 16, 20, 24, 32, 40)
 DISCOVERY_RATE = 50.0
 DISCOVERY_FLIGHT = 1.0
 PARTS = ('ladder', 'latency', 'discovery', 'lockstep')

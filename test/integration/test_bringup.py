@@ -580,7 +580,7 @@ def test_a_slow_bringup_never_reports_a_lossy_lockstep_run_as_success(bringup) -
 @pytest.mark.parametrize('args, needle', [
     (('--preset', 'no_such_preset'), "unknown preset 'no_such_preset'"),
     (('--preset', 'triangle', '--n-trackers', '0'), 'n_trackers'),
-    (('--preset', 'triangle', '--n-trackers', '500'), 'the measured limit is 8 tracker'),
+    (('--preset', 'triangle', '--n-trackers', '500'), 'the measured limit is 12 tracker'),
     (('--preset', 'triangle', '--n-trackers', '500', '--trackers-per-process', '4'),
      '500 in 125 processes'),
     (('--preset', 'triangle', '--set', 'gamma=-1'), 'gamma'),

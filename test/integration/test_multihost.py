@@ -67,18 +67,22 @@ def test_three_hosts_multicast_lockstep_equals_the_simulator(tmp_path: Path) -> 
 def test_three_hosts_discovery_server_realtime_forms_the_triangle(tmp_path: Path) -> None:
     """The Fast DDS discovery server on host 1, realtime: the triangle forms across hosts."""
     out = tmp_path / 'ds'
-    _, result = run_lab(out, '--n-trackers', '3', '--mode', 'realtime', '--duration', '12',
+    _, result = run_lab(out, '--n-trackers', '3', '--mode', 'realtime', '--duration', '16',
                         '--discovery', 'server')
     assert result['discovery'] == 'server'
     cfg = load_config(out / 'config.yaml')
     d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
     with np.load(out / 'trajectory.npz') as data:
         t, x = data['t'], data['x']
-    x = x[t >= 10.0]
+    # measured on an idle machine: the triangle is within 0.3 % from t = 6 s on; the last
+    # 4 s leave room for a slow start on a loaded one
+    x = x[t >= 12.0]
     assert len(x) > 100
     pairs = np.stack([np.linalg.norm(x[:, i] - x[:, j], axis=-1)
                       for i, j in combinations(range(3), 2)])
     # realtime on a loaded 2-core machine: 90 % of the samples (see test_bringup.within)
-    assert np.quantile(np.abs(pairs - d).max(axis=0), 0.9) <= 0.05 * d, (pairs.min(),
-                                                                         pairs.max(), d)
+    summary = json.loads((out / 'summary.json').read_text())
+    assert np.quantile(np.abs(pairs - d).max(axis=0), 0.9) <= 0.05 * d, (
+        pairs.min(), pairs.max(), d, {k: summary.get(k) for k in (
+            'missed_deadlines', 'stale_inputs', 'rejected_inputs', 'faults', 'timing')})
     assert no_namespaces_left(result['hosts'][0]['netns'])

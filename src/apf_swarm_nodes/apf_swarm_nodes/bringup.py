@@ -531,11 +531,11 @@ class StateAccumulator:
 # --------------------------------------------------------------------------------------------
 
 #: tracker processes per CPU core the bring-up starts without --allow-overload. Measured on
-#: the 2-core development machine (SPEC section 4, docs/PERFORMANCE.md): a full mesh of
-#: separate rclpy processes at 50 Hz saturates it at 13-15 processes with the events
-#: executor; with the aggregated /swarm/odom a tracker reads one message per step, and 8 per
-#: core (16 here, plus plant and target) is what still runs without missed deadlines.
-TRACKERS_PER_CORE = 8
+#: the 2-core development machine (docs/PERFORMANCE.md, "Scale"): with the events executor
+#: and the aggregated /swarm/odom, one tracker per process, realtime flies 32 at 50 Hz and 24
+#: at 100 Hz (the realtime preset's rate) with no missed deadline; 12 per core is the 100 Hz
+#: figure. Several trackers per process (``--trackers-per-process``) fly 40 and more.
+TRACKERS_PER_CORE = 12
 
 
 def tracker_capacity() -> int:
