@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from apf_swarm_core import load_preset
-from apf_swarm_core.agents import PlantModel, TrackerAgent, brake_force
+from apf_swarm_core.agents import (MAX_FORCE, MAX_POSITION, MAX_SPEED, PlantModel, TrackerAgent,
+                                  brake_force, input_problem)
 from apf_swarm_core.simulator import BatchSimulator
 
 
@@ -59,6 +60,68 @@ def test_offer_refuses_non_finite_unknown_and_out_of_order_inputs(cfg) -> None:
     assert not a.ready(5)                             # 0, 2 and 3 are still missing
     with pytest.raises(ValueError, match='uav_id = 4'):
         TrackerAgent(cfg, 4)
+
+
+def _input_problem_reference(name: str, arr) -> str | None:
+    """The check as it was written before the one-reduction fast path (the reference)."""
+    lim = {'x': MAX_POSITION, 'target_x': MAX_POSITION, 'v': MAX_SPEED, 'force': MAX_FORCE,
+           's': MAX_SPEED}[name]
+    a = np.asarray(arr, dtype=float)
+    if not np.all(np.isfinite(a)):
+        return f'{name} is not finite ({a.tolist()})'
+    if np.any(np.abs(a) > lim):
+        return f'{name} = {a.tolist()} exceeds {lim:g} in magnitude'
+    return None
+
+
+@pytest.mark.parametrize('name', ['x', 'target_x', 'v', 'force', 's'])
+def test_input_problem_equals_the_elementwise_checks(name: str) -> None:
+    """The fast path (max |value| <= limit, false for NaN) gives the same verdict and message
+    as isfinite + a comparison per element, for every kind of value."""
+    lim = {'x': MAX_POSITION, 'target_x': MAX_POSITION, 'v': MAX_SPEED, 'force': MAX_FORCE,
+           's': MAX_SPEED}[name]
+    cases = [np.zeros(3), np.array([1.0, -2.0, 3.0]), np.array([math.nan, 0, 0]),
+             np.array([0, math.inf, 0]), np.array([0, 0, -math.inf]), np.zeros(0),
+             np.array([1, 2, 3]), np.float64(2.0), np.array(math.nan),
+             np.array([lim, -lim, 0]), np.array([np.nextafter(lim, np.inf), 0, 0]),
+             np.array([[0.0, 1.0, 2.0], [3.0, math.nan, 5.0]]), [0.5, 0.25, -lim]]
+    for arr in cases:
+        assert input_problem(**{name: arr}) == _input_problem_reference(name, arr), arr
+
+
+def test_offer_swarm_refuses_a_bad_row_and_ignores_rows_of_non_neighbours(cfg) -> None:
+    """All rows are checked at once; a message that fails is checked row by row: a NaN in a
+    neighbour's row refuses the whole message (one rejection, nothing stored), a NaN in the
+    row of a tracker outside this one's neighbour set is ignored."""
+    a = TrackerAgent(cfg, 1, neighbour_ids=[2])
+    x, v, t = np.arange(9.0).reshape(3, 3), np.zeros((3, 3)), np.zeros(3)
+    act = [True] * 3
+    bad = x.copy()
+    bad[1, 0] = math.nan                              # uav_2: a neighbour
+    assert not a.offer_swarm(0, [1, 2, 3], bad, v, act, t, t, 0.0, 0.0)
+    assert a.rejected == 1 and 'uav_2' in a.last_rejection and a.inputs == {}
+    bad = x.copy()
+    bad[2, 0] = math.nan                              # uav_3: not a neighbour of uav_1
+    assert a.offer_swarm(0, [1, 2, 3], bad, v, act, t, t, 0.0, 0.0)
+    assert a.rejected == 1 and sorted(a.inputs) == [0, 1, 2] and a.ready(0)
+
+
+def test_a_repeated_target_window_is_ignored_not_refused(cfg) -> None:
+    """The lockstep target repeats a window of states for a late step: states of steps
+    already answered or already held are ignored without a rejection."""
+    a = TrackerAgent(cfg, 2)
+    ok = np.zeros(3)
+    for k in range(4):                                # the target's batch, 0..3
+        assert a.offer(0, k, ok, ok, 0.0)
+    for j in (1, 2, 3):
+        assert a.offer(j, 0, ok, ok, 0.0)
+    a.command(0)
+    for k in range(4):                                # the window again
+        assert a.offer(0, k, ok + 1.0, ok, 0.0)
+    assert a.rejected == 0
+    assert np.array_equal(a.pending[1][0].x, ok)      # the first copy is kept
+    assert not a.offer(0, 4, np.array([math.nan, 0, 0]), ok, 0.0)   # a new step: checked
+    assert a.rejected == 1
 
 
 def test_stale_sources_and_the_brake(cfg) -> None:

@@ -56,7 +56,8 @@ MAX_SPEED = 1.0e4
 MAX_FORCE = 1.0e6
 
 
-_LIMITS = {'x': MAX_POSITION, 'v': MAX_SPEED, 'force': MAX_FORCE, 's': MAX_SPEED}
+_LIMITS = {'x': MAX_POSITION, 'target_x': MAX_POSITION, 'v': MAX_SPEED, 'force': MAX_FORCE,
+           's': MAX_SPEED}
 
 
 def input_problem(**arrays: NDArray[np.float64]) -> str | None:
@@ -168,10 +169,14 @@ class TrackerAgent:
         ``active``: False when the plant reports that this neighbour's tracker is silent.
         Non-finite or out-of-range values, unknown sources and out-of-order inputs are
         rejected, counted and described in ``last_rejection``. Lockstep inputs
-        (``step >= 0``) are also kept by step, a few steps deep, because the target
-        publishes one step ahead.
+        (``step >= 0``) are also kept by step, because the target publishes up to 63 steps
+        ahead; a target state of a step already answered, or already held, is the target
+        repeating a window for a late step (see the target node): ignored, not refused.
         """
         seq = step if seq is None else int(seq)
+        if source == 0 and step >= 0 and (
+                step <= self._last_step or 0 in self.pending.get(step, {})):
+            return True
         if not self._acceptable(source, x, v, seq):
             return False
         self._store(source, step, x, v, now, seq, active)

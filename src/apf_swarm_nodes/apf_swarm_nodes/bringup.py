@@ -534,7 +534,9 @@ class StateAccumulator:
 #: the 2-core development machine (docs/PERFORMANCE.md, "Scale"): with the events executor
 #: and the aggregated /swarm/odom, one tracker per process, realtime flies 32 at 50 Hz and 24
 #: at 100 Hz (the realtime preset's rate) with no missed deadline; 12 per core is the 100 Hz
-#: figure. Several trackers per process (``--trackers-per-process``) fly 40 and more.
+#: figure, for that default configuration only (the single-threaded executor and per-neighbour
+#: odometry fly 4-12; one run of the default failed at 16 at 100 Hz under other load).
+#: Four trackers per process (``--trackers-per-process 4``) flew 40, the most tried.
 TRACKERS_PER_CORE = 12
 
 

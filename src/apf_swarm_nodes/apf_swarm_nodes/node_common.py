@@ -24,12 +24,13 @@ cuts the deliveries per step from n(n + 1) to n.
 
 Lockstep needs every message of every step (a lost one would stall the barrier), so its
 control topics are reliable; realtime control wants the newest sample, never a queue of old
-ones, so its control topics are best effort with depth 1.
+ones, so its control topics are best effort with depth 1 (the nodes' ``qos_depth``).
 
 Lockstep target: the plant asks for the target's states ahead of the step it integrates
-(``/target/request``, std_msgs/UInt64: the last step it wants, about ``TARGET_LOOKAHEAD``
+(``/target/request``, std_msgs/UInt64: the last step it wants, ``TARGET_LOOKAHEAD - 1``
 steps ahead, sent again every ``TARGET_LOOKAHEAD / 2`` steps); the target answers with the
-states it has not sent yet, at most ``TARGET_LOOKAHEAD`` of them. The target's trajectory does
+states it has not sent yet, at most ``TARGET_LOOKAHEAD`` of them (a repeated request: that
+window again, for a step that is late). The target's trajectory does
 not depend on the swarm, so this takes the target and its two deliveries per step off the
 barrier: ``/clock`` has no reader in the swarm itself (it is still published every step, for
 recorders and ``use_sim_time`` nodes).
@@ -134,8 +135,9 @@ def spin(node: Node | Sequence[Node], kind: str = 'single') -> None:
     shutdown or until SIGINT / SIGTERM (:func:`run_nodes`), always between callbacks.
 
     ``events`` (the nodes' default): ``rclpy.experimental.EventsExecutor``;
-    ``single``: SingleThreadedExecutor; ``multi``: MultiThreadedExecutor (measured
-    here 6-78 lockstep steps/s against about 300 for events: kept only for comparison).
+    ``single``: SingleThreadedExecutor; ``multi``: MultiThreadedExecutor (measured here:
+    about 2 lockstep steps/s, and not one realtime tracker flies at 50 Hz; kept selectable
+    only for comparison, docs/PERFORMANCE.md).
     Each is driven by a ``spin_once`` loop with a 0.1 s timeout that checks for a stop
     request between callbacks (the EventsExecutor's ``spin()`` busy-loops and ignores SIGINT
     in these wheels, SPEC section 4), so a stop is seen within 0.1 s.
@@ -161,7 +163,10 @@ _STOP = threading.Event()
 
 
 def _stop_between_callbacks(signum: int, _frame) -> None:
+    """The first SIGINT / SIGTERM stops the spin loop between callbacks; a second one (a
+    callback or the shutdown hangs) terminates the process as usual."""
     _STOP.set()
+    signal.signal(signum, signal.SIG_DFL)
 
 
 def run_nodes(name: str, factories: Sequence[Callable[[], Node]],

@@ -4,10 +4,10 @@ Publishes ``/uav_<i>/odom`` for every tracker, ``/swarm/odom`` (all of them and 
 state, one message), ``/swarm/state``, ``/swarm/markers`` (RViz / Foxglove) and, in lockstep, ``/clock``;
 subscribes ``/uav_<i>/force_cmd`` and ``/target/odom``.
 
-Lockstep barrier, step k: publish ``/swarm/odom`` of step k once the target's state of step k
-is held (the target's states are asked for ahead on ``/target/request``, see
-:mod:`.node_common`), ``/clock`` (k dt) and the per-UAV odometry; wait until the command of
-step k of every active tracker has arrived; integrate to k + 1, publish step k + 1 and only
+Lockstep barrier, step k: wait for the target's state of step k (the target's states are
+asked for ahead on ``/target/request``, see :mod:`.node_common`), then publish ``/swarm/odom``
+of step k, ``/clock`` (k dt) and the per-UAV odometry; wait until the command of step k of
+every active tracker has arrived; integrate to k + 1, publish step k + 1 and only
 then the ``/swarm/state`` sample of step k (its metrics are computed while the trackers
 work). Past ``command_timeout``
 seconds of wall time the step is published once more; still missing after another
@@ -122,7 +122,7 @@ class PlantNode(Node):
         self.create_timer(1.0, self._check_duplicates)
         self.create_subscription(Odometry, TARGET_ODOM, self._on_target, qos)
         self.target = (-1, np.zeros(3), np.zeros(3), 0.0)   # step, x, v, received
-        self.targets: dict[int, tuple] = {}   # lockstep: target states by step (one ahead)
+        self.targets: dict[int, tuple] = {}   # lockstep: target states by step, k..requested
         self.running = False
         self.done = False
         self.published_final = False
@@ -199,15 +199,19 @@ class PlantNode(Node):
         self._publish_odoms(stamp)
 
     def _request_target(self, again: bool = False) -> None:
-        """Lockstep: ask the target for its states up to ``TARGET_LOOKAHEAD`` steps ahead
-        once fewer than half of that are asked for (``again``: now, for a late target)."""
+        """Lockstep: ask the target for its states up to ``TARGET_LOOKAHEAD - 1`` steps
+        ahead once fewer than half of that are asked for. ``again`` (step k is late): repeat
+        the last request, which the target answers by sending that window once more (step k
+        is in it), e.g. when its states went out before a reader had matched."""
         k = self.model.k
-        if again or self.requested - k < TARGET_LOOKAHEAD // 2:
-            want = min(k + TARGET_LOOKAHEAD - 1, self.steps)
-            if again or want > self.requested:
-                self.requested = want
-                self._request.data = want
-                self.request_pub.publish(self._request)
+        want = min(k + TARGET_LOOKAHEAD - 1, self.steps)
+        if again and self.requested >= k:
+            want = self.requested
+        elif want <= self.requested or self.requested - k >= TARGET_LOOKAHEAD // 2:
+            return
+        self.requested = want
+        self._request.data = want
+        self.request_pub.publish(self._request)
 
     def _maybe_publish_swarm_odom(self) -> None:
         """Lockstep: ``/swarm/odom`` of step k once the target state of step k is held."""
@@ -271,6 +275,8 @@ class PlantNode(Node):
             return
         if self.mode == 'lockstep':
             step = step_of(msg.header.stamp, self.dt_ns)
+            if not self.model.k <= step <= max(self.requested, self.model.k):
+                return      # a step already integrated, or one never asked for: not kept
             self.targets[step] = (step, x, v, time.monotonic())
             if self.target[0] != self.model.k and self.model.k in self.targets:
                 self.target = self.targets.pop(self.model.k)

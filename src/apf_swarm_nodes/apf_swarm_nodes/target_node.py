@@ -3,9 +3,10 @@
 
 Lockstep: when the plant asks for the states up to step K (``request``, std_msgs/UInt64,
 ``/target/request``), publishes the states of the steps up to K it has not published yet, at
-most ``TARGET_LOOKAHEAD`` of them (stamps ``k dt``). The plant asks a few dozen steps ahead,
-so the target is off the barrier's critical path and is woken once per batch, not per step;
-a restarted target starts at the plant's latest request, not at step 0.
+most ``TARGET_LOOKAHEAD`` of them (stamps ``k dt``); asked again for states it has published,
+it publishes that window again. The plant asks up to 63 steps ahead, so the target is off the
+barrier's critical path and is woken once per batch, not per step; a restarted target starts
+at the window of the plant's latest request, not at step 0.
 Realtime: publishes at ``publish_rate`` with the wall-clock time since the start. With
 ``wait_for_start`` it waits for ``/swarm/start`` before the trajectory's time 0.
 """
@@ -67,15 +68,17 @@ class TargetNode(Node):
         self.pub.publish(self._msg)
 
     def _on_request(self, msg: UInt64) -> None:
-        """The plant wants the states up to step K: publish those not yet published (at
-        most the last ``TARGET_LOOKAHEAD``). The state of step k is exactly
-        ``trajectory.state(k dt)`` whenever it is published."""
+        """The plant wants the states up to step K: publish those not yet published, at most
+        the last ``TARGET_LOOKAHEAD`` (K - 63 .. K). A request for states already published
+        (the plant repeating itself because a step is late) sends that window again. The
+        state of step k is exactly ``trajectory.state(k dt)`` whenever it is published."""
         last = int(msg.data)
-        self.next_step = max(self.next_step, last + 1 - TARGET_LOOKAHEAD)
-        while self.next_step <= last:
-            j = self.next_step
+        first = max(0, last + 1 - TARGET_LOOKAHEAD)
+        if last >= self.next_step:
+            first = max(first, self.next_step)
+        for j in range(first, last + 1):
             self._publish(j * self.cfg.dt, step_stamp(j, self.dt_ns))
-            self.next_step += 1
+        self.next_step = max(self.next_step, last + 1)
 
     def _on_start(self, _msg: Empty) -> None:
         if self.t0 is None:
