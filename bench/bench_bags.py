@@ -131,15 +131,9 @@ def exe(name: str) -> str:
     return str(Path(get_package_prefix('apf_swarm_nodes')) / 'lib' / 'apf_swarm_nodes' / name)
 
 
-def stop(p: subprocess.Popen, timeout: float = 30.0) -> int:
-    if p.poll() is None:
-        os.killpg(p.pid, signal.SIGINT)
-        try:
-            p.wait(timeout)
-        except subprocess.TimeoutExpired:
-            os.killpg(p.pid, signal.SIGKILL)
-            p.wait(5)
-    return p.returncode
+def stop(p: subprocess.Popen, timeout: float = 30.0) -> int | None:
+    from apf_swarm_nodes.bringup import stop_process
+    return stop_process(p, ((signal.SIGINT, timeout), (signal.SIGKILL, 5.0)))
 
 
 def bench_recorder(tmp: Path, ros: Ros, rate: float, seconds: float) -> dict:

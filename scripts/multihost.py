@@ -188,6 +188,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f'multihost.py: error: this machine cannot run simulated hosts: {why}',
               file=sys.stderr)
         return 2
+    try:
+        from apf_swarm_nodes.bringup import stop_process
+    except ImportError as exc:
+        print(f'multihost.py: error: {exc}; run `make setup` and `source scripts/activate.sh` '
+              'first', file=sys.stderr)
+        return 2
     preset = args.preset or ('realtime' if args.mode == 'realtime' else 'triangle')
     out = args.out.resolve()
     with Lab(args.hosts) as lab:
@@ -248,12 +254,7 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             wall = time.monotonic() - t0
             if server is not None:
-                os.killpg(server.pid, signal.SIGINT)
-                try:
-                    server.wait(10)
-                except subprocess.TimeoutExpired:
-                    os.killpg(server.pid, signal.SIGKILL)
-                    server.wait(5)
+                stop_process(server, ((signal.SIGINT, 10.0), (signal.SIGKILL, 5.0)))
             if args.keep:
                 lab.made.clear()
                 say(f'kept the namespaces {lab.switch} {" ".join(lab.hosts)}')

@@ -17,6 +17,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from apf_swarm_nodes.bringup import stop_process
+
 LIB = Path(get_package_prefix('apf_swarm_nodes')) / 'lib' / 'apf_swarm_nodes'
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / 'config'
@@ -65,15 +67,8 @@ class Graph:
 
     def stop(self, name: str, timeout: float = 5.0) -> int:
         """SIGINT the process group, then SIGKILL; returns the exit code."""
-        p = self.procs.pop(name)
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGINT)
-            try:
-                p.wait(timeout)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait(timeout)
-        return p.returncode
+        return stop_process(self.procs.pop(name), ((signal.SIGINT, timeout),
+                                                   (signal.SIGKILL, timeout)))
 
     def close(self) -> None:
         for name in list(self.procs):

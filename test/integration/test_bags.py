@@ -21,7 +21,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from apf_swarm_msgs.msg import ForceCommand
 from apf_swarm_nodes import bags
-from apf_swarm_nodes.bringup import pick_domain_id
+from apf_swarm_nodes.bringup import pick_domain_id, stop_process
 
 ROOT = Path(__file__).resolve().parents[2]
 SWARM_UP = ROOT / 'scripts' / 'swarm_up.py'
@@ -49,13 +49,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     try:
         rc = p.wait(240)
     finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGINT)
-            try:
-                p.wait(30)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait(5)
+        stop_process(p)
     assert rc == 0, err.read_text()
     return out
 

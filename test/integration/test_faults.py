@@ -42,6 +42,21 @@ def start_nodes(g, duration: float, *extra: str, trackers=(1, 2, 3), timeout: fl
                 '-p', f'command_timeout:={timeout}')
 
 
+def lone_tracker(g, uav: int, mode: str, params_file: str, *extra: str):
+    """One tracker process fed by the test: (the ForceCommands it sends, a /swarm/odom
+    publisher), once both are matched."""
+    g.start('tracker', 'tracker', '--params-file', params_file, '-p', f'uav_id:={uav}',
+            '-p', f'mode:={mode}', *extra, '-r', f'__ns:=/uav_{uav}')
+    qos = control_qos(mode)
+    forces: list[ForceCommand] = []
+    g.node.create_subscription(ForceCommand, f'/uav_{uav}/force_cmd', forces.append, qos)
+    spub = g.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
+    g.spin_until(lambda: spub.get_subscription_count() == 1
+                 and g.node.count_publishers(f'/uav_{uav}/force_cmd') == 1, 30,
+                 'the tracker endpoints')
+    return forces, spub
+
+
 class StateLog:
     """Every /swarm/state sample the observer receives, as arrays, by step."""
 
@@ -248,15 +263,7 @@ def test_the_plant_refuses_bad_commands_and_counts_them(graph) -> None:
 def test_the_tracker_refuses_bad_odometry_and_reports_the_count(graph) -> None:
     """A lone tracker: out-of-range, out-of-order and malformed /swarm/odom messages get
     no command; the next valid one does, and its ForceCommand carries the count."""
-    graph.start('tracker', 'tracker', '--params-file', TRIANGLE, '-p', 'uav_id:=2',
-                '-r', '__ns:=/uav_2')
-    qos = control_qos('lockstep')
-    forces: list[ForceCommand] = []
-    graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
-    spub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
-    graph.spin_until(lambda: spub.get_subscription_count() == 1
-                     and graph.node.count_publishers('/uav_2/force_cmd') == 1, 30,
-                     'the tracker endpoints')
+    forces, spub = lone_tracker(graph, 2, 'lockstep', TRIANGLE)
     dt_ns = dt_to_ns(0.001)
     x = np.array([[3.0, 0.0, 0.0], [0.0, 2.0, 0.5], [-1.0, -1.0, 0.0]])
     v = np.zeros((3, 3))
@@ -318,16 +325,8 @@ def test_realtime_tracker_treats_old_stamps_as_stale_and_refuses_out_of_order(gr
     """Realtime: /swarm/odom stamped 2 s in the past arrives, but its state is old, so the
     tracker brakes (flagged stale); fresh stamps give controller commands again; a message
     stamped before the one held is refused as out of order and counted."""
-    graph.start('tracker', 'tracker', '--params-file', str(CONFIG / 'realtime.yaml'),
-                '-p', 'uav_id:=1', '-p', 'mode:=realtime', '-p', 'input_timeout:=0.3',
-                '-r', '__ns:=/uav_1')
-    qos = control_qos('realtime')
-    forces: list[ForceCommand] = []
-    graph.node.create_subscription(ForceCommand, '/uav_1/force_cmd', forces.append, qos)
-    spub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
-    graph.spin_until(lambda: spub.get_subscription_count() == 1
-                     and graph.node.count_publishers('/uav_1/force_cmd') == 1, 30,
-                     'the tracker endpoints')
+    forces, spub = lone_tracker(graph, 1, 'realtime', str(CONFIG / 'realtime.yaml'),
+                                '-p', 'input_timeout:=0.3')
     cfg = load_preset('realtime')
     x = np.array([[3.0, 0.0, 0.0], [0.0, 2.0, 0.5], [-1.0, -1.0, 0.0]])
     v = np.full((3, 3), 0.2)

@@ -62,7 +62,7 @@ from .argtypes import domain_id, nonneg_int, positive_float, positive_int
 from .errors import CliError
 
 __all__ = ['EXIT_OK', 'EXIT_BAD_INPUT', 'EXIT_CHILD_DIED', 'EXIT_STALLED', 'EXIT_INTERRUPTED',
-           'Child', 'ProcessGroup', 'TopicExpectation', 'expected_graph', 'graph_missing',
+           'Child', 'ProcessGroup', 'stop_process', 'TopicExpectation', 'expected_graph', 'graph_missing',
            'StateAccumulator', 'pick_domain_id', 'domain_looks_busy', 'resolve_config',
            'node_commands', 'add_arguments', 'build_parser', 'run', 'main']
 
@@ -112,6 +112,26 @@ def group_members(pgid: int) -> list[int]:
         if len(fields) > 2 and int(fields[2]) == pgid and fields[0] != 'Z':
             out.append(int(entry))
     return out
+
+
+def stop_process(popen: subprocess.Popen, sequence: Sequence[tuple[int, float]] = (
+        (signal.SIGINT, 30.0), (signal.SIGKILL, 5.0))) -> int | None:
+    """Stop one process started with ``start_new_session=True``: each signal of ``sequence``
+    to its process group, then wait at most that many seconds, until it has exited. Returns
+    its exit code (None if it outlived every signal). :meth:`ProcessGroup.stop_all` does the
+    same for a whole graph, and also waits for every member of each group."""
+    for sig, wait_s in sequence:
+        if popen.poll() is not None:
+            break
+        try:
+            os.killpg(popen.pid, sig)
+        except ProcessLookupError:
+            pass
+        try:
+            popen.wait(wait_s)
+        except subprocess.TimeoutExpired:
+            continue
+    return popen.poll()
 
 
 def _group_alive(pgid: int) -> bool:
@@ -682,9 +702,6 @@ def node_commands(prefix: Path, config_file: Path, n: int, mode: str,
 # --------------------------------------------------------------------------------------------
 
 
-
-
-
 def node_netns(name: str, rules: Sequence[str] | None) -> str | None:
     """The network namespace a node process runs in: the first ``PATTERN=NETNS`` rule whose
     shell pattern matches its log name (``tracker_3``, ``trackers_1-2``, ``plant``), or None."""
@@ -701,10 +718,6 @@ def _netns_rule(text: str) -> str:
     if not sep or not pattern or not ns:
         raise argparse.ArgumentTypeError(f'{text!r}: expected PATTERN=NETNS, e.g. tracker_*=h2')
     return text
-
-
-
-
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
