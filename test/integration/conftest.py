@@ -54,16 +54,21 @@ class Graph:
     def log(self, name: str) -> str:
         return (self.tmp / f'{name}.log').read_text()
 
-    def spin_until(self, cond: Callable[[], bool], timeout: float, what: str) -> None:
-        """Spin the observer until ``cond()`` holds; fail naming ``what`` after ``timeout`` s."""
+    def spin_until(self, cond: Callable[[], bool], timeout: float, what: str,
+                   fail: bool = True) -> bool:
+        """Spin the observer until ``cond()`` holds (True); after ``timeout`` s fail naming
+        ``what``, or with ``fail=False`` return False. A node process that died fails."""
         end = time.monotonic() + timeout
         while not cond():
             if time.monotonic() > end:
+                if not fail:
+                    return False
                 raise AssertionError(f'timed out after {timeout:g} s waiting for {what}')
             for name, p in self.procs.items():
                 if p.poll() is not None and p.returncode != 0:
                     raise AssertionError(f'{name} exited with {p.returncode}:\n{self.log(name)}')
             self.executor.spin_once(timeout_sec=0.02)
+        return True
 
     def stop(self, name: str, timeout: float = 5.0) -> int:
         """SIGINT the process group, then SIGKILL; returns the exit code."""
