@@ -29,7 +29,7 @@ from typing import Any, Mapping
 import yaml
 
 from .errors import ConfigError, UnknownPresetError
-from .laws import LAWS
+from .laws import LAWS, SWITCHINGS
 from .plant import NOISE_KINDS
 from .potential import NEIGHBOUR_RULES
 from .saturation import SATURATIONS
@@ -89,6 +89,16 @@ class SwarmConfig:
                               help='time constant of the low-pass filter of eq. 26')
     u0: float = _p(125.0, unit='N', lo=0.0, lo_open=True, required=True,
                    help='switching force gain of eq. 24')
+    switching: str = _p('sign', choices=SWITCHINGS,
+                        help='switching force of eq. 24: sign (the paper) or layer, '
+                             '-u0 sat(s/phi) with a continuous boundary layer (Slotine & Li; '
+                             'not in the paper, for sampled control)')
+    phi: float = _p(0.15, unit='m/s', lo=0.0, lo_open=True,
+                    help='switching = layer: boundary-layer width of the sliding surface')
+    feedforward: float = _p(0.0, lo=0.0, hi=1.0,
+                            help='weight of the target velocity in the sliding surface, '
+                                 's = v - w v_N + ... (0: the paper; 1 removes the lag of a '
+                                 'moving target; not in the paper)')
     epsilon: float = _p(1.0, unit='m/s^2', lo=0.0, lo_open=True,
                         help='reaching margin of Theorem 1 / eq. 37')
     mu: float = _p(0.1, unit='m/s^2', lo=0.0, lo_open=True, help='reaching margin of eq. 43')
@@ -126,6 +136,15 @@ class SwarmConfig:
     dt: float = _p(0.001, unit='s', lo=0.0, lo_open=True, hi=1.0, required=True,
                    help='fixed step of plant and controller', read_only=True)
     duration: float = _p(30.0, unit='s', lo=0.0, lo_open=True, help='simulated time')
+    control_rate: float = _p(0.0, unit='Hz', lo=0.0, hi=1.0e6,
+                             help='rate of the controller: 0 commands every step of dt '
+                                  '(lockstep); > 0 samples the state and holds each command '
+                                  'for 1/control_rate s (real time; the realtime plant '
+                                  'publishes at this rate); 1/(control_rate dt) must be a '
+                                  'whole number of steps')
+    latency: float = _p(0.0, unit='s', lo=0.0, hi=10.0,
+                        help='headless emulation of real time: delay from a state sample to '
+                             'its command taking effect (control-loop latency)')
     steady_fraction: float = _p(0.25, lo=0.0, lo_open=True, hi=1.0,
                                 help='the last fraction of a run that metrics call steady')
     record_every: int = _p(1, lo=1, help='keep every k-th step in trajectory.npz')
@@ -150,6 +169,16 @@ class SwarmConfig:
     def target_speed_bound(self) -> float:
         """v_N: ``v_n`` if set, else the trajectory's peak speed."""
         return self.v_n if self.v_n > 0 else self.target_trajectory_obj.max_speed
+
+    @property
+    def hold_steps(self) -> int:
+        """Steps of dt each command is held for: 1 without ``control_rate``."""
+        return 1 if self.control_rate <= 0 else int(round(1.0 / (self.control_rate * self.dt)))
+
+    @property
+    def control_period(self) -> float:
+        """The controller's period T = hold_steps dt [s]."""
+        return self.hold_steps * self.dt
 
     @property
     def steps(self) -> int:
@@ -263,6 +292,13 @@ def _validate(cfg: SwarmConfig) -> None:
             continue
         value = _coerce(f.name, getattr(cfg, f.name), f.type, f.metadata)
         object.__setattr__(cfg, f.name, value)
+    if cfg.control_rate > 0:
+        hold = 1.0 / (cfg.control_rate * cfg.dt)
+        if round(hold) < 1 or abs(hold - round(hold)) > 1e-6 * hold:
+            raise ConfigError(
+                f'control_rate = {cfg.control_rate:g} Hz with dt = {cfg.dt:g} s holds each '
+                f'command for {hold:.4g} steps: 1/(control_rate dt) must be a whole number '
+                f'>= 1 (e.g. control_rate = {1.0 / (max(1, round(hold)) * cfg.dt):g})')
     if cfg.mass_lo > cfg.mass_hi:
         raise ConfigError(f"mass_lo = {cfg.mass_lo} > mass_hi = {cfg.mass_hi}: "
                           'the bounds of eq. 21 must satisfy mass_lo <= mass_hi')

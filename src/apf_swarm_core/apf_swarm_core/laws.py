@@ -2,6 +2,13 @@
 low-pass filter (eq. 26) and the switching force (eq. 24), with the traditional sign law of
 Yao, Ordonez & Gazi (CDC 2006) as the baseline.
 
+Two selectable additions for sampled (real-time) control, beyond the paper and off by
+default (docs/THEORY.md, "Sampled-data control"): the switching force with a continuous
+boundary layer of width ``phi`` on the manifold (Slotine & Li, *Applied Nonlinear Control*,
+1991, section 7.2), ``u = -u0 sat(s/phi) + f_known``, and a target-velocity feed-forward
+``w`` in the manifold, ``s = (v - w v_N) + ...``, which removes the boundary-layer lag of a
+moving target. With ``switching='sign'`` and ``w = 0`` the laws are exactly the paper's.
+
 Vectors are the last axis of arrays of shape ``(..., m, 3)`` (m trackers, optional leading
 batch dimensions); gains are floats or arrays of shape ``(...)`` (one value per run).
 
@@ -27,11 +34,14 @@ from .saturation import (SATURATIONS, _gamma, _layer_bound, _outside, outside_la
 
 __all__ = [
     'LAWS', 'kinematic_velocity', 'filter_step', 'sliding_surface_proposed',
-    'sliding_surface_traditional', 'switching_force', 'known_force', 'ControlOutput',
-    'SlidingModeController',
+    'sliding_surface_traditional', 'switching_force', 'layer_switching_force', 'known_force',
+    'ControlOutput', 'SlidingModeController', 'SWITCHINGS',
 ]
 
 LAWS = ('proposed', 'traditional')
+
+#: switching force of eq. 24: the paper's sign, or a continuous boundary layer on s
+SWITCHINGS = ('sign', 'layer')
 
 
 def _g(value: ArrayLike, extra: int = 2) -> NDArray[np.float64]:
@@ -109,6 +119,14 @@ def _switching(s: NDArray[np.float64], v: NDArray[np.float64], neg_u0: NDArray[n
                drag: NDArray[np.float64]) -> NDArray[np.float64]:
     """Eq. 24, ``u = -u0 sign(s) + f_known(v)``, with ``neg_u0 = -u0``."""
     return neg_u0 * np.sign(s) + _known(v, drag)
+
+
+def _switching_layer(s: NDArray[np.float64], v: NDArray[np.float64],
+                     neg_u0: NDArray[np.float64], inv_phi: NDArray[np.float64],
+                     drag: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Eq. 24 with a boundary layer, ``u = -u0 clip(s/phi, -1, 1) + f_known(v)``, with
+    ``inv_phi = 1/phi``."""
+    return neg_u0 * np.clip(s * inv_phi, -1.0, 1.0) + _known(v, drag)
 
 
 def kinematic_velocity(grad: ArrayLike, *, alpha: ArrayLike, beta: ArrayLike,
@@ -223,6 +241,29 @@ def switching_force(s: ArrayLike, v: ArrayLike, *, u0: ArrayLike,
     return _switching(np.asarray(s, dtype=float), np.asarray(v, dtype=float), -_g(u0), _g(drag))
 
 
+def layer_switching_force(s: ArrayLike, v: ArrayLike, *, u0: ArrayLike, phi: ArrayLike,
+                          drag: ArrayLike = 0.0) -> NDArray[np.float64]:
+    """Switching force with a continuous boundary layer (not in the paper) [N].
+
+    ``u_i = -u0 sat(s_i / phi) + f_i^known``, ``sat`` clipping each component to [-1, 1]:
+    eq. 24 outside the layer ``|s| >= phi`` (componentwise), the linear feedback
+    ``-(u0/phi) s`` inside it (Slotine & Li 1991, eq. 7.39). Held over a control period T,
+    the sign law's velocity ripple is about ``u0 T / M``; inside the layer the loop is linear
+    with rate ``u0 / (phi M)``, stable under sampling when that rate times the period and the
+    delay is small enough (:mod:`apf_swarm_core.sampled`).
+
+    Parameters
+    ----------
+    s : array, shape (..., m, 3)
+        Sliding surface [m/s].
+    v : array, shape (..., m, 3)
+        Velocities [m/s].
+    u0 : float [N]; phi : float [m/s], > 0; drag : float [N s/m]
+    """
+    return _switching_layer(np.asarray(s, dtype=float), np.asarray(v, dtype=float), -_g(u0),
+                            1.0 / _g(phi), _g(drag))
+
+
 @dataclass(frozen=True, init=False)
 class ControlOutput:
     """What one controller step produced for m trackers (arrays of shape (..., m, 3))."""
@@ -248,7 +289,7 @@ class ControlOutput:
 
 #: controller fields its prepared gains are derived from
 _GAIN_FIELDS = frozenset({'law', 'alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'dt', 'drag',
-                          'saturation'})
+                          'saturation', 'switching', 'phi', 'feedforward'})
 
 
 @dataclass(frozen=True)
@@ -265,6 +306,8 @@ class _ControllerGains:
     decay: NDArray[np.float64]       # e^{-dt/lambda} of eq. 26
     gain_in: NDArray[np.float64]     # (1 - decay) beta
     manifold: int                    # 0 proposed with eq. 8, 1 traditional, 2 continuous sat
+    inv_phi: NDArray[np.float64] | None  # 1/phi of the boundary-layer switching, None: sign
+    feedforward: NDArray[np.float64] | None  # weight w of the target velocity, None: 0
 
 
 @dataclass
@@ -285,6 +328,12 @@ class SlidingModeController:
     shape : tuple
         Shape of the state, ``(..., m, 3)``.
     saturation : 'paper' or 'continuous'
+    switching : 'sign' (eq. 24) or 'layer' (:func:`layer_switching_force`, width ``phi``)
+    phi : float [m/s]
+        Boundary-layer width of ``switching='layer'``.
+    feedforward : float
+        Weight ``w`` of the target velocity in the manifold (0: the paper's manifolds); the
+        target velocity is the ``v_ref`` argument of :meth:`step`.
 
     The gains are shaped for the kernels once and the result is cached; assigning any gain
     attribute (``ctl.gamma = 0.3``) invalidates the cache. Gain arrays must be replaced, not
@@ -301,6 +350,9 @@ class SlidingModeController:
     shape: tuple[int, ...] = (1, 3)
     drag: ArrayLike = 0.0
     saturation: str = 'paper'
+    switching: str = 'sign'
+    phi: ArrayLike = 0.1
+    feedforward: ArrayLike = 0.0
     z: NDArray[np.float64] = field(init=False, repr=False)
     _gains: _ControllerGains | None = field(init=False, repr=False, compare=False, default=None)
 
@@ -317,6 +369,9 @@ class SlidingModeController:
         else:
             _check_saturation(self.saturation)
             manifold = 0 if self.saturation == 'paper' else 2
+        if self.switching not in SWITCHINGS:
+            raise ValueError(f'switching must be one of {SWITCHINGS}, got {self.switching!r}')
+        ff = _g(self.feedforward)
         # the layer bound depends on gamma only: kept while gamma is the same object (a
         # realtime tracker re-prepares for every command, with a new dt)
         cached = self.__dict__.get('_bound_of')
@@ -331,7 +386,9 @@ class SlidingModeController:
             alpha=alpha, beta=beta, gamma=self.gamma, layer_bound=bound,
             layer_gain=np.asarray(alpha + beta / gamma), neg_u0=np.asarray(-_g(self.u0)),
             drag=_g(self.drag), decay=np.asarray(decay),
-            gain_in=np.asarray((1.0 - decay) * beta), manifold=manifold)
+            gain_in=np.asarray((1.0 - decay) * beta), manifold=manifold,
+            inv_phi=np.asarray(1.0 / _g(self.phi)) if self.switching == 'layer' else None,
+            feedforward=ff if np.any(ff != 0.0) else None)
         object.__setattr__(self, '_gains', gains)
         return gains
 
@@ -344,20 +401,26 @@ class SlidingModeController:
         """Set the filter state to ``z`` (default zeros), e.g. after a respawn."""
         self.z = np.zeros(self.shape) if z is None else np.array(z, dtype=float).reshape(self.shape)
 
-    def step(self, v: ArrayLike, grad: ArrayLike) -> ControlOutput:
-        """Compute the command for velocities ``v`` and gradients ``grad`` (shape ``(..., m, 3)``)."""
+    def step(self, v: ArrayLike, grad: ArrayLike, v_ref: ArrayLike | None = None
+             ) -> ControlOutput:
+        """Compute the command for velocities ``v`` and gradients ``grad`` (shape
+        ``(..., m, 3)``); ``v_ref`` (shape ``(..., 3)``), the target velocity, enters the
+        manifold as ``v - feedforward v_ref`` when ``feedforward`` is not 0."""
         p = self._gains or self._prepare()
         v = np.asarray(v, dtype=float)
         grad = np.asarray(grad, dtype=float)
         z = self.z
         outside = _outside(grad, p.layer_bound)
         manifold = p.manifold
+        vs = v if p.feedforward is None or v_ref is None else \
+            v - p.feedforward * np.asarray(v_ref, dtype=float)[..., None, :]
         if manifold == 0:
-            s = _surface_proposed(v, grad, z, outside, p.alpha, p.layer_gain)
+            s = _surface_proposed(vs, grad, z, outside, p.alpha, p.layer_gain)
         elif manifold == 1:
-            s = _surface_filtered(v, grad, z, p.alpha)
+            s = _surface_filtered(vs, grad, z, p.alpha)
         else:
-            s = _surface_continuous(v, grad, p.alpha, p.beta, p.gamma)
-        force = _switching(s, v, p.neg_u0, p.drag)
+            s = _surface_continuous(vs, grad, p.alpha, p.beta, p.gamma)
+        force = _switching(s, v, p.neg_u0, p.drag) if p.inv_phi is None else \
+            _switching_layer(s, v, p.neg_u0, p.inv_phi, p.drag)
         object.__setattr__(self, 'z', _filter(z, grad, p.decay, p.gain_in))  # not a gain
         return ControlOutput(force, s, grad, z, outside)   # positional: cheaper per step

@@ -9,6 +9,15 @@ One step ``k -> k+1`` (``t_k = k dt``), the order a lockstep ROS run follows too
 3. :func:`integrate`: the plant (eq. 19-21) advances with the command held over the step and a
    seeded bounded disturbance -- the plant node calls the same function.
 
+Real time emulated (``control_rate`` > 0, ``latency``): step 2 runs only every
+``hold_steps`` steps (sample and hold, the controller's filter advancing by the period), and
+each tracker's command takes effect ``latency`` seconds after its sample, rounded to steps,
+or after a delay drawn per tracker and sample from measured latencies (``latency_samples``,
+stream ``[seed, 3]``); until then the plant keeps the command it holds, and a command
+overtaken by a newer one is dropped, as the realtime plant refuses an out-of-order command
+(:class:`CommandHold`). With ``control_rate = 0`` and no latency the loop is the lockstep
+one, unchanged.
+
 The batched form runs R independent runs (different seeds and/or parameter values, the same
 number of trackers) as one array program with a leading run axis; a single run is the batch
 R = 1, so there is one code path. Random streams: ``default_rng([seed, 1])`` draws the initial
@@ -31,8 +40,8 @@ from .plant import DisturbanceSource, plant_step, uniform_ball
 from .potential import gradient, neighbour_mask, obstacle_gradient
 
 __all__ = ['initial_positions', 'expected_pairs', 'make_controller', 'control_step',
-           'integrate', 'BatchSimulator', 'SimResult', 'simulate', 'simulate_batch',
-           'TRAJECTORY_KEYS']
+           'integrate', 'CommandHold', 'BatchSimulator', 'SimResult', 'simulate',
+           'simulate_batch', 'TRAJECTORY_KEYS']
 
 #: up to this many trackers expected_pairs minimizes J from 4 random shapes, above from one
 EXPECTED_PAIRS_MULTISTART = 12
@@ -45,7 +54,7 @@ BATCHABLE = ('k_n', 'k_f', 'a', 'b', 'c', 'alpha', 'beta', 'gamma', 'lambda_filt
              'drag', 'f_bar', 'mass', 'seed', 'init_spread', 'target_speed', 'target_radius',
              'target_yaw_deg', 'target_pitch_deg', 'target_trajectory', 'target_start',
              'target_waypoints', 'init_center', 'v_n', 'epsilon', 'mu', 'mass_lo', 'mass_hi',
-             'noise', 'uav_overrides')
+             'noise', 'uav_overrides', 'phi', 'feedforward', 'latency')
 
 
 def initial_positions(cfg: SwarmConfig) -> NDArray[np.float64]:
@@ -93,14 +102,16 @@ def make_controller(cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, 
 
     return SlidingModeController(
         law=cfgs[0].law, alpha=gain('alpha'), beta=gain('beta'), gamma=gain('gamma'),
-        lambda_filter=gain('lambda_filter'), u0=gain('u0'), drag=gain('drag'), dt=cfgs[0].dt,
-        shape=shape, saturation=cfgs[0].saturation)
+        lambda_filter=gain('lambda_filter'), u0=gain('u0'), drag=gain('drag'),
+        dt=cfgs[0].control_period, shape=shape, saturation=cfgs[0].saturation,
+        switching=cfgs[0].switching, phi=gain('phi'), feedforward=gain('feedforward'))
 
 
 def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
                  target_x: ArrayLike, potential_params: dict[str, Any], *,
                  rows: ArrayLike | None = None, mask: ArrayLike | None = None,
-                 obstacles: ArrayLike | None = None) -> ControlOutput:
+                 obstacles: ArrayLike | None = None,
+                 target_v: ArrayLike | None = None) -> ControlOutput:
     """Commands of the trackers in ``rows`` (default all) at one step.
 
     Parameters
@@ -118,6 +129,8 @@ def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
         Bodies that only repel (silent trackers, see :mod:`apf_swarm_core.agents`): their
         :func:`~apf_swarm_core.potential.obstacle_gradient` is added to the gradient of the
         selected rows (a single run).
+    target_v : array (..., 3), optional
+        Target velocity, for a controller with ``feedforward`` (ignored without).
     """
     grad = gradient(x, target_x, **potential_params, rows=rows, mask=mask)
     if obstacles is not None and len(obstacles):
@@ -125,7 +138,7 @@ def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
         xi = xi if rows is None else xi[..., rows, :]
         grad = grad + obstacle_gradient(xi, obstacles, k_f=potential_params['k_f'],
                                         b=potential_params['b'], c=potential_params['c'])
-    return controller.step(v, grad)
+    return controller.step(v, grad, target_v)
 
 
 def integrate(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike, dt: float,
@@ -133,6 +146,65 @@ def integrate(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike, 
                                                                 NDArray[np.float64]]:
     """Advance the plant one step (eq. 19-21); see :func:`apf_swarm_core.plant.plant_step`."""
     return plant_step(x, v, force, mass=mass, dt=dt, drag=drag, disturbance=disturbance)
+
+
+class CommandHold:
+    """The plant's side of a sampled, delayed control loop: which command each UAV holds.
+
+    :meth:`submit` hands over the commands computed at step k; each tracker's takes effect at
+    step ``k + d``, d its delay in steps (a fixed ``latency`` or one drawn from
+    ``latency_samples`` per tracker and sample, both rounded to steps of dt). Until then the
+    UAV keeps the command it holds (zero force before the first). A command that arrives
+    after a newer one of the same tracker is dropped (out of order).
+
+    Parameters
+    ----------
+    shape : (R, n): runs and trackers.
+    latency : float or array (R,) [s]; dt : float [s]
+    latency_samples : array (k,) [s], optional; rng : numpy Generator for them
+    """
+
+    def __init__(self, shape: tuple[int, int], latency: ArrayLike, dt: float,
+                 latency_samples: ArrayLike | None = None,
+                 rng: np.random.Generator | None = None) -> None:
+        self.shape = shape
+        self.fixed = np.broadcast_to(np.rint(np.asarray(latency, dtype=float) / dt)
+                                     .astype(np.int64).reshape(-1, 1), shape)
+        self.samples = None if latency_samples is None else \
+            np.rint(np.asarray(latency_samples, dtype=float) / dt).astype(np.int64)
+        if self.samples is not None and (self.samples.size == 0 or np.any(self.samples < 0)):
+            raise ValueError('latency_samples must be a non-empty array of delays >= 0 s')
+        self.rng = rng if rng is not None else np.random.default_rng()
+        self.force = np.zeros(shape + (3,))
+        self.seq = np.full(shape, -1, dtype=np.int64)
+        self.pending: list[tuple[int, NDArray[np.int64], NDArray[np.float64]]] = []
+        self.count = 0
+
+    @property
+    def delayed(self) -> bool:
+        """Whether any command waits at all (False: a command acts at its own step)."""
+        return self.samples is not None or bool(np.any(self.fixed > 0))
+
+    def submit(self, k: int, force: NDArray[np.float64]) -> None:
+        """The commands computed from the state of step k, shape (R, n, 3)."""
+        delay = self.fixed if self.samples is None else \
+            self.rng.choice(self.samples, size=self.shape)
+        self.pending.append((self.count, k + delay, np.array(force, dtype=float)))
+        self.count += 1
+
+    def applied(self, k: int) -> NDArray[np.float64]:
+        """The force every UAV holds over step k, shape (R, n, 3)."""
+        keep = []
+        for seq, at, force in self.pending:
+            arrived = at <= k
+            newer = arrived & (seq > self.seq)
+            if newer.any():
+                self.force[newer] = force[newer]
+                self.seq[newer] = seq
+            if not arrived.all():
+                keep.append((seq, at, force))
+        self.pending = keep
+        return self.force
 
 
 def _param_array(cfgs: Sequence[SwarmConfig], name: str) -> NDArray[np.float64]:
@@ -172,16 +244,22 @@ class BatchSimulator:
     ----------
     cfgs : sequence of SwarmConfig
         One configuration per run; only keys in :data:`BATCHABLE` may differ.
+    latency_samples : array (k,) [s], optional
+        Measured control-loop latencies: each tracker's command at each sample takes effect
+        after one of them, drawn with stream ``[seed, 3]`` of the first run (instead of the
+        fixed ``latency``); needs ``control_rate`` > 0.
     """
 
-    def __init__(self, cfgs: Sequence[SwarmConfig]) -> None:
+    def __init__(self, cfgs: Sequence[SwarmConfig],
+                 latency_samples: ArrayLike | None = None) -> None:
         if not cfgs:
             raise ValueError('a batch needs at least one configuration')
         self.cfgs = list(cfgs)
         first = self.cfgs[0]
         for c in self.cfgs[1:]:
             for key in ('n_trackers', 'law', 'saturation', 'dt', 'duration', 'record_every',
-                        'neighbours', 'neighbour_count', 'sensing_radius'):
+                        'neighbours', 'neighbour_count', 'sensing_radius', 'control_rate',
+                        'switching'):
                 if getattr(c, key) != getattr(first, key):
                     raise ValueError(f'every run of a batch must share {key}; got '
                                      f'{getattr(first, key)!r} and {getattr(c, key)!r}')
@@ -194,6 +272,14 @@ class BatchSimulator:
         self.mass = np.array(mass.flat[0]) if mass.size and np.all(mass == mass.flat[0]) \
             else mass
         self.controller = make_controller(self.cfgs, (self.R, self.n, 3))
+        self.hold = first.hold_steps
+        if latency_samples is not None and first.control_rate <= 0:
+            raise ValueError('latency_samples emulate a realtime loop: set control_rate > 0')
+        act = CommandHold((self.R, self.n), [c.latency for c in self.cfgs], self.dt,
+                          latency_samples, np.random.default_rng([first.seed, 3]))
+        #: the delayed commands in flight, or None when each acts at its own sample
+        self.actuator = act if act.delayed else None
+        self.out: ControlOutput | None = None
         if len({c.noise for c in self.cfgs}) > 1:
             raise ValueError('every run of a batch must share the noise kind')
         self.noise = DisturbanceSource([c.seed for c in self.cfgs], self.n,
@@ -245,10 +331,17 @@ class BatchSimulator:
     def step(self) -> tuple[ControlOutput, NDArray[np.float64], NDArray[np.float64]]:
         """Advance every run by one step; returns the command and the target state used."""
         tx, tv = self.target_state(self.k)
-        mask = neighbour_mask(self.x, **self.neighbour_rule) if self.neighbour_rule else None
-        out = control_step(self.controller, self.x, self.v, tx, self.params, mask=mask)
+        out = self.out
+        if out is None or self.k % self.hold == 0:
+            mask = neighbour_mask(self.x, **self.neighbour_rule) if self.neighbour_rule \
+                else None
+            out = self.out = control_step(self.controller, self.x, self.v, tx, self.params,
+                                          mask=mask, target_v=tv)
+            if self.actuator is not None:
+                self.actuator.submit(self.k, out.force)
+        force = out.force if self.actuator is None else self.actuator.applied(self.k)
         dist = self.noise.next()
-        self.x, self.v = integrate(self.x, self.v, out.force, mass=self.mass, dt=self.dt,
+        self.x, self.v = integrate(self.x, self.v, force, mass=self.mass, dt=self.dt,
                                    drag=self.drag, disturbance=dist)
         self.k += 1
         return out, tx, tv
@@ -294,14 +387,19 @@ class BatchSimulator:
         controller, params, noise, target_state = (self.controller, self.params, self.noise,
                                                    self.target_state)
         mass, drag, rule = self.mass, self.drag, self.neighbour_rule
+        hold, act, out = self.hold, self.actuator, self.out
         x, v, k = self.x, self.v, k0
         try:
             for i in range(steps):
                 block = self._tblock
                 tx, tv = target_state(k)
-                mask = neighbour_mask(x, **rule) if rule else None
-                out = control_step(controller, x, v, tx, params, mask=mask)
-                x_next, v_next = integrate(x, v, out.force, mass=mass, dt=dt, drag=drag,
+                if out is None or k % hold == 0:
+                    mask = neighbour_mask(x, **rule) if rule else None
+                    out = control_step(controller, x, v, tx, params, mask=mask, target_v=tv)
+                    if act is not None:
+                        act.submit(k, out.force)
+                force = out.force if act is None else act.applied(k)
+                x_next, v_next = integrate(x, v, force, mass=mass, dt=dt, drag=drag,
                                            disturbance=noise.next())
                 if record:
                     if self._tblock is not block:       # a new block: the old one's samples
@@ -310,7 +408,7 @@ class BatchSimulator:
                         j = i // every
                         rec_x[j] = x
                         rec_v[j] = v
-                        rec_u[j] = out.force
+                        rec_u[j] = force
                         rec_s[j] = out.sliding_surface
                         rec_sat[j] = out.saturated
                         held[1] += 1
@@ -319,7 +417,7 @@ class BatchSimulator:
                     self.x, self.v, self.k = x, v, k
                     progress(i + 1, steps)
         finally:
-            self.x, self.v, self.k = x, v, k
+            self.x, self.v, self.k, self.out = x, v, k, out
         if record:
             target_samples(self._tblock)
             m = held[0]
@@ -330,16 +428,19 @@ class BatchSimulator:
 
 
 def simulate_batch(cfgs: Sequence[SwarmConfig], *, record: bool = True,
-                   progress: Callable[[int, int], None] | None = None) -> SimResult:
+                   progress: Callable[[int, int], None] | None = None,
+                   latency_samples: ArrayLike | None = None) -> SimResult:
     """Run a batch; trajectory arrays carry a leading run axis (except ``t``)."""
-    sim = BatchSimulator(cfgs)
+    sim = BatchSimulator(cfgs, latency_samples)
     traj = sim.run(record=record, progress=progress)
     return SimResult(traj, list(cfgs), {'x': sim.x, 'v': sim.v, 'z': sim.controller.z})
 
 
 def simulate(cfg: SwarmConfig, *, record: bool = True,
-             progress: Callable[[int, int], None] | None = None) -> SimResult:
+             progress: Callable[[int, int], None] | None = None,
+             latency_samples: ArrayLike | None = None) -> SimResult:
     """Run one configuration: the batch of one, with the run axis removed."""
-    res = simulate_batch([cfg], record=record, progress=progress)
+    res = simulate_batch([cfg], record=record, progress=progress,
+                         latency_samples=latency_samples)
     traj = {k: (v if k == 't' else v[0]) for k, v in res.trajectory.items()}
     return SimResult(traj, cfg, {k: v[0] for k, v in res.final.items()})
