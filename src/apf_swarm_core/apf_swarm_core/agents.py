@@ -322,6 +322,7 @@ class PlantModel:
         self.instances: dict[int, int] = {}  # uav_id -> the tracker process it follows
         self.active = np.ones(n, dtype=bool)
         self.command_time = np.zeros(n)     # realtime: when each latest command arrived
+        self.latency = np.zeros(n)          # realtime: its arrival minus its state's stamp [s]
         self._asked: list[float] = []       # realtime: when the state went out, ascending
         # the formation error published every step needs the design shape; for more than
         # 12 trackers it is a numerical minimization of seconds, which would delay the
@@ -337,7 +338,7 @@ class PlantModel:
 
     def offer_command(self, uav_id: int, step: int, force: NDArray[np.float64],
                       s: NDArray[np.float64], stale: bool = False, now: float = 0.0,
-                      instance: int = 0) -> bool:
+                      instance: int = 0, latency: float = 0.0) -> bool:
         """Store the command of one tracker; False (counted, ``last_rejection`` says why) if
         the id is unknown, a value is not finite or out of range, the command comes from
         another tracker process (``instance``) than the one this ``uav_id`` follows (a
@@ -369,6 +370,7 @@ class PlantModel:
         self.got[uav_id] = step
         self.active[j] = True
         self.command_time[j] = now
+        self.latency[j] = latency
         if stale:
             self.stale += 1
         return True
@@ -419,6 +421,16 @@ class PlantModel:
         newly = [i for i in self.ids if old[i - 1] and self.active[i - 1]]
         self.deactivate([i for i in self.ids if old[i - 1]])
         return newly
+
+    def advance_to(self, elapsed: float, most: int = 1000) -> None:
+        """Realtime: integrate the steps of dt that ``elapsed`` seconds of wall time since
+        the start contain and that are not integrated yet (at most ``most``), with the held
+        commands. Called before a new command is stored too, so that each command acts
+        from its arrival on (a zero-order hold with the loop's true delay), as the
+        emulation's :class:`~apf_swarm_core.simulator.CommandHold` assumes."""
+        due = int(elapsed / self.cfg.dt) - self.k
+        if due > 0:
+            self.advance(min(due, most))
 
     def advance(self, steps: int = 1) -> None:
         """Integrate ``steps`` steps with the held commands (lockstep: one)."""

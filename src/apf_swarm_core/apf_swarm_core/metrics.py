@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = ['centroid_error', 'pair_distances', 'formation_error', 'potential_series',
            'moving_average', 'hf_velocity_rms', 'heading_rate', 'steady_slice',
-           'time_to_converge', 'summarize', 'SUMMARY_KEYS']
+           'time_to_converge', 'summarize', 'SUMMARY_KEYS', 'FLIGHT_CRITERIA', 'flight']
 
 #: top-level keys of summary.json, in order (a stable schema shared with the bag tools)
 SUMMARY_KEYS = ('law', 'n_trackers', 'dt', 'duration', 'seed', 'centroid_error', 'formation',
@@ -116,6 +116,46 @@ def time_to_converge(t: ArrayLike, ok: ArrayLike) -> float | None:
         return None
     bad = np.flatnonzero(~ok)
     return float(np.asarray(t)[0 if bad.size == 0 else bad[-1] + 1])
+
+
+#: when a swarm flies (holds its formation), judged over the last ``window`` of a run: the
+#: formation error RMS at most ``formation_rms`` of the mean design spacing, the closest
+#: pair at least ``closest`` of the design's closest, the centroid within
+#: ``centroid_tol`` m of the target and the formation error within ``formation_tol`` of the
+#: design's closest pair at every sample (``converged`` of :func:`summarize`)
+FLIGHT_CRITERIA = {'window': 0.4, 'formation_rms': 0.03, 'closest': 0.9, 'centroid_tol': 0.5,
+                   'formation_tol': 0.05}
+
+
+def flight(traj: Mapping[str, Any], expected_pairs: ArrayLike | None,
+           criteria: Mapping[str, float] = FLIGHT_CRITERIA) -> dict[str, Any]:
+    """Whether a run flies by :data:`FLIGHT_CRITERIA`, with the numbers it is judged by.
+
+    Returns ``flies`` and, over the window, ``formation_error_rms`` (relative to the mean
+    design spacing), ``closest_pair`` (relative to the design's closest),
+    ``centroid_error_rms`` [m] and ``converged``. Without a design (``expected_pairs``
+    None) nothing flies.
+    """
+    x = np.asarray(traj['x'], dtype=float)
+    tx = np.asarray(traj['target_x'], dtype=float)
+    st = steady_slice(x.shape[0], criteria['window'])
+    out: dict[str, Any] = {'window': criteria['window'], 'flies': False,
+                           'formation_error_rms': None, 'closest_pair': None,
+                           'centroid_error_rms': None, 'converged': False}
+    if expected_pairs is None or x.shape[0] == 0 or x.shape[1] < 2:
+        return out
+    exp = np.asarray(expected_pairs, dtype=float)
+    fe = formation_error(x[st], exp)
+    ce = centroid_error(x[st], tx[st])
+    rms = float(np.sqrt(np.mean(fe ** 2))) / float(exp.mean())
+    closest = float(pair_distances(x[st]).min()) / float(exp.min())
+    converged = bool(np.all(ce <= criteria['centroid_tol'])
+                     and np.all(fe <= criteria['formation_tol'] * float(exp.min())))
+    out.update(formation_error_rms=_f(rms), closest_pair=_f(closest),
+               centroid_error_rms=_f(float(np.sqrt(np.mean(ce ** 2)))), converged=converged)
+    out['flies'] = bool(math.isfinite(rms) and rms <= criteria['formation_rms']
+                        and closest >= criteria['closest'] and converged)
+    return out
 
 
 def _f(value: float | None) -> float | None:

@@ -25,7 +25,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['pair_weight', 'potential', 'gradient', 'target_gradient', 'obstacle_gradient']
+__all__ = ['pair_weight', 'potential', 'gradient', 'hessian', 'target_gradient',
+           'obstacle_gradient']
 
 
 #: elements of the pair arrays (3, rows, n, runs) of one block of rows in :func:`gradient`
@@ -373,6 +374,41 @@ def target_gradient(x: ArrayLike, x_target: ArrayLike, *,
     x = np.asarray(x, dtype=float)
     x_target = np.asarray(x_target, dtype=float)
     return -_gain(k_n, 1) * np.sum(x - x_target[..., None, :], axis=-2)
+
+
+def hessian(x: ArrayLike, x_target: ArrayLike, *, k_n: float = 1.0, k_f: float = 1.0,
+            a: float = 1.0, b: float = 6.0, c: float = 1.7) -> NDArray[np.float64]:
+    """Hessian of J (eq. 2 / 44) with respect to the tracker positions, shape (3n, 3n).
+
+    Differentiating the gradient once more, with ``d = x_i - x_j``, ``r^2 = |d|^2`` and
+    ``e = exp(-r^2/c)``, the pair (i, j) contributes the 3x3 block
+
+    .. math::
+
+        H_{ij} = k_f \\big[(a - b e) I + \\tfrac{2b}{c} e \\, d d^T\\big]
+
+    to the diagonal blocks (i, i) and (j, j) and ``-H_ij`` to the blocks (i, j) and (j, i);
+    the tracking term adds ``k_N I`` to every diagonal block. Row-major: entry
+    ``(3i + k, 3j + l)`` is ``d^2 J / dx_ik dx_jl``. It does not depend on ``x_target``
+    (taken for symmetry with :func:`gradient`). Used by :mod:`apf_swarm_core.sampled`: its
+    eigenvalues at an equilibrium are the rates of the formation's linearized modes.
+
+    Parameters
+    ----------
+    x : array, shape (n, 3) [m]
+    x_target : array, shape (3,) [m]
+    k_n, k_f, a, b, c : float
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.shape[0]
+    d = x[:, None, :] - x[None, :, :]                       # (n, n, 3)
+    e = np.exp(-np.einsum('ijk,ijk->ij', d, d) / c)
+    blocks = k_f * ((a - b * e)[:, :, None, None] * np.eye(3)
+                    + (2.0 * b / c) * e[:, :, None, None] * d[:, :, :, None] * d[:, :, None, :])
+    blocks[np.arange(n), np.arange(n)] = 0.0
+    h = -blocks
+    h[np.arange(n), np.arange(n)] = blocks.sum(axis=1) + k_n * np.eye(3)
+    return h.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n)
 
 
 def obstacle_gradient(x: ArrayLike, obstacles: ArrayLike, *, k_f: ArrayLike = 1.0,

@@ -533,7 +533,9 @@ class StateAccumulator:
                 'target_v': np.stack([s.target_v for s in kept]),
                 # not saved to trajectory.npz: the fault report of summary.json
                 'active': np.array([s.active or (True,) * n for s in kept], dtype=bool),
-                'target_age': np.array([s.target_age for s in kept], dtype=float)}
+                'target_age': np.array([s.target_age for s in kept], dtype=float),
+                'command_latency': np.array([s.command_latency or (0.0,) * n for s in kept],
+                                            dtype=float)}
 
     def messages(self) -> dict[str, Any]:
         out: dict[str, Any] = {'received': self.received, 'dropped': self.dropped,

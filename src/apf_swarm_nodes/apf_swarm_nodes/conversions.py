@@ -143,7 +143,8 @@ def swarm_state_msg(*, step: int, sim_time: float, stamp: Time, uav_ids: Sequenc
                     target_v: NDArray[np.float64], potential: float, centroid_error: float,
                     formation_error: float, missed_deadlines: int, stale_inputs: int,
                     rejected_inputs: int, active: Sequence[bool] | None = None,
-                    target_age: float = 0.0, out: SwarmState | None = None) -> SwarmState:
+                    target_age: float = 0.0, command_latency: Sequence[float] | None = None,
+                    out: SwarmState | None = None) -> SwarmState:
     """``apf_swarm_msgs/SwarmState`` from arrays of shape (n, 3) and (3,).
 
     ``out``: a message made by this function before for the same trackers, updated in place
@@ -175,6 +176,8 @@ def swarm_state_msg(*, step: int, sim_time: float, stamp: Time, uav_ids: Sequenc
     msg.rejected_inputs = int(rejected_inputs)
     msg.active = [True] * len(x) if active is None else [bool(a) for a in active]
     msg.target_age = float(target_age)
+    msg.command_latency = [0.0] * len(x) if command_latency is None else \
+        [float(a) for a in command_latency]
     return msg
 
 
@@ -199,6 +202,7 @@ class SwarmSample:
     rejected_inputs: int
     active: tuple[bool, ...] = ()
     target_age: float = 0.0
+    command_latency: tuple[float, ...] = ()
 
 
 def _rows(seq: Sequence[Any]) -> NDArray[np.float64]:
@@ -214,7 +218,8 @@ def swarm_state_arrays(msg: SwarmState) -> SwarmSample:
         float(msg.potential), float(msg.centroid_error), float(msg.formation_error),
         int(msg.missed_deadlines), int(msg.stale_inputs), int(msg.rejected_inputs),
         tuple(bool(a) for a in getattr(msg, 'active', ())),   # absent in older bags
-        float(getattr(msg, 'target_age', 0.0)))
+        float(getattr(msg, 'target_age', 0.0)),
+        tuple(float(a) for a in getattr(msg, 'command_latency', ())))
 
 
 def swarm_odom_msg(*, step: int, stamp: Time, uav_ids: Sequence[int], x: NDArray[np.float64],

@@ -57,7 +57,7 @@ from apf_swarm_core.errors import ApfSwarmError
 
 __all__ = ['EXECUTORS', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
            'force_topic', 'RejectionLog', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'TARGET_REQUEST', 'REQUEST_QOS',
-           'TARGET_LOOKAHEAD', 'run_node', 'run_nodes']
+           'TARGET_LOOKAHEAD', 'run_node', 'run_nodes', 'REALTIME_RATE']
 
 TARGET_ODOM = '/target/odom'
 SWARM_STATE = '/swarm/state'
@@ -87,6 +87,10 @@ REQUEST_QOS = START_QOS
 LOCKSTEP_DEPTH = 1000
 CLOCK_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                        depth=LOCKSTEP_DEPTH)
+
+#: realtime rate of the plant's publications and the trackers' control [Hz] when the
+#: configuration's control_rate is 0
+REALTIME_RATE = 100.0
 
 
 def control_qos(mode: str, depth: int = 1) -> QoSProfile:

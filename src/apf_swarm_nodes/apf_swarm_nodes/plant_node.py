@@ -34,7 +34,6 @@ topic with more than one publisher is also logged as an error once a second whil
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 
@@ -51,7 +50,7 @@ from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 from .conversions import (clock_msg, dt_to_ns, force_arrays, odom_arrays, odom_msg,
                           markers_msg, stamp_ns, step_of, step_stamp, swarm_odom_msg,
                           swarm_state_msg)
-from .node_common import (CLOCK, CLOCK_QOS, INPUTS, REQUEST_QOS, RejectionLog, START_QOS,
+from .node_common import (CLOCK, CLOCK_QOS, INPUTS, REALTIME_RATE, REQUEST_QOS, RejectionLog, START_QOS,
                           STATE_QOS, SWARM_MARKERS, SWARM_ODOM, SWARM_START, SWARM_STATE,
                           TARGET_LOOKAHEAD, TARGET_ODOM, TARGET_REQUEST, control_qos,
                           force_topic, odom_topic, run_node)
@@ -77,8 +76,8 @@ NODE_PARAMS = (
     NodeParam('markers_rate', 10.0, '/swarm/markers (visualization_msgs/MarkerArray) per second '
               'of simulated (lockstep) or wall (realtime) time; 0 turns them off', lo=0.0,
               hi=1000.0),
-    NodeParam('publish_rate', 100.0, 'realtime: odometry and state rate [Hz]', lo=1.0,
-              hi=2000.0),
+    NodeParam('publish_rate', 0.0, 'realtime: odometry and state rate [Hz]; 0: the '
+              'configuration\'s control_rate, or 100 Hz when that is 0', lo=0.0, hi=2000.0),
 )
 
 
@@ -105,7 +104,8 @@ class PlantNode(Node):
         self.state_pub = self.create_publisher(SwarmState, SWARM_STATE, STATE_QOS)
         self.swarm_odom_pub = self.create_publisher(SwarmOdometry, SWARM_ODOM, qos)
         rate = float(p['markers_rate'])
-        period = self.cfg.dt if self.mode == 'lockstep' else 1.0 / float(p['publish_rate'])
+        self.publish_rate = float(p['publish_rate']) or self.cfg.control_rate or REALTIME_RATE
+        period = self.cfg.dt if self.mode == 'lockstep' else 1.0 / self.publish_rate
         self.markers_every = max(1, round(1.0 / (rate * period))) if rate > 0 else 0
         self.state_count = 0
         self._state_msg = None
@@ -135,7 +135,7 @@ class PlantNode(Node):
             self.create_timer(0.01, self._check_deadline)
         else:
             self.create_timer(1.0 / float(p['physics_rate']), self._on_physics)
-            self.create_timer(1.0 / float(p['publish_rate']), self._on_publish)
+            self.create_timer(1.0 / self.publish_rate, self._on_publish)
             self._target_seq = -1
         if p['wait_for_start']:
             self.create_subscription(Empty, SWARM_START, self._on_start, START_QOS)
@@ -255,9 +255,15 @@ class PlantNode(Node):
                          f'(command_timeout {self.timeout:g} s)')
             return
         was_active = bool(self.model.active[f.uav_id - 1])
+        now = time.monotonic()
+        latency = 0.0
+        if self.mode == 'realtime' and self.running and not self.done:
+            # the held commands act up to this instant, the new one from here on
+            self.model.advance_to(now - self.wall0)
+            latency = (self.get_clock().now().nanoseconds - stamp_ns(msg.header.stamp)) * 1e-9
         if not self.model.offer_command(f.uav_id, f.step, f.force, f.sliding_surface,
-                                        f.stale and self.running, now=time.monotonic(),
-                                        instance=f.instance):
+                                        f.stale and self.running, now=now,
+                                        instance=f.instance, latency=latency):
             self._log_rejection(self.model.last_rejection, self.model.rejected)
             return
         self.tracker_rejected[f.uav_id] = f.rejected_inputs
@@ -389,9 +395,7 @@ class PlantNode(Node):
                 f'no command from {[f"uav_{i}" for i in newly]} for {self.timeout:g} s: '
                 f'inactive, left out of the neighbour sets (zero force since '
                 f'{self.stale_after:g} s; {self.model.missed} missed so far)')
-        due = int(math.floor((now - self.wall0) / self.cfg.dt)) - self.model.k
-        if due > 0:
-            self.model.advance(min(due, 1000))
+        self.model.advance_to(now - self.wall0)
         if self.model.k >= self.steps:
             self.done = True
             self.get_logger().info(f'done: {self.steps} steps of {self.cfg.dt:g} s; '
@@ -426,7 +430,8 @@ class PlantNode(Node):
                     s=m.s.copy(), target_x=self.target[1], target_v=self.target[2],
                     missed_deadlines=m.missed, stale_inputs=m.stale,
                     rejected_inputs=m.rejected + sum(self.tracker_rejected.values()),
-                    active=m.active.copy(), target_age=self._target_age())
+                    active=m.active.copy(), target_age=self._target_age(),
+                    command_latency=m.latency.copy())
 
     def _publish_state(self, state: dict, stamp) -> None:
         """``/swarm/state`` (and every ``markers_every``-th time the markers) of a state

@@ -5,7 +5,7 @@ step with every tracker's odometry and the target's state; ``odom`` subscribes i
 odometry (relative ``odom``), its neighbours' (``/uav_<j>/odom``) and the target's
 (``/target/odom``). Publishes ``force_cmd`` (relative). Lockstep: answers step k as soon
 as every input of step k has arrived. Realtime: with ``trigger:=odom`` (default)
-it commands on every new own odometry, with ``trigger:=timer`` at ``control_rate`` on the
+it commands on every new own odometry, with ``trigger:=timer`` at the configuration's ``control_rate`` on the
 latest inputs; an input older than ``input_timeout`` is stale and the safe command
 (:func:`apf_swarm_core.agents.brake_force`, hover in place) is sent with ``stale = true``
 (the ``control_rate`` timer is then the watchdog that keeps sending it). In lockstep only the
@@ -33,7 +33,7 @@ from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry
 
 from .conversions import (dt_to_ns, force_msg, odom_arrays, stamp_ns, step_of,
                           swarm_odom_arrays)
-from .node_common import (INPUTS, RejectionLog, SWARM_ODOM, TARGET_ODOM, control_qos, odom_topic,
+from .node_common import (INPUTS, REALTIME_RATE, RejectionLog, SWARM_ODOM, TARGET_ODOM, control_qos, odom_topic,
                           run_node, run_nodes)
 from .params import EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODES, NodeParam, declare_config, declare_node_params, install_validator, \
     read_config
@@ -47,8 +47,6 @@ NODE_PARAMS = (
               'the n odometry topics and /target/odom', choices=INPUTS),
     NodeParam('uav_id', 1, 'id i of this tracker (namespace /uav_<i>)', lo=1, hi=10000),
     NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
-    NodeParam('control_rate', 100.0, 'realtime: rate of the control timer (trigger timer) or '
-              'of the stale-input watchdog (trigger odom) [Hz]', lo=1.0, hi=2000.0),
     NodeParam('trigger', 'odom', 'realtime: odom computes on every new own odometry (lowest '
               'latency); timer computes at control_rate on the latest inputs',
               choices=('odom', 'timer')),
@@ -70,7 +68,9 @@ class TrackerNode(Node):
         self.uav_id = int(p['uav_id'])
         self.timeout = float(p['input_timeout'])
         self.on_odom = p['trigger'] == 'odom'
-        self.control_rate = float(p['control_rate'])
+        # the configuration's control_rate (0: the realtime default) sets the control timer
+        # (trigger timer) or the stale-input watchdog (trigger odom)
+        self.control_rate = self.cfg.control_rate or REALTIME_RATE
         self._last_command = 0.0
         self.agent = TrackerAgent(self.cfg, self.uav_id)
         install_validator(self, self._retune)
@@ -94,7 +94,7 @@ class TrackerNode(Node):
         self._log_rejection = RejectionLog(self)
         self.instance = random.getrandbits(63)   # tells this process apart at the plant
         if self.mode == 'realtime':
-            self.create_timer(1.0 / float(p['control_rate']), self._on_timer)
+            self.create_timer(1.0 / self.control_rate, self._on_timer)
         self.get_logger().info(
             f'uav_{self.uav_id}: {self.cfg.law} law, {self.mode}, neighbours '
             f'{[j for j in self.agent.ids if j != self.uav_id]}, dt {self.cfg.dt:g} s')

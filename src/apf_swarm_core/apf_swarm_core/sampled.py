@@ -1,0 +1,280 @@
+"""Sampled-data analysis: what a control period T and a delay tau do to the formation.
+
+A real-time loop samples the state every T seconds, and the command computed from a sample
+acts tau seconds later and is held until the next one arrives. This module predicts from the
+configuration alone whether the formation then holds (derivation in docs/THEORY.md,
+"Sampled-data control"):
+
+1. **Modes.** Near the design equilibrium x* (positions relative to the target), inside the
+   boundary layer of eq. 8, the manifold of eq. 31 is linear, ``s = v_rel + K H e`` with
+   ``e = x - x*``, ``K = alpha + beta/gamma`` (the layer gain) and H the Hessian of J at x*
+   (:func:`apf_swarm_core.potential.hessian`). H is symmetric: in its eigenvectors the
+   swarm splits into independent modes, one per eigenvalue lambda, ``s_l = e_l' + K lambda
+   e_l``; the rigid rotations have lambda = 0, the centroid lambda = k_N, and the stiffest
+   mode ``lambda_max`` grows with the number of trackers.
+2. **Inner loop.** With the boundary-layer switching (:func:`apf_swarm_core.laws.
+   layer_switching_force`) the force inside the layer is ``u = -(u0/phi) s``: per mode
+   ``M e'' = -(u0/phi)(e' + K lambda e)``, a linear loop with velocity rate
+   ``g = u0/(phi M)``. The sign law of eq. 24 held over T changes the velocity by
+   ``u0 T / M`` per period (the ripple) and so corrects a velocity error within about one
+   period: its equivalent rate is ``g = 1/T`` (the relay's gain at its own ripple).
+3. **Sampling and delay.** A mode is a double integrator driven by a held command: over a
+   hold of h seconds with force u, ``e += e' h + u h^2/(2M)``, ``e' += u h / M``. With
+   ``tau = m T + r`` (0 <= r < T), period k applies the command of sample ``k - m - 1`` for r
+   seconds and that of ``k - m`` for the rest, so the state ``(e_k, e'_k, u_{k-1}, ...,
+   u_{k-m-1})`` advances by a constant matrix (:func:`mode_matrix`). Its spectral radius
+   rho is the mode's decay per period; the loop is stable when every mode has rho < 1.
+4. **Verdict.** The linear model says how a mode behaves while the force stays inside the
+   layer (:attr:`SampledPrediction.linear_radius`, the stiffest mode's radius). The sign
+   law, and the layer law with a layer about as narrow as the ripple, saturate at +-u0
+   before that: a relay, whose gain falls as its oscillation grows, so a linearly unstable
+   stiff mode settles into a small limit cycle instead of diverging. Seen as a first-order
+   kinematic loop ``e' = -kappa e`` acting after the effective delay ``T + tau`` (one period
+   to realize the velocity, then the latency), the loop holds while
+   ``kappa (T + tau) < RELAY_LIMIT`` with ``kappa = K lambda_max``, the formation loop's
+   rate (:attr:`SampledPrediction.rate_allowed` is ``RELAY_LIMIT / (T + tau)``). A linear
+   loop with that delay would stop at pi/2; the relay's boundary, 2.5, is where the
+   emulation's grid (n = 3, 8, 16 at 50-500 Hz and 0-4 ms) changes from holding to failing,
+   for both switchings (the test of :func:`predict`). The steady lag behind a target moving
+   at v_N is ``(1 - w) v_N / (k_N K)`` (eq. 31 with s = 0 and the feed-forward weight w of
+   :mod:`apf_swarm_core.laws`), and the sign law's ripple ``u0 T / M`` is large when it
+   exceeds half the target speed.
+
+The prediction is validated against the emulation (:mod:`apf_swarm_core.simulator` with
+``control_rate`` and ``latency``) on a grid of sizes and rates in the test suite.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import SwarmConfig
+from .design import equilibrium_formation
+from .metrics import FLIGHT_CRITERIA
+from .potential import hessian
+
+__all__ = ['RELAY_LIMIT', 'DESIGN_MARGIN', 'SOFT_SETTLE', 'LAG_LIMIT', 'RIPPLE_FRACTION', 'SampledPrediction',
+           'design_hessian_spectrum', 'mode_matrix', 'mode_radius', 'predict', 'propose_gains']
+
+#: the loop holds while K lambda_max (T + tau) stays below this (the sampled relay)
+RELAY_LIMIT = 2.5
+#: :func:`propose_gains` keeps K lambda_max (T + tau) at this fraction of RELAY_LIMIT
+DESIGN_MARGIN = 0.8
+#: the softest deformation mode's time constant 1 / (K lambda_soft) must fit this many times
+#: into the part of the run before the judged window (the first 60 % of it): the initial
+#: deformation has to decay before the formation is judged
+SOFT_SETTLE = 2.0
+#: a steady lag behind the target above this [m] is warned about (the centroid tolerance of
+#: :data:`apf_swarm_core.metrics.FLIGHT_CRITERIA`)
+LAG_LIMIT = 0.5
+#: the sign law's ripple u0 T / M is large above this fraction of the target speed
+RIPPLE_FRACTION = 0.5
+#: the equilibrium is searched from this many random shapes (the design's multistart)
+_STARTS = 4
+
+
+def _hold(h: float, mass: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Exact double-integrator step over h seconds with a held force: (Phi, Gamma)."""
+    return np.array([[1.0, h], [0.0, 1.0]]), np.array([h * h / (2.0 * mass), h / mass])
+
+
+def mode_matrix(lam: float, *, layer_gain: float, inner_rate: float, period: float,
+                latency: float, mass: float = 1.0) -> NDArray[np.float64]:
+    """Transition matrix of one formation mode over one control period (step 3 above).
+
+    State ``(e_k, e'_k, u_{k-1}, ..., u_{k-m-1})`` with ``latency = m T + r``; the command
+    of sample k is ``u_k = -g M (e'_k + K lambda e_k)``.
+
+    Parameters
+    ----------
+    lam : float
+        Eigenvalue of the Hessian of J [1 with unit gains].
+    layer_gain : float
+        K = alpha + beta/gamma [1/s].
+    inner_rate : float
+        g [1/s]: u0/(phi M) for the layer switching, 1/T for the sign law.
+    period : float
+        T [s], > 0.
+    latency : float
+        tau [s], >= 0.
+    mass : float
+        M [kg] (the force enters as u/M).
+
+    Returns
+    -------
+    array, shape (3 + m, 3 + m)
+    """
+    T, tau = float(period), float(latency)
+    m = int(math.floor(tau / T + 1e-12))
+    r = tau - m * T
+    size = 3 + m
+    A = np.zeros((size, size))
+    gain = -inner_rate * mass * np.array([layer_gain * lam, 1.0])   # u_k = gain . (e, e')
+    phi_T, _ = _hold(T, mass)
+    phi_rest, gam_rest = _hold(T - r, mass)
+    _, gam_r = _hold(r, mass)
+    # the command of sample k - m - 1 for r seconds, then that of k - m for T - r
+    early = phi_rest @ gam_r                  # effect of u_{k-m-1}
+    late = gam_rest                           # effect of u_{k-m}
+    A[:2, :2] = phi_T
+    # index of u_{k-j} in the state: 1 + j (j = 1 .. m + 1); u_k itself is a function of x_k
+    if m == 0:
+        A[:2, :2] += np.outer(late, gain)     # u_k acts after r
+    else:
+        A[:2, 1 + m] += late                  # u_{k-m}
+    A[:2, 2 + m] += early                     # u_{k-m-1}
+    # shift the history: new u_{k} enters slot 2 (u_{(k+1)-1}), u_{k-j} moves to slot 2 + j
+    A[2, :2] = gain
+    for j in range(3, size):
+        A[j, j - 1] = 1.0
+    return A
+
+
+def mode_radius(lam: float, **kwargs: Any) -> float:
+    """Spectral radius of :func:`mode_matrix`: the mode's decay per period (< 1: stable)."""
+    return float(np.max(np.abs(np.linalg.eigvals(mode_matrix(lam, **kwargs)))))
+
+
+def design_hessian_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
+    """Eigenvalues of the Hessian of J at the design equilibrium of ``cfg.n_trackers``
+    trackers, ascending (the rotations' zeros included); shape (3n,)."""
+    p = cfg.potential_params()
+    f = equilibrium_formation(cfg.n_trackers, **p, starts=_STARTS if cfg.n_trackers <= 12 else 1)
+    return np.linalg.eigvalsh(hessian(f.relative_positions, np.zeros(3), **p))
+
+
+@dataclass(frozen=True)
+class SampledPrediction:
+    """What :func:`predict` found; every rate in 1/s, times in s, speeds in m/s."""
+
+    n_trackers: int
+    control_period: float
+    latency: float
+    switching: str
+    layer_gain: float
+    inner_rate: float
+    hessian_max: float
+    hessian_soft: float
+    formation_rate: float
+    rate_allowed: float
+    spectral_radius: float
+    linear_radius: float
+    ripple: float
+    steady_lag: float
+    settle_time: float
+    settle_allowed: float
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def holds(self) -> bool:
+        """The formation is predicted to hold: ``K lambda_max (T + tau) < RELAY_LIMIT``
+        (:attr:`spectral_radius` below 1), the softest mode settles in time and the lag is
+        within :data:`LAG_LIMIT`."""
+        return (self.spectral_radius < 1.0 and self.steady_lag <= LAG_LIMIT
+                and self.settle_time <= self.settle_allowed)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain values, for summary.json."""
+        out = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        out['holds'] = self.holds
+        return out
+
+
+def _inner_rate(cfg: SwarmConfig, period: float, mass: float, phi: float | None = None
+                ) -> float:
+    if cfg.switching == 'layer' or phi is not None:
+        return cfg.u0 / ((cfg.phi if phi is None else phi) * mass)
+    return 1.0 / period
+
+
+def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
+            latency: float | None = None, spectrum: NDArray[np.float64] | None = None
+            ) -> SampledPrediction:
+    """Predict the sampled loop of ``cfg`` at ``control_rate`` [Hz] (default its own, else
+    1/dt) with ``latency`` [s] (default its own); ``spectrum``: a precomputed
+    :func:`design_hessian_spectrum`."""
+    rate = cfg.control_rate if control_rate is None else control_rate
+    T = 1.0 / rate if rate and rate > 0 else cfg.dt
+    tau = cfg.latency if latency is None else float(latency)
+    eigs = design_hessian_spectrum(cfg) if spectrum is None else np.asarray(spectrum)
+    lam_max = float(eigs.max())
+    soft = float(eigs[eigs > 1e-6 * lam_max].min())
+    mass = float(np.min(cfg.mass_matrix_diag()))
+    K = cfg.alpha + cfg.beta / cfg.gamma
+    g = _inner_rate(cfg, T, mass)
+    allowed = RELAY_LIMIT / (T + tau)
+    linear = mode_radius(lam_max, layer_gain=K, inner_rate=g, period=T, latency=tau,
+                         mass=mass)
+    ripple = cfg.u0 * T / mass
+    vn = cfg.target_speed_bound
+    lag = (1.0 - cfg.feedforward) * vn / (cfg.k_n * K)
+    settle = 1.0 / (K * soft)
+    settle_allowed = (1.0 - FLIGHT_CRITERIA['window']) * cfg.duration / SOFT_SETTLE
+    warnings = []
+    if settle > settle_allowed:
+        warnings.append(
+            f'slow formation: the softest deformation mode of {cfg.n_trackers} trackers '
+            f'(lambda = {soft:.3g}) settles with the time constant 1 / (K lambda) = '
+            f'{settle:.3g} s, more than {settle_allowed:.3g} s ({1 / SOFT_SETTLE:g} of the '
+            f'first {1 - FLIGHT_CRITERIA["window"]:g} of the {cfg.duration:g} s run): the '
+            f'pair distances may not reach the design in time; fly longer, or raise K with '
+            f'a higher control rate')
+    if K * lam_max > allowed:
+        Kmax = DESIGN_MARGIN * allowed / lam_max
+        fix = (f'raise gamma to >= {cfg.beta / (Kmax - cfg.alpha):.3g} m (K = {Kmax:.3g} '
+               f'1/s, with feedforward = 1 against the lag)' if Kmax > cfg.alpha else
+               'lower the latency')
+        warnings.append(
+            f'formation predicted to fail at {1.0 / T:g} Hz with {tau * 1e3:g} ms latency: '
+            f'the stiffest mode of {cfg.n_trackers} trackers has the rate K lambda_max = '
+            f'{K:.3g} x {lam_max:.3g} = {K * lam_max:.3g} 1/s, and a control period of '
+            f'{T * 1e3:g} ms with that delay allows {RELAY_LIMIT:g} / (T + tau) = '
+            f'{allowed:.3g} 1/s: {fix}, raise the control rate, or run `apf-swarm design '
+            f'--control-rate {1.0 / T:g} --latency {tau:g} --n-trackers {cfg.n_trackers}`')
+    if cfg.switching == 'sign' and ripple > RIPPLE_FRACTION * vn:
+        warnings.append(
+            f'large chattering: u0 = {cfg.u0:g} N held for the control period T = '
+            f'{T * 1e3:g} ms gives a velocity ripple u0 T / M = {ripple:.3g} m/s, more than '
+            f'{RIPPLE_FRACTION:g} x the target speed {vn:g} m/s: lower u0 to <= '
+            f'{RIPPLE_FRACTION * vn * mass / T:.3g} N, raise the control rate, or use '
+            f'switching = layer (phi about {ripple:.2g} m/s)')
+    if lag > LAG_LIMIT:
+        warnings.append(
+            f'steady lag (1 - w) v_N / (k_N K) = {lag:.3g} m behind a target at {vn:g} m/s '
+            f'(K = {K:.3g} 1/s, w = {cfg.feedforward:g}): set feedforward = 1 or a smaller '
+            f'gamma')
+    return SampledPrediction(
+        n_trackers=cfg.n_trackers, control_period=T, latency=tau, switching=cfg.switching,
+        layer_gain=K, inner_rate=g, hessian_max=lam_max, hessian_soft=soft,
+        formation_rate=K * lam_max, rate_allowed=allowed,
+        spectral_radius=K * lam_max / allowed, linear_radius=linear, ripple=ripple,
+        steady_lag=lag, settle_time=settle, settle_allowed=settle_allowed, warnings=warnings)
+
+
+def propose_gains(cfg: SwarmConfig, *, control_rate: float, latency: float,
+                  spectrum: NDArray[np.float64] | None = None) -> dict[str, float | str]:
+    """Gains that :func:`predict` passes at this rate and delay, for ``cfg.n_trackers``.
+
+    The layer gain ``K = DESIGN_MARGIN RELAY_LIMIT / (lambda_max (T + tau))`` (at most the
+    configuration's own), i.e. ``gamma = beta / (K - alpha)``; ``feedforward = 1``, since a
+    smaller K alone would trail the target by ``v_N / (k_N K)``; and the boundary-layer
+    switching with ``phi = u0 T / M``, the sign law's ripple, so that the switching does not
+    chatter. ValueError when even K = alpha is too fast (the delay alone is too long).
+    """
+    T = 1.0 / control_rate
+    eigs = design_hessian_spectrum(cfg) if spectrum is None else np.asarray(spectrum)
+    lam_max = float(eigs.max())
+    mass = float(np.min(cfg.mass_matrix_diag()))
+    K = min(cfg.alpha + cfg.beta / cfg.gamma,
+            DESIGN_MARGIN * RELAY_LIMIT / (lam_max * (T + latency)))
+    if K <= cfg.alpha:
+        raise ValueError(f'no layer gain holds {cfg.n_trackers} trackers at '
+                         f'{control_rate:g} Hz with {latency * 1e3:g} ms latency: even '
+                         f'K = alpha = {cfg.alpha:g} is too fast; lower the latency')
+    return {'switching': 'layer', 'phi': cfg.u0 * T / mass,
+            'gamma': cfg.beta / (K - cfg.alpha), 'feedforward': 1.0}
