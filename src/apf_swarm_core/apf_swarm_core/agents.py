@@ -133,8 +133,8 @@ class TrackerAgent:
 
     #: configuration keys a running tracker takes over at once (:meth:`retune`): the
     #: controller's gains (eq. 22-28, 31, 24, 26) and the potential (eq. 2 / 44)
-    RETUNABLE = ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'k_n', 'k_f', 'a',
-                 'b', 'c')
+    RETUNABLE = ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'phi', 'feedforward',
+                 'k_n', 'k_f', 'a', 'b', 'c')
 
     def retune(self, cfg: SwarmConfig) -> list[str]:
         """Take over the gains and potential of ``cfg``; returns the keys that changed.
@@ -147,7 +147,8 @@ class TrackerAgent:
                   if getattr(cfg, f) != getattr(self.cfg, f)]
         if others:
             raise ValueError(f'{", ".join(others)} cannot change while the tracker runs')
-        for key in ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag'):
+        for key in ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'phi',
+                    'feedforward'):
             setattr(self.controller, key, getattr(cfg, key))
         self.cfg = cfg
         self.params = cfg.potential_params()
@@ -264,7 +265,8 @@ class TrackerAgent:
         silent = [src[j].x for j in self.ids if not src[j].active]
         out = control_step(self.controller, x, src[self.uav_id].v[None, :], src[0].x,
                            self.params, rows=[row], mask=mask,
-                           obstacles=np.stack(silent) if silent else None)
+                           obstacles=np.stack(silent) if silent else None,
+                           target_v=src[0].v)
         self.neighbours_used = len(ids) - 1 if mask is None else int(np.count_nonzero(mask))
         self.active_neighbours = len(ids) - 1
         self._last_step = step

@@ -26,7 +26,7 @@ from .config import SwarmConfig
 from .design import expected_spacing, triangle_spacing
 from .potential import gradient
 
-__all__ = ['Finding', 'GainBound', 'CheckReport', 'pair_hessian_bound', 'gain_bounds',
+__all__ = ['sampled_findings', 'Finding', 'GainBound', 'CheckReport', 'pair_hessian_bound', 'gain_bounds',
            'gain_bounds_from_run', 'check_config']
 
 Level = Literal['ok', 'info', 'warning', 'error']
@@ -192,12 +192,46 @@ def _bound_findings(cfg: SwarmConfig, bounds: list[GainBound], source: str,
     return out
 
 
-def check_config(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> CheckReport:
+def sampled_findings(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> list[Finding]:
+    """The real-time findings: :func:`apf_swarm_core.sampled.predict` at ``cfg.control_rate``
+    and ``cfg.latency`` in words (its warnings as warnings), and, with ``run`` (the emulation
+    at that rate and latency), whether it flew by :data:`~apf_swarm_core.metrics.
+    FLIGHT_CRITERIA`."""
+    from .metrics import flight
+    from .sampled import predict
+    from .simulator import expected_pairs
+    pred = predict(cfg)
+    T = pred.control_period
+    out = [Finding('info', 'sampled', (
+        f'real time at {1 / T:g} Hz (T = {T * 1e3:g} ms) with {pred.latency * 1e3:g} ms '
+        f'latency, {cfg.switching} switching: formation loop rate K lambda_max = '
+        f'{pred.layer_gain:.4g} x {pred.hessian_max:.4g} = {pred.formation_rate:.4g} 1/s '
+        f'against {pred.rate_allowed:.4g} 1/s allowed; ripple u0 T / M = {pred.ripple:.3g} '
+        f'm/s; steady lag {pred.steady_lag:.3g} m; softest mode settles in '
+        f'{pred.settle_time:.3g} s; predicted to ' + ('hold' if pred.holds else 'fail')
+        + '.'))]
+    out += [Finding('warning', 'sampled', w) for w in pred.warnings]
+    if run is not None:
+        f = flight(run, expected_pairs(cfg))
+        if f['formation_error_rms'] is not None:
+            out.append(Finding('info', 'emulation', (
+                f"the emulation at this rate and latency {'flies' if f['flies'] else 'does not fly'}: "
+                f"formation error RMS {100 * f['formation_error_rms']:.2g} % of the mean design "
+                f"spacing, closest pair {100 * f['closest_pair']:.3g} % of the design's, "
+                f"centroid error RMS {f['centroid_error_rms']:.3g} m over the last "
+                f"{100 * f['window']:g} %.")))
+    return out
+
+
+def check_config(cfg: SwarmConfig, run: dict[str, Any] | None = None, *,
+                 realtime: bool = False) -> CheckReport:
     """Every condition for ``cfg``, in words: what holds, what fails, and what will happen.
 
     ``run`` (a trajectory with ``t``, ``x``, ``target_x``) adds the u0 bounds measured on it;
     only those can turn a failed gain bound into a warning, because the a priori estimates of
     ``J_bar_s`` are far too conservative to decide (they assume worst-case relative speeds).
+    ``realtime``: also the sampled-data prediction at ``cfg.control_rate`` and ``cfg.latency``
+    (:func:`sampled_findings`; ``run`` is then the emulation at that rate).
     """
     rep = CheckReport()
     add = rep.findings.append
@@ -259,13 +293,16 @@ def check_config(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> CheckRe
                     f'lambda_filter = {cfg.lambda_filter:g} s: the filter of eq. 26 cannot average '
                     'the switching; use dt <= lambda_filter / 10.'))
     m_lo = min(min(r) for r in cfg.mass_matrix_diag())
-    ripple = cfg.u0 * cfg.dt / m_lo
-    add(Finding('info', 'ripple', f'switching ripple of the velocity about u0 dt / M = '
-                f'{ripple:.3g} m/s per step (SPEC fact 4): it scales with dt.'))
+    ripple = cfg.u0 * cfg.control_period / m_lo
+    add(Finding('info', 'ripple', f'switching ripple of the velocity about u0 T / M = '
+                f'{ripple:.3g} m/s per control period T = {cfg.control_period:g} s '
+                '(docs/THEORY.md): it scales with the period.'))
     if cfg.law == 'proposed' and cfg.beta >= vn:
         lag = vn / (cfg.k_n * (cfg.alpha + cfg.beta / cfg.gamma))
         add(Finding('info', 'lag', f'inside the boundary layer the law is linear with gain '
                     f'alpha + beta/gamma = {cfg.alpha + cfg.beta / cfg.gamma:.4g} 1/s: a target '
                     f'at {vn:g} m/s is trailed by about v_N / (k_n (alpha + beta/gamma)) = '
                     f'{lag:.3g} m (smaller gamma: less lag, more switching).'))
+    if realtime:
+        rep.findings += sampled_findings(cfg, run)
     return rep

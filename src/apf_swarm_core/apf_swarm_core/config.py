@@ -35,9 +35,17 @@ from .potential import NEIGHBOUR_RULES
 from .saturation import SATURATIONS
 from .target import TRAJECTORIES, Trajectory, make_trajectory
 
-__all__ = ['SwarmConfig', 'PER_UAV_KEYS', 'REQUIRED_KEYS', 'preset_dirs', 'preset_names',
+__all__ = ['REALTIME_RATE', 'DEFAULT_LATENCY', 'SwarmConfig', 'PER_UAV_KEYS', 'REQUIRED_KEYS', 'preset_dirs', 'preset_names',
            'preset_path', 'load_preset', 'load_config', 'config_from_mapping', 'parse_set',
            'apply_overrides', 'to_ros_params']
+
+#: realtime rate of the plant's publications and the trackers' control [Hz] when
+#: ``control_rate`` is 0
+REALTIME_RATE = 100.0
+#: control-loop latency [s] that ``apf-swarm check --mode realtime`` and ``design`` assume
+#: when neither the configuration nor ``--latency`` gives one: the p50 of the 100 Hz loop on
+#: the slower of the 2-core machines measured (docs/PERFORMANCE.md)
+DEFAULT_LATENCY = 0.005
 
 #: keys a ``/uav_<i>/...`` section may override for one tracker
 PER_UAV_KEYS = ('mass', 'initial_position')

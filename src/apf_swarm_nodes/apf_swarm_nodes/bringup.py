@@ -766,6 +766,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='how long to wait for every node and topic (default 30)')
     p.add_argument('--stall-timeout', type=positive_float, default=20.0, metavar='S',
                    help='stop when no /swarm/state arrives for this long (default 20)')
+    p.add_argument('--gains', choices=('auto', 'config'), default='auto',
+                   help='realtime: auto (default) replaces the controller gains by '
+                        '`apf-swarm design --control-rate` ones when the sampled-data '
+                        'prediction says the configuration\'s would not hold the formation '
+                        'at this size and rate; config flies them as given (warned)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
     p.add_argument('--node-param', action='append', default=[], metavar='NAME:=VALUE',
                    dest='node_params', help='a node parameter for every node (repeatable), e.g. '
@@ -860,9 +865,48 @@ class Bringup:
             self.say(f'warning: {text}')
 
     # --- set-up ---------------------------------------------------------------------------
+    def realtime_check(self) -> None:
+        """Realtime: the sampled-data prediction before the run (printed, and kept for
+        summary.json); with ``--gains auto`` a failing one is replaced by designed gains."""
+        from apf_swarm_core.config import DEFAULT_LATENCY, REALTIME_RATE
+        from apf_swarm_core.sampled import predict, propose_gains
+        cfg = self.cfg
+        if cfg.control_rate <= 0:
+            cfg = cfg.replace(control_rate=REALTIME_RATE)
+        latency = cfg.latency or DEFAULT_LATENCY
+        pred = predict(cfg, latency=latency)
+        self.gains_scheduled: dict[str, Any] = {}
+        if not pred.holds and getattr(self.args, 'gains', 'auto') == 'auto':
+            try:
+                gains = propose_gains(cfg, control_rate=cfg.control_rate, latency=latency)
+            except ValueError as exc:
+                self.say(f'warning: {exc}')
+            else:
+                tuned = cfg.replace(**gains)
+                tuned_pred = predict(tuned, latency=latency)
+                if tuned_pred.spectral_radius < pred.spectral_radius or \
+                        tuned_pred.steady_lag < pred.steady_lag:
+                    self.say('scheduled gains for ' f'{cfg.n_trackers} trackers at '
+                             f'{cfg.control_rate:g} Hz, {latency * 1e3:g} ms (the '
+                             'configuration\'s are predicted to lose the formation; '
+                             '--gains config keeps them): ' + ', '.join(
+                                 f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
+                                 for k, v in gains.items()))
+                    self.gains_scheduled, cfg, pred = gains, tuned, tuned_pred
+        for w in pred.warnings:
+            self.say(f'warning: {w}')
+        self.cfg = cfg
+        self.prediction = pred
+
     def prepare(self) -> None:
         """Checks that need no process: executables, recorder, output directory, config."""
         import yaml
+        self.prediction = None
+        if self.mode == 'realtime':
+            self.realtime_check()
+        elif self.cfg.control_rate > 0:
+            raise CliError(f'control_rate = {self.cfg.control_rate:g} Hz: lockstep commands '
+                           'every step of dt; use --mode realtime, or --set control_rate=0')
         prefix = package_prefix()
         names = ['target', 'plant', 'tracker' if self.args.trackers_per_process == 1
                  else 'trackers']
@@ -1203,6 +1247,8 @@ class Bringup:
                               dropped=self.acc.dropped,
                               respawned=[c.name for c in self.group if c.respawns])
         summary.update(self.run_fields(status))
+        if self.prediction is not None:
+            summary['prediction'] = self.predicted(traj)
         paths = write_run(self.out, traj, summary, cfg)
         if not self.args.no_plots and len(traj['t']) > 1:
             from . import plots
@@ -1217,6 +1263,19 @@ class Bringup:
                 {cfg.law: traj}, f'centroid error, ROS 2 {self.mode} run',
                 self.out / 'centroid_error.png')
         print(format_summary(summary))
+        pr = summary.get('prediction')
+        if pr is not None:
+            def judged(f: dict[str, Any]) -> str:
+                if f.get('formation_error_rms') is None:
+                    return 'no design to judge by'
+                return (('flies' if f['flies'] else 'does not fly') + f": formation error "
+                        f"{100 * f['formation_error_rms']:.2g} %, closest pair "
+                        f"{100 * f['closest_pair']:.3g} %, centroid {f['centroid_error_rms']:.3g} m")
+            print(f"  flight           run {judged(pr['run'])}")
+            if 'emulation' in pr:
+                print(f"  headless         {judged(pr['emulation'])} (same rate, the run's "
+                      f"latencies p50 {1e3 * pr['latency']['p50']:.2g} ms, p99 "
+                      f"{1e3 * pr['latency']['p99']:.2g} ms)")
         m = summary['messages']
         print(f"  run              {status}, {self.mode}, ROS_DOMAIN_ID {self.domain_id}, "
               f"{summary['wall_time']:g} s wall, {m['received']} messages, {m['dropped']} "
@@ -1232,6 +1291,28 @@ class Bringup:
         print(f'wrote {self.out / "trajectory.npz"}, {self.out / "summary.json"}'
               + (f' and {", ".join(figs)}' if figs else ''))
         return paths
+
+    def predicted(self, traj: dict[str, Any]) -> dict[str, Any]:
+        """Realtime: the run judged by flight next to its headless emulation at the same
+        rate with the latencies the plant measured (and the prediction before the run)."""
+        import numpy as np
+        from apf_swarm_core.metrics import flight
+        from apf_swarm_core.simulator import expected_pairs, simulate
+        pairs = expected_pairs(self.cfg)
+        lat = np.asarray(traj.get('command_latency', np.zeros((0,))), dtype=float).ravel()
+        lat = lat[(lat > 0) & np.isfinite(lat)]
+        out: dict[str, Any] = {'before_run': self.prediction.to_dict(),
+                               'gains_scheduled': self.gains_scheduled,
+                               'run': flight(traj, pairs)}
+        if lat.size:
+            out['latency'] = {q: round(float(np.quantile(lat, v)), 6) for q, v in
+                              (('p50', 0.5), ('p90', 0.9), ('p99', 0.99))}
+            emu_cfg = self.cfg.replace(duration=float(traj['t'][-1] - traj['t'][0]) or
+                                       self.cfg.duration, latency=float(np.median(lat)))
+            emu = simulate(emu_cfg, latency_samples=lat)
+            out['emulation'] = flight(emu.trajectory, pairs)
+            out['latency_samples'] = np.round(lat[:: max(1, lat.size // 2000)], 6).tolist()
+        return out
 
     # --- everything -----------------------------------------------------------------------
     def execute(self) -> int:

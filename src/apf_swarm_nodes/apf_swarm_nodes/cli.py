@@ -16,8 +16,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from apf_swarm_core.checks import check_config
-from apf_swarm_core.config import (SwarmConfig, apply_overrides, load_config, load_preset,
-                                   parse_set, preset_names)
+from apf_swarm_core.config import (DEFAULT_LATENCY, REALTIME_RATE, SwarmConfig,
+                                   apply_overrides, load_config, load_preset, parse_set,
+                                   preset_names)
 from apf_swarm_core.design import (b_for_spacing, equilibrium_formation, triangle_c_for_spacing)
 from apf_swarm_core.errors import ApfSwarmError
 from apf_swarm_core.simulator import simulate
@@ -52,11 +53,56 @@ def _progress(args: argparse.Namespace, label: str):
     return None if getattr(args, 'quiet', False) else Progress(label)
 
 
+def _latency_arg(text: str) -> float | Path:
+    """``--latency``: seconds, or a JSON file of measured latencies."""
+    try:
+        return nonneg_float(text)
+    except argparse.ArgumentTypeError:
+        path = Path(text)
+        if not path.is_file():
+            raise argparse.ArgumentTypeError(
+                f'{text!r}: expected a latency in seconds (e.g. 0.004) or a JSON file of '
+                f'measured latencies (a list, or {{"latency_samples": [...]}})') from None
+        return path
+
+
+def latency_samples(path: Path) -> np.ndarray:
+    """Measured latencies [s] from a JSON file: a list, or an object with
+    ``latency_samples`` (a realtime run's summary.json holds them under ``prediction``)."""
+    try:
+        doc = json.loads(path.read_text())
+    except ValueError as exc:
+        raise ApfSwarmError(f'{path}: not JSON ({exc}); expected a list of latencies [s]')
+    if isinstance(doc, dict):
+        doc = doc.get('latency_samples', doc.get('prediction', {}).get('latency_samples'))
+    arr = np.asarray(doc if doc is not None else [], dtype=float).ravel()
+    if arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ApfSwarmError(f'{path}: expected a non-empty list of latencies >= 0 s '
+                            '(or an object with "latency_samples")')
+    return arr
+
+
+def _realtime_extra(args: argparse.Namespace) -> tuple[dict[str, Any], np.ndarray | None]:
+    """--control-rate / --latency as configuration values, and latency samples."""
+    extra: dict[str, Any] = {'control_rate': getattr(args, 'control_rate', None)}
+    lat = getattr(args, 'latency', None)
+    samples = None
+    if isinstance(lat, Path):
+        samples = latency_samples(lat)
+        extra['latency'] = float(np.median(samples))
+    else:
+        extra['latency'] = lat
+    return extra, samples
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
+    extra, samples = _realtime_extra(args)
     cfg = _load(args, {'law': args.law, 'n_trackers': args.n_trackers,
-                       'duration': args.duration, 'dt': args.dt, 'seed': args.seed})
+                       'duration': args.duration, 'dt': args.dt, 'seed': args.seed, **extra})
+    if samples is not None and cfg.control_rate <= 0:
+        raise ApfSwarmError('--latency FILE emulates a realtime loop: give --control-rate HZ')
     report = check_config(cfg)
-    res = simulate(cfg, progress=_progress(args, 'simulate'))
+    res = simulate(cfg, progress=_progress(args, 'simulate'), latency_samples=samples)
     summary = res.summary(warnings=report.warnings)
     write_run(args.out, res.trajectory, summary, cfg)
     print(format_summary(summary))
@@ -65,9 +111,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    cfg = _load(args)
-    run = None if args.no_run else simulate(cfg, progress=_progress(args, 'check run')).trajectory
-    rep = check_config(cfg, run)
+    extra, samples = _realtime_extra(args)
+    cfg = _load(args, {'n_trackers': args.n_trackers, **extra})
+    if args.mode == 'realtime' and cfg.control_rate <= 0:
+        cfg = cfg.replace(control_rate=REALTIME_RATE)
+    if args.mode == 'realtime':
+        cfg = cfg.replace(latency=cfg.latency or DEFAULT_LATENCY)
+    run = None if args.no_run else simulate(
+        cfg, progress=_progress(args, 'check run'), latency_samples=samples).trajectory
+    rep = check_config(cfg, run, realtime=args.mode == 'realtime')
     if args.json:
         print(json.dumps(rep.as_dict(), indent=2))
     else:
@@ -80,8 +132,43 @@ def cmd_check(args: argparse.Namespace) -> int:
     return rep.exit_code
 
 
+def cmd_design_rate(args: argparse.Namespace, cfg: SwarmConfig) -> int:
+    """``design --control-rate HZ``: gains that the sampled-data prediction passes."""
+    from apf_swarm_core.sampled import predict, propose_gains
+    latency = args.latency if isinstance(args.latency, float) else \
+        (cfg.latency or DEFAULT_LATENCY)
+    try:
+        gains = propose_gains(cfg, control_rate=args.control_rate, latency=latency)
+    except ValueError as exc:
+        raise ApfSwarmError(str(exc)) from None
+    tuned = cfg.replace(control_rate=args.control_rate, latency=latency, **gains)
+    pred = predict(tuned)
+    if args.json:
+        print(json.dumps({'n_trackers': cfg.n_trackers, 'control_rate': args.control_rate,
+                          'latency': latency, 'gains': gains,
+                          'prediction': pred.to_dict()}, indent=2))
+        return 0
+    print(f'{cfg.n_trackers} trackers at {args.control_rate:g} Hz with {latency * 1e3:g} ms '
+          f'latency: lambda_max of the Hessian of J = {pred.hessian_max:.4g}')
+    print('  ' + '  '.join(f'--set {k}={v:.4g}' if isinstance(v, float) else f'--set {k}={v}'
+                           for k, v in gains.items()))
+    print(f'  K = alpha + beta/gamma = {pred.layer_gain:.4g} 1/s: K lambda_max = '
+          f'{pred.formation_rate:.4g} 1/s of {pred.rate_allowed:.4g} allowed; softest mode '
+          f'settles in {pred.settle_time:.3g} s (of {pred.settle_allowed:.3g}); lag '
+          f'{pred.steady_lag:.3g} m')
+    for w in pred.warnings:
+        print(f'  [WARN] {w}')
+    print('verdict: ' + ('predicted to hold' if pred.holds else 'predicted to fail'))
+    return 0 if pred.holds else 1
+
+
 def cmd_design(args: argparse.Namespace) -> int:
     cfg = _load(args, {'n_trackers': args.n_trackers})
+    if args.control_rate is not None:
+        return cmd_design_rate(args, cfg)
+    if args.spacing is None:
+        raise ApfSwarmError('design needs --spacing D (formation) or --control-rate HZ '
+                            '(gains for a realtime loop)')
     n, p = cfg.n_trackers, cfg.potential_params()
     if args.solve == 'b':
         p['b'] = b_for_spacing(args.spacing, n, k_n=p['k_n'], k_f=p['k_f'], a=p['a'], c=p['c'])
@@ -296,6 +383,16 @@ def _add_bag_parser(sub: Any) -> None:
     q.set_defaults(func=cmd_bag_play)
 
 
+def _add_realtime_args(p: argparse.ArgumentParser, help_rate: str = '') -> None:
+    p.add_argument('--control-rate', type=positive_float, metavar='HZ',
+                   help=help_rate or 'sample and hold the control at this rate (the '
+                   'control_rate key; real time emulated)')
+    p.add_argument('--latency', type=_latency_arg, metavar='S|FILE',
+                   help='control-loop delay [s], or a JSON file of measured latencies to '
+                        'draw from (a list, or a realtime run\'s summary.json); default for '
+                        f'check and design: the latency key, else {DEFAULT_LATENCY:g} s')
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description='APF formation tracking with '
                                      'sliding-mode control: simulate, check, design, reproduce.')
@@ -308,12 +405,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--duration', type=float, metavar='S')
     p.add_argument('--dt', type=float, metavar='S')
     p.add_argument('--seed', type=int)
+    _add_realtime_args(p)
     p.add_argument('--out', type=Path, required=True, metavar='DIR')
     p.add_argument('--quiet', action='store_true', help='no progress line')
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser('check', help='validation and gain report (exit 0 ok, 1 warnings, 2 errors)')
     _add_config_args(p)
+    p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep',
+                   help='realtime: also predict the sampled loop (control rate, latency)')
+    p.add_argument('--n-trackers', type=int)
+    _add_realtime_args(p)
     p.add_argument('--no-run', action='store_true',
                    help='skip the simulation that measures J_bar (a priori bounds only)')
     p.add_argument('--json', action='store_true')
@@ -322,9 +424,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('design', help='b (or c) for a spacing, and the equilibrium shape')
     _add_config_args(p, required=False, default_preset='triangle')
-    p.add_argument('--spacing', type=float, required=True, metavar='D',
+    p.add_argument('--spacing', type=float, metavar='D',
                    help='wanted nearest-neighbour distance [m]')
     p.add_argument('--n-trackers', type=int)
+    _add_realtime_args(p, help_rate='propose the gains of a realtime loop at this rate '
+                       '(instead of --spacing)')
     p.add_argument('--solve', choices=('b', 'c'), default='b')
     p.add_argument('--json', action='store_true')
     p.set_defaults(func=cmd_design)

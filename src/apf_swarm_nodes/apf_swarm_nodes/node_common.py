@@ -53,6 +53,7 @@ from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 from rclpy.signals import SignalHandlerOptions
 
+from apf_swarm_core.config import REALTIME_RATE
 from apf_swarm_core.errors import ApfSwarmError
 
 __all__ = ['EXECUTORS', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
@@ -87,10 +88,6 @@ REQUEST_QOS = START_QOS
 LOCKSTEP_DEPTH = 1000
 CLOCK_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                        depth=LOCKSTEP_DEPTH)
-
-#: realtime rate of the plant's publications and the trackers' control [Hz] when the
-#: configuration's control_rate is 0
-REALTIME_RATE = 100.0
 
 
 def control_qos(mode: str, depth: int = 1) -> QoSProfile:
