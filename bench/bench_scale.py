@@ -10,14 +10,18 @@ time, each in its own ``ROS_DOMAIN_ID`` (202..230) with ``ROS_AUTOMATIC_DISCOVER
 LOCALHOST``, reads its ``summary.json`` and samples the case's processes from ``/proc`` every
 0.25 s (node processes found by the run's config path in their command line). Parts:
 
-* **ladder**: realtime at 50 and 100 Hz (plant ``publish_rate`` = tracker ``control_rate``),
+* **ladder**: realtime at 50 and 100 Hz (``--set control_rate=HZ``: the plant's publish rate
+  and the trackers' watchdog; the bring-up schedules the gains for n and rate),
   executor ``single`` / ``events`` x inputs ``aggregate`` / ``odom`` with one tracker per
   process (``K = 1``), and for events / aggregate also ``K = 4`` (``--trackers-per-process
   4``) and the control topics' QoS depth 10 instead of 1 (``qos_depth:=10``); n
   climbs 4, 8, ..., 24, 32, 40 and stops at the first size that does not fly. "Flies": exit 0, no
   missed deadline (trackers the plant found silent), at most 3 stale (brake) commands per
   tracker (the watchdogs' brakes before a tracker's first input), at least 95 % of the
-  expected ``/swarm/state`` samples. ``multi`` (MultiThreadedExecutor, documented as
+  expected ``/swarm/state`` samples, and the formation held (``apf_swarm_core.metrics.
+  flight`` over the last 40 %: formation error RMS <= 3 % of the mean design spacing,
+  closest pair >= 90 % of the design's, converged), shown next to the headless emulation at
+  the same rate with the run's measured latencies. ``multi`` (MultiThreadedExecutor, documented as
   pathological) once: n = 4, 50 Hz.
 * **latency**: bench_graph's control-loop latency (events executor, 3 trackers, 100 Hz,
   ``trigger:=odom``) for inputs aggregate and odom, each with bench_graph's raw rclpy
@@ -134,7 +138,7 @@ def bringup_argv(case: UpCase, out: Path, domain: int) -> list[str]:
     params = [f'executor:={case.executor}', f'inputs:={case.inputs}',
               f'qos_depth:={case.depth}']
     if case.mode == 'realtime':
-        params += [f'publish_rate:={float(case.rate)!r}', f'control_rate:={float(case.rate)!r}']
+        cmd += ['--set', f'control_rate={float(case.rate)!r}']
     for p in params:
         cmd += ['--node-param', p]
     return cmd
@@ -281,6 +285,10 @@ def failure_reasons(case: UpCase, r: dict[str, Any]) -> list[str]:
         why.append(f'{r["stale"]} stale')
     if r['received'] < MIN_SAMPLES * r['expected']:
         why.append(f'{r["received"]}/{r["expected"]:.0f} samples')
+    run = (r.get('prediction') or {}).get('run') or {}
+    if not run.get('flies'):
+        why.append('formation lost' if run.get('formation_error_rms') is not None
+                   else 'no flight judgement')
     return why
 
 
@@ -296,7 +304,9 @@ def summarize(case: UpCase, rc: int, summary: dict[str, Any] | None,
         res.update({'status': summary.get('status'), 'missed': summary['missed_deadlines'],
                     'stale': summary['stale_inputs'],
                     'received': summary['messages']['received'],
-                    'ready_s': summary['timing']['ready'], 'rate': summary['timing']['rate']})
+                    'ready_s': summary['timing']['ready'], 'rate': summary['timing']['rate'],
+                    'prediction': {k: v for k, v in (summary.get('prediction') or {}).items()
+                                   if k != 'latency_samples'}})
     if case.mode == 'realtime':
         res['expected'] = case.flight * case.rate
         res['why'] = failure_reasons(case, res)
@@ -518,11 +528,19 @@ def ladder_summary(ladders: list[list[UpCase]], multi: UpCase | None) -> list[st
     return out
 
 
+def flight_cell(f: dict[str, Any] | None) -> str:
+    """``2.1 % / 95 %``: formation error RMS and closest pair of a flight judgement."""
+    if not f or f.get('formation_error_rms') is None:
+        return '-'
+    return f'{100 * f["formation_error_rms"]:.1f} % / {100 * f["closest_pair"]:.0f} %'
+
+
 def realtime_rows(cases: list[UpCase]) -> list[str]:
     out = ['| rate [Hz] | executor | inputs | depth | K | trackers | flies | exit | missed | '
-           'stale | samples / expected | graph ready [s] | CPU nodes / harness / other [%] | '
+           'stale | samples / expected | formation err / closest pair (run; headless) | '
+           'latency p50 / p99 [ms] | graph ready [s] | CPU nodes / harness / other [%] | '
            'RSS per tracker [MB] | plant RSS [MB] |',
-           '|---:|---|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---|---:|---:|']
+           '|---:|---|---|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---|---:|---:|']
     for c in cases:
         r = c.result
         head = f'| {c.rate:g} | {c.executor} | {c.inputs} | {c.depth} | {c.k} | {c.n} |'
@@ -530,8 +548,13 @@ def realtime_rows(cases: list[UpCase]) -> list[str]:
             out.append(f'{head} no | {r["exit"]} | failed: {r.get("error", "")} '
                        '| | | | | | |')
             continue
+        pr = r.get('prediction') or {}
+        lat = pr.get('latency') or {}
         out.append(f'{head} {"yes" if r["flies"] else "no"} | {r["exit"]} | {r["missed"]} | '
                    f'{r["stale"]} | {r["received"]} / {r["expected"]:.0f} | '
+                   f'{flight_cell(pr.get("run"))}; {flight_cell(pr.get("emulation"))} | '
+                   f'{f1(1e3 * lat["p50"]) if lat else "-"} / '
+                   f'{f1(1e3 * lat["p99"]) if lat else "-"} | '
                    f'{f1(r["ready_s"])} | {cpu_cell(r["cpu"])} | '
                    f'{f1(r["rss_per_tracker"])} | {f1(r["rss_plant"], ".0f")} |')
     return out
@@ -628,7 +651,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument('--rates', type=float, nargs='+', metavar='HZ',
                     help='realtime rates of the ladders (default 50 100; --quick 50)')
     ap.add_argument('--flight', type=float, metavar='S',
-                    help='wall seconds of flight per ladder case (default 6; --quick 5)')
+                    help='wall seconds of flight per ladder case (default 25; --quick 5)')
     ap.add_argument('--only', type=parse_parts, default=list(PARTS), metavar='PARTS',
                     help=f'comma-separated subset of {",".join(PARTS)}')
     ap.add_argument('--ladder', metavar='TEXT', action='append', default=[],
@@ -642,7 +665,7 @@ def build_parser() -> argparse.ArgumentParser:
 def run_parts(bench: Bench, args: argparse.Namespace) -> dict[str, Any]:
     q = args.quick
     rates = args.rates or ([50.0] if q else [50.0, 100.0])
-    flight = args.flight or (5.0 if q else 6.0)
+    flight = args.flight or (5.0 if q else 25.0)  # the formation is judged over the last 40 %
     sizes = (8, 16) if q else LADDER
     res: dict[str, Any] = {'rates': rates, 'flight': flight, 'ladders': [], 'multi': None,
                            'latency': ([], None), 'discovery': [], 'lockstep': []}
@@ -676,7 +699,8 @@ def report(res: dict[str, Any], m_before: dict[str, str], wall: float, left: int
     if ladders:
         out += [f'Max trackers in realtime, {res["flight"]:g} s per case ("flies": exit 0, no '
                 f'missed deadline, <= {STALE_PER_TRACKER} stale commands per tracker, >= '
-                f'{MIN_SAMPLES:.0%} of the expected samples; each ladder stops at its first '
+                f'{MIN_SAMPLES:.0%} of the expected samples, the formation held over the '
+                f'last 40 %; each ladder stops at its first '
                 'failing size):', '', *ladder_summary(ladders, res['multi']), '',
                 'Every realtime case:', '',
                 *realtime_rows([c for cases in ladders for c in cases]

@@ -1,0 +1,161 @@
+"""Real time in the core: the sampled-data prediction (apf_swarm_core.sampled), the emulation
+(sample and hold, delay) and the flight criteria, each against an independent truth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from apf_swarm_core.config import load_preset
+from apf_swarm_core.errors import ConfigError
+from apf_swarm_core.laws import layer_switching_force
+from apf_swarm_core.metrics import flight
+from apf_swarm_core.potential import gradient, hessian
+from apf_swarm_core.sampled import (RELAY_LIMIT, design_hessian_spectrum, mode_radius, predict,
+                                    propose_gains)
+from apf_swarm_core.simulator import CommandHold, expected_pairs, simulate
+
+
+def test_hessian_equals_finite_differences_of_the_gradient() -> None:
+    rng = np.random.default_rng(3)
+    x, t = rng.normal(size=(5, 3)) * 1.5, rng.normal(size=3)
+    p = dict(k_n=1.3, k_f=0.7, a=1.0, b=6.0, c=1.7)
+    h, fd, eps = hessian(x, t, **p), np.zeros((15, 15)), 1e-6
+    for i in range(15):
+        xp, xm = x.ravel().copy(), x.ravel().copy()
+        xp[i] += eps
+        xm[i] -= eps
+        fd[:, i] = (gradient(xp.reshape(5, 3), t, **p) - gradient(xm.reshape(5, 3), t, **p)
+                    ).ravel() / (2 * eps)
+    assert np.abs(h - fd).max() < 1e-7
+    assert np.allclose(h, h.T)
+
+
+def test_design_spectrum_has_rotations_centroid_and_a_stiff_mode_growing_with_n() -> None:
+    cfg = load_preset('realtime')
+    eig3 = design_hessian_spectrum(cfg)
+    assert np.allclose(eig3[:3], 0.0, atol=1e-6)                 # three rigid rotations
+    assert np.sum(np.isclose(eig3, cfg.k_n, atol=1e-6)) == 3      # the centroid, one per axis
+    eig8 = design_hessian_spectrum(cfg.replace(n_trackers=8))
+    assert eig8.max() > 2 * eig3.max()
+
+
+def _mode_growth(lam: float, K: float, g: float, T: float, tau: float, periods: int = 400
+                 ) -> float:
+    """Per-period growth of one linear mode, simulated on a fine grid (independent of the
+    matrix): e'' = u, u = -g (e' + K lam e) from samples every T, acting tau later."""
+    h = T / 200
+    per, lag = 200, int(round(tau / h))
+    e, v, u, pending = 1.0, 0.0, 0.0, []
+    peaks = []
+    for k in range(periods * per):
+        if k % per == 0:
+            pending.append((k + lag, -g * (v + K * lam * e)))
+        while pending and pending[0][0] <= k:
+            u = pending.pop(0)[1]
+        e, v = e + v * h + u * h * h / 2, v + u * h
+        if k % per == 0:
+            peaks.append(math.hypot(e, v / max(g, 1.0)))
+    a, b = np.log(peaks[periods // 2]), np.log(peaks[-1])
+    return math.exp((b - a) / (periods - 1 - periods // 2))
+
+
+@pytest.mark.parametrize('lam,K,g,T,tau', [(12.0, 10.0, 60.0, 0.01, 0.004),
+                                           (49.0, 3.0, 100.0, 0.005, 0.007),
+                                           (26.0, 10.0, 200.0, 0.01, 0.013)])
+def test_mode_radius_is_the_growth_of_the_simulated_mode(lam, K, g, T, tau) -> None:
+    rho = mode_radius(lam, layer_gain=K, inner_rate=g, period=T, latency=tau)
+    assert _mode_growth(lam, K, g, T, tau) == pytest.approx(rho, rel=0.02)
+
+
+def test_layer_switching_force_is_linear_inside_and_saturates_outside() -> None:
+    s = np.array([[0.05, -0.1, 0.5]])
+    u = layer_switching_force(s, np.zeros((1, 3)), u0=25.0, phi=0.25)
+    assert np.allclose(u, [[-5.0, 10.0, -25.0]])
+
+
+def test_command_hold_delays_each_command_and_drops_overtaken_ones() -> None:
+    hold = CommandHold((1, 2), 0.003, 0.001)
+    hold.submit(0, np.ones((1, 2, 3)))
+    assert np.all(hold.applied(2) == 0.0) and np.all(hold.applied(3) == 1.0)
+    jitter = CommandHold((1, 1), 0.0, 0.001, latency_samples=[0.005],
+                         rng=np.random.default_rng(0))
+    jitter.submit(0, np.full((1, 1, 3), 1.0))
+    jitter.samples = np.array([1])              # the next command overtakes the first
+    jitter.submit(1, np.full((1, 1, 3), 2.0))
+    assert np.all(jitter.applied(2) == 2.0)
+    assert np.all(jitter.applied(6) == 2.0)     # the older command arrives late: dropped
+
+
+def test_the_emulation_holds_each_command_for_the_period_and_delays_it() -> None:
+    cfg = load_preset('realtime').replace(duration=0.2, control_rate=50.0, latency=0.004,
+                                          noise='none')
+    u = simulate(cfg).trajectory['u']
+    assert np.all(u[:4] == 0.0)                            # nothing acts before 4 ms
+    assert np.any(u[4] != 0.0)
+    held = u[4:24]
+    assert np.all(held == held[0])                         # one command for the 20 ms hold
+    assert np.any(u[24] != u[23])                          # the next sample's, 4 ms after 20
+
+
+def test_control_rate_must_divide_the_step() -> None:
+    with pytest.raises(ConfigError, match='whole number'):
+        load_preset('realtime').replace(control_rate=300.0)
+
+
+#: points of the grid away from the boundary kappa (T + tau) = RELAY_LIMIT: (n, rate, latency)
+GRID = [(3, 100.0, 0.0), (3, 50.0, 0.004), (8, 200.0, 0.0), (8, 50.0, 0.0),
+        (16, 500.0, 0.0), (16, 100.0, 0.0)]
+
+
+@pytest.mark.parametrize('n,rate,latency', GRID)
+def test_prediction_agrees_with_the_emulation_of_the_sign_law(n, rate, latency) -> None:
+    cfg = load_preset('realtime').replace(
+        n_trackers=n, seed=2, duration=25.0, record_every=10, control_rate=rate,
+        latency=latency, switching='sign', feedforward=0.0)
+    pred = predict(cfg)
+    margin = abs(pred.formation_rate * (pred.control_period + latency) / RELAY_LIMIT - 1.0)
+    assert margin > 0.1, 'a grid point on the boundary decides nothing'
+    f = flight(simulate(cfg).trajectory, expected_pairs(cfg))
+    assert pred.holds == f['flies'], (pred, f)
+
+
+def test_designed_gains_hold_eight_trackers_at_100_hz_where_the_preset_fails() -> None:
+    cfg = load_preset('realtime').replace(n_trackers=8, seed=2, duration=25.0,
+                                          record_every=10, latency=0.004)
+    before = predict(cfg)
+    assert not before.holds and any('formation predicted to fail' in w for w in before.warnings)
+    tuned = cfg.replace(**propose_gains(cfg, control_rate=100.0, latency=0.004))
+    assert predict(tuned).holds
+    assert flight(simulate(tuned).trajectory, expected_pairs(tuned))['flies']
+    assert not flight(simulate(cfg).trajectory, expected_pairs(cfg))['flies']
+
+
+def test_triangle_at_100_hz_warns_of_chattering_with_its_numbers() -> None:
+    pred = predict(load_preset('triangle'), control_rate=100.0, latency=0.005)
+    w = [w for w in pred.warnings if 'chattering' in w]
+    assert w and 'u0 = 125 N' in w[0] and '10 ms' in w[0] and '1.25 m/s' in w[0]
+    assert pred.ripple == pytest.approx(1.25)
+
+
+def test_lag_prediction_matches_the_emulated_centroid_error() -> None:
+    cfg = load_preset('realtime').replace(duration=20.0, control_rate=200.0, feedforward=0.0,
+                                          noise='none')
+    traj = simulate(cfg).trajectory
+    ce = np.linalg.norm(traj['x'].mean(axis=1) - traj['target_x'], axis=1)
+    assert ce[-2000:].mean() == pytest.approx(predict(cfg).steady_lag, rel=0.1)
+    assert flight(simulate(cfg.replace(feedforward=1.0)).trajectory,
+                  expected_pairs(cfg))['centroid_error_rms'] < 0.03
+
+
+def test_flight_criteria_pass_the_design_and_fail_a_collapse() -> None:
+    cfg = load_preset('realtime')
+    pairs = expected_pairs(cfg)
+    d = float(pairs[0])
+    tri = np.array([[0, 0, 0], [d, 0, 0], [d / 2, d * math.sqrt(3) / 2, 0]])
+    tri -= tri.mean(axis=0)
+    x = np.repeat(tri[None], 50, axis=0)
+    assert flight({'x': x, 'target_x': np.zeros((50, 3))}, pairs)['flies']
+    assert not flight({'x': 0.3 * x, 'target_x': np.zeros((50, 3))}, pairs)['flies']
