@@ -23,7 +23,7 @@ def test_triangle_preset_is_consistent():
     assert '1.599' in f['formation'].message
     assert rep.exit_code == 0
     assert rep.warnings == []
-    # the boundary-layer lag of SPEC fact 3: v_N / (k_N (alpha + beta/gamma)) = 1.5 / 10.01
+    # the boundary-layer lag of docs/THEORY.md section 2: v_N / (k_N (alpha + beta/gamma)) = 1.5 / 10.01
     assert f['lag'].level == 'info' and '0.15' in f['lag'].message
 
 

@@ -15,7 +15,7 @@ from apf_swarm_core.potential import gradient
 
 
 def _spec_triangle_side(a, b, c, k_n, k_f):
-    """SPEC section 2 fact 1: d = sqrt(c ln(b / (a + k_N/(3 k_f))))."""
+    """docs/THEORY.md section 2: d = sqrt(c ln(b / (a + k_N/(3 k_f))))."""
     return math.sqrt(c * math.log(b / (a + k_n / (3.0 * k_f))))
 
 

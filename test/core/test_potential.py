@@ -25,7 +25,7 @@ def _fd_gradient(x, xt, params, h=1e-5):
 
 
 def _hand_potential(x, xt, k_n, k_f, a, b, c):
-    """J of SPEC section 1 written with explicit loops (independent of the vectorized code)."""
+    """J of docs/THEORY.md section 1 written with explicit loops (independent of the vectorized code)."""
     n = x.shape[0]
     j = 0.0
     for i in range(n):

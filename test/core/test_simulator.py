@@ -127,7 +127,7 @@ def test_triangle_preset_forms_the_triangle():
     pd = pair_distances(tr['x'][st])
     assert np.abs(pd / d - 1.0).max() < 0.01
     # the target is at the centre of the triangle, trailed by the boundary-layer lag of
-    # SPEC fact 3: v / (k_N (alpha + beta/gamma)) = 1.5 / 10.01 m
+    # docs/THEORY.md section 2: v / (k_N (alpha + beta/gamma)) = 1.5 / 10.01 m
     lag = cfg.target_speed / (cfg.k_n * (cfg.alpha + cfg.beta / cfg.gamma))
     ce = centroid_error(tr['x'][st], tr['target_x'][st])
     assert ce.mean() == pytest.approx(lag, rel=0.1)
@@ -171,7 +171,7 @@ def test_proposed_law_lag_matches_the_boundary_layer_gain(straight_runs):
         # the trackers are inside the boundary layer in steady state
         assert proposed['saturated'][r][st].mean() < 0.01
         lags.append(ce.mean())
-    # the trade-off of SPEC fact 3: a thicker layer trails further behind
+    # the trade-off of docs/THEORY.md section 2: a thicker layer trails further behind
     assert lags[1] / lags[0] == pytest.approx((0.01 + 2 / 0.2) / (0.01 + 2 / 0.5), rel=0.1)
 
 
@@ -191,7 +191,7 @@ def test_traditional_law_chatters_more(straight_runs):
 
 
 def test_switching_ripple_scales_with_u0_dt_over_m():
-    """SPEC fact 4: one held switching step changes the velocity by u0 dt / M."""
+    """docs/THEORY.md section 2: one held switching step changes the velocity by u0 dt / M."""
     cfg = load_preset('triangle').replace(duration=2.0, noise='none', drag=0.0)
     tr = simulate(cfg).trajectory
     dv = np.abs(np.diff(tr['v'], axis=0))

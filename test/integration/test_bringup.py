@@ -196,7 +196,7 @@ def kill_tracker(run: BringupRun, uav_id: int) -> int:
 
 
 def triangle_side(cfg) -> float:
-    """SPEC section 2, fact 1: the side of the equilateral triangle of three trackers around
+    """docs/THEORY.md section 2: the side of the equilateral triangle of three trackers around
     the target, sqrt(c ln(b / (a + k_N / (3 k_f)))), written out independently of the core."""
     return math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
 

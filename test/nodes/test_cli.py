@@ -94,7 +94,7 @@ def test_sweep_csv_and_png(tmp_path: Path) -> None:
     assert len(rows) == 2 * 2 * 2  # laws x values x seeds
     prop = {float(r['value']): float(r['centroid_rms']) for r in rows
             if r['law'] == 'proposed' and r['seed'] == '1'}
-    # SPEC fact 3: the lag grows with gamma, about v / (k_n (alpha + beta/gamma))
+    # docs/THEORY.md section 2: the lag grows with gamma, about v / (k_n (alpha + beta/gamma))
     assert prop[0.5] > 5 * prop[0.05]
     assert (tmp_path / 'sweep_tradeoff.png').stat().st_size > 10_000
 

@@ -3,13 +3,13 @@
 Conditions checked (each a :class:`Finding`):
 
 * ``beta >= v_N`` (eq. 10-11): the convergence proof of the kinematic law needs it;
-* existence of the formation: for 3 trackers ``b > a + k_N/(3 k_f)`` (SPEC section 2), for any
+* existence of the formation: for 3 trackers ``b > a + k_N/(3 k_f)`` (docs/THEORY.md section 2), for any
   n ``b > a`` (otherwise the pair term never repels);
 * the lower bounds on ``u0``: Theorem 1 (eq. 29), eq. 37 and eq. 43, both as printed (with
   ``-f_bar``) and corrected (``+f_bar/M_lo``, the usual sliding-mode argument), from a priori
   estimates of ``J_bar`` and ``J_bar_s`` (:func:`gain_bounds`) or from run data
   (:func:`gain_bounds_from_run`);
-* numerics: the filter time constant against dt, the switching ripple ``u0 dt / M`` (SPEC
+* numerics: the filter time constant against dt, the switching ripple ``u0 dt / M`` (docs/THEORY.md
   section 2, fact 4) and the boundary-layer lag ``v_N / (k_N (alpha + beta/gamma))`` (fact 3).
 """
 

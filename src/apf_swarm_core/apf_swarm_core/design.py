@@ -1,6 +1,6 @@
 """Formation design: equilibrium spacings of the potential (eq. 44) and their inverses.
 
-Closed forms (SPEC section 2, fact 1):
+Closed forms (docs/THEORY.md section 2):
 
 * three trackers on an equilateral triangle centred on the target are in equilibrium when
   ``a - b exp(-d^2/c) = -k_N / (3 k_f)``, i.e. side ``d = sqrt(c ln(b / (a + k_N/(3 k_f))))``,
@@ -36,7 +36,7 @@ def triangle_spacing(a: float, b: float, c: float, k_n: float = 1.0,
                      k_f: float = 1.0) -> float | None:
     """Side d [m] of the equilateral equilibrium of 3 trackers centred on the target.
 
-    ``d = sqrt(c ln(b / (a + k_N/(3 k_f))))`` (SPEC section 2, fact 1); ``None`` when
+    ``d = sqrt(c ln(b / (a + k_N/(3 k_f))))`` (docs/THEORY.md section 2); ``None`` when
     ``b <= a + k_N/(3 k_f)``, where no such formation exists and the trackers collapse onto
     the target.
     """

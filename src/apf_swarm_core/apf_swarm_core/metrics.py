@@ -78,7 +78,7 @@ def hf_velocity_rms(v: ArrayLike, dt: float, window: float = 0.1) -> float:
 
     The residual after removing a centred moving average of ``window`` seconds is the part of
     the velocity above roughly ``1/window`` Hz: the switching ripple of the inner loop
-    (about ``u0 dt / M``, SPEC section 2 fact 4) and any buffeting of the manifold. Computed
+    (about ``u0 dt / M``, docs/THEORY.md section 2) and any buffeting of the manifold. Computed
     over all trackers and samples given; (T, n, 3) input.
     """
     v = np.asarray(v, dtype=float)

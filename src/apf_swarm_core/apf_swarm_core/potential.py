@@ -59,7 +59,7 @@ def pair_weight(r2: ArrayLike, a: ArrayLike, b: ArrayLike, c: ArrayLike) -> NDAr
 
     The pair force on agent i from agent j is ``-(x_i - x_j) * pair_weight``: positive values
     attract, negative values repel. With ``b <= a`` the weight is positive for every ``r``,
-    i.e. the pair term never repels (SPEC section 2, fact 1).
+    i.e. the pair term never repels (docs/THEORY.md section 2).
 
     Parameters
     ----------

@@ -131,7 +131,7 @@ def sat(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
 
 
 def sat_continuous(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
-    """Continuous saturation ``g / max(||g||, gamma)`` (not in the paper; SPEC section 1).
+    """Continuous saturation ``g / max(||g||, gamma)`` (not in the paper; docs/THEORY.md section 1).
 
     Equal to eq. 8 inside the layer; outside it is the unit vector ``g/||g||`` instead of the
     componentwise sign, so the function is continuous everywhere.

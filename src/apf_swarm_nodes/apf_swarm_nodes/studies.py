@@ -168,7 +168,7 @@ def reproduce(out: Path, presets: dict[str, SwarmConfig],
     report += ['## The boundary layer gamma: chattering against tracking error', '',
                'Inside the layer the proposed law is linear with gain alpha + beta/gamma, so a '
                'moving target leaves a steady lag of about v / (k_n (alpha + beta/gamma)) '
-               '(SPEC section 2, fact 3). Same scenario as `triangle`, one seed per value:', '']
+               '(docs/THEORY.md section 2). Same scenario as `triangle`, one seed per value:', '']
     report += lines + ['', '![trade-off](gamma_sweep/sweep_tradeoff.png)', '']
     # conclusion
     tri_s = everything.get('triangle', {}).get('summaries', {})
