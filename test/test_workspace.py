@@ -183,6 +183,8 @@ def _swarm_state():
     msg.missed_deadlines = 2
     msg.stale_inputs = 3
     msg.rejected_inputs = 4
+    msg.active = [True, False, True]
+    msg.command_latency = [0.001, 0.002, 0.003]    # the plant fills one entry per tracker
     return msg
 
 

@@ -233,11 +233,11 @@ def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale
     from apf_swarm_core.agents import brake_force
     from apf_swarm_msgs.msg import SwarmOdometry
     from apf_swarm_nodes.conversions import swarm_odom_msg
-    cfg = load_preset('realtime')
+    cfg = load_preset('realtime').replace(switching='sign')   # eq. 24 as printed, below
     timeout = 0.3
     graph.start('tracker', 'tracker', '--params-file', str(CONFIG / 'realtime.yaml'),
                 '-p', 'uav_id:=2', '-p', 'mode:=realtime', '-p', f'input_timeout:={timeout}',
-                '-p', 'control_rate:=50.0', '-r', '__ns:=/uav_2')
+                '-p', 'control_rate:=50.0', '-p', 'switching:=sign', '-r', '__ns:=/uav_2')
     qos = control_qos('realtime')
     forces: list[tuple[float, ForceCommand]] = []
     graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd',

@@ -42,7 +42,8 @@ from .laws import ControlOutput, switching_force
 from .metrics import centroid_error, formation_error
 from .plant import DisturbanceSource
 from .potential import neighbour_mask, potential
-from .simulator import control_step, expected_pairs, initial_positions, integrate, make_controller
+from .simulator import (control_step, expected_pairs, initial_positions, integrate,
+                        make_controller, make_preconditioner)
 
 __all__ = ['brake_force', 'input_problem', 'Sample', 'TrackerAgent', 'PlantModel',
            'MAX_POSITION', 'MAX_SPEED', 'MAX_FORCE']
@@ -129,6 +130,7 @@ class TrackerAgent:
             self.neighbour_ids = [j for j in range(1, self.cfg.n_trackers + 1) if j != self.uav_id]
         self.ids = sorted({self.uav_id, *self.neighbour_ids})
         self.controller = make_controller(self.cfg, (1, 3))
+        self.precondition = make_preconditioner(self.cfg)
         self.params = self.cfg.potential_params()
 
     #: configuration keys a running tracker takes over at once (:meth:`retune`): the
@@ -266,7 +268,7 @@ class TrackerAgent:
         out = control_step(self.controller, x, src[self.uav_id].v[None, :], src[0].x,
                            self.params, rows=[row], mask=mask,
                            obstacles=np.stack(silent) if silent else None,
-                           target_v=src[0].v)
+                           target_v=src[0].v, precondition=self.precondition)
         self.neighbours_used = len(ids) - 1 if mask is None else int(np.count_nonzero(mask))
         self.active_neighbours = len(ids) - 1
         self._last_step = step

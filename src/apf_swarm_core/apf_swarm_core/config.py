@@ -107,6 +107,17 @@ class SwarmConfig:
                             help='weight of the target velocity in the sliding surface, '
                                  's = v - w v_N + ... (0: the paper; 1 removes the lag of a '
                                  'moving target; not in the paper)')
+    precondition: str = _p('none', choices=('none', 'newton'),
+                           help='direction the manifold descends: none, the gradient of J '
+                                '(the paper); newton, the saddle-free Newton direction '
+                                '|H|_mu^-1 grad J, which descends every mode of J at one rate '
+                                '(not in the paper, for large swarms under sampling)')
+    newton_mu: float = _p(0.1, lo=0.0, lo_open=True,
+                          help='precondition = newton: the smallest curvature of |H|_mu '
+                               '(same unit as the Hessian of J)')
+    newton_every: int = _p(1, lo=1, help='precondition = newton: recompute |H|_mu^-1 every '
+                                         'this many control samples (its eigendecomposition '
+                                         'costs most)')
     epsilon: float = _p(1.0, unit='m/s^2', lo=0.0, lo_open=True,
                         help='reaching margin of Theorem 1 / eq. 37')
     mu: float = _p(0.1, unit='m/s^2', lo=0.0, lo_open=True, help='reaching margin of eq. 43')
@@ -307,6 +318,10 @@ def _validate(cfg: SwarmConfig) -> None:
                 f'control_rate = {cfg.control_rate:g} Hz with dt = {cfg.dt:g} s holds each '
                 f'command for {hold:.4g} steps: 1/(control_rate dt) must be a whole number '
                 f'>= 1 (e.g. control_rate = {1.0 / (max(1, round(hold)) * cfg.dt):g})')
+    if cfg.precondition == 'newton' and cfg.neighbours != 'all':
+        raise ConfigError(f'precondition = newton needs neighbours = all (the Newton '
+                          f'direction mixes every tracker\'s gradient); got neighbours = '
+                          f'{cfg.neighbours}')
     if cfg.mass_lo > cfg.mass_hi:
         raise ConfigError(f"mass_lo = {cfg.mass_lo} > mass_hi = {cfg.mass_hi}: "
                           'the bounds of eq. 21 must satisfy mass_lo <= mass_hi')

@@ -25,8 +25,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['pair_weight', 'potential', 'gradient', 'hessian', 'target_gradient',
-           'obstacle_gradient']
+__all__ = ['pair_weight', 'potential', 'gradient', 'hessian', 'newton_matrix', 'newton_direction',
+           'target_gradient', 'obstacle_gradient']
 
 
 #: elements of the pair arrays (3, rows, n, runs) of one block of rows in :func:`gradient`
@@ -376,9 +376,9 @@ def target_gradient(x: ArrayLike, x_target: ArrayLike, *,
     return -_gain(k_n, 1) * np.sum(x - x_target[..., None, :], axis=-2)
 
 
-def hessian(x: ArrayLike, x_target: ArrayLike, *, k_n: float = 1.0, k_f: float = 1.0,
-            a: float = 1.0, b: float = 6.0, c: float = 1.7) -> NDArray[np.float64]:
-    """Hessian of J (eq. 2 / 44) with respect to the tracker positions, shape (3n, 3n).
+def hessian(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: ArrayLike = 1.0,
+            a: ArrayLike = 1.0, b: ArrayLike = 6.0, c: ArrayLike = 1.7) -> NDArray[np.float64]:
+    """Hessian of J (eq. 2 / 44) with respect to the tracker positions, shape (..., 3n, 3n).
 
     Differentiating the gradient once more, with ``d = x_i - x_j``, ``r^2 = |d|^2`` and
     ``e = exp(-r^2/c)``, the pair (i, j) contributes the 3x3 block
@@ -390,25 +390,64 @@ def hessian(x: ArrayLike, x_target: ArrayLike, *, k_n: float = 1.0, k_f: float =
     to the diagonal blocks (i, i) and (j, j) and ``-H_ij`` to the blocks (i, j) and (j, i);
     the tracking term adds ``k_N I`` to every diagonal block. Row-major: entry
     ``(3i + k, 3j + l)`` is ``d^2 J / dx_ik dx_jl``. It does not depend on ``x_target``
-    (taken for symmetry with :func:`gradient`). Used by :mod:`apf_swarm_core.sampled`: its
-    eigenvalues at an equilibrium are the rates of the formation's linearized modes.
+    (taken for symmetry with :func:`gradient`). Its eigenvalues at an equilibrium are the
+    rates of the formation's linearized modes (:mod:`apf_swarm_core.sampled`).
 
     Parameters
     ----------
-    x : array, shape (n, 3) [m]
-    x_target : array, shape (3,) [m]
-    k_n, k_f, a, b, c : float
+    x : array, shape (..., n, 3) [m]
+    x_target : array, shape (..., 3) [m]
+    k_n, k_f, a, b, c : float or array (...) of per-run values
     """
     x = np.asarray(x, dtype=float)
-    n = x.shape[0]
-    d = x[:, None, :] - x[None, :, :]                       # (n, n, 3)
-    e = np.exp(-np.einsum('ijk,ijk->ij', d, d) / c)
-    blocks = k_f * ((a - b * e)[:, :, None, None] * np.eye(3)
-                    + (2.0 * b / c) * e[:, :, None, None] * d[:, :, :, None] * d[:, :, None, :])
-    blocks[np.arange(n), np.arange(n)] = 0.0
+    lead, n = x.shape[:-2], x.shape[-2]
+    kf, ga, gb, gc = (_gain(v, 4) for v in (k_f, a, b, c))
+    kn = _gain(k_n, 3)
+    d = x[..., :, None, :] - x[..., None, :, :]                       # (..., n, n, 3)
+    e = np.exp(-np.einsum('...ijk,...ijk->...ij', d, d)[..., None, None] / gc)
+    blocks = kf * ((ga - gb * e) * np.eye(3) + (2.0 * gb / gc) * e
+                   * d[..., :, :, :, None] * d[..., :, :, None, :])
+    idx = np.arange(n)
+    blocks[..., idx, idx, :, :] = 0.0
     h = -blocks
-    h[np.arange(n), np.arange(n)] = blocks.sum(axis=1) + k_n * np.eye(3)
-    return h.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n)
+    h[..., idx, idx, :, :] = blocks.sum(axis=-3) + kn * np.eye(3)
+    return np.swapaxes(h, -3, -2).reshape(lead + (3 * n, 3 * n))
+
+
+def newton_matrix(x: ArrayLike, x_target: ArrayLike, *, mu: float, k_n: ArrayLike = 1.0,
+                  k_f: ArrayLike = 1.0, a: ArrayLike = 1.0, b: ArrayLike = 6.0,
+                  c: ArrayLike = 1.7) -> NDArray[np.float64]:
+    """The saddle-free Newton preconditioner of J (not in the paper), shape (..., 3n, 3n).
+
+    .. math::
+
+        P = |H|_\\mu^{-1} = V \\operatorname{diag}(1 / \\max(|\\lambda_k|, \\mu)) V^T
+
+    with ``H = V diag(lambda) V^T`` the :func:`hessian` at x (Dauphin et al., "Identifying and
+    attacking the saddle point problem in high-dimensional non-convex optimization", NIPS
+    2014). Along ``P grad J`` (:func:`newton_direction`) every mode of H with
+    ``lambda >= mu`` descends at the same rate near the equilibrium, instead of at ``lambda``
+    along the gradient: the formation loop's stiffest rate and its softest no longer differ
+    by ``lambda_max / lambda_soft`` (5e2 for 16 trackers, 5e5 for 32 with the default
+    potential). P is positive definite, so ``P grad J`` vanishes exactly where the gradient
+    does (the equilibria of J are unchanged) and is a descent direction everywhere, saddles
+    included (``|lambda|``).
+
+    Parameters
+    ----------
+    x : array (..., n, 3) [m]; x_target : array (..., 3) [m]
+    mu : float > 0: the smallest curvature used (eigenvalues below it are raised to it)
+    k_n, k_f, a, b, c : gains of eq. 2 / 44
+    """
+    w, v = np.linalg.eigh(hessian(x, x_target, k_n=k_n, k_f=k_f, a=a, b=b, c=c))
+    return np.einsum('...ik,...k,...jk->...ij', v, 1.0 / np.maximum(np.abs(w), mu), v)
+
+
+def newton_direction(matrix: ArrayLike, grad: ArrayLike) -> NDArray[np.float64]:
+    """``P grad J`` for a :func:`newton_matrix` P (..., 3n, 3n) and gradients (..., n, 3)."""
+    g = np.asarray(grad, dtype=float)
+    flat = g.reshape(g.shape[:-2] + (-1,))
+    return np.einsum('...ij,...j->...i', np.asarray(matrix), flat).reshape(g.shape)
 
 
 def obstacle_gradient(x: ArrayLike, obstacles: ArrayLike, *, k_f: ArrayLike = 1.0,

@@ -37,10 +37,12 @@ from .design import equilibrium_formation, triangle_spacing
 from .laws import ControlOutput, SlidingModeController
 from .metrics import summarize
 from .plant import DisturbanceSource, plant_step, uniform_ball
-from .potential import gradient, neighbour_mask, obstacle_gradient
+from .potential import (gradient, neighbour_mask, newton_direction, newton_matrix,
+                        obstacle_gradient)
 
 __all__ = ['initial_positions', 'expected_pairs', 'make_controller', 'control_step',
-           'integrate', 'CommandHold', 'BatchSimulator', 'SimResult', 'simulate',
+           'integrate', 'Preconditioner', 'make_preconditioner', 'CommandHold',
+           'BatchSimulator', 'SimResult', 'simulate',
            'simulate_batch', 'TRAJECTORY_KEYS']
 
 #: up to this many trackers expected_pairs minimizes J from 4 random shapes, above from one
@@ -107,11 +109,52 @@ def make_controller(cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, 
         switching=cfgs[0].switching, phi=gain('phi'), feedforward=gain('feedforward'))
 
 
+class Preconditioner:
+    """The Newton preconditioner of ``precondition = newton`` along a run: the
+    :func:`~apf_swarm_core.potential.newton_matrix` of the positions every ``every``-th call,
+    the held one in between.
+
+    Trackers hosted in one process receive the same positions: the last matrix computed in
+    the process is reused for identical positions and gains (its eigendecomposition is the
+    dearest part of a command).
+    """
+
+    _last: tuple[Any, NDArray[np.float64]] | None = None     # shared by the process
+
+    def __init__(self, mu: float, every: int = 1) -> None:
+        self.mu, self.every, self.calls = float(mu), int(every), 0
+        self.matrix: NDArray[np.float64] | None = None
+
+    def __call__(self, x: NDArray[np.float64], target_x: ArrayLike, grad: NDArray[np.float64],
+                 params: dict[str, Any]) -> NDArray[np.float64]:
+        """``P grad J`` of every tracker, shape of ``grad`` (..., n, 3)."""
+        x = np.asarray(x, dtype=float)
+        stale = self.matrix is None or self.matrix.shape[-1] != grad.shape[-2] * 3
+        if stale or self.calls % self.every == 0:
+            key = (x.tobytes(), x.shape, self.mu,
+                   tuple(np.asarray(v, dtype=float).tobytes() for v in params.values()))
+            last = Preconditioner._last
+            if last is not None and last[0] == key:
+                self.matrix = last[1]
+            else:
+                self.matrix = newton_matrix(x, target_x, mu=self.mu, **params)
+                Preconditioner._last = (key, self.matrix)
+        self.calls += 1
+        return newton_direction(self.matrix, grad)
+
+
+def make_preconditioner(cfg: SwarmConfig) -> Preconditioner | None:
+    """The :class:`Preconditioner` of a configuration, or None for the gradient (the paper)."""
+    return Preconditioner(cfg.newton_mu, cfg.newton_every) if cfg.precondition == 'newton' \
+        else None
+
+
 def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
                  target_x: ArrayLike, potential_params: dict[str, Any], *,
                  rows: ArrayLike | None = None, mask: ArrayLike | None = None,
                  obstacles: ArrayLike | None = None,
-                 target_v: ArrayLike | None = None) -> ControlOutput:
+                 target_v: ArrayLike | None = None,
+                 precondition: Preconditioner | None = None) -> ControlOutput:
     """Commands of the trackers in ``rows`` (default all) at one step.
 
     Parameters
@@ -131,8 +174,16 @@ def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
         selected rows (a single run).
     target_v : array (..., 3), optional
         Target velocity, for a controller with ``feedforward`` (ignored without).
+    precondition : Preconditioner, optional
+        The manifold descends ``P grad J`` (``precondition = newton``) instead of the
+        gradient: computed for every tracker the potential sees, then the rows selected.
     """
-    grad = gradient(x, target_x, **potential_params, rows=rows, mask=mask)
+    if precondition is None:
+        grad = gradient(x, target_x, **potential_params, rows=rows, mask=mask)
+    else:
+        grad = precondition(x, target_x, gradient(x, target_x, **potential_params),
+                            potential_params)
+        grad = grad if rows is None else grad[..., rows, :]
     if obstacles is not None and len(obstacles):
         xi = np.asarray(x, dtype=float)
         xi = xi if rows is None else xi[..., rows, :]
@@ -259,7 +310,7 @@ class BatchSimulator:
         for c in self.cfgs[1:]:
             for key in ('n_trackers', 'law', 'saturation', 'dt', 'duration', 'record_every',
                         'neighbours', 'neighbour_count', 'sensing_radius', 'control_rate',
-                        'switching'):
+                        'switching', 'precondition', 'newton_mu', 'newton_every'):
                 if getattr(c, key) != getattr(first, key):
                     raise ValueError(f'every run of a batch must share {key}; got '
                                      f'{getattr(first, key)!r} and {getattr(c, key)!r}')
@@ -280,6 +331,7 @@ class BatchSimulator:
         #: the delayed commands in flight, or None when each acts at its own sample
         self.actuator = act if act.delayed else None
         self.out: ControlOutput | None = None
+        self.precondition = make_preconditioner(first)
         if len({c.noise for c in self.cfgs}) > 1:
             raise ValueError('every run of a batch must share the noise kind')
         self.noise = DisturbanceSource([c.seed for c in self.cfgs], self.n,
@@ -336,7 +388,8 @@ class BatchSimulator:
             mask = neighbour_mask(self.x, **self.neighbour_rule) if self.neighbour_rule \
                 else None
             out = self.out = control_step(self.controller, self.x, self.v, tx, self.params,
-                                          mask=mask, target_v=tv)
+                                          mask=mask, target_v=tv,
+                                          precondition=self.precondition)
             if self.actuator is not None:
                 self.actuator.submit(self.k, out.force)
         force = out.force if self.actuator is None else self.actuator.applied(self.k)
@@ -387,7 +440,7 @@ class BatchSimulator:
         controller, params, noise, target_state = (self.controller, self.params, self.noise,
                                                    self.target_state)
         mass, drag, rule = self.mass, self.drag, self.neighbour_rule
-        hold, act, out = self.hold, self.actuator, self.out
+        hold, act, out, pre = self.hold, self.actuator, self.out, self.precondition
         x, v, k = self.x, self.v, k0
         try:
             for i in range(steps):
@@ -395,7 +448,8 @@ class BatchSimulator:
                 tx, tv = target_state(k)
                 if out is None or k % hold == 0:
                     mask = neighbour_mask(x, **rule) if rule else None
-                    out = control_step(controller, x, v, tx, params, mask=mask, target_v=tv)
+                    out = control_step(controller, x, v, tx, params, mask=mask, target_v=tv,
+                                       precondition=pre)
                     if act is not None:
                         act.submit(k, out.force)
                 force = out.force if act is None else act.applied(k)
