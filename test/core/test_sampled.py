@@ -12,7 +12,7 @@ from apf_swarm_core.config import load_preset
 from apf_swarm_core.errors import ConfigError
 from apf_swarm_core.laws import layer_switching_force
 from apf_swarm_core.metrics import flight
-from apf_swarm_core.potential import gradient, hessian
+from apf_swarm_core.potential import gradient, hessian, newton_direction, newton_matrix
 from apf_swarm_core.sampled import (RELAY_LIMIT, design_hessian_spectrum, mode_radius, predict,
                                     propose_gains)
 from apf_swarm_core.simulator import CommandHold, expected_pairs, simulate
@@ -114,7 +114,7 @@ GRID = [(3, 100.0, 0.0), (3, 50.0, 0.004), (8, 200.0, 0.0), (8, 50.0, 0.0),
 def test_prediction_agrees_with_the_emulation_of_the_sign_law(n, rate, latency) -> None:
     cfg = load_preset('realtime').replace(
         n_trackers=n, seed=2, duration=25.0, record_every=10, control_rate=rate,
-        latency=latency, switching='sign', feedforward=0.0)
+        latency=latency, switching='sign', feedforward=0.0, precondition='none')
     pred = predict(cfg)
     margin = abs(pred.formation_rate * (pred.control_period + latency) / RELAY_LIMIT - 1.0)
     assert margin > 0.1, 'a grid point on the boundary decides nothing'
@@ -122,9 +122,9 @@ def test_prediction_agrees_with_the_emulation_of_the_sign_law(n, rate, latency) 
     assert pred.holds == f['flies'], (pred, f)
 
 
-def test_designed_gains_hold_eight_trackers_at_100_hz_where_the_preset_fails() -> None:
+def test_designed_gains_hold_eight_trackers_at_100_hz_where_the_gradient_fails() -> None:
     cfg = load_preset('realtime').replace(n_trackers=8, seed=2, duration=25.0,
-                                          record_every=10, latency=0.004)
+                                          record_every=10, latency=0.004, precondition='none')
     before = predict(cfg)
     assert not before.holds and any('formation predicted to fail' in w for w in before.warnings)
     tuned = cfg.replace(**propose_gains(cfg, control_rate=100.0, latency=0.004))
@@ -142,7 +142,7 @@ def test_triangle_at_100_hz_warns_of_chattering_with_its_numbers() -> None:
 
 def test_lag_prediction_matches_the_emulated_centroid_error() -> None:
     cfg = load_preset('realtime').replace(duration=20.0, control_rate=200.0, feedforward=0.0,
-                                          noise='none')
+                                          noise='none', precondition='none')
     traj = simulate(cfg).trajectory
     ce = np.linalg.norm(traj['x'].mean(axis=1) - traj['target_x'], axis=1)
     assert ce[-2000:].mean() == pytest.approx(predict(cfg).steady_lag, rel=0.1)
@@ -159,3 +159,47 @@ def test_flight_criteria_pass_the_design_and_fail_a_collapse() -> None:
     x = np.repeat(tri[None], 50, axis=0)
     assert flight({'x': x, 'target_x': np.zeros((50, 3))}, pairs)['flies']
     assert not flight({'x': 0.3 * x, 'target_x': np.zeros((50, 3))}, pairs)['flies']
+
+
+def test_newton_matrix_is_the_inverse_hessian_where_h_is_stiff_and_a_descent_everywhere(
+        ) -> None:
+    cfg = load_preset('realtime').replace(n_trackers=5)
+    p = cfg.potential_params()
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(5, 3))
+    h = hessian(x, np.zeros(3), **p)
+    w, v = np.linalg.eigh(h)
+    m = newton_matrix(x, np.zeros(3), mu=1e-9, **p)
+    if np.abs(w).min() > 1e-3:                              # H invertible: P = |H|^-1
+        assert np.allclose(m @ (v @ np.diag(np.abs(w)) @ v.T), np.eye(15), atol=1e-8)
+    g = gradient(x, np.zeros(3), **p)
+    d = newton_direction(newton_matrix(x, np.zeros(3), mu=0.1, **p), g)
+    assert float(np.sum(d * g)) > 0.0                       # a descent direction
+    from apf_swarm_core.design import equilibrium_formation
+    eq = equilibrium_formation(5, **p).relative_positions
+    d0 = newton_direction(newton_matrix(eq, np.zeros(3), mu=0.1, **p),
+                          gradient(eq, np.zeros(3), **p))
+    assert np.abs(d0).max() < 1e-6                          # the equilibria are kept
+
+
+def test_newton_direction_flies_16_trackers_at_100_hz_where_the_gradient_cannot() -> None:
+    cfg = load_preset('realtime').replace(n_trackers=16, seed=2, duration=25.0,
+                                          record_every=10, latency=0.005)
+    assert cfg.precondition == 'newton'
+    pred = predict(cfg)
+    assert pred.holds and pred.formation_rate == pytest.approx(pred.layer_gain)
+    f = flight(simulate(cfg).trajectory, expected_pairs(cfg))
+    assert f['flies'] and f['formation_error_rms'] < 0.005, f
+    grad = cfg.replace(precondition='none')
+    assert not predict(grad).holds
+    assert not flight(simulate(grad).trajectory, expected_pairs(grad))['flies']
+
+
+def test_a_narrow_layer_is_warned_and_chatters_in_the_emulation() -> None:
+    from apf_swarm_core.metrics import hf_velocity_rms
+    cfg = load_preset('realtime').replace(duration=10.0, latency=0.012, phi=0.25)
+    assert any('too narrow' in w for w in predict(cfg).warnings)
+    assert not any('too narrow' in w for w in predict(cfg.replace(phi=0.75)).warnings)
+    chatter = hf_velocity_rms(simulate(cfg).trajectory['v'][-4000:], cfg.dt)
+    calm = hf_velocity_rms(simulate(cfg.replace(phi=0.75)).trajectory['v'][-4000:], cfg.dt)
+    assert chatter > 10 * calm, (chatter, calm)

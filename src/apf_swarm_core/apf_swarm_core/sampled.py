@@ -58,7 +58,7 @@ from .design import equilibrium_formation
 from .metrics import FLIGHT_CRITERIA
 from .potential import hessian
 
-__all__ = ['RELAY_LIMIT', 'DESIGN_MARGIN', 'SOFT_SETTLE', 'LAYER_WIDTH', 'LAG_LIMIT', 'RIPPLE_FRACTION', 'SampledPrediction',
+__all__ = ['RELAY_LIMIT', 'DESIGN_MARGIN', 'SOFT_SETTLE', 'LAYER_WIDTH', 'CASCADE', 'LAG_LIMIT', 'RIPPLE_FRACTION', 'SampledPrediction',
            'design_hessian_spectrum', 'effective_spectrum', 'mode_matrix', 'mode_radius', 'predict', 'propose_gains']
 
 #: the loop holds while K lambda_max (T + tau) stays below this (the sampled relay)
@@ -73,6 +73,9 @@ SOFT_SETTLE = 2.0
 #: inner loop's rate g = u0 / (phi M) then satisfies g (T + tau) = 1/2, linearly stable with
 #: the latency doubled (a narrower layer chatters once the delay jitters)
 LAYER_WIDTH = 2.0
+#: the inner loop of a boundary layer is linear (and its chattering predicted by the linear
+#: model) where its rate u0 / (phi M) is at least this many times the formation's K lambda_max
+CASCADE = 2.0
 #: a steady lag behind the target above this [m] is warned about (the centroid tolerance of
 #: :data:`apf_swarm_core.metrics.FLIGHT_CRITERIA`)
 LAG_LIMIT = 0.5
@@ -252,7 +255,7 @@ def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
             f'{T * 1e3:g} ms with that delay allows {RELAY_LIMIT:g} / (T + tau) = '
             f'{allowed:.3g} 1/s: {fix}, raise the control rate, or run `apf-swarm design '
             f'--control-rate {1.0 / T:g} --latency {tau:g} --n-trackers {cfg.n_trackers}`')
-    if cfg.switching == 'layer':
+    if cfg.switching == 'layer' and g >= CASCADE * K * lam_max:
         centroid = float(effective_spectrum(cfg, np.array([cfg.k_n]))[0])
         jitter = 2.0 * tau + 0.5 * T
         if mode_radius(centroid, layer_gain=K, inner_rate=g, period=T, latency=jitter,
@@ -292,7 +295,11 @@ def _schedule(cfg: SwarmConfig, eigs: NDArray[np.float64], T: float, latency: fl
             DESIGN_MARGIN * RELAY_LIMIT / (lam_max * (T + latency)))
     if K <= cfg.alpha:
         return None
-    return {'switching': 'layer', 'phi': LAYER_WIDTH * cfg.u0 * (T + latency) / mass,
+    wide = LAYER_WIDTH * cfg.u0 * (T + latency) / mass
+    # a wide, linear layer only where its inner loop is faster than the formation's
+    # stiffest mode (CASCADE times); otherwise the narrow layer of the relay regime
+    phi = wide if cfg.u0 / (wide * mass) >= CASCADE * K * lam_max else cfg.u0 * T / mass
+    return {'switching': 'layer', 'phi': phi,
             'gamma': cfg.beta / (K - cfg.alpha), 'feedforward': 1.0,
             'precondition': cfg.precondition}
 
@@ -307,7 +314,9 @@ def propose_gains(cfg: SwarmConfig, *, control_rate: float, latency: float,
     the Newton direction, whatever n), at most the configuration's own K, i.e.
     ``gamma = beta / (K - alpha)``; ``feedforward = 1``, since a smaller K alone would trail
     the target by ``v_N / (k_N K)``; and the boundary-layer switching with
-    ``phi = LAYER_WIDTH u0 (T + tau) / M``, so that the switching does not chatter.
+    ``phi = LAYER_WIDTH u0 (T + tau) / M`` where that linear inner loop is at least
+    :data:`CASCADE` times faster than ``K lambda_max`` (it then does not chatter), else
+    ``phi = u0 T / M`` (the relay regime of the stiff gradient modes).
     ValueError when neither holds (the delay alone is too long).
     """
     T = 1.0 / control_rate
