@@ -440,14 +440,14 @@ def newton_matrix(x: ArrayLike, x_target: ArrayLike, *, mu: float, k_n: ArrayLik
     k_n, k_f, a, b, c : gains of eq. 2 / 44
     """
     w, v = np.linalg.eigh(hessian(x, x_target, k_n=k_n, k_f=k_f, a=a, b=b, c=c))
-    return np.einsum('...ik,...k,...jk->...ij', v, 1.0 / np.maximum(np.abs(w), mu), v)
+    return (v / np.maximum(np.abs(w), mu)[..., None, :]) @ np.swapaxes(v, -1, -2)
 
 
 def newton_direction(matrix: ArrayLike, grad: ArrayLike) -> NDArray[np.float64]:
     """``P grad J`` for a :func:`newton_matrix` P (..., 3n, 3n) and gradients (..., n, 3)."""
     g = np.asarray(grad, dtype=float)
     flat = g.reshape(g.shape[:-2] + (-1,))
-    return np.einsum('...ij,...j->...i', np.asarray(matrix), flat).reshape(g.shape)
+    return (np.asarray(matrix) @ flat[..., None])[..., 0].reshape(g.shape)
 
 
 def obstacle_gradient(x: ArrayLike, obstacles: ArrayLike, *, k_f: ArrayLike = 1.0,

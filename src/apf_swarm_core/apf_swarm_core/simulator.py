@@ -110,37 +110,46 @@ def make_controller(cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, 
 
 
 class Preconditioner:
-    """The Newton preconditioner of ``precondition = newton`` along a run: the
-    :func:`~apf_swarm_core.potential.newton_matrix` of the positions every ``every``-th call,
-    the held one in between.
+    """The Newton direction of ``precondition = newton`` along a run: ``P grad J`` with the
+    :func:`~apf_swarm_core.potential.newton_matrix` P of the positions every ``every``-th
+    call, the held one in between.
 
-    Trackers hosted in one process receive the same positions: the last matrix computed in
-    the process is reused for identical positions and gains (its eigendecomposition is the
-    dearest part of a command).
+    Trackers hosted in one process receive the same states: the last matrix and the last
+    direction computed in the process are reused for identical positions, target and gains
+    (the eigendecomposition, then the gradient of every tracker, are the dearest parts of a
+    command).
     """
 
-    _last: tuple[Any, NDArray[np.float64]] | None = None     # shared by the process
+    _last_matrix: tuple[Any, NDArray[np.float64]] | None = None     # shared by the process
+    _last_direction: tuple[Any, NDArray[np.float64]] | None = None
 
     def __init__(self, mu: float, every: int = 1) -> None:
         self.mu, self.every, self.calls = float(mu), int(every), 0
         self.matrix: NDArray[np.float64] | None = None
 
-    def __call__(self, x: NDArray[np.float64], target_x: ArrayLike, grad: NDArray[np.float64],
-                 params: dict[str, Any]) -> NDArray[np.float64]:
-        """``P grad J`` of every tracker, shape of ``grad`` (..., n, 3)."""
+    def direction(self, x: ArrayLike, target_x: ArrayLike, params: dict[str, Any]
+                  ) -> NDArray[np.float64]:
+        """``P grad J`` of every tracker, shape of ``x`` (..., n, 3)."""
         x = np.asarray(x, dtype=float)
-        stale = self.matrix is None or self.matrix.shape[-1] != grad.shape[-2] * 3
-        if stale or self.calls % self.every == 0:
-            key = (x.tobytes(), x.shape, self.mu,
-                   tuple(np.asarray(v, dtype=float).tobytes() for v in params.values()))
-            last = Preconditioner._last
+        tx = np.asarray(target_x, dtype=float)
+        gains = tuple(np.asarray(v, dtype=float).tobytes() for v in params.values())
+        key = (x.tobytes(), x.shape, self.mu, gains)
+        if self.matrix is None or self.matrix.shape[-1] != x.shape[-2] * 3 or \
+                self.calls % self.every == 0:
+            last = Preconditioner._last_matrix
             if last is not None and last[0] == key:
                 self.matrix = last[1]
             else:
-                self.matrix = newton_matrix(x, target_x, mu=self.mu, **params)
-                Preconditioner._last = (key, self.matrix)
+                self.matrix = newton_matrix(x, tx, mu=self.mu, **params)
+                Preconditioner._last_matrix = (key, self.matrix)
         self.calls += 1
-        return newton_direction(self.matrix, grad)
+        dkey = (key, tx.tobytes(), id(self.matrix))
+        last = Preconditioner._last_direction
+        if last is not None and last[0] == dkey:
+            return last[1]
+        out = newton_direction(self.matrix, gradient(x, tx, **params))
+        Preconditioner._last_direction = (dkey, out)
+        return out
 
 
 def make_preconditioner(cfg: SwarmConfig) -> Preconditioner | None:
@@ -181,8 +190,7 @@ def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
     if precondition is None:
         grad = gradient(x, target_x, **potential_params, rows=rows, mask=mask)
     else:
-        grad = precondition(x, target_x, gradient(x, target_x, **potential_params),
-                            potential_params)
+        grad = precondition.direction(x, target_x, potential_params)
         grad = grad if rows is None else grad[..., rows, :]
     if obstacles is not None and len(obstacles):
         xi = np.asarray(x, dtype=float)
