@@ -203,3 +203,19 @@ def test_a_narrow_layer_is_warned_and_chatters_in_the_emulation() -> None:
     chatter = hf_velocity_rms(simulate(cfg).trajectory['v'][-4000:], cfg.dt)
     calm = hf_velocity_rms(simulate(cfg.replace(phi=0.75)).trajectory['v'][-4000:], cfg.dt)
     assert chatter > 10 * calm, (chatter, calm)
+
+
+#: the Newton direction on both sides of K (T + tau) = NEWTON_LIMIT: (rate, latency, K)
+NEWTON_GRID = [(100.0, 0.005, 10.0), (20.0, 0.02, 5.0), (20.0, 0.02, 10.0), (50.0, 0.01, 20.0)]
+
+
+@pytest.mark.parametrize('rate,latency,K', NEWTON_GRID)
+def test_prediction_agrees_with_the_emulation_of_the_newton_direction(rate, latency, K
+                                                                     ) -> None:
+    cfg = load_preset('realtime').replace(
+        n_trackers=16, seed=2, duration=25.0, record_every=10, control_rate=rate,
+        latency=latency, gamma=2.0 / (K - 0.01), phi=min(2 * 25.0 * (1 / rate + latency),
+                                                           25.0 / (2 * K)))
+    pred = predict(cfg)
+    f = flight(simulate(cfg).trajectory, expected_pairs(cfg))
+    assert pred.holds == f['flies'], (pred, f)

@@ -35,7 +35,11 @@ configuration alone whether the formation then holds (derivation in docs/THEORY.
    rate (:attr:`SampledPrediction.rate_allowed` is ``RELAY_LIMIT / (T + tau)``). A linear
    loop with that delay would stop at pi/2; the relay's boundary, 2.5, is where the
    emulation's grid (n = 3, 8, 16 at 50-500 Hz and 0-4 ms) changes from holding to failing,
-   for both switchings (the test of :func:`predict`). The steady lag behind a target moving
+   for both switchings (the test of :func:`predict`). Along the Newton direction
+   (``precondition = newton``) every mode has the curvature 1 near the equilibrium and the
+   bound is ``K (T + tau) < NEWTON_LIMIT = 0.5``, also measured (16 trackers, 20-200 Hz,
+   5-20 ms: 0.4 holds, 0.7 fails): the linear model would allow 2.5, but far from the
+   equilibrium the direction turns with the state. The steady lag behind a target moving
    at v_N is ``(1 - w) v_N / (k_N K)`` (eq. 31 with s = 0 and the feed-forward weight w of
    :mod:`apf_swarm_core.laws`), and the sign law's ripple ``u0 T / M`` is large when it
    exceeds half the target speed.
@@ -58,12 +62,17 @@ from .design import equilibrium_formation
 from .metrics import FLIGHT_CRITERIA
 from .potential import hessian
 
-__all__ = ['RELAY_LIMIT', 'DESIGN_MARGIN', 'SOFT_SETTLE', 'LAYER_WIDTH', 'CASCADE', 'LAG_LIMIT', 'RIPPLE_FRACTION', 'SampledPrediction',
-           'design_hessian_spectrum', 'effective_spectrum', 'mode_matrix', 'mode_radius', 'predict', 'propose_gains']
+__all__ = ['RELAY_LIMIT', 'NEWTON_LIMIT', 'DESIGN_MARGIN', 'SOFT_SETTLE', 'LAYER_WIDTH',
+           'CASCADE', 'LAG_LIMIT', 'RIPPLE_FRACTION', 'SampledPrediction',
+           'design_hessian_spectrum', 'effective_spectrum', 'loop_limit', 'mode_matrix', 'mode_radius', 'predict', 'propose_gains']
 
 #: the loop holds while K lambda_max (T + tau) stays below this (the sampled relay)
 RELAY_LIMIT = 2.5
-#: :func:`propose_gains` keeps K lambda_max (T + tau) at this fraction of RELAY_LIMIT
+#: along the Newton direction the loop holds while K (T + tau) stays below this (measured on
+#: the emulation's grid: the linear model near the equilibrium would allow RELAY_LIMIT, but
+#: far from it the direction turns with the state, which the model does not see)
+NEWTON_LIMIT = 0.5
+#: :func:`propose_gains` keeps K lambda_max (T + tau) at this fraction of its limit
 DESIGN_MARGIN = 0.8
 #: the softest deformation mode's time constant 1 / (K lambda_soft) must fit this many times
 #: into the part of the run before the judged window (the first 60 % of it): the initial
@@ -155,6 +164,12 @@ def design_hessian_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
     return np.linalg.eigvalsh(hessian(f.relative_positions, np.zeros(3), **p))
 
 
+def loop_limit(cfg: SwarmConfig) -> float:
+    """The bound on ``kappa (T + tau)``: :data:`NEWTON_LIMIT` along the Newton direction,
+    :data:`RELAY_LIMIT` along the gradient."""
+    return NEWTON_LIMIT if cfg.precondition == 'newton' else RELAY_LIMIT
+
+
 def effective_spectrum(cfg: SwarmConfig, eigs: NDArray[np.float64]) -> NDArray[np.float64]:
     """The curvatures the manifold descends: the Hessian's eigenvalues ``lambda`` along the
     gradient (the paper), ``lambda / max(|lambda|, mu)`` along the Newton direction
@@ -186,15 +201,19 @@ class SampledPrediction:
     steady_lag: float
     settle_time: float
     settle_allowed: float
+    inner_stable: bool
     warnings: list[str] = field(default_factory=list)
 
     @property
     def holds(self) -> bool:
-        """The formation is predicted to hold: ``K lambda_max (T + tau) < RELAY_LIMIT``
-        (:attr:`spectral_radius` below 1) and the lag within :data:`LAG_LIMIT`. A soft mode
+        """The formation is predicted to hold: ``K lambda_max (T + tau)`` below
+        :func:`loop_limit`
+        (:attr:`spectral_radius` below 1), a linear boundary layer's own loop stable
+        (:attr:`inner_stable`) and the lag within :data:`LAG_LIMIT`. A soft mode
         that settles slowly (:attr:`settle_time` above :attr:`settle_allowed`) is a warning,
         not a verdict: how far the start excites it decides (the emulation does)."""
-        return self.spectral_radius < 1.0 and self.steady_lag <= LAG_LIMIT
+        return (self.spectral_radius < 1.0 and self.steady_lag <= LAG_LIMIT
+                and self.inner_stable)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values, for summary.json."""
@@ -226,7 +245,8 @@ def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
     mass = float(np.min(cfg.mass_matrix_diag()))
     K = cfg.alpha + cfg.beta / cfg.gamma
     g = _inner_rate(cfg, T, mass)
-    allowed = RELAY_LIMIT / (T + tau)
+    limit = loop_limit(cfg)
+    allowed = limit / (T + tau)
     linear = mode_radius(lam_max, layer_gain=K, inner_rate=g, period=T, latency=tau,
                          mass=mass)
     ripple = cfg.u0 * T / mass
@@ -252,14 +272,26 @@ def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
             f'formation predicted to fail at {1.0 / T:g} Hz with {tau * 1e3:g} ms latency: '
             f'the stiffest mode of {cfg.n_trackers} trackers has the rate K lambda_max = '
             f'{K:.3g} x {lam_max:.3g} = {K * lam_max:.3g} 1/s, and a control period of '
-            f'{T * 1e3:g} ms with that delay allows {RELAY_LIMIT:g} / (T + tau) = '
+            f'{T * 1e3:g} ms with that delay allows {limit:g} / (T + tau) = '
             f'{allowed:.3g} 1/s: {fix}, raise the control rate, or run `apf-swarm design '
             f'--control-rate {1.0 / T:g} --latency {tau:g} --n-trackers {cfg.n_trackers}`')
+    inner_stable = True
     if cfg.switching == 'layer' and g >= CASCADE * K * lam_max:
+        # the linear regime: the layer's own loop must be stable at the latency, and should
+        # be with it doubled plus half a period (the jitter of a real delay)
         centroid = float(effective_spectrum(cfg, np.array([cfg.k_n]))[0])
         jitter = 2.0 * tau + 0.5 * T
-        if mode_radius(centroid, layer_gain=K, inner_rate=g, period=T, latency=jitter,
-                       mass=mass) >= 1.0:
+        kw = dict(layer_gain=K, inner_rate=g, period=T, mass=mass)
+        if mode_radius(centroid, latency=tau, **kw) >= 1.0:
+            inner_stable = False
+            warnings.append(
+                f'formation predicted to fail: the boundary layer phi = {cfg.phi:g} m/s is '
+                f'too narrow for a period of {T * 1e3:g} ms with {tau * 1e3:g} ms latency: '
+                f'its linear loop (rate u0 / (phi M) = {g:.3g} 1/s) is unstable; use phi >= '
+                f'{LAYER_WIDTH * cfg.u0 * (T + tau) / mass:.3g} m/s and K <= '
+                f'{cfg.u0 / (LAYER_WIDTH * cfg.u0 * (T + tau)) / (CASCADE * lam_max):.3g} '
+                f'1/s, or run `apf-swarm design --control-rate {1.0 / T:g} --latency {tau:g}`')
+        elif mode_radius(centroid, latency=jitter, **kw) >= 1.0:
             warnings.append(
                 f'the boundary layer phi = {cfg.phi:g} m/s is too narrow for a period of '
                 f'{T * 1e3:g} ms with a latency jittering up to 2 tau + T/2 = '
@@ -283,7 +315,8 @@ def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
         layer_gain=K, inner_rate=g, hessian_max=lam_max, hessian_soft=soft,
         formation_rate=K * lam_max, rate_allowed=allowed,
         spectral_radius=K * lam_max / allowed, linear_radius=linear, ripple=ripple,
-        steady_lag=lag, settle_time=settle, settle_allowed=settle_allowed, warnings=warnings)
+        steady_lag=lag, settle_time=settle, settle_allowed=settle_allowed,
+        inner_stable=inner_stable, warnings=warnings)
 
 
 def _schedule(cfg: SwarmConfig, eigs: NDArray[np.float64], T: float, latency: float
@@ -292,13 +325,18 @@ def _schedule(cfg: SwarmConfig, eigs: NDArray[np.float64], T: float, latency: fl
     lam_max = float(effective_spectrum(cfg, eigs).max())
     mass = float(np.min(cfg.mass_matrix_diag()))
     K = min(cfg.alpha + cfg.beta / cfg.gamma,
-            DESIGN_MARGIN * RELAY_LIMIT / (lam_max * (T + latency)))
+            DESIGN_MARGIN * loop_limit(cfg) / (lam_max * (T + latency)))
     if K <= cfg.alpha:
         return None
     wide = LAYER_WIDTH * cfg.u0 * (T + latency) / mass
-    # a wide, linear layer only where its inner loop is faster than the formation's
-    # stiffest mode (CASCADE times); otherwise the narrow layer of the relay regime
-    phi = wide if cfg.u0 / (wide * mass) >= CASCADE * K * lam_max else cfg.u0 * T / mass
+    # a wide, linear layer whose inner loop is CASCADE times faster than the formation's
+    # stiffest mode, if that costs at most half of K; otherwise the narrow layer of the
+    # relay regime with the whole K
+    K_cascade = cfg.u0 / (wide * mass) / (CASCADE * lam_max)
+    if K_cascade >= 0.5 * K:
+        K, phi = min(K, K_cascade), wide
+    else:
+        phi = cfg.u0 * T / mass
     return {'switching': 'layer', 'phi': phi,
             'gamma': cfg.beta / (K - cfg.alpha), 'feedforward': 1.0,
             'precondition': cfg.precondition}
@@ -309,7 +347,8 @@ def propose_gains(cfg: SwarmConfig, *, control_rate: float, latency: float,
     """Gains that :func:`predict` passes at this rate and delay, for ``cfg.n_trackers``.
 
     For a direction (the configuration's, then the Newton direction if that one's
-    prediction fails or warns of a slow formation): the layer gain ``K = DESIGN_MARGIN RELAY_LIMIT / (lambda_max (T +
+    prediction fails or warns of a slow formation): the layer gain ``K = DESIGN_MARGIN
+    loop_limit / (lambda_max (T +
     tau))`` with the direction's stiffest curvature (:func:`effective_spectrum`: 1 along
     the Newton direction, whatever n), at most the configuration's own K, i.e.
     ``gamma = beta / (K - alpha)``; ``feedforward = 1``, since a smaller K alone would trail
