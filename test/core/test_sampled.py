@@ -124,7 +124,8 @@ def test_prediction_agrees_with_the_emulation_of_the_sign_law(n, rate, latency) 
 
 def test_designed_gains_hold_eight_trackers_at_100_hz_where_the_gradient_fails() -> None:
     cfg = load_preset('realtime').replace(n_trackers=8, seed=2, duration=25.0,
-                                          record_every=10, latency=0.004, precondition='none')
+                                          record_every=10, latency=0.004, precondition='none',
+                                          control_rate=100.0)
     before = predict(cfg)
     assert not before.holds and any('formation predicted to fail' in w for w in before.warnings)
     tuned = cfg.replace(**propose_gains(cfg, control_rate=100.0, latency=0.004))
@@ -184,7 +185,7 @@ def test_newton_matrix_is_the_inverse_hessian_where_h_is_stiff_and_a_descent_eve
 
 def test_newton_direction_flies_16_trackers_at_100_hz_where_the_gradient_cannot() -> None:
     cfg = load_preset('realtime').replace(n_trackers=16, seed=2, duration=25.0,
-                                          record_every=10, latency=0.005)
+                                          record_every=10, latency=0.005, control_rate=100.0)
     assert cfg.precondition == 'newton'
     pred = predict(cfg)
     assert pred.holds and pred.formation_rate == pytest.approx(pred.layer_gain)
@@ -197,7 +198,8 @@ def test_newton_direction_flies_16_trackers_at_100_hz_where_the_gradient_cannot(
 
 def test_a_narrow_layer_is_warned_and_chatters_in_the_emulation() -> None:
     from apf_swarm_core.metrics import hf_velocity_rms
-    cfg = load_preset('realtime').replace(duration=10.0, latency=0.012, phi=0.25)
+    cfg = load_preset('realtime').replace(duration=10.0, latency=0.012, phi=0.25,
+                                          control_rate=100.0)
     assert any('too narrow' in w for w in predict(cfg).warnings)
     assert not any('too narrow' in w for w in predict(cfg.replace(phi=0.75)).warnings)
     chatter = hf_velocity_rms(simulate(cfg).trajectory['v'][-4000:], cfg.dt)

@@ -831,6 +831,7 @@ class Bringup:
     def __init__(self, args: argparse.Namespace, cfg: SwarmConfig, *, prog: str,
                  stream: TextIO | None = None) -> None:
         self.args, self.cfg, self.prog = args, cfg, prog
+        self.capacity: dict[str, Any] | None = None     # realtime: derived from the probe
         self.err = stream if stream is not None else sys.stderr
         self.mode: str = args.mode
         self.node_params: list[str] = list(getattr(args, "node_params", []) or [])
@@ -868,12 +869,26 @@ class Bringup:
     def realtime_check(self) -> None:
         """Realtime: the sampled-data prediction before the run (printed, and kept for
         summary.json); with ``--gains auto`` a failing one is replaced by designed gains."""
-        from apf_swarm_core.config import DEFAULT_LATENCY, REALTIME_RATE
         from apf_swarm_core.sampled import predict, propose_gains
+
+        from . import probe
         cfg = self.cfg
+        machine = probe.ensure(say=self.say)
+        measured = probe.derive(machine, self.n, cfg.control_rate or None)
+        self.capacity = measured
         if cfg.control_rate <= 0:
-            cfg = cfg.replace(control_rate=REALTIME_RATE)
-        latency = cfg.latency or DEFAULT_LATENCY
+            cfg = cfg.replace(control_rate=measured['rate'])
+            self.say(f'control rate {measured["rate"]:g} Hz for {self.n} trackers on this '
+                     f'machine (`apf-swarm probe`)')
+        latency = cfg.latency or measured['latency']
+        fits = measured['capacity'].get(f'{cfg.control_rate:g}')
+        if fits is not None and self.n > fits:
+            self.say(f'warning: {self.n} trackers at {cfg.control_rate:g} Hz are more than '
+                     f'the {fits} that fit in {probe.CPU_BUDGET:.0%} of this machine\'s cores '
+                     f'(`apf-swarm probe`): expect late commands; a lower rate (--set '
+                     f'control_rate=HZ: ' + ', '.join(f'{v} at {k} Hz' for k, v in
+                                                      measured['capacity'].items())
+                     + ') or fewer trackers')
         pred = predict(cfg, latency=latency)
         self.gains_scheduled: dict[str, Any] = {}
         if not pred.holds and getattr(self.args, 'gains', 'auto') == 'auto':
@@ -1303,6 +1318,7 @@ class Bringup:
         lat = lat[(lat > 0) & np.isfinite(lat)]
         out: dict[str, Any] = {'before_run': self.prediction.to_dict(),
                                'gains_scheduled': self.gains_scheduled,
+                               'machine': self.capacity,
                                'run': flight(traj, pairs)}
         if lat.size:
             out['latency'] = {q: round(float(np.quantile(lat, v)), 6) for q, v in

@@ -95,6 +95,26 @@ def _realtime_extra(args: argparse.Namespace) -> tuple[dict[str, Any], np.ndarra
     return extra, samples
 
 
+def machine_latency(n: int, rate: float | None = None) -> float:
+    """The control-loop latency of this machine for n trackers at ``rate`` from its cached
+    probe (``apf-swarm probe``), else DEFAULT_LATENCY (said on stderr)."""
+    from . import probe
+    cached = probe.load()
+    if cached is None:
+        print(f'{PROG}: no probe of this machine yet (`apf-swarm probe`): assuming '
+              f'{DEFAULT_LATENCY * 1e3:g} ms of control-loop latency', file=sys.stderr)
+        return DEFAULT_LATENCY
+    return float(probe.derive(cached, n, rate)['latency'])
+
+
+def machine_rate(n: int) -> float:
+    """The default realtime rate for n trackers from this machine's cached probe, else
+    REALTIME_RATE."""
+    from . import probe
+    cached = probe.load()
+    return REALTIME_RATE if cached is None else float(probe.derive(cached, n)['rate'])
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     extra, samples = _realtime_extra(args)
     cfg = _load(args, {'law': args.law, 'n_trackers': args.n_trackers,
@@ -114,9 +134,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     extra, samples = _realtime_extra(args)
     cfg = _load(args, {'n_trackers': args.n_trackers, **extra})
     if args.mode == 'realtime' and cfg.control_rate <= 0:
-        cfg = cfg.replace(control_rate=REALTIME_RATE)
+        cfg = cfg.replace(control_rate=machine_rate(cfg.n_trackers))
     if args.mode == 'realtime':
-        cfg = cfg.replace(latency=cfg.latency or DEFAULT_LATENCY)
+        cfg = cfg.replace(latency=cfg.latency or machine_latency(cfg.n_trackers,
+                                                                cfg.control_rate))
     run = None if args.no_run else simulate(
         cfg, progress=_progress(args, 'check run'), latency_samples=samples).trajectory
     rep = check_config(cfg, run, realtime=args.mode == 'realtime')
@@ -136,7 +157,7 @@ def cmd_design_rate(args: argparse.Namespace, cfg: SwarmConfig) -> int:
     """``design --control-rate HZ``: gains that the sampled-data prediction passes."""
     from apf_swarm_core.sampled import predict, propose_gains
     latency = args.latency if isinstance(args.latency, float) else \
-        (cfg.latency or DEFAULT_LATENCY)
+        (cfg.latency or machine_latency(cfg.n_trackers, args.control_rate))
     try:
         gains = propose_gains(cfg, control_rate=args.control_rate, latency=latency)
     except ValueError as exc:
@@ -390,7 +411,8 @@ def _add_realtime_args(p: argparse.ArgumentParser, help_rate: str = '') -> None:
     p.add_argument('--latency', type=_latency_arg, metavar='S|FILE',
                    help='control-loop delay [s], or a JSON file of measured latencies to '
                         'draw from (a list, or a realtime run\'s summary.json); default for '
-                        f'check and design: the latency key, else {DEFAULT_LATENCY:g} s')
+                        'check and design: the latency key, else this machine\'s probe '
+                        f'(`apf-swarm probe`), else {DEFAULT_LATENCY:g} s')
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -455,6 +477,11 @@ def build_parser() -> argparse.ArgumentParser:
                        'record a run (exit 0 ok, 2 bad input / not ready, 3 a node died)')
     bringup.add_arguments(p)
     p.set_defaults(func=lambda args: bringup.run(args, prog=f'{PROG} up'))
+    from . import probe
+    p = sub.add_parser('probe', help="measure this machine's control-loop latency and cost "
+                       '(cached): the realtime defaults come from it')
+    probe.add_arguments(p)
+    p.set_defaults(func=probe.run)
     _add_bag_parser(sub)
     return parser
 

@@ -141,7 +141,7 @@ def spin(node: Node | Sequence[Node], kind: str = 'single') -> None:
     only for comparison, docs/PERFORMANCE.md).
     Each is driven by a ``spin_once`` loop with a 0.1 s timeout that checks for a stop
     request between callbacks (the EventsExecutor's ``spin()`` busy-loops and ignores SIGINT
-    in these wheels, docs/THEORY.md section 4), so a stop is seen within 0.1 s.
+    in these wheels, docs/THEORY.md section 5), so a stop is seen within 0.1 s.
     """
     nodes = [node] if isinstance(node, Node) else list(node)
     if kind == 'events':

@@ -1,0 +1,67 @@
+"""The capacity probe (apf_swarm_nodes.probe): a real ping-pong between two rclpy processes,
+cached; and what follows from a probe (ROS-free)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from apf_swarm_nodes import probe
+from apf_swarm_nodes.bringup import pick_domain_id
+
+APF = shutil.which('apf-swarm')
+
+
+def test_probe_measures_caches_and_rereads(tmp_path: Path) -> None:
+    assert APF is not None, 'apf-swarm is not on PATH: source scripts/activate.sh'
+    env = {**os.environ, 'APF_SWARM_CACHE': str(tmp_path), 'ROS_DOMAIN_ID':
+           str(pick_domain_id(lo=102, hi=201)), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    first = subprocess.run([APF, 'probe', '--json', '--n-trackers', '16'], env=env,
+                           capture_output=True, text=True, timeout=120)
+    assert first.returncode == 0, first.stderr
+    assert 'measuring this machine' in first.stderr
+    doc = json.loads(first.stdout)
+    p, d = doc['probe'], doc['derived']
+    # a round trip over DDS on one machine: more than the wire, less than a control period
+    assert 0.0 < p['rtt']['p50'] <= p['rtt']['p90'] <= p['rtt']['p99'] < 0.1
+    assert p['round_trips'] >= 0.8 * p['messages'] > 0      # best effort, on loopback
+    assert 0.0 < p['cpu_per_message'] < 0.01
+    assert 0.0 < p['command_cost']['3'] < p['command_cost']['32']
+    assert d['latency'] > p['rtt']['p90'] and d['rate'] in probe.RATES
+    cached = json.loads((tmp_path / 'probe.json').read_text())
+    assert cached['machine'] == probe.machine() and cached['rtt'] == p['rtt']
+    again = subprocess.run([APF, 'probe', '--json'], env=env, capture_output=True,
+                           text=True, timeout=60)
+    assert again.returncode == 0 and 'measuring' not in again.stderr
+    assert json.loads(again.stdout)['probe'] == p
+
+
+def _probe(cpu_per_message: float, cost16: float, cores: int = 2) -> dict:
+    return {'machine': {'cpu': 'x', 'cores': cores, 'host': 'h'}, 'cpu_per_message':
+            cpu_per_message, 'rtt': {'p50': 0.001, 'p90': 0.002, 'p99': 0.004},
+            'command_cost': {'3': cost16 / 4, '16': cost16, '32': 4 * cost16}}
+
+
+def test_derive_scales_capacity_with_the_cost_and_picks_the_highest_rate_that_fits() -> None:
+    fast, slow = probe.derive(_probe(50e-6, 200e-6), 16), probe.derive(_probe(100e-6, 400e-6), 16)
+    # per tracker and period: 3 messages and a command; 50 % of 2 cores
+    assert fast['capacity']['100'] == int(0.5 * 2 / (100 * (3 * 50e-6 + 200e-6)))
+    assert slow['capacity']['100'] == fast['capacity']['100'] // 2
+    assert fast['rate'] == 100.0 and slow['rate'] == 50.0
+    use = 16 * 100 * (3 * 50e-6 + 200e-6) / 2
+    assert fast['utilization'] == pytest.approx(use, abs=1e-3)
+    assert fast['latency'] == pytest.approx((0.002 + 200e-6) / (1 - use), rel=1e-3)
+    assert probe.derive(_probe(50e-6, 200e-6), 16, 20.0)['rate'] == 20.0
+
+
+def test_a_probe_of_another_machine_is_not_used(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setenv('APF_SWARM_CACHE', str(tmp_path))
+    (tmp_path / 'probe.json').write_text(json.dumps(_probe(50e-6, 200e-6)))
+    assert probe.load() is None
+    (tmp_path / 'probe.json').write_text('{not json')
+    assert probe.load() is None
