@@ -176,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--preset', default=None, help='default: triangle (lockstep), realtime')
     p.add_argument('--duration', type=float, default=5.0)
     p.add_argument('--rate', type=float, default=None,
-                   help='realtime: plant publish rate = tracker input rate [Hz]')
+                   help='realtime: the control rate (plant publications, trackers\' watchdog) '
+                        '[Hz]; default: what this machine carries (apf-swarm probe)')
     p.add_argument('--domain-id', type=int, default=None)
     p.add_argument('--out', type=Path, required=True)
     p.add_argument('--keep', action='store_true', help='keep the namespaces (debugging)')
@@ -230,8 +231,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.domain_id is not None:
             cmd += ['--domain-id', str(args.domain_id)]
         if args.rate is not None:
-            cmd += ['--node-param', f'publish_rate:={float(args.rate)!r}',
-                    '--node-param', f'control_rate:={float(args.rate)!r}']
+            cmd += ['--set', f'control_rate={float(args.rate)!r}']
         for name, ns in placement.items():
             cmd += ['--node-netns', f'{name}={ns}']
         say(f'{args.hosts} hosts on {lab.net}.0/24 ({", ".join(f"{ns}={a}" for ns, a in lab.addr.items())}), '

@@ -267,10 +267,11 @@ def test_lockstep_bringup_forms_the_triangle_and_equals_the_simulator(bringup) -
 
 
 def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
-    """Realtime preset and mode, 8 s: exit 0, the triangle within 5 % (measured on an idle
-    machine: 0.4 %; a heavily loaded one delays commands and makes the formation breathe by
-    a few %), tracking within the lockstep simulator's steady error + 0.1 m, samples at the
-    plant's publish rate."""
+    """Realtime preset and mode, 8 s: exit 0; predicted to hold before the run, and judged by
+    flight after it (formation error RMS <= 3 % of the spacing, closest pair >= 90 %,
+    converged, over the last 40 %), next to its headless emulation at the same rate with the
+    latencies the plant measured; the triangle within 5 % (measured: 0.01 %); samples at the
+    control rate the bring-up chose for this machine."""
     run = bringup('rt', '--preset', 'realtime', '--mode', 'realtime', '--duration', '8')
     rc = run.wait(120)
     assert rc == 0, run.stderr()
@@ -286,9 +287,15 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     t = ros['t']
     assert np.all(np.diff(t) > 0)
     assert t[-1] == pytest.approx(8.0, abs=0.2)
-    # the plant publishes at publish_rate (100 Hz): about 800 samples, none lost
-    assert 700 <= len(t) <= 820, len(t)
+    # the plant publishes at the control rate: about 8 s of samples, none lost
+    rate = cfg.control_rate
+    assert rate > 0
+    assert 0.85 * 8 * rate <= len(t) <= 1.03 * 8 * rate, (len(t), rate)
     assert summary['messages']['dropped'] == 0
+    pred = summary['prediction']
+    assert pred['before_run']['holds'], pred['before_run']
+    assert pred['run']['flies'], (pred['run'], pred.get('emulation'), pred.get('latency'))
+    assert pred['emulation']['flies'] and pred['latency']['p50'] > 0
     d = triangle_side(cfg)
     steady = t >= 6.0
     x = ros['x'][steady]

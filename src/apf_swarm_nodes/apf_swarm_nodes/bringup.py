@@ -54,8 +54,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence, TextIO
 
-from apf_swarm_core.config import (SwarmConfig, apply_overrides, load_config, load_preset,
-                                   parse_set, preset_names, to_ros_params)
+from apf_swarm_core.config import (DEFAULT_LATENCY, REALTIME_RATE, SwarmConfig,
+                                   apply_overrides, load_config, load_preset, parse_set,
+                                   preset_names, to_ros_params)
 from apf_swarm_core.errors import ApfSwarmError
 
 from .argtypes import domain_id, nonneg_int, positive_float, positive_int
@@ -873,14 +874,21 @@ class Bringup:
 
         from . import probe
         cfg = self.cfg
-        machine = probe.ensure(say=self.say)
-        measured = probe.derive(machine, self.n, cfg.control_rate or None)
+        try:
+            machine = probe.ensure(say=self.say)
+        except (RuntimeError, OSError, ValueError, subprocess.TimeoutExpired) as exc:
+            self.say(f'warning: {exc}; assuming {REALTIME_RATE:g} Hz and '
+                     f'{DEFAULT_LATENCY * 1e3:g} ms of latency')
+            machine = None
+        measured = probe.derive(machine, self.n, cfg.control_rate or None) if machine else \
+            {'rate': cfg.control_rate or REALTIME_RATE, 'latency': None,
+             'capacity': {}}
         self.capacity = measured
         if cfg.control_rate <= 0:
             cfg = cfg.replace(control_rate=measured['rate'])
             self.say(f'control rate {measured["rate"]:g} Hz for {self.n} trackers on this '
                      f'machine (`apf-swarm probe`)')
-        latency = cfg.latency or measured['latency']
+        latency = cfg.latency or measured['latency'] or DEFAULT_LATENCY
         fits = measured['capacity'].get(f'{cfg.control_rate:g}')
         if fits is not None and self.n > fits:
             self.say(f'warning: {self.n} trackers at {cfg.control_rate:g} Hz are more than '

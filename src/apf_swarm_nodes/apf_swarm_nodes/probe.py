@@ -192,11 +192,9 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
 
 
 def measure(seconds: float = 4.0, rate: float = 100.0, n: int = 16) -> dict[str, Any]:
-    """Run the probe (ROS environment needed; ``ROS_DOMAIN_ID`` of the caller, or a free one)."""
+    """Run the probe in this process (``python -m apf_swarm_nodes.probe --measure`` does it
+    in a process of its own, on a free domain, localhost only: :func:`ensure`)."""
     import rclpy
-    from .bringup import pick_domain_id
-    os.environ.setdefault('ROS_DOMAIN_ID', str(pick_domain_id()))
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     costs = {str(k): round(command_cost(k), 7) for k in COMMAND_SIZES}
     rclpy.init()
     try:
@@ -222,9 +220,18 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None
     """The cached probe, measured (and cached) first when missing or ``refresh``."""
     probe = None if refresh else load()
     if probe is None:
+        from .bringup import pick_domain_id
         if say is not None:
             say(f'measuring this machine (capacity probe, about 6 s; cached in {cache_path()})')
-        probe = measure()
+        env = {**os.environ, 'ROS_DOMAIN_ID': str(pick_domain_id()),
+               'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+        env.pop('ROS_STATIC_PEERS', None)
+        done = subprocess.run([sys.executable, '-m', 'apf_swarm_nodes.probe', '--measure'],
+                              env=env, capture_output=True, text=True, timeout=120)
+        if done.returncode != 0:
+            raise RuntimeError(f'the capacity probe failed (exit {done.returncode}): '
+                               f'{done.stderr.strip()[-800:]}')
+        probe = json.loads(done.stdout)
         path = cache_path()
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(probe, indent=2) + '\n')
@@ -290,5 +297,8 @@ def run(args: Any) -> int:
 
 
 if __name__ == '__main__':
-    # the probe's echo process (``python -m apf_swarm_nodes.probe --echo``)
+    # ``--measure``: the probe's own process (JSON on stdout); ``--echo``: its echo
+    if sys.argv[1:] == ['--measure']:
+        print(json.dumps(measure()))
+        sys.exit(0)
     sys.exit(_echo() if sys.argv[1:] == ['--echo'] else 2)
