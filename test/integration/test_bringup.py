@@ -404,7 +404,8 @@ def respawn_and_recover(bringup, name: str, *args: str, kill_at: float, duration
     wait_for(lambda: any(p != pid and 'uav_id:=2 ' in _cmdline(p) + ' '
                          for p in run.collect_nodes()), 10, 'the new tracker_2', run)
     assert time.monotonic() - killed <= 2.0, 'respawn took longer than 2 s'
-    assert 'respawned tracker_2' in run.stderr()
+    # the bring-up says so right after starting the process, which may be seen first
+    wait_for(lambda: 'respawned tracker_2' in run.stderr(), 10, 'the respawn reported', run)
     rc = run.wait(150)
     assert rc == 0, run.stderr()
     summary = run.summary()
