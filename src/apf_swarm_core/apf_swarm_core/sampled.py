@@ -64,7 +64,8 @@ from .potential import hessian
 
 __all__ = ['RELAY_LIMIT', 'NEWTON_LIMIT', 'DESIGN_MARGIN', 'SOFT_SETTLE', 'LAYER_WIDTH',
            'CASCADE', 'LAG_LIMIT', 'RIPPLE_FRACTION', 'SampledPrediction',
-           'design_hessian_spectrum', 'effective_spectrum', 'loop_limit', 'mode_matrix', 'mode_radius', 'predict', 'propose_gains']
+           'design_hessian_spectrum', 'effective_spectrum', 'loop_limit', 'mode_matrix',
+           'mode_radius', 'predict', 'propose_gains']
 
 #: the loop holds while K lambda_max (T + tau) stays below this (the sampled relay)
 RELAY_LIMIT = 2.5

@@ -1293,7 +1293,8 @@ class Bringup:
                     return 'no design to judge by'
                 return (('flies' if f['flies'] else 'does not fly') + f": formation error "
                         f"{100 * f['formation_error_rms']:.2g} %, closest pair "
-                        f"{100 * f['closest_pair']:.3g} %, centroid {f['centroid_error_rms']:.3g} m")
+                        f"{100 * f['closest_pair']:.3g} %, centroid "
+                        f"{f['centroid_error_rms']:.3g} m")
             print(f"  flight           run {judged(pr['run'])}")
             if 'emulation' in pr:
                 print(f"  headless         {judged(pr['emulation'])} (same rate, the run's "

@@ -13,10 +13,10 @@ of the machine in use, not from constants measured elsewhere:
   ``realtime`` preset for 3, 16 and 32 trackers, in this process [s].
 
 From them (:func:`derive`): the control-loop latency ``check`` and ``design`` assume (the
-round trip's p90 plus a command, stretched by the machine's utilization), the most trackers that fit in :data:`CPU_BUDGET` of the
-cores at a rate (each costs per period its state's delivery, its command's publication, the
-plant's receipt and a command), and the default rate (the highest of :data:`RATES` that
-fits). The cache is ``$XDG_CACHE_HOME/apf_swarm/probe.json`` (``~/.cache``), or
+round trip's p90 plus a command, stretched by the machine's utilization), the most trackers
+that fit in :data:`CPU_BUDGET` of the cores at a rate (each costs per period its state's
+delivery, its command's publication, the plant's receipt and a command), and the default
+rate (the highest of :data:`RATES` that fits). The cache is ``$XDG_CACHE_HOME/apf_swarm/probe.json`` (``~/.cache``), or
 ``$APF_SWARM_CACHE/probe.json``; it is re-measured when the machine (CPU model, cores,
 host name) differs, or with ``--refresh``.
 """
@@ -222,7 +222,8 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None
     if probe is None:
         from .bringup import pick_domain_id
         if say is not None:
-            say(f'measuring this machine (capacity probe, about 6 s; cached in {cache_path()})')
+            say(f'measuring this machine (capacity probe, about 6 s; cached in '
+                f'{cache_path()})')
         env = {**os.environ, 'ROS_DOMAIN_ID': str(pick_domain_id()),
                'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
         env.pop('ROS_STATIC_PEERS', None)
