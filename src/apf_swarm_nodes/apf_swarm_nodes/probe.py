@@ -16,8 +16,8 @@ From them (:func:`derive`): the control-loop latency ``check`` and ``design`` as
 round trip's p90 plus a command, stretched by the machine's utilization), the most trackers
 that fit in :data:`CPU_BUDGET` of the cores at a rate (each costs per period its state's
 delivery, its command's publication, the plant's receipt and a command), and the default
-rate (the highest of :data:`RATES` that fits). The cache is ``$XDG_CACHE_HOME/apf_swarm/probe.json`` (``~/.cache``), or
-``$APF_SWARM_CACHE/probe.json``; it is re-measured when the machine (CPU model, cores,
+rate (the highest of :data:`RATES` that fits). The cache is
+``$XDG_CACHE_HOME/apf_swarm/probe.json`` (``~/.cache``), or ``$APF_SWARM_CACHE/probe.json``; it is re-measured when the machine (CPU model, cores,
 host name) differs, or with ``--refresh``.
 """
 
