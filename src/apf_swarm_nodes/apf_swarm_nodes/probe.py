@@ -17,8 +17,9 @@ round trip's p90 plus a command, stretched by the machine's utilization), the mo
 that fit in :data:`CPU_BUDGET` of the cores at a rate (each costs per period its state's
 delivery, its command's publication, the plant's receipt and a command), and the default
 rate (the highest of :data:`RATES` that fits). The cache is
-``$XDG_CACHE_HOME/apf_swarm/probe.json`` (``~/.cache``), or ``$APF_SWARM_CACHE/probe.json``; it is re-measured when the machine (CPU model, cores,
-host name) differs, or with ``--refresh``.
+``$XDG_CACHE_HOME/apf_swarm/probe.json`` (``~/.cache``), or ``$APF_SWARM_CACHE/probe.json``;
+it is measured again when the machine (CPU model, cores, host name) differs, or with
+``--refresh``.
 """
 
 from __future__ import annotations
