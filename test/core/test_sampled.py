@@ -221,3 +221,34 @@ def test_prediction_agrees_with_the_emulation_of_the_newton_direction(rate, late
     pred = predict(cfg)
     f = flight(simulate(cfg).trajectory, expected_pairs(cfg))
     assert pred.holds == f['flies'], (pred, f)
+
+
+def test_each_tracker_descends_its_row_of_the_simulators_newton_direction() -> None:
+    from apf_swarm_core.agents import TrackerAgent
+    from apf_swarm_core.simulator import Preconditioner, control_step, make_controller
+    cfg = load_preset('realtime').replace(n_trackers=5, newton_every=1)
+    rng = np.random.default_rng(4)
+    x, v = rng.normal(scale=1.5, size=(5, 3)), rng.normal(size=(5, 3))
+    tx, tv = np.array([0.2, -0.1, 5.0]), np.array([1.0, 0.5, 0.0])
+    full = control_step(make_controller(cfg, (5, 3)), x, v, tx, cfg.potential_params(),
+                        target_v=tv, precondition=Preconditioner(cfg.newton_mu))
+    for i in range(1, 6):
+        agent = TrackerAgent(cfg, i)
+        for j in range(1, 6):
+            agent.offer(j, -1, x[j - 1], v[j - 1], 0.0)
+        agent.offer(0, -1, tx, tv, 0.0)
+        out = agent.command(-1)
+        assert np.array_equal(out.gradient[0], full.gradient[i - 1])     # bit for bit
+        assert np.array_equal(out.force[0], full.force[i - 1])
+
+
+def test_trackers_of_one_process_share_the_newton_matrix() -> None:
+    from apf_swarm_core.simulator import Preconditioner
+    p = load_preset('realtime').potential_params()
+    x = np.random.default_rng(5).normal(size=(6, 3))
+    a, b = Preconditioner(0.1), Preconditioner(0.1)
+    da = a.direction(x, np.zeros(3), p)
+    db = b.direction(x, np.zeros(3), p)
+    assert b.matrix is a.matrix and db is da                 # computed once
+    dc = b.direction(x + 0.1, np.zeros(3), p)                # new positions: recomputed
+    assert b.matrix is not a.matrix and not np.array_equal(dc, da)

@@ -121,7 +121,7 @@ class Preconditioner:
     """
 
     _last_matrix: tuple[Any, NDArray[np.float64]] | None = None     # shared by the process
-    _last_direction: tuple[Any, NDArray[np.float64]] | None = None
+    _last_direction: tuple[Any, NDArray[np.float64], NDArray[np.float64]] | None = None
 
     def __init__(self, mu: float, every: int = 1) -> None:
         self.mu, self.every, self.calls = float(mu), int(every), 0
@@ -143,12 +143,12 @@ class Preconditioner:
                 self.matrix = newton_matrix(x, tx, mu=self.mu, **params)
                 Preconditioner._last_matrix = (key, self.matrix)
         self.calls += 1
-        dkey = (key, tx.tobytes(), id(self.matrix))
+        dkey = (key, tx.tobytes())
         last = Preconditioner._last_direction
-        if last is not None and last[0] == dkey:
+        if last is not None and last[2] is self.matrix and last[0] == dkey:
             return last[1]
         out = newton_direction(self.matrix, gradient(x, tx, **params))
-        Preconditioner._last_direction = (dkey, out)
+        Preconditioner._last_direction = (dkey, out, self.matrix)
         return out
 
 
