@@ -199,7 +199,7 @@ def sampled_findings(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> lis
     FLIGHT_CRITERIA`."""
     from .metrics import flight
     from .sampled import predict
-    from .simulator import expected_pairs
+    from .simulator import design_pair_sets
     pred = predict(cfg)
     T = pred.control_period
     out = [Finding('info', 'sampled', (
@@ -212,7 +212,7 @@ def sampled_findings(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> lis
         + '.'))]
     out += [Finding('warning', 'sampled', w) for w in pred.warnings]
     if run is not None:
-        f = flight(run, expected_pairs(cfg))
+        f = flight(run, design_pair_sets(cfg))
         if f['formation_error_rms'] is not None:
             out.append(Finding('info', 'emulation', (
                 f"the emulation at this rate and latency {'flies' if f['flies'] else 'does not fly'}: "

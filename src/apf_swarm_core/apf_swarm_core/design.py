@@ -25,7 +25,8 @@ from .potential import gradient, potential
 
 __all__ = ['triangle_spacing', 'triangle_b_for_spacing', 'triangle_c_for_spacing',
            'pair_equilibrium_distance', 'swarm_size_bound', 'Formation',
-           'equilibrium_formation', 'b_for_spacing', 'expected_spacing']
+           'equilibrium_formation', 'equilibrium_formations', 'b_for_spacing',
+           'expected_spacing']
 
 
 def _triangle_threshold(a: float, k_n: float, k_f: float) -> float:
@@ -96,6 +97,21 @@ def equilibrium_formation(n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: floa
     Runs L-BFGS (scipy) with the analytic gradient of eq. 44 from ``starts`` random initial
     shapes and keeps the lowest J. Rotations of the result are equilibria too.
     """
+    return equilibrium_formations(n, k_n=k_n, k_f=k_f, a=a, b=b, c=c, starts=starts,
+                                  seed=seed)[0]
+
+
+def equilibrium_formations(n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: float = 1.0,
+                           b: float = 6.0, c: float = 1.7, starts: int = 8, seed: int = 0,
+                           tolerance: float = 1e-6) -> list[Formation]:
+    """The distinct minima of J whose potential is within ``tolerance`` (relative) of the
+    lowest found from ``starts`` random shapes, lowest first.
+
+    A larger swarm's J has minima that differ in J by a few parts in 1e8 and in shape by
+    several percent (32 trackers, default potential: J = 1418.37769 with the closest pair at
+    0.708 m, and 1418.37776 at 0.669 m): a swarm descending J settles in one of them, and
+    each is the formation the potential designs.
+    """
     from scipy.optimize import minimize
 
     params = dict(k_n=k_n, k_f=k_f, a=a, b=b, c=c)
@@ -107,18 +123,28 @@ def equilibrium_formation(n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: floa
         x = flat.reshape(n, 3)
         return float(potential(x, origin, **params)), gradient(x, origin, **params).ravel()
 
-    best = None
+    found: list[Formation] = []
+    iu = np.triu_indices(n, 1)
     for _ in range(max(1, starts)):
         x0 = rng.normal(scale=scale, size=(n, 3))
         res = minimize(fun, x0.ravel(), jac=True, method='L-BFGS-B',
                        options={'gtol': 1e-12, 'ftol': 1e-15, 'maxiter': 20000})
-        if best is None or res.fun < best.fun - 1e-12:
-            best = res
-    x = best.x.reshape(n, 3)
-    iu = np.triu_indices(n, 1)
-    d = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)[iu]
-    g = np.linalg.norm(gradient(x, origin, **params), axis=-1).max()
-    return Formation(x, np.sort(d), float(best.fun), float(g))
+        x = res.x.reshape(n, 3)
+        d = np.sort(np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)[iu])
+        g = np.linalg.norm(gradient(x, origin, **params), axis=-1).max()
+        found.append(Formation(x, d, float(res.fun), float(g)))
+    best = found[0]
+    for f in found[1:]:                  # the lowest; of equal ones (1e-12), the first
+        if f.potential < best.potential - 1e-12:
+            best = f
+    out = [best]
+    for f in sorted(found, key=lambda f: f.potential):
+        if f.potential - best.potential > tolerance * max(abs(best.potential), 1.0):
+            break
+        # the same minimum found twice (rotated): the same sorted pair distances
+        if not any(np.allclose(f.pair_distances, o.pair_distances, atol=1e-3) for o in out):
+            out.append(f)
+    return out
 
 
 def expected_spacing(n: int, *, k_n: float, k_f: float, a: float, b: float,

@@ -127,15 +127,24 @@ FLIGHT_CRITERIA = {'window': 0.4, 'formation_rms': 0.03, 'closest': 0.9, 'centro
                    'formation_tol': 0.05}
 
 
-def flight(traj: Mapping[str, Any], expected_pairs: ArrayLike | None,
+def flight(traj: Mapping[str, Any], expected_pairs: ArrayLike | list[ArrayLike] | None,
            criteria: Mapping[str, float] = FLIGHT_CRITERIA) -> dict[str, Any]:
     """Whether a run flies by :data:`FLIGHT_CRITERIA`, with the numbers it is judged by.
 
     Returns ``flies`` and, over the window, ``formation_error_rms`` (relative to the mean
     design spacing), ``closest_pair`` (relative to the design's closest),
     ``centroid_error_rms`` [m] and ``converged``. Without a design (``expected_pairs``
-    None) nothing flies.
+    None or empty) nothing flies. ``expected_pairs`` may be a list of designs (the minima
+    of J a larger swarm may settle in, :func:`~apf_swarm_core.simulator.design_pair_sets`):
+    the run is judged against the one its pair distances are nearest to.
     """
+    if isinstance(expected_pairs, list):
+        judged = [flight(traj, e, criteria) for e in expected_pairs]
+        if not judged:
+            return flight(traj, None, criteria)
+        return min(judged, key=lambda f: (not f['flies'], f['formation_error_rms']
+                                          if f['formation_error_rms'] is not None
+                                          else math.inf))
     x = np.asarray(traj['x'], dtype=float)
     tx = np.asarray(traj['target_x'], dtype=float)
     st = steady_slice(x.shape[0], criteria['window'])

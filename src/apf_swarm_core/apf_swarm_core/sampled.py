@@ -58,7 +58,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .config import SwarmConfig
-from .design import equilibrium_formation
 from .metrics import FLIGHT_CRITERIA
 from .potential import hessian
 
@@ -91,8 +90,6 @@ CASCADE = 2.0
 LAG_LIMIT = 0.5
 #: the sign law's ripple u0 T / M is large above this fraction of the target speed
 RIPPLE_FRACTION = 0.5
-#: the equilibrium is searched from this many random shapes (the design's multistart)
-_STARTS = 4
 
 
 def _hold(h: float, mass: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -160,9 +157,10 @@ def mode_radius(lam: float, **kwargs: Any) -> float:
 def design_hessian_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
     """Eigenvalues of the Hessian of J at the design equilibrium of ``cfg.n_trackers``
     trackers, ascending (the rotations' zeros included); shape (3n,)."""
-    p = cfg.potential_params()
-    f = equilibrium_formation(cfg.n_trackers, **p, starts=_STARTS if cfg.n_trackers <= 12 else 1)
-    return np.linalg.eigvalsh(hessian(f.relative_positions, np.zeros(3), **p))
+    from .simulator import design_formation
+    f = design_formation(cfg)
+    return np.linalg.eigvalsh(hessian(f.relative_positions, np.zeros(3),
+                                      **cfg.potential_params()))
 
 
 def loop_limit(cfg: SwarmConfig) -> float:

@@ -27,26 +27,30 @@ positions, ``default_rng([seed, 2])`` the disturbance (see :mod:`apf_swarm_core.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .config import SwarmConfig
-from .design import equilibrium_formation, triangle_spacing
+from .design import equilibrium_formations, triangle_spacing
 from .laws import ControlOutput, SlidingModeController
 from .metrics import summarize
 from .plant import DisturbanceSource, plant_step, uniform_ball
 from .potential import (gradient, neighbour_mask, newton_direction, newton_matrix,
                         obstacle_gradient)
 
-__all__ = ['initial_positions', 'expected_pairs', 'make_controller', 'control_step',
+__all__ = ['initial_positions', 'expected_pairs', 'design_formation', 'design_formations',
+           'design_pair_sets', 'make_controller', 'control_step',
            'integrate', 'Preconditioner', 'make_preconditioner', 'CommandHold',
            'BatchSimulator', 'SimResult', 'simulate',
            'simulate_batch', 'TRAJECTORY_KEYS']
 
 #: up to this many trackers expected_pairs minimizes J from 4 random shapes, above from one
-EXPECTED_PAIRS_MULTISTART = 12
+#: (32 trackers: 1.1 s; one start lands in a higher minimum, closest pair 0.669 m against
+#: 0.708 m, which a flown swarm does not keep)
+EXPECTED_PAIRS_MULTISTART = 40
 
 #: arrays of trajectory.npz
 TRAJECTORY_KEYS = ('t', 'x', 'v', 'u', 's', 'target_x', 'target_v')
@@ -85,9 +89,46 @@ def expected_pairs(cfg: SwarmConfig) -> NDArray[np.float64] | None:
     if n == 3:
         d = triangle_spacing(p['a'], p['b'], p['c'], p['k_n'], p['k_f'])
         return None if d is None else np.full(3, d)
-    # a 150-dimensional minimization takes seconds per start at n = 50: one start past 12
-    f = equilibrium_formation(n, **p, starts=4 if n <= EXPECTED_PAIRS_MULTISTART else 1)
+    f = design_formation(cfg)
     return f.pair_distances if f.spacing > 1e-6 else None
+
+
+def design_formation(cfg: SwarmConfig) -> Any:
+    """The equilibrium formation of ``cfg``'s size and potential
+    (:func:`~apf_swarm_core.design.equilibrium_formation` from 4 random shapes up to
+    :data:`EXPECTED_PAIRS_MULTISTART` trackers, one above), computed once per size and
+    potential: a run's summary, its flight judgement, its emulation and the sampled-data
+    prediction all ask for it. Its arrays are read-only."""
+    return design_formations(cfg)[0]
+
+
+def design_formations(cfg: SwarmConfig) -> list[Any]:
+    """Every minimum of J the design search found within a relative 1e-6 of the lowest
+    (:func:`~apf_swarm_core.design.equilibrium_formations`), lowest first: a larger swarm
+    settles in any of them. Computed once per size and potential; arrays read-only."""
+    return _design_formations(cfg.n_trackers, tuple(sorted(cfg.potential_params().items())))
+
+
+def design_pair_sets(cfg: SwarmConfig) -> list[NDArray[np.float64]]:
+    """The pair distances of every design minimum (:func:`design_formations`); for 3 and
+    fewer trackers the one of :func:`expected_pairs`. Empty without a formation."""
+    pairs = expected_pairs(cfg)
+    if pairs is None:
+        return []
+    if cfg.n_trackers <= 3:
+        return [pairs]
+    return [f.pair_distances for f in design_formations(cfg) if f.spacing > 1e-6]
+
+
+@lru_cache(maxsize=32)
+def _design_formations(n: int, params: tuple[tuple[str, float], ...]) -> list[Any]:
+    # a 150-dimensional minimization takes seconds per start at n = 50: one start past 40
+    found = equilibrium_formations(n, **dict(params),
+                                   starts=4 if n <= EXPECTED_PAIRS_MULTISTART else 1)
+    for f in found:
+        f.pair_distances.flags.writeable = False
+        f.relative_positions.flags.writeable = False
+    return found
 
 
 def make_controller(cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, ...]

@@ -334,27 +334,45 @@ class TopicExpectation:
 SWARM_ODOM = '/swarm/odom'
 
 
-def expected_graph(n: int, mode: str) -> tuple[list[str], list[TopicExpectation]]:
+def expected_graph(n: int, mode: str, readers: int | None = None
+                   ) -> tuple[list[str], list[TopicExpectation]]:
     """Fully qualified node names and topic endpoint counts of a swarm of ``n`` trackers.
 
     Every tracker reads every tracker's odometry and the target's, either as ``/uav_<j>/odom``
     and ``/target/odom`` (``inputs:=odom``) or as the one aggregate ``/swarm/odom`` message per
-    step (``inputs:=aggregate``); the counts accept either. ``/swarm/start`` and this node's
+    step (``inputs:=aggregate``); the counts accept either. ``readers``: how many subscribe
+    to each (default n; a realtime process of several trackers reads ``/swarm/odom`` once,
+    see :func:`input_readers`). ``/swarm/start`` and this node's
     ``/swarm/state`` subscription are checked on its own endpoints (matched counts), see
     :meth:`Bringup.missing`.
     """
     nodes = ['/target/target', '/plant'] + [f'/uav_{i}/tracker' for i in range(1, n + 1)]
     topics = []
+    readers = n if readers is None else readers
     for i in range(1, n + 1):
-        topics.append(TopicExpectation(f'/uav_{i}/odom', 1, n, or_subscribers_of=SWARM_ODOM))
+        topics.append(TopicExpectation(f'/uav_{i}/odom', 1, readers,
+                                       or_subscribers_of=SWARM_ODOM))
         topics.append(TopicExpectation(f'/uav_{i}/force_cmd', 1, 1))
-    topics.append(TopicExpectation('/target/odom', 1, n + 1, or_subscribers_of=SWARM_ODOM))
+    topics.append(TopicExpectation('/target/odom', 1, readers + 1,
+                                   or_subscribers_of=SWARM_ODOM))
     topics.append(TopicExpectation(SWARM_ODOM, 1, 0, optional=True))
     if mode == 'lockstep':
         topics.append(TopicExpectation('/clock', 1, 0))
         topics.append(TopicExpectation('/target/request', 1, 1))
     topics.append(TopicExpectation('/swarm/state', 1, 1))
     return nodes, topics
+
+
+def input_readers(n: int, mode: str, per_process: int, node_params: Sequence[str] = ()) -> int:
+    """How many subscribers read the trackers' inputs: one per tracker, except in realtime
+    with the aggregate inputs, where a process of several trackers subscribes to
+    ``/swarm/odom`` once and hands each message to its other nodes (the ``trackers``
+    executable): one per process."""
+    inputs = next((p.split(':=', 1)[1] for p in reversed(node_params)
+                   if p.startswith('inputs:=')), 'aggregate')
+    if mode == 'realtime' and per_process > 1 and inputs == 'aggregate':
+        return -(-n // per_process)
+    return n
 
 
 def graph_missing(present_nodes: Iterable[str], counts: Mapping[str, tuple[int, int]],
@@ -1087,7 +1105,8 @@ class Bringup:
         node = self.node
         present = {(ns.rstrip('/') + '/' + name) for name, ns in
                    node.get_node_names_and_namespaces()}
-        nodes, topics = expected_graph(self.n, self.mode)
+        nodes, topics = expected_graph(self.n, self.mode, input_readers(
+            self.n, self.mode, self.args.trackers_per_process, self.node_params))
         if self.args.record:
             nodes = nodes + ['/recorder']
         counts = {t.topic: (node.count_publishers(t.topic), node.count_subscribers(t.topic))
@@ -1321,8 +1340,8 @@ class Bringup:
         rate with the latencies the plant measured (and the prediction before the run)."""
         import numpy as np
         from apf_swarm_core.metrics import flight
-        from apf_swarm_core.simulator import expected_pairs, simulate
-        pairs = expected_pairs(self.cfg)
+        from apf_swarm_core.simulator import design_pair_sets, simulate
+        pairs = design_pair_sets(self.cfg)
         lat = np.asarray(traj.get('command_latency', np.zeros((0,))), dtype=float).ravel()
         lat = lat[(lat > 0) & np.isfinite(lat)]
         out: dict[str, Any] = {'before_run': self.prediction.to_dict(),

@@ -8,7 +8,7 @@ as every input of step k has arrived. Realtime: with ``trigger:=odom`` (default)
 it commands on every new own odometry, with ``trigger:=timer`` at the configuration's ``control_rate`` on the
 latest inputs; an input older than ``input_timeout`` is stale and the safe command
 (:func:`apf_swarm_core.agents.brake_force`, hover in place) is sent with ``stale = true``
-(the ``control_rate`` timer is then the watchdog that keeps sending it). In lockstep only the
+(a watchdog timer at the control rate, at most 20 Hz with ``trigger:=odom``, keeps sending it). In lockstep only the
 target can be stale: the plant holds a silent target's last state and publishes its age in
 simulated time, and past ``input_timeout`` the tracker answers each step with the brake.
 
@@ -56,10 +56,20 @@ NODE_PARAMS = (
 )
 
 
-class TrackerNode(Node):
-    """The controller of one UAV; no algorithm here, the core's TrackerAgent computes."""
+#: realtime with ``trigger:=odom``: the stale-input watchdog's rate [Hz] (at most the control
+#: rate): staleness is judged against input_timeout (0.5 s), and the brakes it sends while
+#: inputs are stale must come faster than the plant's stale_after (0.1 s)
+WATCHDOG_RATE = 20.0
 
-    def __init__(self, **kwargs) -> None:
+
+class TrackerNode(Node):
+    """The controller of one UAV; no algorithm here, the core's TrackerAgent computes.
+
+    ``swarm_odom``: False leaves the ``/swarm/odom`` subscription to another node of the
+    process, which hands each message on (:func:`group_main`, realtime).
+    """
+
+    def __init__(self, swarm_odom: bool = True, **kwargs) -> None:
         super().__init__('tracker', **kwargs)
         declare_config(self, writable=TrackerAgent.RETUNABLE)
         p = declare_node_params(self, NODE_PARAMS)
@@ -68,6 +78,7 @@ class TrackerNode(Node):
         self.uav_id = int(p['uav_id'])
         self.timeout = float(p['input_timeout'])
         self.on_odom = p['trigger'] == 'odom'
+        self.inputs = p['inputs']
         # the configuration's control_rate (0: the realtime default) sets the control timer
         # (trigger timer) or the stale-input watchdog (trigger odom)
         self.control_rate = self.cfg.control_rate or REALTIME_RATE
@@ -85,8 +96,10 @@ class TrackerNode(Node):
                     self.create_subscription(Odometry, odom_topic(j),
                                              lambda m, j=j: self._on_odom(j, m), qos)
             self.create_subscription(Odometry, TARGET_ODOM, lambda m: self._on_odom(0, m), qos)
-        else:
+        elif swarm_odom:
             self.create_subscription(SwarmOdometry, SWARM_ODOM, self._on_swarm_odom, qos)
+        #: the nodes this one hands its /swarm/odom messages to (itself first)
+        self.fanout: list[TrackerNode] = [self]
         self._tick = 0
         self._msg = None
         self._stale_reported = False
@@ -94,7 +107,9 @@ class TrackerNode(Node):
         self._log_rejection = RejectionLog(self)
         self.instance = random.getrandbits(63)   # tells this process apart at the plant
         if self.mode == 'realtime':
-            self.create_timer(1.0 / self.control_rate, self._on_timer)
+            rate = self.control_rate if not self.on_odom else min(self.control_rate,
+                                                                    WATCHDOG_RATE)
+            self.create_timer(1.0 / rate, self._on_timer)
         self.get_logger().info(
             f'uav_{self.uav_id}: {self.cfg.law} law, {self.mode}, neighbours '
             f'{[j for j in self.agent.ids if j != self.uav_id]}, dt {self.cfg.dt:g} s')
@@ -133,12 +148,18 @@ class TrackerNode(Node):
             self._realtime_command(msg.header.stamp)
 
     def _on_swarm_odom(self, msg: SwarmOdometry) -> None:
+        """One /swarm/odom, converted once, for this node and those it hands it on to."""
         try:
             m = swarm_odom_arrays(msg)
         except ValueError as exc:
-            self.agent.rejected += 1
-            self._log_rejection(f'/swarm/odom: {exc}', self.agent.rejected)
+            for node in self.fanout:
+                node.agent.rejected += 1
+                node._log_rejection(f'/swarm/odom: {exc}', node.agent.rejected)
             return
+        for node in self.fanout:
+            node._take_swarm_odom(msg, m)
+
+    def _take_swarm_odom(self, msg: SwarmOdometry, m) -> None:
         step = m.step if self.mode == 'lockstep' else -1
         seq = step if step >= 0 else m.stamp_ns
         now, age = self._now_and_age(msg.header.stamp)
@@ -262,8 +283,21 @@ def group_main(args: list[str] | None = None) -> None:
     except ValueError as exc:
         print(f'trackers: error: {exc}', file=sys.stderr)
         sys.exit(2)
-    factories = [lambda i=i: TrackerNode(namespace=f'/uav_{i}', parameter_overrides=[
-        Parameter('uav_id', value=i)]) for i in ids]
+    # realtime with the aggregated inputs: one /swarm/odom subscription for the process, whose
+    # node hands each message to the others (one delivery and one conversion per state
+    # instead of one per tracker); lockstep keeps one per node, the readers the plant counts
+    lead: list[TrackerNode] = []      # the node that subscribes for the process, if any
+
+    def make(i: int) -> TrackerNode:
+        node = TrackerNode(namespace=f'/uav_{i}', parameter_overrides=[
+            Parameter('uav_id', value=i)], swarm_odom=not lead)
+        if lead:
+            lead[0].fanout.append(node)
+        elif node.mode == 'realtime' and node.inputs == 'aggregate':
+            lead.append(node)
+        return node
+
+    factories = [lambda i=i: make(i) for i in ids]
     sys.exit(run_nodes('trackers', factories, argv))
 
 
