@@ -3,8 +3,8 @@
 Conditions checked (each a :class:`Finding`):
 
 * ``beta >= v_N`` (eq. 10-11): the convergence proof of the kinematic law needs it;
-* existence of the formation: for 3 trackers ``b > a + k_N/(3 k_f)`` (docs/THEORY.md section 2), for any
-  n ``b > a`` (otherwise the pair term never repels);
+* existence of the formation: for 3 trackers ``b > a + k_N/(3 k_f)`` (docs/THEORY.md
+  section 2), for any n ``b > a`` (otherwise the pair term never repels);
 * the lower bounds on ``u0``: Theorem 1 (eq. 29), eq. 37 and eq. 43, both as printed (with
   ``-f_bar``) and corrected (``+f_bar/M_lo``, the usual sliding-mode argument), from a priori
   estimates of ``J_bar`` and ``J_bar_s`` (:func:`gain_bounds`) or from run data
@@ -26,7 +26,8 @@ from .config import SwarmConfig
 from .design import expected_spacing, triangle_spacing
 from .potential import gradient
 
-__all__ = ['sampled_findings', 'Finding', 'GainBound', 'CheckReport', 'pair_hessian_bound', 'gain_bounds',
+__all__ = ['sampled_findings', 'Finding', 'GainBound', 'CheckReport', 'pair_hessian_bound',
+           'gain_bounds',
            'gain_bounds_from_run', 'check_config']
 
 Level = Literal['ok', 'info', 'warning', 'error']
@@ -215,7 +216,8 @@ def sampled_findings(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> lis
         f = flight(run, design_pair_sets(cfg))
         if f['formation_error_rms'] is not None:
             out.append(Finding('info', 'emulation', (
-                f"the emulation at this rate and latency {'flies' if f['flies'] else 'does not fly'}: "
+                f"the emulation at this rate and latency "
+                f"{'flies' if f['flies'] else 'does not fly'}: "
                 f"formation error RMS {100 * f['formation_error_rms']:.2g} % of the mean design "
                 f"spacing, closest pair {100 * f['closest_pair']:.3g} % of the design's, "
                 f"centroid error RMS {f['centroid_error_rms']:.3g} m over the last "

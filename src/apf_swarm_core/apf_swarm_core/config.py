@@ -35,7 +35,8 @@ from .potential import NEIGHBOUR_RULES
 from .saturation import SATURATIONS
 from .target import TRAJECTORIES, Trajectory, make_trajectory
 
-__all__ = ['REALTIME_RATE', 'DEFAULT_LATENCY', 'SwarmConfig', 'PER_UAV_KEYS', 'REQUIRED_KEYS', 'preset_dirs', 'preset_names',
+__all__ = ['REALTIME_RATE', 'DEFAULT_LATENCY', 'SwarmConfig', 'PER_UAV_KEYS', 'REQUIRED_KEYS',
+           'preset_dirs', 'preset_names',
            'preset_path', 'load_preset', 'load_config', 'config_from_mapping', 'parse_set',
            'apply_overrides', 'to_ros_params']
 

@@ -236,7 +236,8 @@ def switching_force(s: ArrayLike, v: ArrayLike, *, u0: ArrayLike,
                     drag: ArrayLike = 0.0) -> NDArray[np.float64]:
     """Control input of paper eq. 24, ``u_i = -u0 sign(s_i) + f_i^known(x_i, xdot_i)`` [N].
 
-    The printed ``J_i^known`` is the known disturbance ``f_i^known`` of eq. 20 (docs/THEORY.md section 1).
+    The printed ``J_i^known`` is the known disturbance ``f_i^known`` of eq. 20
+    (docs/THEORY.md section 1).
     """
     return _switching(np.asarray(s, dtype=float), np.asarray(v, dtype=float), -_g(u0), _g(drag))
 
@@ -351,7 +352,7 @@ class SlidingModeController:
     drag: ArrayLike = 0.0
     saturation: str = 'paper'
     switching: str = 'sign'
-    phi: ArrayLike = 0.1
+    phi: ArrayLike = 0.15
     feedforward: ArrayLike = 0.0
     z: NDArray[np.float64] = field(init=False, repr=False)
     _gains: _ControllerGains | None = field(init=False, repr=False, compare=False, default=None)

@@ -15,7 +15,8 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = ['centroid_error', 'pair_distances', 'formation_error', 'potential_series',
            'moving_average', 'hf_velocity_rms', 'heading_rate', 'steady_slice',
-           'time_to_converge', 'summarize', 'SUMMARY_KEYS', 'FLIGHT_CRITERIA', 'flight']
+           'time_to_converge', 'summarize', 'SUMMARY_KEYS', 'FLIGHT_CRITERIA',
+           'flight']
 
 #: top-level keys of summary.json, in order (a stable schema shared with the bag tools)
 SUMMARY_KEYS = ('law', 'n_trackers', 'dt', 'duration', 'seed', 'centroid_error', 'formation',
@@ -142,9 +143,9 @@ def flight(traj: Mapping[str, Any], expected_pairs: ArrayLike | list[ArrayLike] 
         judged = [flight(traj, e, criteria) for e in expected_pairs]
         if not judged:
             return flight(traj, None, criteria)
-        return min(judged, key=lambda f: (not f['flies'], f['formation_error_rms']
-                                          if f['formation_error_rms'] is not None
-                                          else math.inf))
+        # the nearest design, whether or not the run flies against it
+        return min(judged, key=lambda f: f['formation_error_rms']
+                   if f['formation_error_rms'] is not None else math.inf)
     x = np.asarray(traj['x'], dtype=float)
     tx = np.asarray(traj['target_x'], dtype=float)
     st = steady_slice(x.shape[0], criteria['window'])

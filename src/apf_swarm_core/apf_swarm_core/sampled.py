@@ -206,9 +206,8 @@ class SampledPrediction:
     @property
     def holds(self) -> bool:
         """The formation is predicted to hold: ``K lambda_max (T + tau)`` below
-        :func:`loop_limit`
-        (:attr:`spectral_radius` below 1), a linear boundary layer's own loop stable
-        (:attr:`inner_stable`) and the lag within :data:`LAG_LIMIT`. A soft mode
+        :func:`loop_limit` (:attr:`spectral_radius` below 1), a linear boundary layer's own
+        loop stable (:attr:`inner_stable`) and the lag within :data:`LAG_LIMIT`. A soft mode
         that settles slowly (:attr:`settle_time` above :attr:`settle_allowed`) is a warning,
         not a verdict: how far the start excites it decides (the emulation does)."""
         return (self.spectral_radius < 1.0 and self.steady_lag <= LAG_LIMIT
@@ -221,11 +220,9 @@ class SampledPrediction:
         return out
 
 
-def _inner_rate(cfg: SwarmConfig, period: float, mass: float, phi: float | None = None
-                ) -> float:
-    if cfg.switching == 'layer' or phi is not None:
-        return cfg.u0 / ((cfg.phi if phi is None else phi) * mass)
-    return 1.0 / period
+def _inner_rate(cfg: SwarmConfig, period: float, mass: float) -> float:
+    """g of step 2: ``u0 / (phi M)`` for the boundary layer, ``1 / T`` for the sign law."""
+    return cfg.u0 / (cfg.phi * mass) if cfg.switching == 'layer' else 1.0 / period
 
 
 def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
@@ -346,9 +343,9 @@ def propose_gains(cfg: SwarmConfig, *, control_rate: float, latency: float,
     """Gains that :func:`predict` passes at this rate and delay, for ``cfg.n_trackers``.
 
     For a direction (the configuration's, then the Newton direction if that one's
-    prediction fails or warns of a slow formation): the layer gain ``K = DESIGN_MARGIN
-    loop_limit / (lambda_max (T +
-    tau))`` with the direction's stiffest curvature (:func:`effective_spectrum`: 1 along
+    prediction fails or warns of a slow formation): the layer gain
+    ``K = DESIGN_MARGIN loop_limit / (lambda_max (T + tau))`` with the direction's stiffest
+    curvature (:func:`effective_spectrum`: 1 along
     the Newton direction, whatever n), at most the configuration's own K, i.e.
     ``gamma = beta / (K - alpha)``; ``feedforward = 1``, since a smaller K alone would trail
     the target by ``v_N / (k_N K)``; and the boundary-layer switching with

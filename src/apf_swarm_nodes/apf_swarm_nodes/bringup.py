@@ -850,7 +850,10 @@ class Bringup:
     def __init__(self, args: argparse.Namespace, cfg: SwarmConfig, *, prog: str,
                  stream: TextIO | None = None) -> None:
         self.args, self.cfg, self.prog = args, cfg, prog
-        self.capacity: dict[str, Any] | None = None     # realtime: derived from the probe
+        # realtime: what the probe implies, the prediction before the run, scheduled gains
+        self.capacity: dict[str, Any] | None = None
+        self.prediction: Any = None
+        self.gains_scheduled: dict[str, Any] = {}
         self.err = stream if stream is not None else sys.stderr
         self.mode: str = args.mode
         self.node_params: list[str] = list(getattr(args, "node_params", []) or [])
@@ -916,7 +919,6 @@ class Bringup:
                                                       measured['capacity'].items())
                      + ') or fewer trackers')
         pred = predict(cfg, latency=latency)
-        self.gains_scheduled: dict[str, Any] = {}
         if not pred.holds and getattr(self.args, 'gains', 'auto') == 'auto':
             try:
                 gains = propose_gains(cfg, control_rate=cfg.control_rate, latency=latency)
@@ -942,7 +944,6 @@ class Bringup:
     def prepare(self) -> None:
         """Checks that need no process: executables, recorder, output directory, config."""
         import yaml
-        self.prediction = None
         if self.mode == 'realtime':
             self.realtime_check()
         elif self.cfg.control_rate > 0:

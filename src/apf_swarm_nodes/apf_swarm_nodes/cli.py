@@ -135,9 +135,8 @@ def cmd_check(args: argparse.Namespace) -> int:
     cfg = _load(args, {'n_trackers': args.n_trackers, **extra})
     if args.mode == 'realtime' and cfg.control_rate <= 0:
         cfg = cfg.replace(control_rate=machine_rate(cfg.n_trackers))
-    if args.mode == 'realtime':
-        cfg = cfg.replace(latency=cfg.latency or machine_latency(cfg.n_trackers,
-                                                                cfg.control_rate))
+    if args.mode == 'realtime' and args.latency is None and cfg.latency == 0:
+        cfg = cfg.replace(latency=machine_latency(cfg.n_trackers, cfg.control_rate))
     run = None if args.no_run else simulate(
         cfg, progress=_progress(args, 'check run'), latency_samples=samples).trajectory
     rep = check_config(cfg, run, realtime=args.mode == 'realtime')
