@@ -12,7 +12,7 @@ from apf_swarm_core.config import load_preset
 from apf_swarm_core.errors import ConfigError
 from apf_swarm_core.laws import layer_switching_force
 from apf_swarm_core.metrics import flight
-from apf_swarm_core.potential import gradient, hessian, newton_direction, newton_matrix
+from apf_swarm_core.potential import gradient, hessian, newton_basis, newton_direction
 from apf_swarm_core.sampled import (RELAY_LIMIT, design_hessian_spectrum, mode_radius, predict,
                                     propose_gains)
 from apf_swarm_core.simulator import CommandHold, expected_pairs, simulate
@@ -42,17 +42,20 @@ def test_design_spectrum_has_rotations_centroid_and_a_stiff_mode_growing_with_n(
     assert eig8.max() > 2 * eig3.max()
 
 
-def _mode_growth(lam: float, K: float, g: float, T: float, tau: float, periods: int = 400
-                 ) -> float:
+def _mode_growth(lam: float, K: float, g: float, T: float, tau: float, periods: int = 400,
+                 horizon: float = 0.0) -> float:
     """Per-period growth of one linear mode, simulated on a fine grid (independent of the
-    matrix): e'' = u, u = -g (e' + K lam e) from samples every T, acting tau later."""
+    matrix): e'' = u, u = -g (e' + K lam e) from samples every T, acting tau later; with a
+    ``horizon`` h, of the predicted e + h e' and e' + h u_last (u_last: the last sent)."""
     h = T / 200
     per, lag = 200, int(round(tau / h))
-    e, v, u, pending = 1.0, 0.0, 0.0, []
+    e, v, u, pending, sent = 1.0, 0.0, 0.0, [], 0.0
     peaks = []
     for k in range(periods * per):
         if k % per == 0:
-            pending.append((k + lag, -g * (v + K * lam * e)))
+            ep, vp = e + horizon * v, v + horizon * sent
+            sent = -g * (vp + K * lam * ep)
+            pending.append((k + lag, sent))
         while pending and pending[0][0] <= k:
             u = pending.pop(0)[1]
         e, v = e + v * h + u * h * h / 2, v + u * h
@@ -68,6 +71,57 @@ def _mode_growth(lam: float, K: float, g: float, T: float, tau: float, periods: 
 def test_mode_radius_is_the_growth_of_the_simulated_mode(lam, K, g, T, tau) -> None:
     rho = mode_radius(lam, layer_gain=K, inner_rate=g, period=T, latency=tau)
     assert _mode_growth(lam, K, g, T, tau) == pytest.approx(rho, rel=0.02)
+
+
+@pytest.mark.parametrize('lam,K,g,T,tau', [(1.0, 10.0, 33.0, 0.02, 0.025),
+                                           (1.0, 20.0, 40.0, 0.01, 0.012),
+                                           (12.0, 3.0, 60.0, 0.01, 0.004)])
+def test_mode_radius_with_prediction_is_the_growth_of_the_simulated_mode(lam, K, g, T, tau
+                                                                         ) -> None:
+    from apf_swarm_core.prediction import compensation_horizon
+    h = compensation_horizon(tau)
+    rho = mode_radius(lam, layer_gain=K, inner_rate=g, period=T, latency=tau, horizon=h)
+    assert _mode_growth(lam, K, g, T, tau, horizon=h) == pytest.approx(rho, rel=0.02)
+
+
+def test_prediction_takes_a_delayed_mode_from_growing_to_decaying() -> None:
+    """A layer loop at 50 Hz with 25 ms of latency (g (T + tau) = 1.8): unstable as sampled,
+    stable on the state predicted by the latency."""
+    from apf_swarm_core.prediction import compensation_horizon
+    kw = dict(layer_gain=10.0, inner_rate=40.0, period=0.02, latency=0.025)
+    assert compensation_horizon(0.025) == 0.025
+    assert mode_radius(1.0, **kw) > 1.0
+    assert mode_radius(1.0, horizon=0.025, **kw) < 0.9
+
+
+def test_predicted_velocity_is_exact_under_the_held_force_and_positions_first_order() -> None:
+    from apf_swarm_core.prediction import Predictor, predict_positions, predict_velocity
+    x, v, u, M, h = np.array([1.0, 2.0, 3.0]), np.array([0.5, -1.0, 0.0]), \
+        np.array([2.0, 0.0, -4.0]), 1.5, 0.03
+    # e'' = u / M exactly over h: v(h) = v + h u / M, x(h) = x + h v + h^2 u / (2 M)
+    assert np.allclose(predict_velocity(v, u, h, M), v + h * u / M, rtol=0, atol=1e-15)
+    assert np.allclose(predict_positions(x, v, h), x + h * v, rtol=0, atol=1e-15)
+    p = Predictor(h, M)
+    xs, vs = np.stack([x, 2 * x]), np.stack([v, -v])
+    px, pv, pt = p.state(xs, vs, vs[:1], x, v)          # no command held yet: v as sampled
+    assert np.array_equal(pv, vs[:1]) and np.allclose(px, xs + h * vs) and \
+        np.allclose(pt, x + h * v)
+    p.hold(u[None, :])
+    assert np.allclose(p.state(xs, vs, vs[:1], x, v)[1], v + h * u / M)
+
+
+def test_latency_estimate_is_the_running_median_and_ignores_unmeasured_commands() -> None:
+    from apf_swarm_core.prediction import LatencyEstimate
+    est = LatencyEstimate(0.005, window=5)
+    assert est.value == 0.005                           # nothing reported yet
+    est.add([0.0, 0.0, np.nan])                         # not yet measured: ignored
+    assert est.value == 0.005
+    for lat in ([0.010, 0.012, 0.0], [0.011], [0.5], [0.012], [0.010]):
+        est.add(lat)
+    assert est.value == pytest.approx(0.011)            # one 0.5 s outlier does not move it
+    for _ in range(5):
+        est.add([0.020])
+    assert est.value == pytest.approx(0.020)            # the window follows the load
 
 
 def test_layer_switching_force_is_linear_inside_and_saturates_outside() -> None:
@@ -162,7 +216,7 @@ def test_flight_criteria_pass_the_design_and_fail_a_collapse() -> None:
     assert not flight({'x': 0.3 * x, 'target_x': np.zeros((50, 3))}, pairs)['flies']
 
 
-def test_newton_matrix_is_the_inverse_hessian_where_h_is_stiff_and_a_descent_everywhere(
+def test_newton_direction_is_the_inverse_hessian_where_h_is_stiff_and_a_descent_everywhere(
         ) -> None:
     cfg = load_preset('realtime').replace(n_trackers=5)
     p = cfg.potential_params()
@@ -170,17 +224,45 @@ def test_newton_matrix_is_the_inverse_hessian_where_h_is_stiff_and_a_descent_eve
     x = rng.normal(size=(5, 3))
     h = hessian(x, np.zeros(3), **p)
     w, v = np.linalg.eigh(h)
-    m = newton_matrix(x, np.zeros(3), mu=1e-9, **p)
-    if np.abs(w).min() > 1e-3:                              # H invertible: P = |H|^-1
-        assert np.allclose(m @ (v @ np.diag(np.abs(w)) @ v.T), np.eye(15), atol=1e-8)
+    basis = newton_basis(x, np.zeros(3), **p)
     g = gradient(x, np.zeros(3), **p)
-    d = newton_direction(newton_matrix(x, np.zeros(3), mu=0.1, **p), g)
+    if np.abs(w).min() > 1e-3:                              # H invertible: |H|^-1 g
+        d = newton_direction(basis, g, mu=1e-9)
+        assert np.allclose((v @ np.diag(np.abs(w)) @ v.T) @ d.ravel(), g.ravel(), atol=1e-8)
+    d = newton_direction(basis, g, mu=0.1)
     assert float(np.sum(d * g)) > 0.0                       # a descent direction
     from apf_swarm_core.design import equilibrium_formation
     eq = equilibrium_formation(5, **p).relative_positions
-    d0 = newton_direction(newton_matrix(eq, np.zeros(3), mu=0.1, **p),
-                          gradient(eq, np.zeros(3), **p))
+    d0 = newton_direction(newton_basis(eq, np.zeros(3), **p), gradient(eq, np.zeros(3), **p),
+                          mu=0.1)
     assert np.abs(d0).max() < 1e-6                          # the equilibria are kept
+
+
+def test_trust_region_shortens_a_long_step_to_its_radius_and_keeps_a_short_one() -> None:
+    p = load_preset('realtime').potential_params()
+    x = np.random.default_rng(2).normal(size=(8, 3))        # far from any formation
+    basis, g = newton_basis(x, np.zeros(3), **p), gradient(x, np.zeros(3), **p)
+
+    def rms(d: np.ndarray) -> float:
+        return float(np.sqrt(np.sum(d ** 2) / 8))
+    free = newton_direction(basis, g, mu=1e-3)
+    assert rms(free) > 0.5
+    for trust in (0.3, 0.05):
+        d = newton_direction(basis, g, mu=1e-3, trust=trust)
+        assert rms(d) == pytest.approx(trust, rel=1e-6)     # Levenberg-Marquardt's floor
+        assert float(np.sum(d * g)) > 0.0
+    # a radius the step fits in changes nothing
+    assert np.array_equal(newton_direction(basis, g, mu=1e-3, trust=2 * rms(free)), free)
+    # the floor stops at the ceiling: the step is then |H|_ceiling^-1 g, longer than trust
+    w, v = basis
+    capped = newton_direction(basis, g, mu=1e-3, trust=1e-4, ceiling=1.0)
+    expect = (v @ ((v.T @ g.ravel()) / np.maximum(np.abs(w), 1.0))).reshape(8, 3)
+    assert np.allclose(capped, expect, atol=1e-12) and rms(capped) > 1e-4
+    # batched: each run its own floor
+    both = newton_direction((np.stack([w, w]), np.stack([v, v])), np.stack([g, 0.01 * g]),
+                            mu=1e-3, trust=0.05)
+    assert rms(both[0]) == pytest.approx(0.05, rel=1e-6)
+    assert np.allclose(both[1], newton_direction(basis, 0.01 * g, mu=1e-3, trust=0.05))
 
 
 def test_newton_direction_flies_16_trackers_at_100_hz_where_the_gradient_cannot() -> None:
@@ -196,19 +278,39 @@ def test_newton_direction_flies_16_trackers_at_100_hz_where_the_gradient_cannot(
     assert not flight(simulate(grad).trajectory, expected_pairs(grad))['flies']
 
 
-def test_a_narrow_layer_is_warned_and_chatters_in_the_emulation() -> None:
+@pytest.mark.parametrize('compensation,latency', [('none', 0.012), ('predict', 0.02)])
+def test_a_narrow_layer_is_predicted_to_fail_and_chatters_in_the_emulation(compensation,
+                                                                           latency) -> None:
+    """phi = 0.25 m/s at 100 Hz: the layer's loop is unstable at 12 ms as sampled, and on
+    the predicted state (compensation) only at 20 ms; phi = 0.75 m/s holds both."""
     from apf_swarm_core.metrics import hf_velocity_rms
-    cfg = load_preset('realtime').replace(duration=10.0, latency=0.012, phi=0.25,
-                                          control_rate=100.0)
-    assert any('too narrow' in w for w in predict(cfg).warnings)
-    assert not any('too narrow' in w for w in predict(cfg.replace(phi=0.75)).warnings)
+    cfg = load_preset('realtime').replace(duration=10.0, latency=latency, phi=0.25,
+                                          control_rate=100.0, compensation=compensation)
+    pred = predict(cfg)
+    assert not pred.inner_stable and any('too narrow' in w for w in pred.warnings)
+    assert predict(cfg.replace(phi=0.75)).inner_stable
     chatter = hf_velocity_rms(simulate(cfg).trajectory['v'][-4000:], cfg.dt)
     calm = hf_velocity_rms(simulate(cfg.replace(phi=0.75)).trajectory['v'][-4000:], cfg.dt)
     assert chatter > 10 * calm, (chatter, calm)
 
 
-#: the Newton direction on both sides of K (T + tau) = NEWTON_LIMIT: (rate, latency, K)
-NEWTON_GRID = [(100.0, 0.005, 10.0), (20.0, 0.02, 5.0), (20.0, 0.02, 10.0), (50.0, 0.01, 20.0)]
+def test_the_compensation_keeps_a_narrow_layer_calm_where_it_chatters_without() -> None:
+    from apf_swarm_core.metrics import hf_velocity_rms
+    cfg = load_preset('realtime').replace(duration=10.0, latency=0.012, phi=0.25,
+                                          control_rate=100.0)
+    assert cfg.compensation == 'predict' and predict(cfg).inner_stable
+    assert not predict(cfg.replace(compensation='none')).inner_stable
+    calm = hf_velocity_rms(simulate(cfg).trajectory['v'][-4000:], cfg.dt)
+    chatter = hf_velocity_rms(simulate(cfg.replace(compensation='none')).trajectory['v']
+                              [-4000:], cfg.dt)
+    assert chatter > 10 * calm, (chatter, calm)
+
+
+#: the Newton direction on both sides of K (T + tau) = NEWTON_LIMIT, with the delay
+#: compensation: (rate, latency, K); K (T + tau) = 0.15, 0.35, 1.7, 1.05. The limit is
+#: conservative with the compensation: between 0.5 and about 1.1 some configurations hold
+#: (K T = 0.5 at 50 Hz with 25 ms) and some do not (K T = 0.5 at 100 Hz with 15 ms)
+NEWTON_GRID = [(100.0, 0.005, 10.0), (20.0, 0.02, 5.0), (50.0, 0.025, 37.5), (20.0, 0.05, 15.0)]
 
 
 @pytest.mark.parametrize('rate,latency,K', NEWTON_GRID)
@@ -223,32 +325,44 @@ def test_prediction_agrees_with_the_emulation_of_the_newton_direction(rate, late
     assert pred.holds == f['flies'], (pred, f)
 
 
-def test_each_tracker_descends_its_row_of_the_simulators_newton_direction() -> None:
+@pytest.mark.parametrize('rate', [0.0, 50.0])
+def test_each_tracker_descends_its_row_of_the_simulators_newton_direction(rate) -> None:
+    """Bit for bit, with the trust region; at 50 Hz also with the delay compensation (the
+    same predicted state in the tracker as in the simulator)."""
     from apf_swarm_core.agents import TrackerAgent
-    from apf_swarm_core.simulator import Preconditioner, control_step, make_controller
-    cfg = load_preset('realtime').replace(n_trackers=5, newton_every=1)
+    from apf_swarm_core.simulator import (control_step, make_controller, make_preconditioner,
+                                          make_predictor)
+    cfg = load_preset('realtime').replace(n_trackers=5, newton_every=1, control_rate=rate,
+                                          latency=0.01)
+    assert cfg.newton_trust > 0 and cfg.compensation == 'predict'
     rng = np.random.default_rng(4)
     x, v = rng.normal(scale=1.5, size=(5, 3)), rng.normal(size=(5, 3))
     tx, tv = np.array([0.2, -0.1, 5.0]), np.array([1.0, 0.5, 0.0])
-    full = control_step(make_controller(cfg, (5, 3)), x, v, tx, cfg.potential_params(),
-                        target_v=tv, precondition=Preconditioner(cfg.newton_mu))
-    for i in range(1, 6):
-        agent = TrackerAgent(cfg, i)
-        for j in range(1, 6):
-            agent.offer(j, -1, x[j - 1], v[j - 1], 0.0)
-        agent.offer(0, -1, tx, tv, 0.0)
-        out = agent.command(-1)
-        assert np.array_equal(out.gradient[0], full.gradient[i - 1])     # bit for bit
-        assert np.array_equal(out.force[0], full.force[i - 1])
+    predictor = make_predictor(cfg)
+    assert (predictor is None) == (rate == 0.0)
+    ctl = make_controller(cfg, (5, 3))
+    agents = [TrackerAgent(cfg, i) for i in range(1, 6)]
+    pre = make_preconditioner(cfg)
+    for k in range(3):                  # the held command enters the prediction from k = 1
+        full = control_step(ctl, x, v, tx, cfg.potential_params(), target_v=tv,
+                            precondition=pre, predictor=predictor)
+        for i, agent in enumerate(agents, start=1):
+            for j in range(1, 6):
+                agent.offer(j, -1, x[j - 1], v[j - 1], 0.0, seq=k)
+            agent.offer(0, -1, tx, tv, 0.0, seq=k)
+            out = agent.command(-1)
+            assert np.array_equal(out.gradient[0], full.gradient[i - 1])     # bit for bit
+            assert np.array_equal(out.force[0], full.force[i - 1])
+        x, v = x + 0.01 * v, v + 0.01 * full.force
 
 
-def test_trackers_of_one_process_share_the_newton_matrix() -> None:
+def test_trackers_of_one_process_share_the_newton_basis() -> None:
     from apf_swarm_core.simulator import Preconditioner
     p = load_preset('realtime').potential_params()
     x = np.random.default_rng(5).normal(size=(6, 3))
     a, b = Preconditioner(0.1), Preconditioner(0.1)
     da = a.direction(x, np.zeros(3), p)
     db = b.direction(x, np.zeros(3), p)
-    assert b.matrix is a.matrix and db is da                 # computed once
+    assert b.basis is a.basis and db is da                   # computed once
     dc = b.direction(x + 0.1, np.zeros(3), p)                # new positions: recomputed
-    assert b.matrix is not a.matrix and not np.array_equal(dc, da)
+    assert b.basis is not a.basis and not np.array_equal(dc, da)

@@ -305,8 +305,10 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     sim = simulate(cfg).summary()
     assert summary['centroid_error']['rms_steady'] <= sim['centroid_error']['rms_steady'] + 0.1
     assert summary['converged'] is True
-    # commands held for a control period chatter more than lockstep's 1 ms (SPEC 2, fact 4)
-    assert summary['chattering']['hf_velocity_rms'] >= sim['chattering']['hf_velocity_rms']
+    # no chattering: the high-frequency velocity stays at the disturbance's floor, which
+    # lockstep shows (0.002 m/s); a layer too narrow for the latency chatters at 0.46 m/s,
+    # 100 times above it (test_sampled)
+    assert summary['chattering']['hf_velocity_rms'] <= 5 * sim['chattering']['hf_velocity_rms']
     assert summary['missed_deadlines'] == 0
     assert summary['stale_inputs'] <= 10          # only before the first odometry arrives
 

@@ -35,15 +35,16 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from .config import SwarmConfig
+from .config import DEFAULT_LATENCY, SwarmConfig
 from .laws import ControlOutput, switching_force
 from .metrics import centroid_error, formation_error
 from .plant import DisturbanceSource
 from .potential import neighbour_mask, potential
+from .prediction import LatencyEstimate, compensation_horizon
 from .simulator import (control_step, expected_pairs, initial_positions, integrate,
-                        make_controller, make_preconditioner)
+                        make_controller, make_preconditioner, make_predictor)
 
 __all__ = ['brake_force', 'input_problem', 'Sample', 'TrackerAgent', 'PlantModel',
            'MAX_POSITION', 'MAX_SPEED', 'MAX_FORCE']
@@ -131,6 +132,10 @@ class TrackerAgent:
         self.ids = sorted({self.uav_id, *self.neighbour_ids})
         self.controller = make_controller(self.cfg, (1, 3))
         self.precondition = make_preconditioner(self.cfg)
+        #: compensation = predict with control_rate > 0: the state a command acts on, and the
+        #: loop latency the plant reports (:meth:`report_latency`)
+        self.predictor = make_predictor(self.cfg)
+        self.latency = LatencyEstimate(self.cfg.latency or DEFAULT_LATENCY)
         self.params = self.cfg.potential_params()
 
     #: configuration keys a running tracker takes over at once (:meth:`retune`): the
@@ -246,6 +251,11 @@ class TrackerAgent:
         self.last_rejection = why
         return False
 
+    def report_latency(self, latencies: ArrayLike) -> None:
+        """The latencies the plant measured for the swarm's latest commands [s] (realtime,
+        :class:`~apf_swarm_core.prediction.LatencyEstimate`)."""
+        self.latency.add(latencies)
+
     def ready(self, step: int) -> bool:
         """Lockstep: every input of ``step`` has arrived and no command was sent for it yet."""
         if step <= self._last_step:
@@ -265,10 +275,15 @@ class TrackerAgent:
         mask = neighbour_mask(x, **rule, rows=[row]) if rule else None
         # inactive neighbours leave the formation term and stay as obstacles
         silent = [src[j].x for j in self.ids if not src[j].active]
+        velocities = None
+        if self.predictor is not None:
+            self.predictor.horizon = compensation_horizon(self.latency.value)
+            velocities = np.stack([src[j].v for j in ids])
         out = control_step(self.controller, x, src[self.uav_id].v[None, :], src[0].x,
                            self.params, rows=[row], mask=mask,
                            obstacles=np.stack(silent) if silent else None,
-                           target_v=src[0].v, precondition=self.precondition)
+                           target_v=src[0].v, precondition=self.precondition,
+                           predictor=self.predictor, velocities=velocities)
         self.neighbours_used = len(ids) - 1 if mask is None else int(np.count_nonzero(mask))
         self.active_neighbours = len(ids) - 1
         self._last_step = step
@@ -289,9 +304,11 @@ class TrackerAgent:
     def safe_command(self) -> NDArray[np.float64]:
         """:func:`brake_force` from the last own velocity (zero force if none is known)."""
         own = self.inputs.get(self.uav_id)
-        if own is None:
-            return np.zeros(3)
-        return brake_force(own.v, u0=self.cfg.u0, drag=self.cfg.drag)
+        force = np.zeros(3) if own is None else brake_force(own.v, u0=self.cfg.u0,
+                                                            drag=self.cfg.drag)
+        if self.predictor is not None:
+            self.predictor.hold(force[None, :])
+        return force
 
 
 @dataclass

@@ -30,6 +30,7 @@ import yaml
 
 from .errors import ConfigError, UnknownPresetError
 from .laws import LAWS, SWITCHINGS
+from .prediction import COMPENSATIONS
 from .plant import NOISE_KINDS
 from .potential import NEIGHBOUR_RULES
 from .saturation import SATURATIONS
@@ -116,9 +117,19 @@ class SwarmConfig:
     newton_mu: float = _p(0.1, lo=0.0, lo_open=True,
                           help='precondition = newton: the smallest curvature of |H|_mu '
                                '(same unit as the Hessian of J)')
-    newton_every: int = _p(1, lo=1, help='precondition = newton: recompute |H|_mu^-1 every '
-                                         'this many control samples (its eigendecomposition '
-                                         'costs most)')
+    newton_every: int = _p(1, lo=1, help='precondition = newton: recompute the Hessian\'s '
+                                         'eigendecomposition every this many control '
+                                         'samples (it costs most)')
+    newton_trust: float = _p(0.0, unit='m', lo=0.0,
+                             help='precondition = newton: trust radius of the Newton step '
+                                  '(RMS per tracker); where the step would be longer the '
+                                  'curvature floor rises above newton_mu (0: the floor is '
+                                  'newton_mu)')
+    compensation: str = _p('none', choices=COMPENSATIONS,
+                           help='sampled control (control_rate > 0): none, or predict, the '
+                                'state predicted forward by the latency (the age it has when '
+                                'its command reaches the plant), with each tracker\'s own '
+                                'held command (not in the paper)')
     epsilon: float = _p(1.0, unit='m/s^2', lo=0.0, lo_open=True,
                         help='reaching margin of Theorem 1 / eq. 37')
     mu: float = _p(0.1, unit='m/s^2', lo=0.0, lo_open=True, help='reaching margin of eq. 43')

@@ -25,8 +25,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['pair_weight', 'potential', 'gradient', 'hessian', 'newton_matrix', 'newton_direction',
-           'target_gradient', 'obstacle_gradient']
+__all__ = ['pair_weight', 'potential', 'gradient', 'hessian', 'newton_basis', 'newton_direction',
+           'TRUST_STEPS', 'target_gradient', 'obstacle_gradient']
 
 
 #: elements of the pair arrays (3, rows, n, runs) of one block of rows in :func:`gradient`
@@ -414,40 +414,90 @@ def hessian(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Arr
     return np.swapaxes(h, -3, -2).reshape(lead + (3 * n, 3 * n))
 
 
-def newton_matrix(x: ArrayLike, x_target: ArrayLike, *, mu: float, k_n: ArrayLike = 1.0,
-                  k_f: ArrayLike = 1.0, a: ArrayLike = 1.0, b: ArrayLike = 6.0,
-                  c: ArrayLike = 1.7) -> NDArray[np.float64]:
-    """The saddle-free Newton preconditioner of J (not in the paper), shape (..., 3n, 3n).
-
-    .. math::
-
-        P = |H|_\\mu^{-1} = V \\operatorname{diag}(1 / \\max(|\\lambda_k|, \\mu)) V^T
-
-    with ``H = V diag(lambda) V^T`` the :func:`hessian` at x (Dauphin et al., "Identifying and
-    attacking the saddle point problem in high-dimensional non-convex optimization", NIPS
-    2014). Along ``P grad J`` (:func:`newton_direction`) every mode of H with
-    ``lambda >= mu`` descends at the same rate near the equilibrium, instead of at ``lambda``
-    along the gradient: the formation loop's stiffest rate and its softest no longer differ
-    by ``lambda_max / lambda_soft`` (5e2 for 16 trackers, 5e5 for 32 with the default
-    potential). P is positive definite, so ``P grad J`` vanishes exactly where the gradient
-    does (the equilibria of J are unchanged) and is a descent direction everywhere, saddles
-    included (``|lambda|``).
+def newton_basis(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0,
+                 k_f: ArrayLike = 1.0, a: ArrayLike = 1.0, b: ArrayLike = 6.0,
+                 c: ArrayLike = 1.7) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The eigendecomposition ``H = V diag(lambda) V^T`` of the :func:`hessian` at x that
+    :func:`newton_direction` preconditions with: ``(lambda (..., 3n), V (..., 3n, 3n))``.
 
     Parameters
     ----------
     x : array (..., n, 3) [m]; x_target : array (..., 3) [m]
-    mu : float > 0: the smallest curvature used (eigenvalues below it are raised to it)
     k_n, k_f, a, b, c : gains of eq. 2 / 44
     """
     w, v = np.linalg.eigh(hessian(x, x_target, k_n=k_n, k_f=k_f, a=a, b=b, c=c))
-    return (v / np.maximum(np.abs(w), mu)[..., None, :]) @ np.swapaxes(v, -1, -2)
+    return w, v
 
 
-def newton_direction(matrix: ArrayLike, grad: ArrayLike) -> NDArray[np.float64]:
-    """``P grad J`` for a :func:`newton_matrix` P (..., 3n, 3n) and gradients (..., n, 3)."""
+#: bisection steps of the trust region's curvature floor in :func:`newton_direction` (each
+#: halves log(mu_hi / mu); 30 resolve the floor to a part in 1e8)
+TRUST_STEPS = 30
+
+
+def newton_direction(basis: tuple[ArrayLike, ArrayLike], grad: ArrayLike, *, mu: float,
+                     trust: float = 0.0, ceiling: ArrayLike = np.inf) -> NDArray[np.float64]:
+    r"""The saddle-free Newton direction of J (not in the paper), shape of ``grad``.
+
+    .. math::
+
+        \delta = |H|_{\mu^*}^{-1} \nabla J, \qquad
+        |H|_{\mu^*} = V \operatorname{diag}(\max(|\lambda_k|, \mu^*)) V^T
+
+    with ``H = V diag(lambda) V^T`` from :func:`newton_basis` (Dauphin et al., "Identifying
+    and attacking the saddle point problem in high-dimensional non-convex optimization",
+    NIPS 2014). Along delta every mode of H with ``lambda >= mu*`` descends at the same rate
+    near the equilibrium, instead of at ``lambda`` along the gradient: the formation loop's
+    stiffest rate and its softest no longer differ by ``lambda_max / lambda_soft`` (2e3 for
+    16 trackers, 3e5 for 32 with the default potential). ``|H|`` is positive definite, so
+    delta vanishes exactly where the gradient does (the equilibria of J are unchanged) and is
+    a descent direction everywhere, saddles included (``|lambda|``).
+
+    Trust region (``trust`` > 0): ``mu* >= mu`` is the smallest floor for which the step's
+    RMS per tracker, ``||delta|| / sqrt(n)``, is at most ``trust`` (Levenberg-Marquardt's
+    choice of damping; Nocedal & Wright, "Numerical Optimization", ch. 4). Near an
+    equilibrium the step is short and ``mu* = mu``, so a small ``mu`` gives the softest
+    modes the full rate; far from it, where the Hessian turns with the state and a small
+    curvature would turn a modest gradient into a long step, the floor rises and delta
+    leans towards the gradient. The floor stops at ``ceiling``: :class:`~apf_swarm_core.
+    simulator.Preconditioner` passes k_N, the curvature of the centroid's mode (the pair
+    terms of eq. 2 cancel in it), so however far the swarm is from its formation, it still
+    closes on the target at the manifold's full rate (a higher floor, up to lambda_max,
+    slows every mode with it: the emulation's 32 trackers at 50 Hz then collide). ``trust``
+    = 0: ``mu* = mu``.
+
+    Parameters
+    ----------
+    basis : (lambda (..., 3n), V (..., 3n, 3n)) of :func:`newton_basis`
+    grad : array (..., n, 3): the gradient of J at the same positions
+    mu : float > 0: the smallest curvature used (eigenvalues below it are raised to it)
+    trust : float >= 0 [m]: the trust radius
+    ceiling : float or array (...): the highest floor the trust region takes (>= mu)
+    """
+    w, v = (np.asarray(a, dtype=float) for a in basis)
     g = np.asarray(grad, dtype=float)
-    flat = g.reshape(g.shape[:-2] + (-1,))
-    return (np.asarray(matrix) @ flat[..., None])[..., 0].reshape(g.shape)
+    n = g.shape[-2]
+    coef = np.einsum('...ij,...i->...j', v, g.reshape(g.shape[:-2] + (-1,)))
+    aw = np.abs(w)
+
+    def rms(floor: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.sqrt(np.sum((coef / np.maximum(aw, floor[..., None])) ** 2, axis=-1) / n)
+
+    floor = np.full(coef.shape[:-1], float(mu))
+    too_long = rms(floor) > trust if trust > 0.0 else np.zeros(floor.shape, dtype=bool)
+    if too_long.any():
+        # the step shrinks as the floor rises; at the largest curvature it is the gradient
+        # over lambda_max, so the bracket [mu, max(lambda_max, mu) * (1 + rms / trust)] holds
+        # (the floor stops at the ceiling: the bracket's top is at most it)
+        top = np.maximum(np.asarray(ceiling, dtype=float), mu)
+        hi = np.minimum(np.maximum(aw.max(axis=-1), mu) * (1.0 + rms(floor) / trust), top)
+        lo = floor.copy()
+        for _ in range(TRUST_STEPS):
+            mid = np.sqrt(lo * hi)
+            longer = rms(mid) > trust
+            lo, hi = np.where(longer, mid, lo), np.where(longer, hi, mid)
+        floor = np.where(too_long, hi, floor)
+    step = coef / np.maximum(aw, floor[..., None])
+    return np.einsum('...ij,...j->...i', v, step).reshape(g.shape)
 
 
 def obstacle_gradient(x: ArrayLike, obstacles: ArrayLike, *, k_f: ArrayLike = 1.0,

@@ -37,9 +37,11 @@ configuration alone whether the formation then holds (derivation in docs/THEORY.
    emulation's grid (n = 3, 8, 16 at 50-500 Hz and 0-4 ms) changes from holding to failing,
    for both switchings (the test of :func:`predict`). Along the Newton direction
    (``precondition = newton``) every mode has the curvature 1 near the equilibrium and the
-   bound is ``K (T + tau) < NEWTON_LIMIT = 0.5``, also measured (16 trackers, 20-200 Hz,
-   5-20 ms: 0.4 holds, 0.7 fails): the linear model would allow 2.5, but far from the
-   equilibrium the direction turns with the state. The steady lag behind a target moving
+   bound is ``K (T + tau) < NEWTON_LIMIT = 0.5``, also measured (16 and 32 trackers,
+   20-200 Hz, 5-30 ms: 0.5 holds, 1.0 fails), with and without the delay compensation of
+   :mod:`apf_swarm_core.prediction` (``compensation = predict``, which the linear model
+   carries: ``horizon`` of :func:`mode_matrix`): the linear model would allow 2.5, but far
+   from the equilibrium the direction turns with the state. The steady lag behind a target moving
    at v_N is ``(1 - w) v_N / (k_N K)`` (eq. 31 with s = 0 and the feed-forward weight w of
    :mod:`apf_swarm_core.laws`), and the sign law's ripple ``u0 T / M`` is large when it
    exceeds half the target speed.
@@ -60,6 +62,7 @@ from numpy.typing import NDArray
 from .config import SwarmConfig
 from .metrics import FLIGHT_CRITERIA
 from .potential import hessian
+from .prediction import compensation_horizon
 
 __all__ = ['RELAY_LIMIT', 'NEWTON_LIMIT', 'DESIGN_MARGIN', 'SOFT_SETTLE', 'LAYER_WIDTH',
            'CASCADE', 'LAG_LIMIT', 'RIPPLE_FRACTION', 'SampledPrediction',
@@ -98,11 +101,14 @@ def _hold(h: float, mass: float) -> tuple[NDArray[np.float64], NDArray[np.float6
 
 
 def mode_matrix(lam: float, *, layer_gain: float, inner_rate: float, period: float,
-                latency: float, mass: float = 1.0) -> NDArray[np.float64]:
+                latency: float, mass: float = 1.0, horizon: float = 0.0
+                ) -> NDArray[np.float64]:
     """Transition matrix of one formation mode over one control period (step 3 above).
 
     State ``(e_k, e'_k, u_{k-1}, ..., u_{k-m-1})`` with ``latency = m T + r``; the command
-    of sample k is ``u_k = -g M (e'_k + K lambda e_k)``.
+    of sample k is ``u_k = -g M (e'_k + K lambda e_k)``, or with delay compensation
+    (``horizon`` h > 0, :mod:`apf_swarm_core.prediction`) the same of the predicted state
+    ``e_k + h e'_k`` and ``e'_k + h u_{k-1} / M``.
 
     Parameters
     ----------
@@ -118,6 +124,8 @@ def mode_matrix(lam: float, *, layer_gain: float, inner_rate: float, period: flo
         tau [s], >= 0.
     mass : float
         M [kg] (the force enters as u/M).
+    horizon : float
+        h [s] of the prediction (0: none).
 
     Returns
     -------
@@ -129,6 +137,11 @@ def mode_matrix(lam: float, *, layer_gain: float, inner_rate: float, period: flo
     size = 3 + m
     A = np.zeros((size, size))
     gain = -inner_rate * mass * np.array([layer_gain * lam, 1.0])   # u_k = gain . (e, e')
+    h = float(horizon)
+    # the predicted state (e + h e', e' + h u_{k-1} / M): u_k = gain . pred . (e, e') + held
+    # u_{k-1} (slot 2)
+    held = gain[1] * h / mass
+    gain = np.array([gain[0], gain[0] * h + gain[1]])
     phi_T, _ = _hold(T, mass)
     phi_rest, gam_rest = _hold(T - r, mass)
     _, gam_r = _hold(r, mass)
@@ -139,11 +152,13 @@ def mode_matrix(lam: float, *, layer_gain: float, inner_rate: float, period: flo
     # index of u_{k-j} in the state: 1 + j (j = 1 .. m + 1); u_k itself is a function of x_k
     if m == 0:
         A[:2, :2] += np.outer(late, gain)     # u_k acts after r
+        A[:2, 2] += late * held
     else:
         A[:2, 1 + m] += late                  # u_{k-m}
     A[:2, 2 + m] += early                     # u_{k-m-1}
     # shift the history: new u_{k} enters slot 2 (u_{(k+1)-1}), u_{k-j} moves to slot 2 + j
     A[2, :2] = gain
+    A[2, 2] += held
     for j in range(3, size):
         A[j, j - 1] = 1.0
     return A
@@ -243,8 +258,10 @@ def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
     g = _inner_rate(cfg, T, mass)
     limit = loop_limit(cfg)
     allowed = limit / (T + tau)
+    # compensation = predict: the commands act on the state predicted by tau
+    h = compensation_horizon(tau) if cfg.compensation == 'predict' else 0.0
     linear = mode_radius(lam_max, layer_gain=K, inner_rate=g, period=T, latency=tau,
-                         mass=mass)
+                         mass=mass, horizon=h)
     ripple = cfg.u0 * T / mass
     vn = cfg.target_speed_bound
     lag = (1.0 - cfg.feedforward) * vn / (cfg.k_n * K)
@@ -277,7 +294,7 @@ def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
         # be with it doubled plus half a period (the jitter of a real delay)
         centroid = float(effective_spectrum(cfg, np.array([cfg.k_n]))[0])
         jitter = 2.0 * tau + 0.5 * T
-        kw = dict(layer_gain=K, inner_rate=g, period=T, mass=mass)
+        kw = dict(layer_gain=K, inner_rate=g, period=T, mass=mass, horizon=h)
         if mode_radius(centroid, latency=tau, **kw) >= 1.0:
             inner_stable = False
             warnings.append(

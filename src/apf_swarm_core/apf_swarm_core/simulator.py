@@ -38,11 +38,12 @@ from .design import equilibrium_formations, triangle_spacing
 from .laws import ControlOutput, SlidingModeController
 from .metrics import summarize
 from .plant import DisturbanceSource, plant_step, uniform_ball
-from .potential import (gradient, neighbour_mask, newton_direction, newton_matrix,
+from .prediction import Predictor, compensation_horizon
+from .potential import (gradient, neighbour_mask, newton_basis, newton_direction,
                         obstacle_gradient)
 
 __all__ = ['initial_positions', 'expected_pairs', 'design_formation', 'design_formations',
-           'design_pair_sets', 'make_controller', 'control_step',
+           'design_pair_sets', 'make_controller', 'make_predictor', 'control_step',
            'integrate', 'Preconditioner', 'make_preconditioner', 'CommandHold',
            'BatchSimulator', 'SimResult', 'simulate',
            'simulate_batch', 'TRAJECTORY_KEYS']
@@ -151,52 +152,54 @@ def make_controller(cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, 
 
 
 class Preconditioner:
-    """The Newton direction of ``precondition = newton`` along a run: ``P grad J`` with the
-    :func:`~apf_swarm_core.potential.newton_matrix` P of the positions every ``every``-th
-    call, the held one in between.
+    """The Newton direction of ``precondition = newton`` along a run
+    (:func:`~apf_swarm_core.potential.newton_direction` with floor ``mu`` and trust radius
+    ``trust``), from the :func:`~apf_swarm_core.potential.newton_basis` of the positions
+    every ``every``-th call and the held one in between.
 
-    Trackers hosted in one process receive the same states: the last matrix and the last
+    Trackers hosted in one process receive the same states: the last basis and the last
     direction computed in the process are reused for identical positions, target and gains
     (the eigendecomposition, then the gradient of every tracker, are the dearest parts of a
     command).
     """
 
-    _last_matrix: tuple[Any, NDArray[np.float64]] | None = None     # shared by the process
-    _last_direction: tuple[Any, NDArray[np.float64], NDArray[np.float64]] | None = None
+    _last_basis: tuple[Any, Any] | None = None              # shared by the process
+    _last_direction: tuple[Any, NDArray[np.float64], Any] | None = None
 
-    def __init__(self, mu: float, every: int = 1) -> None:
-        self.mu, self.every, self.calls = float(mu), int(every), 0
-        self.matrix: NDArray[np.float64] | None = None
+    def __init__(self, mu: float, every: int = 1, trust: float = 0.0) -> None:
+        self.mu, self.every, self.trust, self.calls = float(mu), int(every), float(trust), 0
+        self.basis: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
     def direction(self, x: ArrayLike, target_x: ArrayLike, params: dict[str, Any]
                   ) -> NDArray[np.float64]:
-        """``P grad J`` of every tracker, shape of ``x`` (..., n, 3)."""
+        """The Newton direction of every tracker, shape of ``x`` (..., n, 3)."""
         x = np.asarray(x, dtype=float)
         tx = np.asarray(target_x, dtype=float)
         gains = tuple(np.asarray(v, dtype=float).tobytes() for v in params.values())
-        key = (x.tobytes(), x.shape, self.mu, gains)
-        if self.matrix is None or self.matrix.shape[-1] != x.shape[-2] * 3 or \
+        key = (x.tobytes(), x.shape, gains)
+        if self.basis is None or self.basis[0].shape[-1] != x.shape[-2] * 3 or \
                 self.calls % self.every == 0:
-            last = Preconditioner._last_matrix
+            last = Preconditioner._last_basis
             if last is not None and last[0] == key:
-                self.matrix = last[1]
+                self.basis = last[1]
             else:
-                self.matrix = newton_matrix(x, tx, mu=self.mu, **params)
-                Preconditioner._last_matrix = (key, self.matrix)
+                self.basis = newton_basis(x, tx, **params)
+                Preconditioner._last_basis = (key, self.basis)
         self.calls += 1
-        dkey = (key, tx.tobytes())
+        dkey = (key, tx.tobytes(), self.mu, self.trust)
         last = Preconditioner._last_direction
-        if last is not None and last[2] is self.matrix and last[0] == dkey:
+        if last is not None and last[2] is self.basis and last[0] == dkey:
             return last[1]
-        out = newton_direction(self.matrix, gradient(x, tx, **params))
-        Preconditioner._last_direction = (dkey, out, self.matrix)
+        out = newton_direction(self.basis, gradient(x, tx, **params), mu=self.mu,
+                               trust=self.trust, ceiling=params['k_n'])
+        Preconditioner._last_direction = (dkey, out, self.basis)
         return out
 
 
 def make_preconditioner(cfg: SwarmConfig) -> Preconditioner | None:
     """The :class:`Preconditioner` of a configuration, or None for the gradient (the paper)."""
-    return Preconditioner(cfg.newton_mu, cfg.newton_every) if cfg.precondition == 'newton' \
-        else None
+    return Preconditioner(cfg.newton_mu, cfg.newton_every, cfg.newton_trust) \
+        if cfg.precondition == 'newton' else None
 
 
 def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
@@ -204,7 +207,9 @@ def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
                  rows: ArrayLike | None = None, mask: ArrayLike | None = None,
                  obstacles: ArrayLike | None = None,
                  target_v: ArrayLike | None = None,
-                 precondition: Preconditioner | None = None) -> ControlOutput:
+                 precondition: Preconditioner | None = None,
+                 predictor: Predictor | None = None,
+                 velocities: ArrayLike | None = None) -> ControlOutput:
     """Commands of the trackers in ``rows`` (default all) at one step.
 
     Parameters
@@ -223,11 +228,21 @@ def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
         :func:`~apf_swarm_core.potential.obstacle_gradient` is added to the gradient of the
         selected rows (a single run).
     target_v : array (..., 3), optional
-        Target velocity, for a controller with ``feedforward`` (ignored without).
+        Target velocity, for a controller with ``feedforward`` (ignored without) and for a
+        ``predictor``.
     precondition : Preconditioner, optional
-        The manifold descends ``P grad J`` (``precondition = newton``) instead of the
-        gradient: computed for every tracker the potential sees, then the rows selected.
+        The manifold descends the Newton direction (``precondition = newton``) instead of
+        the gradient: computed for every tracker the potential sees, then the rows selected.
+    predictor : Predictor, optional
+        ``compensation = predict``: the command is computed from the state predicted by the
+        predictor's horizon (:mod:`apf_swarm_core.prediction`), which then holds it.
+    velocities : array (..., n, 3), optional
+        Velocities of every tracker in ``x``, for a ``predictor`` (default ``v``, which
+        then has to hold every row).
     """
+    if predictor is not None:
+        x, v, target_x = predictor.state(x, v if velocities is None else velocities, v,
+                                         target_x, target_v)
     if precondition is None:
         grad = gradient(x, target_x, **potential_params, rows=rows, mask=mask)
     else:
@@ -238,7 +253,21 @@ def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
         xi = xi if rows is None else xi[..., rows, :]
         grad = grad + obstacle_gradient(xi, obstacles, k_f=potential_params['k_f'],
                                         b=potential_params['b'], c=potential_params['c'])
-    return controller.step(v, grad, target_v)
+    out = controller.step(v, grad, target_v)
+    if predictor is not None:
+        predictor.hold(out.force)
+    return out
+
+
+def make_predictor(cfg: SwarmConfig, latency: float | None = None) -> Predictor | None:
+    """The :class:`~apf_swarm_core.prediction.Predictor` of a configuration with sampled
+    control (``compensation = predict`` and ``control_rate`` > 0), or None. ``latency``:
+    the loop's [s] (default ``cfg.latency``)."""
+    if cfg.compensation != 'predict' or cfg.control_rate <= 0:
+        return None
+    tau = cfg.latency if latency is None else latency
+    return Predictor(compensation_horizon(tau),
+                     0.5 * (cfg.mass_lo + cfg.mass_hi))
 
 
 def integrate(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike, dt: float,
@@ -359,7 +388,8 @@ class BatchSimulator:
         for c in self.cfgs[1:]:
             for key in ('n_trackers', 'law', 'saturation', 'dt', 'duration', 'record_every',
                         'neighbours', 'neighbour_count', 'sensing_radius', 'control_rate',
-                        'switching', 'precondition', 'newton_mu', 'newton_every'):
+                        'switching', 'precondition', 'newton_mu', 'newton_every',
+                        'newton_trust', 'compensation'):
                 if getattr(c, key) != getattr(first, key):
                     raise ValueError(f'every run of a batch must share {key}; got '
                                      f'{getattr(first, key)!r} and {getattr(c, key)!r}')
@@ -381,6 +411,11 @@ class BatchSimulator:
         self.actuator = act if act.delayed else None
         self.out: ControlOutput | None = None
         self.precondition = make_preconditioner(first)
+        if first.compensation == 'predict' and len({c.latency for c in self.cfgs}) > 1:
+            raise ValueError('compensation = predict: every run of a batch must share the '
+                             'latency (the prediction horizon)')
+        self.predictor = make_predictor(first, None if latency_samples is None else
+                                        float(np.median(latency_samples)))
         if len({c.noise for c in self.cfgs}) > 1:
             raise ValueError('every run of a batch must share the noise kind')
         self.noise = DisturbanceSource([c.seed for c in self.cfgs], self.n,
@@ -438,7 +473,8 @@ class BatchSimulator:
                 else None
             out = self.out = control_step(self.controller, self.x, self.v, tx, self.params,
                                           mask=mask, target_v=tv,
-                                          precondition=self.precondition)
+                                          precondition=self.precondition,
+                                          predictor=self.predictor)
             if self.actuator is not None:
                 self.actuator.submit(self.k, out.force)
         force = out.force if self.actuator is None else self.actuator.applied(self.k)
@@ -490,6 +526,7 @@ class BatchSimulator:
                                                    self.target_state)
         mass, drag, rule = self.mass, self.drag, self.neighbour_rule
         hold, act, out, pre = self.hold, self.actuator, self.out, self.precondition
+        predictor = self.predictor
         x, v, k = self.x, self.v, k0
         try:
             for i in range(steps):
@@ -498,7 +535,7 @@ class BatchSimulator:
                 if out is None or k % hold == 0:
                     mask = neighbour_mask(x, **rule) if rule else None
                     out = control_step(controller, x, v, tx, params, mask=mask, target_v=tv,
-                                       precondition=pre)
+                                       precondition=pre, predictor=predictor)
                     if act is not None:
                         act.submit(k, out.force)
                 force = out.force if act is None else act.applied(k)

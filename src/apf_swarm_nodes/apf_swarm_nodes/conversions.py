@@ -225,9 +225,10 @@ def swarm_state_arrays(msg: SwarmState) -> SwarmSample:
 def swarm_odom_msg(*, step: int, stamp: Time, uav_ids: Sequence[int], x: NDArray[np.float64],
                    v: NDArray[np.float64], target_x: NDArray[np.float64],
                    target_v: NDArray[np.float64], active: Sequence[bool] | None = None,
-                   target_age: float = 0.0) -> SwarmOdometry:
+                   target_age: float = 0.0,
+                   command_latency: NDArray[np.float64] | None = None) -> SwarmOdometry:
     """``apf_swarm_msgs/SwarmOdometry`` from arrays x, v (n, 3) and the target (3,);
-    ``active`` defaults to every tracker active."""
+    ``active`` defaults to every tracker active, ``command_latency`` (n,) [s] to none."""
     msg = SwarmOdometry()
     msg.header.stamp = stamp
     msg.header.frame_id = WORLD
@@ -239,6 +240,8 @@ def swarm_odom_msg(*, step: int, stamp: Time, uav_ids: Sequence[int], x: NDArray
     msg.target_velocity = np.asarray(target_v, dtype=float)
     msg.active = [True] * len(msg.uav_ids) if active is None else [bool(a) for a in active]
     msg.target_age = float(target_age)
+    if command_latency is not None:
+        msg.command_latency = np.asarray(command_latency, dtype=float).tolist()
     return msg
 
 
@@ -255,6 +258,7 @@ class SwarmOdom:
     target_v: NDArray[np.float64]
     active: list[bool]
     target_age: float
+    command_latency: NDArray[np.float64]
 
 
 def swarm_odom_arrays(msg: SwarmOdometry) -> SwarmOdom:
@@ -274,10 +278,14 @@ def swarm_odom_arrays(msg: SwarmOdometry) -> SwarmOdom:
     active = [bool(a) for a in msg.active] or [True] * len(ids)
     if len(active) != len(ids):
         raise ValueError(f'SwarmOdometry with {len(ids)} ids has {len(active)} active flags')
+    latency = np.asarray(getattr(msg, 'command_latency', ()), dtype=float)
+    if latency.size not in (0, len(ids)):
+        raise ValueError(f'SwarmOdometry with {len(ids)} ids has {latency.size} command '
+                         'latencies; expected none or one per id')
     return SwarmOdom(int(msg.step), stamp_ns(msg.header.stamp), ids, x.reshape(-1, 3),
                      v.reshape(-1, 3), np.asarray(msg.target_position, dtype=float),
                      np.asarray(msg.target_velocity, dtype=float), active,
-                     float(msg.target_age))
+                     float(msg.target_age), latency)
 
 
 def markers_msg(x: NDArray[np.float64], target_x: NDArray[np.float64], stamp: Time,

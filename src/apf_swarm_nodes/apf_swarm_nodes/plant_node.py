@@ -231,7 +231,8 @@ class PlantNode(Node):
         self.swarm_odom_pub.publish(swarm_odom_msg(
             step=k, stamp=stamp, uav_ids=self.model.ids, x=self.model.x, v=self.model.v,
             target_x=self.target[1], target_v=self.target[2], active=self.model.active,
-            target_age=self._target_age()))
+            target_age=self._target_age(),
+            command_latency=self.model.latency if self.mode == 'realtime' else None))
 
     def _refuse(self, why: str) -> None:
         self.model.refuse(why)

@@ -168,6 +168,8 @@ class TrackerNode(Node):
                                       seq=seq):
             self._warn_rejected()
             return
+        if m.command_latency.size:
+            self.agent.report_latency(m.command_latency)
         if self.mode == 'lockstep' and self.agent.ready(step):
             self._publish(step, msg.header.stamp, now)
         elif self.mode == 'realtime' and self.on_odom:
