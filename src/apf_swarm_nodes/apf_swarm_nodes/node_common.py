@@ -207,6 +207,11 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # the player's loop runs under rclpy's signal handler: a SIGINT shuts the context
+        # down under it, and its next publish fails; that is a clean stop, not an error
+        if run is None or rclpy.ok():
+            raise
     finally:
         for n in nodes:
             n.destroy_node()
