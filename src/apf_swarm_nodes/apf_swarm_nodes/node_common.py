@@ -58,7 +58,7 @@ from apf_swarm_core.errors import ApfSwarmError
 
 __all__ = ['EXECUTORS', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
            'force_topic', 'RejectionLog', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'TARGET_REQUEST', 'REQUEST_QOS',
-           'TARGET_LOOKAHEAD', 'run_node', 'run_nodes', 'REALTIME_RATE']
+           'TARGET_LOOKAHEAD', 'run_node', 'run_nodes', 'running', 'REALTIME_RATE']
 
 TARGET_ODOM = '/target/odom'
 SWARM_STATE = '/swarm/state'
@@ -153,14 +153,20 @@ def spin(node: Node | Sequence[Node], kind: str = 'single') -> None:
         executor.add_node(n)
     # a timeout, because the Python signal handler only runs once the wait returns
     try:
-        while rclpy.ok() and not _STOP.is_set():
+        while running():
             executor.spin_once(timeout_sec=0.1)
     finally:
         executor.shutdown()
 
 
-#: set by SIGINT / SIGTERM in a spinning node process (see :func:`run_nodes`)
+#: set by SIGINT / SIGTERM in a node process (see :func:`run_nodes`)
 _STOP = threading.Event()
+
+
+def running() -> bool:
+    """Whether a node process goes on: rclpy is up and no SIGINT / SIGTERM came (the
+    spin loop and a ``run`` loop of :func:`run_nodes` check it between their steps)."""
+    return rclpy.ok() and not _STOP.is_set()
 
 
 def _stop_between_callbacks(signum: int, _frame) -> None:
@@ -178,18 +184,16 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
     and always destroy them and shut down.
 
     ``run``: what to do with the (single) node instead of spinning it (the player's timed
-    loop). A configuration error (bad parameter value or type) stops the process with one
-    line on stderr naming the parameter, and exit code 2.
+    loop, which checks :func:`running` between messages). A configuration error (bad
+    parameter value or type) stops the process with one line on stderr naming the
+    parameter, and exit code 2.
     """
-    if run is None:
-        # SIGINT / SIGTERM end the spin loop between two callbacks; rclpy's own handler would
-        # shut the context down under a running callback, whose next rcl call (a publish, a
-        # log line) then fails and is reported as a FATAL exception on every clean stop
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-        signal.signal(signal.SIGINT, _stop_between_callbacks)
-        signal.signal(signal.SIGTERM, _stop_between_callbacks)
-    else:
-        rclpy.init(args=args)
+    # SIGINT / SIGTERM end the spin loop (or the run loop) between two steps; rclpy's own
+    # handler would shut the context down under a running callback or publish, whose next
+    # rcl call then fails and is reported as a FATAL exception (exit 1) on a clean stop
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, _stop_between_callbacks)
+    signal.signal(signal.SIGTERM, _stop_between_callbacks)
     nodes: list[Node] = []
     code = 0
     try:
@@ -207,11 +211,6 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except Exception:
-        # the player's loop runs under rclpy's signal handler: a SIGINT shuts the context
-        # down under it, and its next publish fails; that is a clean stop, not an error
-        if run is None or rclpy.ok():
-            raise
     finally:
         for n in nodes:
             n.destroy_node()

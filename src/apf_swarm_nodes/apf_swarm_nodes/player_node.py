@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-import rclpy
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -32,7 +31,7 @@ from rosgraph_msgs.msg import Clock
 
 from .bags import BagInfo, iter_raw, open_bag
 from .errors import CliError
-from .node_common import CLOCK, CLOCK_QOS, run_node
+from .node_common import CLOCK, CLOCK_QOS, run_node, running
 from .params import EXECUTOR_PARAM, NodeParam, declare_node_params
 
 __all__ = ['PlayerNode', 'msg_class', 'main', 'PRELOAD_BYTES']
@@ -137,7 +136,7 @@ class PlayerNode(Node):
         if missing:
             raise CliError(f'wait_for {missing}: not topics this player publishes '
                            f'({", ".join(sorted(by_name))})')
-        while rclpy.ok():
+        while running():
             left = [t for t in topics if by_name[t].get_subscription_count() < 1]
             if not left:
                 return
@@ -166,7 +165,7 @@ class PlayerNode(Node):
                 if time.monotonic_ns() >= due_ns:
                     return True
                 continue
-            if not rclpy.ok():
+            if not running():
                 return False
             if rem > 50_000_000:
                 time.sleep(0.05)
@@ -187,7 +186,7 @@ class PlayerNode(Node):
         t0 = time.monotonic_ns()
         self._next_clock = t0
         started = False
-        while rclpy.ok():
+        while running():
             items = cached if cached is not None else self.messages()
             first = None
             last_due = t0
@@ -243,7 +242,7 @@ def _run(node: PlayerNode) -> None:
     node.play()
     node.get_logger().info(node.report())
     if not node.p['exit_when_done']:
-        while rclpy.ok():
+        while running():
             time.sleep(0.1)
 
 
