@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = ['pair_weight', 'potential', 'gradient', 'hessian', 'newton_basis', 'newton_direction',
-           'TRUST_STEPS', 'target_gradient', 'obstacle_gradient']
+           'target_gradient', 'obstacle_gradient']
 
 
 #: elements of the pair arrays (3, rows, n, runs) of one block of rows in :func:`gradient`
@@ -429,9 +429,30 @@ def newton_basis(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0,
     return w, v
 
 
-#: bisection steps of the trust region's curvature floor in :func:`newton_direction` (each
-#: halves log(mu_hi / mu); 30 resolve the floor to a part in 1e8)
-TRUST_STEPS = 30
+def _trust_floor(aw: NDArray[np.float64], coef: NDArray[np.float64], n: int, trust: float
+                 ) -> NDArray[np.float64]:
+    """The floor mu at which the step's RMS per tracker is exactly ``trust``, solved exactly.
+
+    With ``|lambda|`` sorted, between two consecutive ones the squared step is
+    ``A_j + B_j / mu^2`` (``A_j``: the modes stiffer than mu, ``c^2 / lambda^2``; ``B_j``:
+    the softer ones, ``c^2``), decreasing in mu, so ``n trust^2`` is met in one interval at
+    ``mu = sqrt(B_j / (n trust^2 - A_j))``. Shapes: ``aw``, ``coef`` (..., 3n); out (...).
+    """
+    order = np.argsort(aw, axis=-1)
+    lam = np.take_along_axis(aw, order, axis=-1)
+    c2 = np.take_along_axis(coef * coef, order, axis=-1)
+    lead = lam.shape[:-1]
+    zero = np.zeros(lead + (1,))
+    soft = np.concatenate([zero, np.cumsum(c2, axis=-1)], axis=-1)          # B_j, j = 0..3n
+    with np.errstate(divide='ignore', invalid='ignore'):
+        q = np.where(lam > 0.0, c2 / (lam * lam), np.inf)
+        stiff = np.concatenate([np.cumsum(q[..., ::-1], axis=-1)[..., ::-1], zero], axis=-1)
+        target = n * trust * trust
+        mu = np.sqrt(soft / (target - stiff))
+    lower = np.concatenate([zero, lam], axis=-1)
+    upper = np.concatenate([lam, np.full(lead + (1,), np.inf)], axis=-1)
+    ok = (stiff < target) & (mu >= lower * (1.0 - 1e-12)) & (mu <= upper * (1.0 + 1e-12))
+    return np.max(np.where(ok, mu, 0.0), axis=-1)
 
 
 def newton_direction(basis: tuple[ArrayLike, ArrayLike], grad: ArrayLike, *, mu: float,
@@ -483,19 +504,12 @@ def newton_direction(basis: tuple[ArrayLike, ArrayLike], grad: ArrayLike, *, mu:
         return np.sqrt(np.sum((coef / np.maximum(aw, floor[..., None])) ** 2, axis=-1) / n)
 
     floor = np.full(coef.shape[:-1], float(mu))
-    too_long = rms(floor) > trust if trust > 0.0 else np.zeros(floor.shape, dtype=bool)
-    if too_long.any():
-        # the step shrinks as the floor rises; at the largest curvature it is the gradient
-        # over lambda_max, so the bracket [mu, max(lambda_max, mu) * (1 + rms / trust)] holds
-        # (the floor stops at the ceiling: the bracket's top is at most it)
-        top = np.maximum(np.asarray(ceiling, dtype=float), mu)
-        hi = np.minimum(np.maximum(aw.max(axis=-1), mu) * (1.0 + rms(floor) / trust), top)
-        lo = floor.copy()
-        for _ in range(TRUST_STEPS):
-            mid = np.sqrt(lo * hi)
-            longer = rms(mid) > trust
-            lo, hi = np.where(longer, mid, lo), np.where(longer, hi, mid)
-        floor = np.where(too_long, hi, floor)
+    if trust > 0.0:
+        too_long = rms(floor) > trust
+        if too_long.any():
+            top = np.maximum(np.asarray(ceiling, dtype=float), mu)
+            floor = np.where(too_long, np.clip(_trust_floor(aw, coef, n, trust), mu, top),
+                             floor)
     step = coef / np.maximum(aw, floor[..., None])
     return np.einsum('...ij,...j->...i', v, step).reshape(g.shape)
 
