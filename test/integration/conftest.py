@@ -8,7 +8,7 @@ import signal
 import subprocess
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import pytest
 import rclpy
@@ -69,6 +69,23 @@ class Graph:
                     raise AssertionError(f'{name} exited with {p.returncode}:\n{self.log(name)}')
             self.executor.spin_once(timeout_sec=0.02)
         return True
+
+    def call(self, send: Callable[[], Any], timeout: float, what: str,
+             resend: float = 2.0) -> Any:
+        """The result of the service future ``send()`` returns, re-sent every ``resend`` s
+        until answered or ``timeout`` s: a server that has not yet matched the client's
+        response reader drops the response (rmw_fastrtps waits 100 ms for the match), so
+        one request can go unanswered on a loaded machine."""
+        end = time.monotonic() + timeout
+        while True:
+            future = send()
+            left = end - time.monotonic()
+            if self.spin_until(future.done, max(0.0, min(resend, left)), what, fail=False):
+                return future.result()
+            future.cancel()
+            if time.monotonic() >= end:
+                raise AssertionError(f'timed out after {timeout:g} s waiting for {what} '
+                                     f'(re-sent every {resend:g} s)')
 
     def stop(self, name: str, timeout: float = 5.0) -> int:
         """SIGINT the process group, then SIGKILL; returns the exit code."""

@@ -311,7 +311,11 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     wander = cfg.f_bar * (cfg.control_period + pred['latency']['p99']) / cfg.mass_lo
     assert summary['chattering']['hf_velocity_rms'] <= wander, (summary['chattering'], wander)
     assert summary['missed_deadlines'] == 0
-    assert summary['stale_inputs'] <= 10          # only before the first odometry arrives
+    # stale inputs only at the start: each tracker brakes (watchdog, 20 Hz) until its first
+    # odometry arrives, however long the graph takes to match; none during the flight
+    stale = summary['faults']['stale']
+    assert all(a <= t[0] + 1e-6 for a, _ in stale), (stale, summary['stale_inputs'])
+    assert not any('stale inputs' in w for w in summary['warnings']), summary['warnings']
 
 
 def test_trackers_hosted_several_to_a_process_reproduce_the_simulator(bringup) -> None:
@@ -470,8 +474,12 @@ def test_a_silent_target_is_reported_and_the_swarm_brakes_then_recovers_realtime
     (a, b), = spans
     assert 4.5 <= a <= 7.0 and 1.5 <= b - a <= 4.0, spans
     assert summary['faults']['target_age_max'] >= 1.5
-    assert summary['stale_inputs'] >= 3 * 10        # every tracker braked, 100 Hz watchdog
+    assert summary['stale_inputs'] >= 3 * 10        # every tracker braked, 20 Hz watchdog
     assert any('the target was silent' in w for w in summary['warnings'])
+    # the brakes of the silence are a fault during the flight, with its own warning
+    late = [(c, e) for c, e in summary['faults']['stale'] if a <= c <= b + 0.5]
+    assert late, summary['faults']['stale']
+    assert any('braked on stale inputs' in w for w in summary['warnings'])
     cfg = load_config(run.out / 'config.yaml')
     d = triangle_side(cfg)
     # the target resumes 2 s further along its path (its clock kept running): the

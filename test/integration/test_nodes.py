@@ -335,9 +335,9 @@ def test_parameters_set_at_run_time_are_applied_or_refused_with_a_reason(graph) 
                      and client.services_are_ready(), 30, 'the tracker endpoints')
 
     def set_params(**values) -> list:
-        future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
-        graph.spin_until(future.done, 10, f'the answer to setting {values}')
-        return future.result().results
+        return graph.call(lambda: client.set_parameters(
+            [Parameter(k, value=v) for k, v in values.items()]), 30,
+            f'the answer to setting {values}').results
 
     x = np.array([[3.0, 0.0, 0.0], [0.0, 2.0, 0.5], [-1.0, -1.0, 0.0]])
     v = np.array([[0.0, 0.0, 0.0], [0.4, -0.3, 0.2], [0.0, 0.0, 0.0]])
@@ -371,7 +371,6 @@ def test_parameters_set_at_run_time_are_applied_or_refused_with_a_reason(graph) 
                 '-r', '__ns:=/target')
     tclient = AsyncParameterClient(graph.node, '/target/target')
     graph.spin_until(tclient.services_are_ready, 30, 'the target parameter services')
-    future = tclient.set_parameters([Parameter('target_speed', value=3.0)])
-    graph.spin_until(future.done, 10, 'the target answer')
-    (res,) = future.result().results
+    (res,) = graph.call(lambda: tclient.set_parameters([Parameter('target_speed', value=3.0)]),
+                        30, 'the target answer').results
     assert not res.successful and 'read-only' in res.reason, res.reason

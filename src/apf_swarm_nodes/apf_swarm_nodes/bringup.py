@@ -553,6 +553,7 @@ class StateAccumulator:
                 # not saved to trajectory.npz: the fault report of summary.json
                 'active': np.array([s.active or (True,) * n for s in kept], dtype=bool),
                 'target_age': np.array([s.target_age for s in kept], dtype=float),
+                'stale_inputs': np.array([s.stale_inputs for s in kept], dtype=int),
                 'command_latency': np.array([s.command_latency or (0.0,) * n for s in kept],
                                             dtype=float)}
 

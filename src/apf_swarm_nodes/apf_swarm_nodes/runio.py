@@ -36,12 +36,15 @@ def _intervals(t: np.ndarray, flag: np.ndarray) -> list[list[float]]:
 
 
 def fault_report(t: np.ndarray, active: np.ndarray | None, target_age: np.ndarray | None,
-                 ) -> tuple[dict[str, Any], list[str]]:
+                 stale_inputs: np.ndarray | None = None) -> tuple[dict[str, Any], list[str]]:
     """The ``faults`` field of summary.json and its warning lines, from the ``active``
-    flags (T, n) and the ``target_age`` (T,) of ``/swarm/state``: when each tracker was
-    inactive (silent past the deadline, zero force, out of the formation) and when the
-    target was silent (its state older than :data:`TARGET_SILENT_AGE`)."""
-    faults: dict[str, Any] = {'inactive': {}, 'target_silent': [], 'target_age_max': 0.0}
+    flags (T, n), the ``target_age`` (T,) and the cumulative ``stale_inputs`` count (T,) of
+    ``/swarm/state``: when each tracker was inactive (silent past the deadline, zero force,
+    out of the formation), when the target was silent (its state older than
+    :data:`TARGET_SILENT_AGE`) and when trackers sent the safe brake on stale inputs
+    (``stale``: the samples at which the count grew)."""
+    faults: dict[str, Any] = {'inactive': {}, 'target_silent': [], 'target_age_max': 0.0,
+                              'stale': []}
     warnings: list[str] = []
     t = np.asarray(t, dtype=float)
     if active is not None and len(active):
@@ -63,6 +66,17 @@ def fault_report(t: np.ndarray, active: np.ndarray | None, target_age: np.ndarra
             warnings.append(f'the target was silent {len(spans)} time(s) (state up to '
                             f'{age.max():.3g} s old), first at t = {spans[0][0]:g} s: its '
                             f'last state was held, trackers brake past their input_timeout')
+    if stale_inputs is not None and len(stale_inputs):
+        count = np.asarray(stale_inputs, dtype=float)
+        grew = np.diff(count, prepend=0.0) > 0
+        faults['stale'] = _intervals(t, grew)
+        # a span from the first sample is the start-up: trackers brake until their first
+        # odometry arrives; any later one is a fault during the flight
+        late = [span for span in faults['stale'] if span[0] > t[0]]
+        if late:
+            warnings.append(f'trackers braked on stale inputs {len(late)} time(s) during the '
+                            f'run, first at t = {late[0][0]:g} s ({int(count[-1])} stale '
+                            f'commands in all)')
     return faults, warnings
 
 
@@ -105,7 +119,7 @@ def run_summary(traj: Mapping[str, Any], cfg: SwarmConfig, *, status: str = 'com
         warnings.append(f'respawned during the run: {", ".join(respawned)} (a restarted '
                         'node starts from its initial state)')
     faults, fault_warnings = fault_report(traj['t'], traj.get('active'),
-                                          traj.get('target_age'))
+                                          traj.get('target_age'), traj.get('stale_inputs'))
     summary = summarize({k: traj[k] for k in TRAJECTORY_KEYS}, law=cfg.law, dt=cfg.dt,
                         seed=cfg.seed, potential_params=cfg.potential_params(),
                         expected_pairs=expected_pairs(cfg),

@@ -1,0 +1,38 @@
+"""The fault report of summary.json (apf_swarm_nodes.runio.fault_report), without ROS."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from apf_swarm_nodes.runio import TARGET_SILENT_AGE, fault_report
+
+
+def test_inactive_trackers_and_a_silent_target_become_spans_with_warnings() -> None:
+    t = np.arange(10) * 0.1
+    active = np.ones((10, 3), dtype=bool)
+    active[3:6, 1] = False                       # uav_2 inactive from 0.3 to 0.5 s
+    age = np.zeros(10)
+    age[7:] = TARGET_SILENT_AGE * 2              # target silent from 0.7 s to the end
+    faults, warnings = fault_report(t, active, age)
+    assert faults['inactive'] == {'uav_2': [[0.3, 0.5]]}
+    assert faults['target_silent'] == [[0.7, 0.9]]
+    assert faults['target_age_max'] == TARGET_SILENT_AGE * 2
+    assert faults['stale'] == []
+    assert len(warnings) == 2 and 'uav_2' in warnings[0] and 'silent' in warnings[1]
+
+
+def test_stale_brakes_at_start_up_are_reported_without_a_warning() -> None:
+    t = np.arange(10) * 0.1
+    count = np.array([2, 5, 6, 6, 6, 6, 6, 6, 6, 6])       # trackers brake until odometry
+    faults, warnings = fault_report(t, None, None, count)
+    assert faults['stale'] == [[0.0, 0.2]]
+    assert warnings == []
+
+
+def test_stale_brakes_during_the_flight_are_a_warning() -> None:
+    t = np.arange(10) * 0.1
+    count = np.array([0, 0, 0, 0, 3, 6, 6, 6, 6, 6])
+    faults, warnings = fault_report(t, None, None, count)
+    assert faults['stale'] == [[0.4, 0.5]]
+    assert len(warnings) == 1
+    assert 'during the run' in warnings[0] and 't = 0.4' in warnings[0] and '6 stale' in warnings[0]
