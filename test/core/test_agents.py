@@ -242,6 +242,26 @@ def test_plant_follows_one_tracker_process_per_id(cfg) -> None:
     assert not p.offer_command(2, 5, f, f, instance=11)
 
 
+def test_plant_counts_stale_brakes_only_after_a_tracker_has_commanded(cfg) -> None:
+    """Brakes before a tracker's first inputs are its start-up; brakes after it commanded
+    from its inputs are stale inputs; a respawned process starts again without inputs."""
+    p = PlantModel(cfg)
+    f = np.ones(3)
+    for k in range(5):
+        assert p.offer_command(1, k, f, f, stale=True, instance=7)   # waiting for inputs
+    assert p.stale == 0
+    assert p.offer_command(1, 5, f, f, instance=7)                   # commands
+    for k in range(6, 9):
+        assert p.offer_command(1, k, f, f, stale=True, instance=7)   # inputs went silent
+    assert p.stale == 3
+    p.deactivate([1])
+    assert p.offer_command(1, 0, f, f, stale=True, instance=8)       # respawned, waiting
+    assert p.stale == 3
+    assert p.offer_command(1, 1, f, f, instance=8)
+    assert p.offer_command(1, 2, f, f, stale=True, instance=8)
+    assert p.stale == 4
+
+
 def test_realtime_expiry_zeroes_first_and_deactivates_later(cfg) -> None:
     """Judged against publications: a tracker that has not answered the state published
     0.1 s ago gets zero force; not answered one published 1 s ago, it is inactive."""

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import random
 import signal
 import subprocess
 import time
@@ -17,7 +16,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from apf_swarm_nodes.bringup import stop_process
+from apf_swarm_nodes.bringup import pick_domain_id, stop_process
 
 LIB = Path(get_package_prefix('apf_swarm_nodes')) / 'lib' / 'apf_swarm_nodes'
 ROOT = Path(__file__).resolve().parents[2]
@@ -25,8 +24,9 @@ CONFIG = ROOT / 'config'
 
 
 def free_domain_id() -> int:
-    """A domain id for this test (random in 102..201, away from make test's 1..100)."""
-    return random.Random(os.getpid() * 1000 + time.monotonic_ns()).randint(102, 201)
+    """A domain id for this test in 102..201, away from make test's 1..100: one with no bound
+    port and not leased by another picker (``pick_domain_id``)."""
+    return pick_domain_id(lo=102, hi=201)
 
 
 class Graph:

@@ -287,10 +287,13 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     t = ros['t']
     assert np.all(np.diff(t) > 0)
     assert t[-1] == pytest.approx(8.0, abs=0.2)
-    # the plant publishes at the control rate: about 8 s of samples, none lost
+    # the plant publishes at the control rate the bring-up chose: one sample per period
+    # (the median interval; a starved plant skips ticks, which the flight criteria judge),
+    # never more, none lost on the way
     rate = cfg.control_rate
     assert rate > 0
-    assert 0.85 * 8 * rate <= len(t) <= 1.03 * 8 * rate, (len(t), rate)
+    assert np.median(np.diff(t)) == pytest.approx(1.0 / rate, rel=0.02), (len(t), rate)
+    assert len(t) <= 1.03 * 8 * rate, (len(t), rate)
     assert summary['messages']['dropped'] == 0
     pred = summary['prediction']
     assert pred['before_run']['holds'], pred['before_run']
@@ -311,11 +314,9 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     wander = cfg.f_bar * (cfg.control_period + pred['latency']['p99']) / cfg.mass_lo
     assert summary['chattering']['hf_velocity_rms'] <= wander, (summary['chattering'], wander)
     assert summary['missed_deadlines'] == 0
-    # stale inputs only at the start: each tracker brakes (watchdog, 20 Hz) until its first
-    # odometry arrives, however long the graph takes to match; none during the flight
-    stale = summary['faults']['stale']
-    assert all(a <= t[0] + 1e-6 for a, _ in stale), (stale, summary['stale_inputs'])
-    assert not any('stale inputs' in w for w in summary['warnings']), summary['warnings']
+    # no input went stale during the flight (the brakes each tracker sends until its first
+    # odometry arrives are its start-up, not counted)
+    assert summary['stale_inputs'] == 0 and summary['faults']['stale'] == [], summary['faults']
 
 
 def test_trackers_hosted_several_to_a_process_reproduce_the_simulator(bringup) -> None:

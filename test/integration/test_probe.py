@@ -36,6 +36,10 @@ def test_probe_measures_caches_and_rereads(tmp_path: Path) -> None:
     assert sorted(p['command_cost'], key=int) == [str(k) for k in probe.COMMAND_SIZES]
     assert all(0.0 < c < 0.01 for c in p['command_cost'].values()), p['command_cost']
     assert d['latency'] > p['rtt']['p90'] and d['rate'] in probe.RATES
+    # an rclpy node process holds tens of MiB: more than the interpreter, less than a GiB
+    assert 20 * 2**20 < p['process_rss'] < 2**30, p['process_rss']
+    lim = doc['process_limit']
+    assert lim['processes'] == max(1, min(lim['cpu'], lim['memory'])) >= 1
     cached = json.loads((tmp_path / 'probe.json').read_text())
     assert cached['machine'] == probe.machine() and cached['rtt'] == p['rtt']
     again = subprocess.run([APF, 'probe', '--json'], env=env, capture_output=True,
@@ -47,7 +51,19 @@ def test_probe_measures_caches_and_rereads(tmp_path: Path) -> None:
 def _probe(cpu_per_message: float, cost16: float, cores: int = 2) -> dict:
     return {'machine': {'cpu': 'x', 'cores': cores, 'host': 'h'}, 'cpu_per_message':
             cpu_per_message, 'rtt': {'p50': 0.001, 'p90': 0.002, 'p99': 0.004},
-            'command_cost': {'3': cost16 / 4, '16': cost16, '32': 4 * cost16}}
+            'command_cost': {'3': cost16 / 4, '16': cost16, '32': 4 * cost16},
+            'process_rss': 60 * 2**20}
+
+
+def test_the_process_limit_is_the_smaller_of_cpu_at_the_lowest_rate_and_memory() -> None:
+    p = _probe(50e-6, 200e-6)
+    # one tracker per process at 20 Hz: 3 messages and a 3-tracker command (cost16 / 4)
+    cpu = int(0.5 * 2 / (20 * (3 * 50e-6 + 50e-6)))
+    lim = probe.process_limit(p, available=64 * 2**30)
+    assert lim == {'processes': cpu, 'cpu': cpu, 'memory': int(0.5 * 64 * 1024 / 60)}
+    small = probe.process_limit(p, available=3 * 2**30)       # 1.5 GiB for 60 MiB each
+    assert small['processes'] == small['memory'] == 25
+    assert probe.process_limit(p, available=0)['processes'] == 1
 
 
 def test_derive_scales_capacity_with_the_cost_and_picks_the_highest_rate_that_fits() -> None:
@@ -67,4 +83,11 @@ def test_a_probe_of_another_machine_is_not_used(tmp_path: Path, monkeypatch) -> 
     (tmp_path / 'probe.json').write_text(json.dumps(_probe(50e-6, 200e-6)))
     assert probe.load() is None
     (tmp_path / 'probe.json').write_text('{not json')
+    assert probe.load() is None
+    # a probe of this machine without a field of this version is measured again
+    mine = {**_probe(50e-6, 200e-6), 'machine': probe.machine()}
+    (tmp_path / 'probe.json').write_text(json.dumps(mine))
+    assert probe.load() == mine
+    del mine['process_rss']
+    (tmp_path / 'probe.json').write_text(json.dumps(mine))
     assert probe.load() is None

@@ -21,18 +21,10 @@ def test_inactive_trackers_and_a_silent_target_become_spans_with_warnings() -> N
     assert len(warnings) == 2 and 'uav_2' in warnings[0] and 'silent' in warnings[1]
 
 
-def test_stale_brakes_at_start_up_are_reported_without_a_warning() -> None:
-    t = np.arange(10) * 0.1
-    count = np.array([2, 5, 6, 6, 6, 6, 6, 6, 6, 6])       # trackers brake until odometry
-    faults, warnings = fault_report(t, None, None, count)
-    assert faults['stale'] == [[0.0, 0.2]]
-    assert warnings == []
-
-
 def test_stale_brakes_during_the_flight_are_a_warning() -> None:
     t = np.arange(10) * 0.1
-    count = np.array([0, 0, 0, 0, 3, 6, 6, 6, 6, 6])
+    count = np.array([0, 0, 0, 0, 3, 6, 6, 6, 7, 7])
     faults, warnings = fault_report(t, None, None, count)
-    assert faults['stale'] == [[0.4, 0.5]]
+    assert faults['stale'] == [[0.4, 0.5], [0.8, 0.8]]
     assert len(warnings) == 1
-    assert 'during the run' in warnings[0] and 't = 0.4' in warnings[0] and '6 stale' in warnings[0]
+    assert '2 time(s)' in warnings[0] and 't = 0.4' in warnings[0] and '7 stale' in warnings[0]

@@ -341,6 +341,9 @@ class PlantModel:
         self.s = np.zeros((n, 3))
         self.got: dict[int, int] = {}       # uav_id -> step of the latest command
         self.instances: dict[int, int] = {}  # uav_id -> the tracker process it follows
+        # uav_ids whose process has sent a command from its inputs: only their stale brakes
+        # count (before its first inputs a tracker brakes while the graph still matches)
+        self.commanded: set[int] = set()
         self.active = np.ones(n, dtype=bool)
         self.command_time = np.zeros(n)     # realtime: when each latest command arrived
         self.latency = np.zeros(n)          # realtime: its arrival minus its state's stamp [s]
@@ -365,7 +368,9 @@ class PlantModel:
         another tracker process (``instance``) than the one this ``uav_id`` follows (a
         duplicate ``uav_id``), the step is older than the one held, or (lockstep) this step
         was answered already. An accepted command makes its tracker active; an inactive
-        tracker follows the next instance that commands (a respawned tracker)."""
+        tracker follows the next instance that commands (a respawned tracker). A ``stale``
+        command (the tracker's safe brake) counts in ``stale`` only once its process has
+        commanded from its inputs: the brakes before its first inputs are its start-up."""
         if uav_id not in self.ids:
             return self.refuse(f'uav_id {uav_id} is not in this swarm (ids 1..{len(self.ids)})')
         problem = input_problem(force=force, s=s)
@@ -379,6 +384,8 @@ class PlantModel:
                                    f'tracker process (instance {instance:x}; following '
                                    f'{followed:x})')
             self.got.pop(uav_id, None)          # a new process starts its own sequence
+        if self.instances.get(uav_id) != instance:
+            self.commanded.discard(uav_id)      # a new process starts without inputs
         self.instances[uav_id] = instance
         held = self.got.get(uav_id, -1)
         if step >= 0 and step < held:
@@ -392,7 +399,9 @@ class PlantModel:
         self.active[j] = True
         self.command_time[j] = now
         self.latency[j] = latency
-        if stale:
+        if not stale:
+            self.commanded.add(uav_id)
+        elif uav_id in self.commanded:
             self.stale += 1
         return True
 

@@ -42,6 +42,7 @@ the process supervision (:class:`Child`, :class:`ProcessGroup`), the graph expec
 from __future__ import annotations
 
 import argparse
+import fcntl
 import math
 import os
 import random
@@ -49,6 +50,7 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -572,38 +574,32 @@ class StateAccumulator:
 # configuration, isolation, command lines
 # --------------------------------------------------------------------------------------------
 
-#: tracker processes per CPU core the bring-up starts without --allow-overload. Measured on
-#: the 2-core development machine (docs/PERFORMANCE.md, "Scale"): with the events executor
-#: and the aggregated /swarm/odom, one tracker per process, realtime flies 32 at 50 Hz and 24
-#: at 100 Hz (the realtime preset's rate) with no missed deadline; 12 per core is the 100 Hz
-#: figure, for that default configuration only (the single-threaded executor and per-neighbour
-#: odometry fly 4-12; one run of the default failed at 16 at 100 Hz under other load).
-#: Four trackers per process (``--trackers-per-process 4``) flew 40, the most tried.
-TRACKERS_PER_CORE = 12
-
-
-def tracker_capacity() -> int:
-    """The most trackers the bring-up starts on this machine without --allow-overload."""
-    return TRACKERS_PER_CORE * (os.cpu_count() or 1)
-
-
-def check_capacity(n_trackers: int, *, allow_overload: bool = False,
-                   per_process: int = 1) -> None:
+def check_capacity(n_trackers: int, *, allow_overload: bool = False, per_process: int = 1,
+                   say: Callable[[str], None] | None = None) -> None:
     """Refuse more tracker processes than this machine runs (CliError naming the limit).
 
-    The limit counts processes (``ceil(n_trackers / per_process)``), the measured cost: a
-    process of K trackers takes far less CPU and memory than K processes (docs/PERFORMANCE.md,
-    "Scale"), but its trackers share one core, so ``--allow-overload`` is still needed past
-    the limit."""
-    limit = tracker_capacity()
+    The limit counts processes (``ceil(n_trackers / per_process)``) and comes from the
+    machine's probe (:func:`apf_swarm_nodes.probe.process_limit`: CPU at the lowest rate and
+    memory); a process of K trackers takes far less CPU and memory than K processes, but its
+    trackers share one core. Without a probe (it failed) nothing is refused, with a warning."""
+    from . import probe
+    if allow_overload:
+        return
     procs = -(-n_trackers // per_process)
-    if procs > limit and not allow_overload:
+    try:
+        machine = probe.ensure(say=say)
+    except (RuntimeError, OSError, ValueError, subprocess.TimeoutExpired) as exc:
+        if say is not None:
+            say(f'warning: {exc}; the tracker process limit is not known, none applied')
+        return
+    limit = probe.process_limit(machine)
+    if procs > limit['processes'] and not allow_overload:
         raise CliError(f'n_trackers = {n_trackers} in {procs} processes is more than this '
-                       f'machine runs: the measured limit is {TRACKERS_PER_CORE} tracker '
-                       f'processes per core, {limit} on these {os.cpu_count()} cores '
-                       f'(docs/RELIABILITY.md); use fewer trackers, --trackers-per-process K '
-                       f'to host several in one process, or --allow-overload to start them '
-                       f'anyway')
+                       f'machine runs: its probe (`apf-swarm probe`) allows '
+                       f'{limit["processes"]} tracker processes ({limit["cpu"]} by CPU at '
+                       f'{probe.RATES[-1]:g} Hz, {limit["memory"]} by memory); use fewer '
+                       f'trackers, --trackers-per-process K to host several in one process, '
+                       f'or --allow-overload to start them anyway')
 
 
 def resolve_config(args: argparse.Namespace) -> SwarmConfig:
@@ -649,18 +645,52 @@ def domain_looks_busy(domain: int, ports: set[int] | None = None) -> bool:
     return any(lo <= p < lo + _FASTDDS_DOMAIN_GAIN for p in ports)
 
 
+#: how long a picked domain stays reserved for its picker [s]: long enough for the run it
+#: was picked for to start its nodes, whose bound ports then mark it busy
+DOMAIN_LEASE = 60.0
+
+
+def _lease_dir() -> Path:
+    base = os.environ.get('XDG_RUNTIME_DIR') or tempfile.gettempdir()
+    return Path(base) / 'apf_swarm-domains'
+
+
 def pick_domain_id(exclude: Iterable[int] = (), lo: int = 1, hi: int = 101,
                    rng: random.Random | None = None) -> int:
-    """A random domain in ``[lo, hi]``, not in ``exclude``, preferring one nobody uses."""
+    """A random domain in ``[lo, hi]``, not in ``exclude``, preferring one nobody uses: no
+    bound port of its range, and not picked in the last :data:`DOMAIN_LEASE` seconds by any
+    process of this machine (a lease file, written under a lock, so two runs that pick at
+    the same instant, before either has bound a port, get different domains)."""
     rng = rng or random.SystemRandom()
     excl = set(exclude)
     candidates = [d for d in range(lo, hi + 1) if d not in excl]
     rng.shuffle(candidates)
-    ports = _bound_udp_ports()
-    for d in candidates:
-        if not domain_looks_busy(d, ports):
-            return d
-    return candidates[0]
+    leases = _lease_dir()
+    try:
+        leases.mkdir(parents=True, exist_ok=True)
+        lock = open(leases / '.lock', 'w')
+    except OSError:
+        lock = None                          # no lease files here: the ports decide alone
+    try:
+        if lock is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        ports, now = _bound_udp_ports(), time.time()
+
+        def leased(d: int) -> bool:
+            try:
+                return now - (leases / str(d)).stat().st_mtime < DOMAIN_LEASE
+            except OSError:
+                return False
+
+        free = [d for d in candidates if not domain_looks_busy(d, ports)]
+        d = next((d for d in free if lock is None or not leased(d)),
+                 free[0] if free else candidates[0])
+        if lock is not None:
+            (leases / str(d)).write_text(f'{os.getpid()}\n')
+        return d
+    finally:
+        if lock is not None:
+            lock.close()
 
 
 def _env_domain() -> int | None:
@@ -772,8 +802,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         'namespace (`ip netns exec`; root): simulated hosts, see '
                         'scripts/multihost.py; repeatable, first match wins')
     p.add_argument('--allow-overload', action='store_true',
-                   help='start more trackers than the measured limit of this machine '
-                        f'({TRACKERS_PER_CORE} per core)')
+                   help='start more tracker processes than this machine\'s limit, which '
+                        'its probe derives (`apf-swarm probe`)')
     p.add_argument('--on-recorder-death', choices=('stop', 'continue'), default='stop',
                    help='with --record: what a dying recorder does to the run (default stop; '
                         'continue: fly on unrecorded, reindex the bag afterwards)')
@@ -1410,7 +1440,8 @@ def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
     """
     cfg = resolve_config(args)
     check_capacity(cfg.n_trackers, allow_overload=args.allow_overload,
-                   per_process=args.trackers_per_process)
+                   per_process=args.trackers_per_process,
+                   say=lambda m: print(f'{prog}: {m}', file=sys.stderr, flush=True))
     return Bringup(args, cfg, prog=prog).execute()
 
 

@@ -263,7 +263,7 @@ class PlantNode(Node):
             self.model.advance_to(now - self.wall0)
             latency = (self.get_clock().now().nanoseconds - stamp_ns(msg.header.stamp)) * 1e-9
         if not self.model.offer_command(f.uav_id, f.step, f.force, f.sliding_surface,
-                                        f.stale and self.running, now=now,
+                                        f.stale, now=now,
                                         instance=f.instance, latency=latency):
             self._log_rejection(self.model.last_rejection, self.model.rejected)
             return

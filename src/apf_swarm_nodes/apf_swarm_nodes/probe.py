@@ -10,13 +10,17 @@ of the machine in use, not from constants measured elsewhere:
 * **CPU per message**: the echo process's CPU time (``/proc/<pid>/stat``) over the messages
   it took and sent [s];
 * **command cost**: the core's :class:`~apf_swarm_core.agents.TrackerAgent` command of the
-  ``realtime`` preset for 3, 16 and 32 trackers, in this process [s].
+  ``realtime`` preset for 3, 16 and 32 trackers, in this process [s];
+* **memory per process**: the echo node process's resident set [bytes], what every node
+  process costs at least.
 
 From them (:func:`derive`): the control-loop latency ``check`` and ``design`` assume (the
 round trip's p90 plus a command, stretched by the machine's utilization), the most trackers
 that fit in :data:`CPU_BUDGET` of the cores at a rate (each costs per period its state's
 delivery, its command's publication, the plant's receipt and a command), and the default
-rate (the highest of :data:`RATES` that fits). The cache is
+rate (the highest of :data:`RATES` that fits); and the most tracker processes the bring-up
+starts (:func:`process_limit`): as many one-tracker processes as fit in the CPU budget at the
+lowest rate, and in :data:`MEMORY_BUDGET` of the memory available now. The cache is
 ``$XDG_CACHE_HOME/apf_swarm/probe.json`` (``~/.cache``), or ``$APF_SWARM_CACHE/probe.json``;
 it is measured again when the machine (CPU model, cores, host name) differs, or with
 ``--refresh``.
@@ -35,12 +39,17 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+import psutil
 
-__all__ = ['CPU_BUDGET', 'RATES', 'cache_path', 'machine', 'measure', 'load', 'ensure',
-           'derive', 'add_arguments', 'run']
+__all__ = ['CPU_BUDGET', 'MEMORY_BUDGET', 'RATES', 'cache_path', 'machine', 'measure', 'load',
+           'ensure', 'derive', 'process_limit', 'add_arguments', 'run']
 
 #: the share of the machine's cores the swarm's messages and commands may take
 CPU_BUDGET = 0.5
+#: the share of the memory available at start that the node processes may take
+MEMORY_BUDGET = 0.5
+#: what a cached probe must hold; one without all of them is measured again
+FIELDS = ('machine', 'rtt', 'cpu_per_message', 'command_cost', 'process_rss')
 #: the rates the default is chosen from [Hz], highest first
 RATES = (100.0, 50.0, 20.0)
 #: tracker counts whose command cost is measured (others are interpolated)
@@ -180,6 +189,7 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
             rclpy.spin_once(node, timeout_sec=max(0.0, min(nxt - time.monotonic(), 0.05)))
         count = step - count0
         cpu = _cpu_seconds(echo.pid) - cpu0
+        rss = psutil.Process(echo.pid).memory_info().rss
     finally:
         node.destroy_node()
         stop_process(echo)
@@ -189,7 +199,7 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
     return {'rate': rate, 'messages': count, 'round_trips': int(arr.size),
             'rtt': {q: round(float(np.quantile(arr, v)), 6)
                     for q, v in (('p50', 0.5), ('p90', 0.9), ('p99', 0.99))},
-            'cpu_per_message': round(cpu / max(1, 2 * count), 7)}
+            'cpu_per_message': round(cpu / max(1, 2 * count), 7), 'process_rss': int(rss)}
 
 
 def measure(seconds: float = 4.0, rate: float = 100.0, n: int = 16) -> dict[str, Any]:
@@ -213,7 +223,9 @@ def load() -> dict[str, Any] | None:
         probe = json.loads(cache_path().read_text())
     except (OSError, ValueError):
         return None
-    return probe if isinstance(probe, dict) and probe.get('machine') == machine() else None
+    if not isinstance(probe, dict) or any(k not in probe for k in FIELDS):
+        return None
+    return probe if probe['machine'] == machine() else None
 
 
 def ensure(refresh: bool = False, say: Callable[[str], None] | None = None
@@ -269,6 +281,20 @@ def derive(probe: dict[str, Any], n: int, rate: float | None = None) -> dict[str
             'utilization': round(use, 3), 'per_tracker_cpu': round(per_tracker, 7)}
 
 
+def process_limit(probe: dict[str, Any], available: int | None = None) -> dict[str, int]:
+    """The most tracker processes the bring-up starts without ``--allow-overload``.
+
+    ``cpu``: one-tracker processes that fit in :data:`CPU_BUDGET` of the cores at the lowest
+    of :data:`RATES` (:func:`derive`; a process of K trackers costs less); ``memory``: node
+    processes of the probe's resident set that fit in :data:`MEMORY_BUDGET` of ``available``
+    bytes (default: the memory available now); ``processes``: the smaller, at least 1."""
+    if available is None:
+        available = int(psutil.virtual_memory().available)
+    cpu = derive(probe, 1, RATES[-1])['capacity'][f'{RATES[-1]:g}']
+    memory = int(MEMORY_BUDGET * available / max(1, int(probe['process_rss'])))
+    return {'processes': max(1, min(cpu, memory)), 'cpu': cpu, 'memory': memory}
+
+
 def add_arguments(p: Any) -> None:
     """The options of ``apf-swarm probe``."""
     p.add_argument('--refresh', action='store_true', help='measure again')
@@ -282,7 +308,8 @@ def run(args: Any) -> int:
     probe = ensure(args.refresh, say=lambda s: print(f'apf-swarm probe: {s}', file=sys.stderr))
     d = derive(probe, args.n_trackers)
     if args.json:
-        print(json.dumps({'probe': probe, 'derived': d, 'n_trackers': args.n_trackers},
+        print(json.dumps({'probe': probe, 'derived': d, 'n_trackers': args.n_trackers,
+                          'process_limit': process_limit(probe)},
                          indent=2))
         return 0
     m, r = probe['machine'], probe['rtt']
@@ -292,6 +319,10 @@ def run(args: Any) -> int:
           f"{1e6 * probe['cpu_per_message']:.0f} us")
     print('  tracker command: ' + ', '.join(f'{1e6 * v:.0f} us for {k}' for k, v in
                                             probe['command_cost'].items()))
+    lim = process_limit(probe)
+    print(f"  memory per node process {probe['process_rss'] / 2**20:.0f} MiB; the bring-up "
+          f"starts up to {lim['processes']} tracker processes (CPU at {RATES[-1]:g} Hz: "
+          f"{lim['cpu']}, memory: {lim['memory']})")
     print(f"  {args.n_trackers} trackers: latency {1e3 * d['latency']:.2f} ms, default rate "
           f"{d['rate']:g} Hz; trackers that fit in {CPU_BUDGET:.0%} of the cores: "
           + ', '.join(f'{v} at {k} Hz' for k, v in d['capacity'].items()))

@@ -41,8 +41,9 @@ def fault_report(t: np.ndarray, active: np.ndarray | None, target_age: np.ndarra
     flags (T, n), the ``target_age`` (T,) and the cumulative ``stale_inputs`` count (T,) of
     ``/swarm/state``: when each tracker was inactive (silent past the deadline, zero force,
     out of the formation), when the target was silent (its state older than
-    :data:`TARGET_SILENT_AGE`) and when trackers sent the safe brake on stale inputs
-    (``stale``: the samples at which the count grew)."""
+    :data:`TARGET_SILENT_AGE`) and when trackers sent the safe brake on inputs that went
+    stale (``stale``: the samples at which the count grew; the plant does not count the
+    brakes a tracker sends before its first inputs)."""
     faults: dict[str, Any] = {'inactive': {}, 'target_silent': [], 'target_age_max': 0.0,
                               'stale': []}
     warnings: list[str] = []
@@ -69,13 +70,11 @@ def fault_report(t: np.ndarray, active: np.ndarray | None, target_age: np.ndarra
     if stale_inputs is not None and len(stale_inputs):
         count = np.asarray(stale_inputs, dtype=float)
         grew = np.diff(count, prepend=0.0) > 0
-        faults['stale'] = _intervals(t, grew)
-        # a span from the first sample is the start-up: trackers brake until their first
-        # odometry arrives; any later one is a fault during the flight
-        late = [span for span in faults['stale'] if span[0] > t[0]]
-        if late:
-            warnings.append(f'trackers braked on stale inputs {len(late)} time(s) during the '
-                            f'run, first at t = {late[0][0]:g} s ({int(count[-1])} stale '
+        spans = _intervals(t, grew)
+        faults['stale'] = spans
+        if spans:
+            warnings.append(f'trackers braked on stale inputs {len(spans)} time(s) during the '
+                            f'run, first at t = {spans[0][0]:g} s ({int(count[-1])} stale '
                             f'commands in all)')
     return faults, warnings
 
