@@ -141,6 +141,11 @@ class BringupRun:
         try:
             return self.popen.wait(timeout)
         except subprocess.TimeoutExpired:
+            # every thread's stack into its stderr (faulthandler on SIGUSR1), to say where
+            os.kill(self.popen.pid, signal.SIGUSR1)
+            end = time.monotonic() + 10.0
+            while 'most recent call first' not in self.stderr() and time.monotonic() < end:
+                time.sleep(0.05)
             raise AssertionError(f'the bring-up did not exit within {timeout:g} s\n--- stderr '
                                  f'---\n{self.stderr()}') from None
 

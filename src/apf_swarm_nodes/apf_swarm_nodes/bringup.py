@@ -42,6 +42,7 @@ the process supervision (:class:`Child`, :class:`ProcessGroup`), the graph expec
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import fcntl
 import math
 import os
@@ -1438,6 +1439,7 @@ def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
     Raises :class:`~apf_swarm_core.errors.ApfSwarmError` for bad input (before anything
     starts); the caller prints it and exits 2.
     """
+    faulthandler.register(signal.SIGUSR1, all_threads=True)   # a hung run says where
     cfg = resolve_config(args)
     check_capacity(cfg.n_trackers, allow_overload=args.allow_overload,
                    per_process=args.trackers_per_process,

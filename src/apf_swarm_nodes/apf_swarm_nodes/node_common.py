@@ -39,6 +39,7 @@ recorders and ``use_sim_time`` nodes).
 from __future__ import annotations
 
 import re
+import faulthandler
 import signal
 import sys
 import threading
@@ -194,6 +195,7 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, _stop_between_callbacks)
     signal.signal(signal.SIGTERM, _stop_between_callbacks)
+    faulthandler.register(signal.SIGUSR1, all_threads=True)   # a hung process says where
     nodes: list[Node] = []
     code = 0
     try:
