@@ -366,3 +366,20 @@ def test_trackers_of_one_process_share_the_newton_basis() -> None:
     assert b.basis is a.basis and db is da                   # computed once
     dc = b.direction(x + 0.1, np.zeros(3), p)                # new positions: recomputed
     assert b.basis is not a.basis and not np.array_equal(dc, da)
+
+
+def test_schedule_gains_keeps_a_holding_configuration_and_replaces_a_failing_one() -> None:
+    """What the bring-up flies: the preset as it is where it is predicted to hold (3 at
+    100 Hz, 5 ms), the proposed gains where it is not (16 at 20 Hz, 20 ms), and those then
+    hold with a smaller layer gain than the preset's."""
+    from apf_swarm_core.sampled import schedule_gains
+    base = load_preset('realtime')
+    held = base.replace(control_rate=100.0)
+    cfg, pred, gains, warnings = schedule_gains(held, latency=0.005)
+    assert cfg == held and gains is None and pred.holds and warnings == list(pred.warnings)
+    slow = base.replace(n_trackers=16, control_rate=20.0)
+    assert not predict(slow, latency=0.02).holds
+    cfg, pred, gains, _ = schedule_gains(slow, latency=0.02)
+    assert gains is not None and pred.holds
+    assert cfg.gamma == gains['gamma'] > base.gamma and cfg.phi == gains['phi']
+    assert pred.to_dict() == predict(cfg, latency=0.02).to_dict()

@@ -67,7 +67,7 @@ from .prediction import compensation_horizon
 __all__ = ['RELAY_LIMIT', 'NEWTON_LIMIT', 'DESIGN_MARGIN', 'SOFT_SETTLE', 'LAYER_WIDTH',
            'CASCADE', 'LAG_LIMIT', 'RIPPLE_FRACTION', 'SampledPrediction',
            'design_hessian_spectrum', 'effective_spectrum', 'loop_limit', 'mode_matrix',
-           'mode_radius', 'predict', 'propose_gains']
+           'mode_radius', 'predict', 'propose_gains', 'schedule_gains']
 
 #: the loop holds while K lambda_max (T + tau) stays below this (the sampled relay)
 RELAY_LIMIT = 2.5
@@ -389,3 +389,25 @@ def propose_gains(cfg: SwarmConfig, *, control_rate: float, latency: float,
                          f'{control_rate:g} Hz with {latency * 1e3:g} ms latency: even '
                          f'K = alpha = {cfg.alpha:g} is too fast; lower the latency')
     return tried[-1]
+
+
+def schedule_gains(cfg: SwarmConfig, *, latency: float
+                   ) -> tuple[SwarmConfig, SampledPrediction, dict[str, Any] | None, list[str]]:
+    """The configuration a realtime run flies at ``cfg.control_rate`` (> 0) with ``latency``:
+    the prediction of ``cfg``; when it does not hold, :func:`propose_gains` replaces gamma,
+    phi (and what they need) if the proposal predicts a smaller spectral radius or a smaller
+    steady lag. Returns ``(cfg, prediction, gains or None, warnings)``; the warnings are the
+    kept prediction's plus a failed proposal's reason."""
+    pred = predict(cfg, latency=latency)
+    if pred.holds:
+        return cfg, pred, None, list(pred.warnings)
+    try:
+        gains = propose_gains(cfg, control_rate=cfg.control_rate, latency=latency)
+    except ValueError as exc:
+        return cfg, pred, None, [*pred.warnings, str(exc)]
+    tuned = cfg.replace(**gains)
+    tuned_pred = predict(tuned, latency=latency)
+    if tuned_pred.spectral_radius < pred.spectral_radius or \
+            tuned_pred.steady_lag < pred.steady_lag:
+        return tuned, tuned_pred, dict(gains), list(tuned_pred.warnings)
+    return cfg, pred, None, list(pred.warnings)

@@ -923,7 +923,7 @@ class Bringup:
     def realtime_check(self) -> None:
         """Realtime: the sampled-data prediction before the run (printed, and kept for
         summary.json); with ``--gains auto`` a failing one is replaced by designed gains."""
-        from apf_swarm_core.sampled import predict, propose_gains
+        from apf_swarm_core.sampled import predict, schedule_gains
 
         from . import probe
         cfg = self.cfg
@@ -950,25 +950,20 @@ class Bringup:
                      f'control_rate=HZ: ' + ', '.join(f'{v} at {k} Hz' for k, v in
                                                       measured['capacity'].items())
                      + ') or fewer trackers')
-        pred = predict(cfg, latency=latency)
-        if not pred.holds and getattr(self.args, 'gains', 'auto') == 'auto':
-            try:
-                gains = propose_gains(cfg, control_rate=cfg.control_rate, latency=latency)
-            except ValueError as exc:
-                self.say(f'warning: {exc}')
-            else:
-                tuned = cfg.replace(**gains)
-                tuned_pred = predict(tuned, latency=latency)
-                if tuned_pred.spectral_radius < pred.spectral_radius or \
-                        tuned_pred.steady_lag < pred.steady_lag:
-                    self.say('scheduled gains for ' f'{cfg.n_trackers} trackers at '
-                             f'{cfg.control_rate:g} Hz, {latency * 1e3:g} ms (the '
-                             'configuration\'s are predicted to lose the formation; '
-                             '--gains config keeps them): ' + ', '.join(
-                                 f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
-                                 for k, v in gains.items()))
-                    self.gains_scheduled, cfg, pred = gains, tuned, tuned_pred
-        for w in pred.warnings:
+        if getattr(self.args, 'gains', 'auto') == 'auto':
+            cfg, pred, gains, warnings = schedule_gains(cfg, latency=latency)
+        else:
+            pred = predict(cfg, latency=latency)
+            gains, warnings = None, list(pred.warnings)
+        if gains:
+            self.say('scheduled gains for ' f'{cfg.n_trackers} trackers at '
+                     f'{cfg.control_rate:g} Hz, {latency * 1e3:g} ms (the '
+                     'configuration\'s are predicted to lose the formation; '
+                     '--gains config keeps them): ' + ', '.join(
+                         f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
+                         for k, v in gains.items()))
+            self.gains_scheduled = gains
+        for w in warnings:
             self.say(f'warning: {w}')
         self.cfg = cfg
         self.prediction = pred
