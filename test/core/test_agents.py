@@ -262,6 +262,19 @@ def test_plant_counts_stale_brakes_only_after_a_tracker_has_commanded(cfg) -> No
     assert p.stale == 4
 
 
+def test_the_realtime_clock_waits_for_the_trackers_that_have_not_commanded(cfg) -> None:
+    p = PlantModel(cfg)
+    f = np.ones(3)
+    assert p.uncommanded() == [1, 2, 3]
+    assert p.offer_command(2, 0, f, f, stale=True)       # a brake: no inputs yet
+    assert p.offer_command(3, 0, f, f)
+    assert p.uncommanded() == [1, 2]
+    p.deactivate([1])                                    # inactive ones are not waited for
+    assert p.uncommanded() == [2]
+    assert p.offer_command(2, 1, f, f)
+    assert p.uncommanded() == []
+
+
 def test_realtime_expiry_zeroes_first_and_deactivates_later(cfg) -> None:
     """Judged against publications: a tracker that has not answered the state published
     0.1 s ago gets zero force; not answered one published 1 s ago, it is inactive."""

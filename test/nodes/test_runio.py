@@ -1,4 +1,5 @@
-"""The fault report of summary.json (apf_swarm_nodes.runio.fault_report), without ROS."""
+"""Run outputs without ROS: the fault report of summary.json (runio.fault_report) and when
+the accumulated /swarm/state is complete (bringup.StateAccumulator)."""
 
 from __future__ import annotations
 
@@ -28,3 +29,21 @@ def test_stale_brakes_during_the_flight_are_a_warning() -> None:
     assert faults['stale'] == [[0.4, 0.5], [0.8, 0.8]]
     assert len(warnings) == 1
     assert '2 time(s)' in warnings[0] and 't = 0.4' in warnings[0] and '7 stale' in warnings[0]
+
+
+def test_a_realtime_run_is_complete_with_the_plants_final_state() -> None:
+    """Lockstep ends with step ``steps - 1``; realtime with the state at physics step
+    ``steps`` (the plant's clock starts once every tracker commands, so wall time alone
+    does not say when its run ends)."""
+    from types import SimpleNamespace
+
+    from apf_swarm_nodes.bringup import StateAccumulator
+    lock, real = StateAccumulator('lockstep', 100), StateAccumulator('realtime', 100)
+    for step in range(100):
+        lock.add(SimpleNamespace(step=step))
+    assert lock.complete
+    for step in (0, 10, 55, 99):
+        real.add(SimpleNamespace(step=step))
+    assert not real.complete
+    real.add(SimpleNamespace(step=100))
+    assert real.complete and real.repeated == 0

@@ -405,6 +405,10 @@ class PlantModel:
             self.stale += 1
         return True
 
+    def uncommanded(self) -> list[int]:
+        """Active trackers whose process has not yet commanded from its inputs."""
+        return [i for i in self.ids if self.active[i - 1] and i not in self.commanded]
+
     def missing(self, step: int) -> list[int]:
         """Active trackers whose command for ``step`` has not arrived (inactive ones are not
         waited for)."""

@@ -16,7 +16,8 @@ What a run does, in order:
    ``spin_once`` loop; then publish ``/swarm/start`` once (reliable, transient local);
 5. accumulate ``/swarm/state`` (:class:`StateAccumulator`) with a progress line about once a
    second, supervising the children (respawn or stop), until the run ends: lockstep when the
-   sample of step ``steps - 1`` arrived, realtime ``duration`` wall seconds after the start;
+   sample of step ``steps - 1`` arrived, realtime when the plant's final state arrived (its
+   clock starts once every tracker commands from its inputs, node parameter ``arm_timeout``);
 6. stop every child (:class:`ProcessGroup`: SIGINT to its group, then SIGTERM, then SIGKILL,
    each bounded) and check by PID that nothing is left;
 7. write ``trajectory.npz`` and ``summary.json`` (the schema of ``apf-swarm simulate`` plus the
@@ -528,7 +529,9 @@ class StateAccumulator:
 
     @property
     def complete(self) -> bool:
-        return self.mode == 'lockstep' and self.last_step >= self.steps - 1
+        """The plant's last state arrived: lockstep step ``steps - 1``; realtime the state
+        at the end of the run (its physics step reaches ``steps``)."""
+        return self.last_step >= (self.steps - 1 if self.mode == 'lockstep' else self.steps)
 
     def kept(self) -> list[Any]:
         """The samples of the trajectory, as arrays."""
@@ -1219,7 +1222,13 @@ class Bringup:
                 self.supervise()
             if self.acc.complete:
                 return
-            if self.mode == 'realtime' and now - self.t_start >= self.cfg.duration:
+            # realtime: the plant's clock starts once every tracker commands, so the run
+            # ends with its final state; a plant that never gets there is cut off a stall
+            # timeout after the duration
+            if self.mode == 'realtime' and \
+                    now - self.t_start >= self.cfg.duration + self.args.stall_timeout:
+                self.say(f'warning: no final state from the plant {self.args.stall_timeout:g} '
+                         f's after the duration; stopping')
                 return
             last_msg = self.acc.last_time if self.acc.last_time is not None else self.t_start
             if now - last_msg >= self.args.stall_timeout:

@@ -73,6 +73,10 @@ NODE_PARAMS = (
               'ago than this gets zero force instead of its held bang-bang command (25 N held '
               'for 1 s would fling a 1 kg UAV 12 m) [s of wall time]', lo=0.001, hi=60.0),
     NodeParam('physics_rate', 200.0, 'realtime: physics timer rate [Hz]', lo=1.0, hi=5000.0),
+    NodeParam('arm_timeout', 10.0, 'realtime: after the start the clock waits until every '
+              'tracker has commanded from its inputs (odometry goes out, the UAVs hold '
+              'still), at most this long; then it starts without the silent ones (warned) '
+              '[s of wall time]', lo=0.0, hi=600.0),
     NodeParam('markers_rate', 10.0, '/swarm/markers (visualization_msgs/MarkerArray) per second '
               'of simulated (lockstep) or wall (realtime) time; 0 turns them off', lo=0.0,
               hi=1000.0),
@@ -92,6 +96,7 @@ class PlantNode(Node):
         self.mode = p['mode']
         self.timeout = float(p['command_timeout'])
         self.stale_after = float(p['stale_after'])
+        self.arm_timeout = float(p['arm_timeout'])
         self.inputs = p['inputs']
         self.waiting_for_match = False
         self.republished = False
@@ -124,6 +129,8 @@ class PlantNode(Node):
         self.target = (-1, np.zeros(3), np.zeros(3), 0.0)   # step, x, v, received
         self.targets: dict[int, tuple] = {}   # lockstep: target states by step, k..requested
         self.running = False
+        self.clock_started = False      # realtime: the physics clock runs (see _arm)
+        self.arm_deadline = 0.0
         self.done = False
         self.published_final = False
         self.step_started = 0.0
@@ -165,7 +172,28 @@ class PlantNode(Node):
             self.waiting_for_match = True
             self._start_when_matched()
         else:
-            self.wall0 = time.monotonic()
+            self.arm_deadline = time.monotonic() + self.arm_timeout
+            self._arm()
+
+    def _arm(self) -> bool:
+        """Realtime: start the physics clock once every tracker has commanded from its
+        inputs (both directions of its loop work), or at ``arm_timeout``; True once it runs.
+        Until then odometry goes out with the UAVs held still, so no tracker is judged late
+        for the time its first messages take to match."""
+        if self.clock_started:
+            return True
+        now = time.monotonic()
+        waiting = self.model.uncommanded()
+        if waiting and now < self.arm_deadline:
+            return False
+        self.clock_started, self.wall0 = True, now
+        if waiting:
+            self.get_logger().warn(
+                f'clock started after arm_timeout = {self.arm_timeout:g} s without a command '
+                f'from {[f"uav_{i}" for i in waiting]}')
+        else:
+            self.get_logger().info('clock started: every tracker commands')
+        return True
 
     def _matched(self) -> bool:
         """Lockstep: every tracker's command has a publisher and every step-k reader a match."""
@@ -258,7 +286,7 @@ class PlantNode(Node):
         was_active = bool(self.model.active[f.uav_id - 1])
         now = time.monotonic()
         latency = 0.0
-        if self.mode == 'realtime' and self.running and not self.done:
+        if self.mode == 'realtime' and self.clock_started and not self.done:
             # the held commands act up to this instant, the new one from here on
             self.model.advance_to(now - self.wall0)
             latency = (self.get_clock().now().nanoseconds - stamp_ns(msg.header.stamp)) * 1e-9
@@ -386,7 +414,7 @@ class PlantNode(Node):
 
     # --- realtime ------------------------------------------------------------------------
     def _on_physics(self) -> None:
-        if not self.running or self.done:
+        if not self.running or self.done or not self._arm():
             return
         now = time.monotonic()
         newly = self.model.expire(now, self.stale_after, self.timeout)
@@ -406,8 +434,12 @@ class PlantNode(Node):
     def _on_publish(self) -> None:
         if not self.running or self.published_final or self.target[3] == 0.0:
             return  # not started, finished, or no target state yet
-        self.published_final = self.done   # the state at the end of the run goes out once
         stamp = self.get_clock().now().to_msg()
+        if not self._arm():
+            self._publish_odoms(stamp)          # the trackers' first inputs; no state yet
+            self._publish_swarm_odom(self.model.k, stamp)
+            return
+        self.published_final = self.done   # the state at the end of the run goes out once
         self._publish_odoms(stamp)
         self._publish_swarm_odom(self.model.k, stamp)
         self.model.published(time.monotonic())
