@@ -26,6 +26,7 @@ import pytest
 from apf_swarm_core.config import load_config
 from apf_swarm_core.simulator import TRAJECTORY_KEYS, simulate
 from apf_swarm_nodes.bringup import pick_domain_id
+from apf_swarm_nodes.runio import RUN_ARRAYS
 
 ROOT = Path(__file__).resolve().parents[2]
 SWARM_UP = ROOT / 'scripts' / 'swarm_up.py'
@@ -250,7 +251,10 @@ def test_lockstep_bringup_forms_the_triangle_and_equals_the_simulator(bringup) -
     assert summary['missed_deadlines'] == 0
     assert summary['messages']['received'] == summary['messages']['expected'] == 4000
     assert summary['messages']['dropped'] == 0
-    assert set(ros) == set(TRAJECTORY_KEYS)          # the schema of trajectory.npz
+    # the schema of trajectory.npz, plus the run's per-sample arrays
+    assert set(ros) == set(TRAJECTORY_KEYS) | set(RUN_ARRAYS)
+    assert ros['active'].shape == ros['command_latency'].shape == ros['x'].shape[:2]
+    assert ros['active'].all() and not ros['stale_inputs'].any()
     for key in TRAJECTORY_KEYS:
         ref = sim.trajectory[key]
         assert ros[key].shape == np.shape(ref), key

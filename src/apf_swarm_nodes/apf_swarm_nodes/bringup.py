@@ -556,7 +556,7 @@ class StateAccumulator:
                 'u': np.stack([s.u for s in kept]), 's': np.stack([s.s for s in kept]),
                 'target_x': np.stack([s.target_x for s in kept]),
                 'target_v': np.stack([s.target_v for s in kept]),
-                # not saved to trajectory.npz: the fault report of summary.json
+                # the per-sample arrays of a ROS run (runio.RUN_ARRAYS)
                 'active': np.array([s.active or (True,) * n for s in kept], dtype=bool),
                 'target_age': np.array([s.target_age for s in kept], dtype=float),
                 'stale_inputs': np.array([s.stale_inputs for s in kept], dtype=int),

@@ -15,7 +15,12 @@ from apf_swarm_core.simulator import TRAJECTORY_KEYS
 from .errors import CliError
 
 __all__ = ['write_run', 'read_trajectory', 'format_summary', 'run_summary', 'fault_report',
-           'TARGET_SILENT_AGE']
+           'TARGET_SILENT_AGE', 'RUN_ARRAYS']
+
+#: per-sample arrays of a ROS run written to trajectory.npz besides the simulator's: active
+#: flags (T, n), target age (T,) [s], each tracker's latest command latency (T, n) [s], the
+#: cumulative stale-brake count (T,)
+RUN_ARRAYS = ('active', 'target_age', 'command_latency', 'stale_inputs')
 
 #: a target state older than this [s] counts as the target being silent in the fault report
 #: (ten periods of the realtime publish rate of 100 Hz; 100 steps of 1 ms in lockstep)
@@ -82,10 +87,15 @@ def fault_report(t: np.ndarray, active: np.ndarray | None, target_age: np.ndarra
 
 def write_run(out: Path, traj: Mapping[str, Any], summary: Mapping[str, Any],
               cfg: SwarmConfig | None = None) -> dict[str, Path]:
-    """Write ``trajectory.npz``, ``summary.json`` and (with ``cfg``) ``config.yaml`` into out."""
+    """Write ``trajectory.npz``, ``summary.json`` and (with ``cfg``) ``config.yaml`` into out.
+
+    ``trajectory.npz`` holds the arrays of the simulator's schema and, from a ROS run, the
+    per-sample :data:`RUN_ARRAYS` there are (what the fault report and the latency come
+    from, kept so that a run can be examined in time)."""
     out.mkdir(parents=True, exist_ok=True)
     paths = {'trajectory': out / 'trajectory.npz', 'summary': out / 'summary.json'}
-    np.savez(paths['trajectory'], **{k: np.asarray(traj[k]) for k in TRAJECTORY_KEYS})
+    keys = [*TRAJECTORY_KEYS, *(k for k in RUN_ARRAYS if k in traj)]
+    np.savez(paths['trajectory'], **{k: np.asarray(traj[k]) for k in keys})
     paths['summary'].write_text(json.dumps(summary, indent=2) + '\n')
     if cfg is not None:
         paths['config'] = out / 'config.yaml'
