@@ -8,7 +8,7 @@ step in integer nanoseconds), so the step of a message is ``stamp_ns // dt_ns`` 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -18,6 +18,9 @@ from numpy.typing import NDArray
 from rosgraph_msgs.msg import Clock
 
 from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
+
+if TYPE_CHECKING:       # imported where markers are built: most processes never do
+    from visualization_msgs.msg import MarkerArray
 
 __all__ = ['WORLD', 'dt_to_ns', 'step_stamp', 'stamp_ns', 'step_of', 'odom_msg', 'odom_arrays',
            'force_msg', 'ForceArrays', 'force_arrays', 'clock_msg', 'swarm_state_msg',
@@ -289,7 +292,7 @@ def swarm_odom_arrays(msg: SwarmOdometry) -> SwarmOdom:
 
 
 def markers_msg(x: NDArray[np.float64], target_x: NDArray[np.float64], stamp: Time,
-                uav_ids: Sequence[int]) -> 'MarkerArray':
+                uav_ids: Sequence[int]) -> MarkerArray:
     """``visualization_msgs/MarkerArray`` for RViz / Foxglove: a sphere per tracker (blue),
     the target (red) and the formation outline (a closed line through the trackers)."""
     from geometry_msgs.msg import Point as P
