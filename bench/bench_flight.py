@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import statistics
 import sys
 import time
@@ -42,6 +40,7 @@ from apf_swarm_core.config import apply_overrides, load_preset, parse_set  # noq
 from apf_swarm_core.metrics import flight  # noqa: E402
 from apf_swarm_core.sampled import schedule_gains  # noqa: E402
 from apf_swarm_core.simulator import design_pair_sets, simulate_batch  # noqa: E402
+from bench_simulator import machine  # noqa: E402  (this directory: CPU, cores, numpy)
 
 #: the variants of docs/PERFORMANCE.md, "Real-time flight": keys over the realtime preset
 VARIANTS: dict[str, dict[str, Any]] = {
@@ -145,15 +144,8 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         log(f'[{i}/{len(cases)}] n={n} {rate:g} Hz {1e3 * lat:g} ms {v}: {row["flies"]}/'
             f'{args.seeds} fly ({time.perf_counter() - t:.0f} s)')
-    cpu = platform.processor() or platform.machine()
-    try:
-        cpu = next(line.split(':', 1)[1].strip() for line in
-                   Path('/proc/cpuinfo').read_text().splitlines()
-                   if line.startswith('model name'))
-    except (OSError, StopIteration):
-        pass
     print(f'Emulation, {args.seeds} seeds, {args.duration:g} s, gains scheduled as the '
-          f'bring-up does; {cpu}, {os.cpu_count()} cores, {time.perf_counter() - t0:.0f} s'
+          f'bring-up does; {machine()}, {time.perf_counter() - t0:.0f} s'
           + (f'; --set {" ".join(args.sets)}' if args.sets else '') + '\n')
     print('| trackers | rate, latency | variant | flies | formation error RMS (median, worst) '
           '| closest pair (worst) | converged after (median, last) | gains |')

@@ -271,8 +271,11 @@ def test_the_realtime_clock_waits_for_the_trackers_that_have_not_commanded(cfg) 
     assert p.uncommanded() == [1, 2]
     p.deactivate([1])                                    # inactive ones are not waited for
     assert p.uncommanded() == [2]
+    assert p.clock_start(5.0, deadline=10.0) is None         # uav_2 still waited for
+    assert p.clock_start(10.0, deadline=10.0) == [2]         # the deadline: without it
     assert p.offer_command(2, 1, f, f)
     assert p.uncommanded() == []
+    assert p.clock_start(5.0, deadline=10.0) == []           # every tracker commands
 
 
 def test_realtime_expiry_zeroes_first_and_deactivates_later(cfg) -> None:

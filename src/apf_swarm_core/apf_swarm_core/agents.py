@@ -409,6 +409,14 @@ class PlantModel:
         """Active trackers whose process has not yet commanded from its inputs."""
         return [i for i in self.ids if self.active[i - 1] and i not in self.commanded]
 
+    def clock_start(self, now: float, deadline: float) -> list[int] | None:
+        """Realtime: whether the physics clock may start at ``now``: None while an active
+        tracker has not yet commanded from its inputs and ``deadline`` has not passed (its
+        first messages may still be matching; the UAVs hold still); else the trackers it
+        starts without (empty when every one commands)."""
+        waiting = self.uncommanded()
+        return None if waiting and now < deadline else waiting
+
     def missing(self, step: int) -> list[int]:
         """Active trackers whose command for ``step`` has not arrived (inactive ones are not
         waited for)."""

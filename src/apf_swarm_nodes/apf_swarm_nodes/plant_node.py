@@ -183,8 +183,8 @@ class PlantNode(Node):
         if self.clock_started:
             return True
         now = time.monotonic()
-        waiting = self.model.uncommanded()
-        if waiting and now < self.arm_deadline:
+        waiting = self.model.clock_start(now, self.arm_deadline)
+        if waiting is None:
             return False
         self.clock_started, self.wall0 = True, now
         if waiting:
@@ -435,13 +435,12 @@ class PlantNode(Node):
         if not self.running or self.published_final or self.target[3] == 0.0:
             return  # not started, finished, or no target state yet
         stamp = self.get_clock().now().to_msg()
-        if not self._arm():
-            self._publish_odoms(stamp)          # the trackers' first inputs; no state yet
-            self._publish_swarm_odom(self.model.k, stamp)
-            return
-        self.published_final = self.done   # the state at the end of the run goes out once
+        armed = self._arm()
         self._publish_odoms(stamp)
         self._publish_swarm_odom(self.model.k, stamp)
+        if not armed:
+            return      # the trackers' first inputs went out; no state before the clock runs
+        self.published_final = self.done   # the state at the end of the run goes out once
         self.model.published(time.monotonic())
         self._publish_state(self._state_of(self.model.k), stamp)
 
