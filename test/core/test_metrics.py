@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from apf_swarm_core.metrics import (SUMMARY_KEYS, centroid_error, formation_error,
+from apf_swarm_core.metrics import (SUMMARY_KEYS, centroid_error, flight, formation_error,
                                     heading_rate, hf_velocity_rms, moving_average,
-                                    pair_distances, potential_series, steady_slice, summarize,
-                                    time_to_converge)
+                                    nearest_design, pair_distances, potential_series,
+                                    steady_slice, summarize, time_to_converge)
 from apf_swarm_core.potential import potential
 
 
@@ -147,3 +147,29 @@ def test_summarize_on_a_perfect_formation():
     assert s['chattering']['heading_rate'] < 1e-9
     assert s['duration'] == pytest.approx(4.0)
     assert s['n_trackers'] == 3 and s['warnings'] == []
+
+
+def test_summary_and_flight_judge_the_nearest_of_several_designs():
+    # a square settled at side 1: of two designs (the square, and the pairs of a wider one),
+    # summary and flight both pick the square, so both say converged
+    T = 50
+    sq = np.array([[0.0, 0, 5], [1, 0, 5], [1, 1, 5], [0, 1, 5]])
+    x = np.tile(sq - sq.mean(axis=0) + [0, 0, 5], (T, 1, 1))
+    tx = np.tile([0.0, 0, 5], (T, 1))
+    traj = {'t': np.arange(T) * 0.01, 'x': x, 'v': np.zeros_like(x), 'target_x': tx,
+            'target_v': np.zeros_like(tx)}
+    square = pair_distances(sq)
+    wide = 1.3 * square
+    params = dict(k_n=1.0, k_f=1.0, a=1.0, b=6.0, c=1.7)
+    for designs in ([wide, square], [square, wide]):
+        s = summarize(traj, law='proposed', dt=0.01, seed=1, potential_params=params,
+                      expected_pairs=designs)
+        f = flight(traj, designs)
+        assert s['converged'] is True and f['converged'] is True and f['flies'] is True
+        assert s['formation']['error_rms_steady'] < 1e-12
+        assert nearest_design(x, designs) is not None
+        assert np.array_equal(nearest_design(x, designs), square)
+    s = summarize(traj, law='proposed', dt=0.01, seed=1, potential_params=params,
+                  expected_pairs=[wide])
+    assert s['converged'] is False and not flight(traj, [wide])['flies']
+    assert nearest_design(x, []) is None

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = ['centroid_error', 'pair_distances', 'formation_error', 'potential_series',
            'moving_average', 'hf_velocity_rms', 'heading_rate', 'steady_slice',
-           'time_to_converge', 'summarize', 'SUMMARY_KEYS', 'FLIGHT_CRITERIA',
+           'time_to_converge', 'nearest_design', 'summarize', 'SUMMARY_KEYS', 'FLIGHT_CRITERIA',
            'flight']
 
 #: top-level keys of summary.json, in order (a stable schema shared with the bag tools)
@@ -172,8 +172,21 @@ def _f(value: float | None) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
 
+def nearest_design(x: ArrayLike, designs: list[ArrayLike]) -> NDArray[np.float64] | None:
+    """Of several designs' pair distances (the minima of J a swarm may settle in), the one
+    whose :func:`formation_error` over the positions ``x (T, n, 3)`` has the smallest RMS;
+    ``None`` when there is none."""
+    best, best_rms = None, math.inf
+    for e in designs:
+        rms = float(np.sqrt(np.mean(formation_error(x, e) ** 2)))
+        if best is None or rms < best_rms:
+            best, best_rms = np.asarray(e, dtype=float), rms
+    return best
+
+
 def summarize(traj: Mapping[str, Any], *, law: str, dt: float, seed: int,
-              potential_params: Mapping[str, float], expected_pairs: ArrayLike | None,
+              potential_params: Mapping[str, float],
+              expected_pairs: ArrayLike | list[ArrayLike] | None,
               steady_fraction: float = 0.25, centroid_tol: float = 0.5,
               formation_tol: float = 0.05, chatter_window: float = 0.1,
               warnings: list[str] | None = None) -> dict[str, Any]:
@@ -182,7 +195,9 @@ def summarize(traj: Mapping[str, Any], *, law: str, dt: float, seed: int,
     ``converged`` is true when, over the steady window, the centroid error stays below
     ``centroid_tol`` [m] and (when the design has a spacing) the formation error stays below
     ``formation_tol`` times the design spacing. ``time_to_converge`` is the first time after
-    which both hold until the end.
+    which both hold until the end. ``expected_pairs`` may be a list of designs, as for
+    :func:`flight`: the run is summarized against the one nearest over the steady window
+    (:func:`nearest_design`), so that summary and flight verdict judge one design.
     """
     t = np.asarray(traj['t'], dtype=float)
     x = np.asarray(traj['x'], dtype=float)
@@ -196,6 +211,8 @@ def summarize(traj: Mapping[str, Any], *, law: str, dt: float, seed: int,
     j = potential_series(x, tx, potential_params)
     dj = np.diff(j)
     ok = ce <= centroid_tol
+    if isinstance(expected_pairs, list):
+        expected_pairs = nearest_design(x[st], expected_pairs)
     formation: dict[str, Any] = {
         'pair_distance_min': _f(pd[st].min()) if pd.size else None,
         'pair_distance_max': _f(pd[st].max()) if pd.size else None,

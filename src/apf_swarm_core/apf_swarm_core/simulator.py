@@ -362,7 +362,7 @@ class SimResult:
                                                     for k, v in self.trajectory.items()}
         return summarize(traj, law=cfg.law, dt=cfg.dt, seed=cfg.seed,
                          potential_params=cfg.potential_params(),
-                         expected_pairs=expected_pairs(cfg),
+                         expected_pairs=design_pair_sets(cfg),
                          steady_fraction=cfg.steady_fraction, warnings=warnings)
 
 

@@ -116,7 +116,7 @@ def run_summary(traj: Mapping[str, Any], cfg: SwarmConfig, *, status: str = 'com
     """
     from apf_swarm_core.checks import check_config
     from apf_swarm_core.metrics import summarize
-    from apf_swarm_core.simulator import expected_pairs
+    from apf_swarm_core.simulator import design_pair_sets
 
     warnings = list(check_config(cfg).warnings)
     if status != 'completed':
@@ -131,7 +131,7 @@ def run_summary(traj: Mapping[str, Any], cfg: SwarmConfig, *, status: str = 'com
                                           traj.get('target_age'), traj.get('stale_inputs'))
     summary = summarize({k: traj[k] for k in TRAJECTORY_KEYS}, law=cfg.law, dt=cfg.dt,
                         seed=cfg.seed, potential_params=cfg.potential_params(),
-                        expected_pairs=expected_pairs(cfg),
+                        expected_pairs=design_pair_sets(cfg),
                         steady_fraction=cfg.steady_fraction,
                         warnings=warnings + fault_warnings)
     summary['faults'] = faults
