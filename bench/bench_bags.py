@@ -64,6 +64,7 @@ def cpu_seconds(pid: int) -> float:
 def odom_bytes() -> bytes:
     from nav_msgs.msg import Odometry
     from rclpy.serialization import serialize_message
+
     m = Odometry()
     m.header.frame_id = 'world'
     m.child_frame_id = 'uav_1'
@@ -74,14 +75,23 @@ def odom_bytes() -> bytes:
 
 def qos_reliable():
     from apf_swarm_nodes import bags
-    return bags.qos_from_dict({'history': 'keep_last', 'depth': 1000,
-                               'reliability': 'reliable', 'durability': 'volatile'})
+
+    return bags.qos_from_dict(
+        {
+            'history': 'keep_last',
+            'depth': 1000,
+            'reliability': 'reliable',
+            'durability': 'volatile',
+        }
+    )
 
 
 # --------------------------------------------------------------------------------------------
 
+
 def bench_ceiling(tmp: Path, n: int) -> dict:
     from apf_swarm_nodes import bags
+
     data = odom_bytes()
     w = bags.BagWriter(tmp / 'ceiling')
     w.open()
@@ -91,8 +101,13 @@ def bench_ceiling(tmp: Path, n: int) -> dict:
         w.write(conn, T0 + i * 1000, data)
     w.close()
     cpu, wall = time.process_time() - c0, time.perf_counter() - t0
-    return {'n': n, 'size': len(data), 'rate': n / wall, 'cpu_us': 1e6 * cpu / n,
-            'mb_s': n * len(data) / wall / 1e6}
+    return {
+        'n': n,
+        'size': len(data),
+        'rate': n / wall,
+        'cpu_us': 1e6 * cpu / n,
+        'mb_s': n * len(data) / wall / 1e6,
+    }
 
 
 class Ros:
@@ -103,9 +118,13 @@ class Ros:
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
+
         self.domain = domain
-        self.env = {**os.environ, 'ROS_DOMAIN_ID': str(domain),
-                    'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+        self.env = {
+            **os.environ,
+            'ROS_DOMAIN_ID': str(domain),
+            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+        }
         self.ctx = Context()
         rclpy.init(context=self.ctx, domain_id=domain)
         self.node = Node('bench_bags', context=self.ctx)
@@ -121,6 +140,7 @@ class Ros:
 
     def close(self) -> None:
         import rclpy
+
         self.ex.shutdown()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.ctx)
@@ -128,30 +148,37 @@ class Ros:
 
 def exe(name: str) -> str:
     from ament_index_python.packages import get_package_prefix
+
     return str(Path(get_package_prefix('apf_swarm_nodes')) / 'lib' / 'apf_swarm_nodes' / name)
 
 
 def stop(p: subprocess.Popen, timeout: float = 30.0) -> int | None:
     from apf_swarm_nodes.bringup import stop_process
+
     return stop_process(p, ((signal.SIGINT, timeout), (signal.SIGKILL, 5.0)))
 
 
 def bench_recorder(tmp: Path, ros: Ros, rate: float, seconds: float) -> dict:
-    from rclpy.qos import QoSProfile
     from nav_msgs.msg import Odometry
+    from rclpy.qos import QoSProfile
+
     bag = tmp / f'rec_{int(rate)}'
     log_path = tmp / f'rec_{int(rate)}.log'
     with open(log_path, 'wb') as lf:
-        p = subprocess.Popen([exe('recorder'), '--ros-args', '-p', f'output:={bag}',
-                              '-p', 'topics:=[/bench/odom]'], env=ros.env, stdout=lf,
-                             stderr=subprocess.STDOUT, start_new_session=True)
+        p = subprocess.Popen(
+            [exe('recorder'), '--ros-args', '-p', f'output:={bag}', '-p', 'topics:=[/bench/odom]'],
+            env=ros.env,
+            stdout=lf,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
     pub = ros.node.create_publisher(Odometry, '/bench/odom', QoSProfile(depth=1000))
     try:
         ros.spin_until(lambda: pub.get_subscription_count() >= 1, 30, 'the recorder')
-        time.sleep(0.5)   # let its discovery settle before measuring CPU
+        time.sleep(0.5)  # let its discovery settle before measuring CPU
         idle0 = cpu_seconds(p.pid)
         time.sleep(1.0)
-        idle = cpu_seconds(p.pid) - idle0   # CPU per second with nothing to record
+        idle = cpu_seconds(p.pid) - idle0  # CPU per second with nothing to record
         data = odom_bytes()
         n = int(rate * seconds)
         cpu0 = cpu_seconds(p.pid)
@@ -172,20 +199,44 @@ def bench_recorder(tmp: Path, ros: Ros, rate: float, seconds: float) -> dict:
         if p.poll() is None:
             stop(p)
     import yaml
+
     meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     c = json.loads(meta['custom_data']['apf_swarm.recorder'])
-    return {'rate': rate, 'achieved': n / wall, 'sent': n, 'received': c['received'],
-            'written': c['written'], 'lost': c['lost'], 'dropped': n - c['written'],
-            'cpu_us': 1e6 * busy / max(1, c['written']), 'cpu_pct': 100 * cpu / (wall + 2.0),
-            'idle_pct': 100 * idle, 'rc': rc}
+    return {
+        'rate': rate,
+        'achieved': n / wall,
+        'sent': n,
+        'received': c['received'],
+        'written': c['written'],
+        'lost': c['lost'],
+        'dropped': n - c['written'],
+        'cpu_us': 1e6 * busy / max(1, c['written']),
+        'cpu_pct': 100 * cpu / (wall + 2.0),
+        'idle_pct': 100 * idle,
+        'rc': rc,
+    }
 
 
 def bench_swarm(tmp: Path, publish_rate: float, seconds: float, domain: int) -> dict:
     out = tmp / f'swarm_{int(publish_rate)}'
-    argv = [sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--preset', 'realtime',
-            '--mode', 'realtime', '--duration', str(seconds), '--record', '--no-plots',
-            '--domain-id', str(domain), '--out', str(out),
-            '--node-param', f'publish_rate:={publish_rate}']
+    argv = [
+        sys.executable,
+        str(ROOT / 'scripts' / 'swarm_up.py'),
+        '--preset',
+        'realtime',
+        '--mode',
+        'realtime',
+        '--duration',
+        str(seconds),
+        '--record',
+        '--no-plots',
+        '--domain-id',
+        str(domain),
+        '--out',
+        str(out),
+        '--node-param',
+        f'publish_rate:={publish_rate}',
+    ]
     t0 = time.perf_counter()
     p = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 120, cwd=ROOT)
     wall = time.perf_counter() - t0
@@ -194,13 +245,21 @@ def bench_swarm(tmp: Path, publish_rate: float, seconds: float, domain: int) -> 
         return {'publish_rate': publish_rate, 'error': f'exit {p.returncode}'}
     s = json.loads((out / 'summary.json').read_text())
     from apf_swarm_nodes import bags
+
     info = bags.open_bag(out / 'bag')
     r = s['recording']
-    return {'publish_rate': publish_rate, 'wall': wall, 'messages': info.count,
-            'rate': info.count / max(info.duration, 1e-9), 'received': r['received'],
-            'written': r['written'], 'lost': r['lost'], 'dropped': r['dropped'],
-            'state_live': s['messages']['received'],
-            'state_bag': info.topic('/swarm/state').count}
+    return {
+        'publish_rate': publish_rate,
+        'wall': wall,
+        'messages': info.count,
+        'rate': info.count / max(info.duration, 1e-9),
+        'received': r['received'],
+        'written': r['written'],
+        'lost': r['lost'],
+        'dropped': r['dropped'],
+        'state_live': s['messages']['received'],
+        'state_bag': info.topic('/swarm/state').count,
+    }
 
 
 def bench_play(tmp: Path, ros: Ros, n: int, hz: float) -> dict:
@@ -209,6 +268,7 @@ def bench_play(tmp: Path, ros: Ros, n: int, hz: float) -> dict:
     from std_msgs.msg import Int64
 
     from apf_swarm_nodes import bags
+
     path = tmp / f'play_{n}'
     stamps = []
     with bags.BagWriter(path) as w:
@@ -219,13 +279,20 @@ def bench_play(tmp: Path, ros: Ros, n: int, hz: float) -> dict:
             stamps.append(ts)
     got: list[tuple[int, int]] = []
     sub = ros.node.create_subscription(
-        Int64, '/bench/play', lambda m, info: got.append((m.data, info['received_timestamp'])),
-        QoSProfile(depth=1000))
+        Int64,
+        '/bench/play',
+        lambda m, info: got.append((m.data, info['received_timestamp'])),
+        QoSProfile(depth=1000),
+    )
     log_path = tmp / 'player.log'
     with open(log_path, 'wb') as lf:
-        p = subprocess.Popen([exe('player'), '--ros-args', '-p', f'bag:={path}',
-                              '-p', 'wait_for:=[/bench/play]'], env=ros.env, stdout=lf,
-                             stderr=subprocess.STDOUT, start_new_session=True)
+        p = subprocess.Popen(
+            [exe('player'), '--ros-args', '-p', f'bag:={path}', '-p', 'wait_for:=[/bench/play]'],
+            env=ros.env,
+            stdout=lf,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
     try:
         ros.spin_until(lambda: len(got) >= n, n / hz + 30, 'the played messages')
         p.wait(20)
@@ -237,11 +304,17 @@ def bench_play(tmp: Path, ros: Ros, n: int, hz: float) -> dict:
     err = (recv - recv[0]) - (np.array(stamps) - stamps[0])
     e = np.abs(err - np.median(err)) / 1e6
     m = re.search(r'p50 ([\d.]+) ms, p99 ([\d.]+) ms, max ([\d.]+) ms', log_path.read_text())
-    return {'n': n, 'hz': hz, 'in_order': order_ok, 'p50': float(np.percentile(e, 50)),
-            'p99': float(np.percentile(e, 99)), 'max': float(e.max()),
-            'drift_ms': float((err[-1] - err[0]) / 1e6),
-            'player_p99': float(m.group(2)) if m else float('nan'),
-            'player_max': float(m.group(3)) if m else float('nan')}
+    return {
+        'n': n,
+        'hz': hz,
+        'in_order': order_ok,
+        'p50': float(np.percentile(e, 50)),
+        'p99': float(np.percentile(e, 99)),
+        'max': float(e.max()),
+        'drift_ms': float((err[-1] - err[0]) / 1e6),
+        'player_p99': float(m.group(2)) if m else float('nan'),
+        'player_max': float(m.group(3)) if m else float('nan'),
+    }
 
 
 def bench_info(tmp: Path, n: int) -> dict:
@@ -249,6 +322,7 @@ def bench_info(tmp: Path, n: int) -> dict:
     from std_msgs.msg import Int64
 
     from apf_swarm_nodes import bags
+
     path = tmp / f'info_{n}'
     data = serialize_message(Int64(data=7))
     t0 = time.perf_counter()
@@ -270,11 +344,18 @@ def bench_info(tmp: Path, n: int) -> dict:
     t0 = time.perf_counter()
     p = subprocess.run([apf, '--help'], capture_output=True, text=True)
     startup = time.perf_counter() - t0
-    return {'n': n, 'size_mb': size / 1e6, 'write_s': write_s, 'inproc_s': inproc,
-            'cli_s': cli, 'startup_s': startup}
+    return {
+        'n': n,
+        'size_mb': size / 1e6,
+        'write_s': write_s,
+        'inproc_s': inproc,
+        'cli_s': cli,
+        'startup_s': startup,
+    }
 
 
 # --------------------------------------------------------------------------------------------
+
 
 def main(argv: list[str]) -> int:
     quick = '--quick' in argv
@@ -282,6 +363,7 @@ def main(argv: list[str]) -> int:
     seconds = 2.0 if quick else 4.0
     swarm_rates = (100.0,) if quick else (100.0, 500.0)
     from apf_swarm_nodes.bringup import pick_domain_id
+
     domain = pick_domain_id(lo=202, hi=232)
     load0 = os.getloadavg()[0]
     log(f'{platform.node()}: {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}')
@@ -300,61 +382,90 @@ def main(argv: list[str]) -> int:
         finally:
             ros.close()
         swarms = []
-        for i, pr in enumerate(swarm_rates):
+        for _i, pr in enumerate(swarm_rates):
             log(f'realtime swarm, publish_rate {pr:g} Hz, recorded')
-            swarms.append(bench_swarm(tmp, pr, 5.0 if quick else 10.0,
-                                      pick_domain_id(exclude=[domain], lo=202, hi=232)))
+            swarms.append(
+                bench_swarm(
+                    tmp,
+                    pr,
+                    5.0 if quick else 10.0,
+                    pick_domain_id(exclude=[domain], lo=202, hi=232),
+                )
+            )
         log('info on a big bag')
         info = bench_info(tmp, 100_000 if quick else 1_000_000)
 
-    print(f'Machine: {os.cpu_count()} cores, load average at the start {load0:.2f}, at the end '
-          f'{os.getloadavg()[0]:.2f}; {"--quick" if quick else "full"} run; ROS_DOMAIN_ID '
-          f'{domain} (recorder, play) and the swarm runs\' own.\n')
-    print('### Recorder throughput against its ceiling (nav_msgs/Odometry, '
-          f'{ceiling["size"]} B)\n')
-    print('| case | offered msg/s | achieved msg/s | received | written | lost | dropped | '
-          'CPU µs/msg (net of idle) | CPU % of a core (idle %) | one core would take msg/s | '
-          'ceiling / recorder |')
+    print(
+        f'Machine: {os.cpu_count()} cores, load average at the start {load0:.2f}, at the end '
+        f'{os.getloadavg()[0]:.2f}; {"--quick" if quick else "full"} run; ROS_DOMAIN_ID '
+        f"{domain} (recorder, play) and the swarm runs' own.\n"
+    )
+    print(
+        f'### Recorder throughput against its ceiling (nav_msgs/Odometry, {ceiling["size"]} B)\n'
+    )
+    print(
+        '| case | offered msg/s | achieved msg/s | received | written | lost | dropped | '
+        'CPU µs/msg (net of idle) | CPU % of a core (idle %) | one core would take msg/s | '
+        'ceiling / recorder |'
+    )
     print('|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|')
     ceil_cap = 1e6 / ceiling['cpu_us']
-    print(f'| ceiling: BagWriter in-process | - | {ceiling["rate"]:,.0f} | {ceiling["n"]} | '
-          f'{ceiling["n"]} | - | 0 | {ceiling["cpu_us"]:.1f} | '
-          f'{100 * ceiling["cpu_us"] * ceiling["rate"] / 1e6:.0f} | {ceil_cap:,.0f} | 1.0 |')
+    print(
+        f'| ceiling: BagWriter in-process | - | {ceiling["rate"]:,.0f} | {ceiling["n"]} | '
+        f'{ceiling["n"]} | - | 0 | {ceiling["cpu_us"]:.1f} | '
+        f'{100 * ceiling["cpu_us"] * ceiling["rate"] / 1e6:.0f} | {ceil_cap:,.0f} | 1.0 |'
+    )
     for r in recs:
         cap = 1e6 / r['cpu_us'] if r['cpu_us'] > 0 else float('inf')
-        print(f'| recorder process | {r["rate"]:,.0f} | {r["achieved"]:,.0f} | {r["received"]} | '
-              f'{r["written"]} | {r["lost"]} | {r["dropped"]} | {r["cpu_us"]:.1f} | '
-              f'{r["cpu_pct"]:.0f} ({r["idle_pct"]:.1f}) | {cap:,.0f} | '
-              f'{r["cpu_us"] / ceiling["cpu_us"]:.1f} |')
-    print(f'\nCeiling: {ceiling["rate"]:,.0f} msg/s ({ceiling["mb_s"]:.1f} MB/s) measured, '
-          f'{ceil_cap:,.0f} msg/s per core of CPU. "ceiling / recorder" is the ratio of CPU per '
-          'message (robust to other load); "one core would take" = 1e6 / CPU µs per message. '
-          'lost = publication sequence gaps the recorder saw (samples overwritten in the '
-          'keep-last-1000 publisher history before it took them).\n')
+        print(
+            f'| recorder process | {r["rate"]:,.0f} | {r["achieved"]:,.0f} | {r["received"]} | '
+            f'{r["written"]} | {r["lost"]} | {r["dropped"]} | {r["cpu_us"]:.1f} | '
+            f'{r["cpu_pct"]:.0f} ({r["idle_pct"]:.1f}) | {cap:,.0f} | '
+            f'{r["cpu_us"] / ceiling["cpu_us"]:.1f} |'
+        )
+    print(
+        f'\nCeiling: {ceiling["rate"]:,.0f} msg/s ({ceiling["mb_s"]:.1f} MB/s) measured, '
+        f'{ceil_cap:,.0f} msg/s per core of CPU. "ceiling / recorder" is the ratio of CPU per '
+        'message (robust to other load); "one core would take" = 1e6 / CPU µs per message. '
+        'lost = publication sequence gaps the recorder saw (samples overwritten in the '
+        'keep-last-1000 publisher history before it took them).\n'
+    )
     print('### Recording the realtime swarm\n')
-    print('| plant publish_rate | messages | msg/s recorded | received | written | lost | '
-          'dropped | /swarm/state live / bag |')
+    print(
+        '| plant publish_rate | messages | msg/s recorded | received | written | lost | '
+        'dropped | /swarm/state live / bag |'
+    )
     print('|---:|---:|---:|---:|---:|---:|---:|---:|')
     for s in swarms:
         if 'error' in s:
             print(f'| {s["publish_rate"]:g} Hz | {s["error"]} | | | | | | |')
             continue
-        print(f'| {s["publish_rate"]:g} Hz | {s["messages"]} | {s["rate"]:,.0f} | '
-              f'{s["received"]} | {s["written"]} | {s["lost"]} | {s["dropped"]} | '
-              f'{s["state_live"]} / {s["state_bag"]} |')
+        print(
+            f'| {s["publish_rate"]:g} Hz | {s["messages"]} | {s["rate"]:,.0f} | '
+            f'{s["received"]} | {s["written"]} | {s["lost"]} | {s["dropped"]} | '
+            f'{s["state_live"]} / {s["state_bag"]} |'
+        )
     print('\n### Playback timing at 100 Hz\n')
-    print('| messages | in order | error p50 | p99 | max | drift first→last | player lateness '
-          'p99 / max |')
+    print(
+        '| messages | in order | error p50 | p99 | max | drift first→last | player lateness '
+        'p99 / max |'
+    )
     print('|---:|---|---:|---:|---:|---:|---:|')
-    print(f'| {play["n"]} | {play["in_order"]} | {play["p50"]:.3f} ms | {play["p99"]:.3f} ms | '
-          f'{play["max"]:.3f} ms | {play["drift_ms"]:+.3f} ms | {play["player_p99"]:.3f} / '
-          f'{play["player_max"]:.3f} ms |')
+    print(
+        f'| {play["n"]} | {play["in_order"]} | {play["p50"]:.3f} ms | {play["p99"]:.3f} ms | '
+        f'{play["max"]:.3f} ms | {play["drift_ms"]:+.3f} ms | {play["player_p99"]:.3f} / '
+        f'{play["player_max"]:.3f} ms |'
+    )
     print('\n### `apf-swarm bag info` on a big bag\n')
-    print('| messages | bag size | write (BagWriter) | `bag info` (new process) | '
-          '`apf-swarm --help` (start-up alone) | `open_bag` in-process |')
+    print(
+        '| messages | bag size | write (BagWriter) | `bag info` (new process) | '
+        '`apf-swarm --help` (start-up alone) | `open_bag` in-process |'
+    )
     print('|---:|---:|---:|---:|---:|---:|')
-    print(f'| {info["n"]:,} | {info["size_mb"]:.1f} MB | {info["write_s"]:.1f} s | '
-          f'{info["cli_s"]:.2f} s | {info["startup_s"]:.2f} s | {info["inproc_s"] * 1e3:.0f} ms |')
+    print(
+        f'| {info["n"]:,} | {info["size_mb"]:.1f} MB | {info["write_s"]:.1f} s | '
+        f'{info["cli_s"]:.2f} s | {info["startup_s"]:.2f} s | {info["inproc_s"] * 1e3:.0f} ms |'
+    )
     return 0
 
 

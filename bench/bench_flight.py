@@ -36,11 +36,11 @@ try:
 except ImportError:  # run from the workspace root without PYTHONPATH
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'apf_swarm_core'))
 
-from apf_swarm_core.config import apply_overrides, load_preset, parse_set  # noqa: E402
-from apf_swarm_core.metrics import flight  # noqa: E402
-from apf_swarm_core.sampled import schedule_gains  # noqa: E402
-from apf_swarm_core.simulator import design_pair_sets, simulate_batch  # noqa: E402
-from bench_simulator import machine  # noqa: E402  (this directory: CPU, cores, numpy)
+from apf_swarm_core.config import apply_overrides, load_preset, parse_set
+from apf_swarm_core.metrics import flight
+from apf_swarm_core.sampled import schedule_gains
+from apf_swarm_core.simulator import design_pair_sets, simulate_batch
+from bench_simulator import machine
 
 #: the variants of docs/PERFORMANCE.md, "Real-time flight": keys over the realtime preset
 VARIANTS: dict[str, dict[str, Any]] = {
@@ -49,8 +49,12 @@ VARIANTS: dict[str, dict[str, Any]] = {
     'D': {'newton_mu': 0.003, 'newton_trust': 0.02, 'compensation': 'none'},
     'E': {},
 }
-LABELS = {'B': 'B newton mu=0.1', 'C': 'C mu=0.003', 'D': 'D mu=0.003 + trust',
-          'E': 'E the preset'}
+LABELS = {
+    'B': 'B newton mu=0.1',
+    'C': 'C mu=0.003',
+    'D': 'D mu=0.003 + trust',
+    'E': 'E the preset',
+}
 
 
 def log(msg: str) -> None:
@@ -61,11 +65,13 @@ def _point(text: str) -> tuple[float, float]:
     try:
         rate, latency = (float(v) for v in text.split(':'))
     except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r}: expected RATE:LATENCY, e.g. 50:0.017') \
-            from None
+        raise argparse.ArgumentTypeError(
+            f'{text!r}: expected RATE:LATENCY, e.g. 50:0.017'
+        ) from None
     if rate <= 0 or latency < 0:
-        raise argparse.ArgumentTypeError(f'{text!r}: the rate must be > 0 Hz and the '
-                                         f'latency >= 0 s')
+        raise argparse.ArgumentTypeError(
+            f'{text!r}: the rate must be > 0 Hz and the latency >= 0 s'
+        )
     return rate, latency
 
 
@@ -80,12 +86,27 @@ def _variant(text: str) -> tuple[str, dict[str, Any]]:
     return name, keys
 
 
-def case(n: int, rate: float, latency: float, keys: dict[str, Any], seeds: int,
-         duration: float, common: dict[str, Any]) -> dict[str, Any]:
+def case(
+    n: int,
+    rate: float,
+    latency: float,
+    keys: dict[str, Any],
+    seeds: int,
+    duration: float,
+    common: dict[str, Any],
+) -> dict[str, Any]:
     """One row: the variant at this size, rate and latency over ``seeds`` seeds."""
-    base = apply_overrides(load_preset('realtime'),
-                           {**common, **keys, 'n_trackers': n, 'control_rate': rate,
-                            'latency': latency, 'duration': duration})
+    base = apply_overrides(
+        load_preset('realtime'),
+        {
+            **common,
+            **keys,
+            'n_trackers': n,
+            'control_rate': rate,
+            'latency': latency,
+            'duration': duration,
+        },
+    )
     cfg, _pred, gains, _ = schedule_gains(base, latency=latency)
     cfgs = [cfg.replace(seed=cfg.seed + k) for k in range(seeds)]
     res = simulate_batch(cfgs)
@@ -98,12 +119,19 @@ def case(n: int, rate: float, latency: float, keys: dict[str, Any], seeds: int,
     fe = [100 * f['formation_error_rms'] for f in judged if f['formation_error_rms'] is not None]
     cp = [100 * f['closest_pair'] for f in judged if f['closest_pair'] is not None]
     done = [c for c in conv if c is not None]
-    return {'n': n, 'rate': rate, 'latency': latency, 'flies': sum(f['flies'] for f in judged),
-            'seeds': seeds, 'formation_median': statistics.median(fe) if fe else None,
-            'formation_worst': max(fe) if fe else None, 'closest_worst': min(cp) if cp else None,
-            'converge_median': statistics.median(done) if len(done) == seeds else None,
-            'converge_last': max(done) if len(done) == seeds else None,
-            'gains': gains}
+    return {
+        'n': n,
+        'rate': rate,
+        'latency': latency,
+        'flies': sum(f['flies'] for f in judged),
+        'seeds': seeds,
+        'formation_median': statistics.median(fe) if fe else None,
+        'formation_worst': max(fe) if fe else None,
+        'closest_worst': min(cp) if cp else None,
+        'converge_median': statistics.median(done) if len(done) == seeds else None,
+        'converge_last': max(done) if len(done) == seeds else None,
+        'gains': gains,
+    }
 
 
 def _fmt(v: float | None, digits: int = 2, unit: str = '') -> str:
@@ -113,12 +141,22 @@ def _fmt(v: float | None, digits: int = 2, unit: str = '') -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     p.add_argument('--n', type=int, nargs='+', default=[16, 32])
-    p.add_argument('--points', type=_point, nargs='+',
-                   default=[(100.0, 0.008), (50.0, 0.017), (20.0, 0.020)],
-                   metavar='RATE:LATENCY')
+    p.add_argument(
+        '--points',
+        type=_point,
+        nargs='+',
+        default=[(100.0, 0.008), (50.0, 0.017), (20.0, 0.020)],
+        metavar='RATE:LATENCY',
+    )
     p.add_argument('--variants', nargs='+', default=list(VARIANTS), metavar='NAME')
-    p.add_argument('--variant', type=_variant, action='append', default=[],
-                   metavar='NAME=KEY:VALUE,...', help='an extra variant')
+    p.add_argument(
+        '--variant',
+        type=_variant,
+        action='append',
+        default=[],
+        metavar='NAME=KEY:VALUE,...',
+        help='an extra variant',
+    )
     p.add_argument('--seeds', type=int, default=5)
     p.add_argument('--duration', type=float, default=25.0)
     p.add_argument('--set', dest='sets', action='append', default=[], metavar='KEY=VALUE')
@@ -128,8 +166,10 @@ def main(argv: list[str] | None = None) -> int:
     chosen = [*args.variants, *(name for name, _ in args.variant if name not in args.variants)]
     unknown = [v for v in chosen if v not in variants]
     if unknown:
-        p.error(f'unknown variant(s) {unknown}: choose from {sorted(variants)} or add one '
-                f'with --variant NAME=KEY:VALUE,...')
+        p.error(
+            f'unknown variant(s) {unknown}: choose from {sorted(variants)} or add one '
+            f'with --variant NAME=KEY:VALUE,...'
+        )
     try:
         common = parse_set(args.sets)
     except Exception as exc:
@@ -138,26 +178,41 @@ def main(argv: list[str] | None = None) -> int:
     rows, t0 = [], time.perf_counter()
     for i, (n, rate, lat, v) in enumerate(cases, 1):
         t = time.perf_counter()
-        row = {'variant': LABELS.get(v, v + ' ' + ', '.join(f'{k}={x}' for k, x in
-                                                             variants[v].items())),
-               **case(n, rate, lat, variants[v], args.seeds, args.duration, common)}
+        row = {
+            'variant': LABELS.get(
+                v, v + ' ' + ', '.join(f'{k}={x}' for k, x in variants[v].items())
+            ),
+            **case(n, rate, lat, variants[v], args.seeds, args.duration, common),
+        }
         rows.append(row)
-        log(f'[{i}/{len(cases)}] n={n} {rate:g} Hz {1e3 * lat:g} ms {v}: {row["flies"]}/'
-            f'{args.seeds} fly ({time.perf_counter() - t:.0f} s)')
-    print(f'Emulation, {args.seeds} seeds, {args.duration:g} s, gains scheduled as the '
-          f'bring-up does; {machine()}, {time.perf_counter() - t0:.0f} s'
-          + (f'; --set {" ".join(args.sets)}' if args.sets else '') + '\n')
-    print('| trackers | rate, latency | variant | flies | formation error RMS (median, worst) '
-          '| closest pair (worst) | converged after (median, last) | gains |')
+        log(
+            f'[{i}/{len(cases)}] n={n} {rate:g} Hz {1e3 * lat:g} ms {v}: {row["flies"]}/'
+            f'{args.seeds} fly ({time.perf_counter() - t:.0f} s)'
+        )
+    print(
+        f'Emulation, {args.seeds} seeds, {args.duration:g} s, gains scheduled as the '
+        f'bring-up does; {machine()}, {time.perf_counter() - t0:.0f} s'
+        + (f'; --set {" ".join(args.sets)}' if args.sets else '')
+        + '\n'
+    )
+    print(
+        '| trackers | rate, latency | variant | flies | formation error RMS (median, worst) '
+        '| closest pair (worst) | converged after (median, last) | gains |'
+    )
     print('|---:|---|---|---:|---|---|---|---|')
     for r in rows:
-        gains = 'preset' if not r['gains'] else ', '.join(
-            f'{k} {v:.3g}' for k, v in r['gains'].items() if isinstance(v, float))
-        print(f"| {r['n']} | {r['rate']:g} Hz, {1e3 * r['latency']:g} ms | {r['variant']} | "
-              f"{r['flies']}/{r['seeds']} | {_fmt(r['formation_median'], unit=' %')}, "
-              f"{_fmt(r['formation_worst'], unit=' %')} | {_fmt(r['closest_worst'], 3, ' %')} "
-              f"| {_fmt(r['converge_median'], 3, ' s')}, {_fmt(r['converge_last'], 3, ' s')} "
-              f"| {gains} |")
+        gains = (
+            'preset'
+            if not r['gains']
+            else ', '.join(f'{k} {v:.3g}' for k, v in r['gains'].items() if isinstance(v, float))
+        )
+        print(
+            f'| {r["n"]} | {r["rate"]:g} Hz, {1e3 * r["latency"]:g} ms | {r["variant"]} | '
+            f'{r["flies"]}/{r["seeds"]} | {_fmt(r["formation_median"], unit=" %")}, '
+            f'{_fmt(r["formation_worst"], unit=" %")} | {_fmt(r["closest_worst"], 3, " %")} '
+            f'| {_fmt(r["converge_median"], 3, " s")}, {_fmt(r["converge_last"], 3, " s")} '
+            f'| {gains} |'
+        )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + '\n')
     return 0

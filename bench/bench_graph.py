@@ -43,19 +43,22 @@ else 1.
 from __future__ import annotations
 
 import argparse
+import itertools
+import math
 import os
 import platform
 import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
-FLOOR_N3 = 500.0      # steps/s, lockstep, 3 trackers, dt 1 ms
+FLOOR_N3 = 500.0  # steps/s, lockstep, 3 trackers, dt 1 ms
 GOAL_N3 = 1000.0
-GOAL_LATENCY_RATIO = 1.3   # control-loop p99 / raw ping-pong p99
+GOAL_LATENCY_RATIO = 1.3  # control-loop p99 / raw ping-pong p99
 DOMAIN_LO, DOMAIN_HI = 202, 230
 CLK_TCK = os.sysconf('SC_CLK_TCK')
 
@@ -67,6 +70,7 @@ def log(msg: str) -> None:
 # --------------------------------------------------------------------------------------------
 # /proc
 # --------------------------------------------------------------------------------------------
+
 
 def cpu_ticks(pid: int) -> int | None:
     """utime + stime of a process in clock ticks (None when it is gone)."""
@@ -96,7 +100,7 @@ def machine_busy_ticks() -> int:
             vals = [int(v) for v in f.readline().split()[1:]]
     except OSError:
         return 0
-    return sum(vals[:8]) - vals[3] - vals[4]     # user nice system idle iowait irq softirq steal
+    return sum(vals[:8]) - vals[3] - vals[4]  # user nice system idle iowait irq softirq steal
 
 
 def machine() -> dict[str, str]:
@@ -110,11 +114,14 @@ def machine() -> dict[str, str]:
     except OSError:
         pass
     load = os.getloadavg()
-    return {'nproc': str(os.cpu_count()), 'cpu': model,
-            'load': f'{load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}',
-            'python': platform.python_version(),
-            'rmw': os.environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp (default)'),
-            'kernel': platform.release()}
+    return {
+        'nproc': str(os.cpu_count()),
+        'cpu': model,
+        'load': f'{load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}',
+        'python': platform.python_version(),
+        'rmw': os.environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp (default)'),
+        'kernel': platform.release(),
+    }
 
 
 class ProcStats:
@@ -125,7 +132,7 @@ class ProcStats:
         self.t0: float | None = None
         self.ticks0: dict[str, int] = {}
         self.cpu: dict[str, float] = {}
-        self.rss: dict[str, float] = {name: 0.0 for name in self.pids}
+        self.rss: dict[str, float] = dict.fromkeys(self.pids, 0.0)
         self._last_rss = 0.0
 
     def begin(self) -> None:
@@ -180,37 +187,46 @@ class ProcStats:
 # one graph: processes + observer
 # --------------------------------------------------------------------------------------------
 
+
 @dataclass
 class Case:
-    kind: str                    # lockstep | latency
+    kind: str  # lockstep | latency
     n: int
     executor: str
     inputs: str
-    steps: int = 0               # lockstep: steps of the run
-    cap: float = 0.0             # lockstep: at most this long a measured window [s]
-    seconds: float = 0.0         # latency: measured window (after 1 s of warm-up)
-    pingpong: bool = False       # latency: a raw ping-pong in the same graph, concurrently
+    steps: int = 0  # lockstep: steps of the run
+    cap: float = 0.0  # lockstep: at most this long a measured window [s]
+    seconds: float = 0.0  # latency: measured window (after 1 s of warm-up)
+    pingpong: bool = False  # latency: a raw ping-pong in the same graph, concurrently
     result: dict[str, Any] = field(default_factory=dict)
 
     @property
     def label(self) -> str:
-        return (f'{self.kind} n={self.n} executor={self.executor} inputs={self.inputs}'
-                + (' +pingpong' if self.pingpong else ''))
+        return f'{self.kind} n={self.n} executor={self.executor} inputs={self.inputs}' + (
+            ' +pingpong' if self.pingpong else ''
+        )
 
 
 class Graph:
     """The node processes of one case in their own domain and an observer node."""
 
-    def __init__(self, workdir: Path, domain_id: int, preset: str, n: int, mode: str,
-                 duration: float, node_params: list[str]) -> None:
+    def __init__(
+        self,
+        workdir: Path,
+        domain_id: int,
+        preset: str,
+        n: int,
+        mode: str,
+        duration: float,
+        node_params: list[str],
+    ) -> None:
         import rclpy
         import yaml
+        from apf_swarm_core.config import apply_overrides, load_preset, to_ros_params
+        from apf_swarm_nodes.bringup import Child, ProcessGroup, node_commands, package_prefix
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
-
-        from apf_swarm_core.config import apply_overrides, load_preset, to_ros_params
-        from apf_swarm_nodes.bringup import Child, ProcessGroup, node_commands, package_prefix
 
         self.dir = workdir
         self.domain_id = domain_id
@@ -219,9 +235,14 @@ class Graph:
         self.cfg = cfg
         self.config = workdir / 'config.yaml'
         self.config.write_text(yaml.safe_dump(to_ros_params(cfg), sort_keys=False))
-        self.env = {**os.environ, 'ROS_DOMAIN_ID': str(domain_id),
-                    'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'PYTHONUNBUFFERED': '1',
-                    'RCUTILS_COLORIZED_OUTPUT': '0', 'ROS_LOG_DIR': str(workdir / 'ros_logs')}
+        self.env = {
+            **os.environ,
+            'ROS_DOMAIN_ID': str(domain_id),
+            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+            'PYTHONUNBUFFERED': '1',
+            'RCUTILS_COLORIZED_OUTPUT': '0',
+            'ROS_LOG_DIR': str(workdir / 'ros_logs'),
+        }
         self.env.pop('ROS_LOCALHOST_ONLY', None)
         self.group = ProcessGroup()
         self._Child = Child
@@ -265,14 +286,18 @@ class Graph:
             self.executor.spin_once(timeout_sec=0.05)
         return True
 
-    def missing(self, extra: Callable[[], list[str]] = lambda: []) -> list[str]:
+    def missing(self, extra: Callable[[], list[str]] = list) -> list[str]:
         from apf_swarm_nodes.bringup import expected_graph, graph_missing
+
         node = self.node
-        present = {(ns.rstrip('/') + '/' + name) for name, ns in
-                   node.get_node_names_and_namespaces()}
+        present = {
+            (ns.rstrip('/') + '/' + name) for name, ns in node.get_node_names_and_namespaces()
+        }
         nodes, topics = expected_graph(self.n, self.mode)
-        counts = {t.topic: (node.count_publishers(t.topic), node.count_subscribers(t.topic))
-                  for t in topics}
+        counts = {
+            t.topic: (node.count_publishers(t.topic), node.count_subscribers(t.topic))
+            for t in topics
+        }
         return graph_missing(present, counts, nodes, topics) + extra()
 
     def wait_ready(self, extra: Callable[[], list[str]], timeout: float = 60.0) -> float:
@@ -290,6 +315,7 @@ class Graph:
 
     def close(self) -> list[tuple[str, int]]:
         import rclpy
+
         how = self.group.stop_all()
         left = self.group.leftovers()
         bad = {k: v for k, v in how.items() if v not in ('SIGINT', 'exited')}
@@ -308,12 +334,13 @@ class Graph:
 # the measurements
 # --------------------------------------------------------------------------------------------
 
+
 def run_lockstep(g: Graph, case: Case) -> None:
+    from apf_swarm_nodes.node_common import START_QOS, STATE_QOS
     from rclpy.serialization import deserialize_message
     from std_msgs.msg import Empty
 
     from apf_swarm_msgs.msg import SwarmState
-    from apf_swarm_nodes.node_common import START_QOS, STATE_QOS
 
     arrivals: list[float] = []
     last_raw: list[bytes] = [b'']
@@ -345,14 +372,22 @@ def run_lockstep(g: Graph, case: Case) -> None:
     g.stats.end()
     t = arrivals[warm:]
     rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else float('nan')
-    periods = sorted((b - a) * 1e3 for a, b in zip(t, t[1:]))
+    periods = sorted((b - a) * 1e3 for a, b in itertools.pairwise(t))
     last = deserialize_message(last_raw[0], SwarmState)
     case.result = {
-        'rate': rate, 'received': len(arrivals), 'complete': complete, 'ready': ready,
-        'p50': pct(periods, 50), 'p99': pct(periods, 99), 'max': periods[-1] if periods else 0,
-        'missed': int(last.missed_deadlines), 'last_step': int(last.step),
-        'roles': g.stats.by_role(), 'total_cpu': g.stats.total_cpu(),
-        'other_cpu': g.stats.other_cpu()}
+        'rate': rate,
+        'received': len(arrivals),
+        'complete': complete,
+        'ready': ready,
+        'p50': pct(periods, 50),
+        'p99': pct(periods, 99),
+        'max': periods[-1] if periods else 0,
+        'missed': int(last.missed_deadlines),
+        'last_step': int(last.step),
+        'roles': g.stats.by_role(),
+        'total_cpu': g.stats.total_cpu(),
+        'other_cpu': g.stats.other_cpu(),
+    }
 
 
 class PingPong:
@@ -361,12 +396,12 @@ class PingPong:
     /bench/pong; round trip = arrival (``time.time_ns``) - stamp. QoS: best effort, depth 1."""
 
     def __init__(self, node: Any, rate: float = 100.0) -> None:
+        from apf_swarm_nodes.node_common import control_qos
         from nav_msgs.msg import Odometry
 
-        from apf_swarm_nodes.node_common import control_qos
         qos = control_qos('realtime')
         self.node, self.rate = node, rate
-        self.rtt: list[tuple[float, float]] = []      # (arrival monotonic, round trip ms)
+        self.rtt: list[tuple[float, float]] = []  # (arrival monotonic, round trip ms)
         self.pub = node.create_publisher(Odometry, '/bench/ping', qos)
         self.sub = node.create_subscription(Odometry, '/bench/pong', self._on_pong, qos)
         self.msg = Odometry()
@@ -393,8 +428,7 @@ class PingPong:
     def _on_pong(self, msg: Any) -> None:
         now_ns = time.time_ns()
         st = msg.header.stamp
-        self.rtt.append((time.monotonic(),
-                         (now_ns - (st.sec * 1_000_000_000 + st.nanosec)) / 1e6))
+        self.rtt.append((time.monotonic(), (now_ns - (st.sec * 1_000_000_000 + st.nanosec)) / 1e6))
 
     def result(self, t_begin: float, t_end: float) -> dict[str, Any]:
         return summarize_ms([v for t, v in self.rtt if t_begin <= t <= t_end], t_end - t_begin)
@@ -402,20 +436,25 @@ class PingPong:
 
 def summarize_ms(values: list[float], seconds: float) -> dict[str, Any]:
     vals = sorted(values)
-    return {'samples': len(vals), 'rate': len(vals) / seconds if seconds > 0 else float('nan'),
-            'p50': pct(vals, 50), 'p90': pct(vals, 90), 'p99': pct(vals, 99),
-            'max': vals[-1] if vals else float('nan')}
+    return {
+        'samples': len(vals),
+        'rate': len(vals) / seconds if seconds > 0 else float('nan'),
+        'p50': pct(vals, 50),
+        'p90': pct(vals, 90),
+        'p99': pct(vals, 99),
+        'max': vals[-1] if vals else float('nan'),
+    }
 
 
 def run_latency(g: Graph, case: Case) -> None:
     """Control-loop latency; with ``case.pingpong`` a ping-pong runs in the same graph, at the
     same time (its echo process is one more process on the machine)."""
+    from apf_swarm_nodes.node_common import START_QOS, STATE_QOS, control_qos
     from std_msgs.msg import Empty
 
     from apf_swarm_msgs.msg import ForceCommand, SwarmState
-    from apf_swarm_nodes.node_common import START_QOS, STATE_QOS, control_qos
 
-    lat: list[tuple[float, float]] = []    # (arrival monotonic, latency ms)
+    lat: list[tuple[float, float]] = []  # (arrival monotonic, latency ms)
     stale = [0]
 
     def on_force(msg: ForceCommand) -> None:
@@ -426,8 +465,9 @@ def run_latency(g: Graph, case: Case) -> None:
         st = msg.header.stamp
         lat.append((time.monotonic(), (now_ns - (st.sec * 1_000_000_000 + st.nanosec)) / 1e6))
 
-    sub = g.node.create_subscription(ForceCommand, '/uav_1/force_cmd', on_force,
-                                     control_qos('realtime'))
+    sub = g.node.create_subscription(
+        ForceCommand, '/uav_1/force_cmd', on_force, control_qos('realtime')
+    )
     # as the bring-up does (and the graph check expects): /swarm/state, taken raw
     g.node.create_subscription(SwarmState, '/swarm/state', lambda raw: None, STATE_QOS, raw=True)
     start = g.node.create_publisher(Empty, '/swarm/start', START_QOS)
@@ -456,13 +496,21 @@ def run_latency(g: Graph, case: Case) -> None:
     g.spin_until(lambda: time.monotonic() > t_first + 1.0, 5.0, 'the warm-up')
     g.stats.begin()
     t_begin = time.monotonic()
-    g.spin_until(lambda: time.monotonic() > t_begin + case.seconds, case.seconds + 5.0,
-                 'the measurement')
+    g.spin_until(
+        lambda: time.monotonic() > t_begin + case.seconds, case.seconds + 5.0, 'the measurement'
+    )
     t_end = time.monotonic()
     g.stats.end()
     case.result = summarize_ms([v for t, v in lat if t_begin <= t <= t_end], t_end - t_begin)
-    case.result.update({'ready': ready, 'stale': stale[0], 'roles': g.stats.by_role(),
-                        'total_cpu': g.stats.total_cpu(), 'other_cpu': g.stats.other_cpu()})
+    case.result.update(
+        {
+            'ready': ready,
+            'stale': stale[0],
+            'roles': g.stats.by_role(),
+            'total_cpu': g.stats.total_cpu(),
+            'other_cpu': g.stats.other_cpu(),
+        }
+    )
     if ping:
         case.result['ping'] = ping.result(t_begin, t_end)
 
@@ -470,14 +518,17 @@ def run_latency(g: Graph, case: Case) -> None:
 def run_pingpong(workdir: Path, domain_id: int, seconds: float) -> dict[str, Any]:
     """The ping-pong alone (no swarm running): observer <-> echo process at 100 Hz."""
     import rclpy
+    from apf_swarm_nodes.bringup import Child, ProcessGroup
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
-    from apf_swarm_nodes.bringup import Child, ProcessGroup
-
-    env = {**os.environ, 'ROS_DOMAIN_ID': str(domain_id),
-           'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_LOG_DIR': str(workdir / 'ros_logs')}
+    env = {
+        **os.environ,
+        'ROS_DOMAIN_ID': str(domain_id),
+        'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+        'ROS_LOG_DIR': str(workdir / 'ros_logs'),
+    }
     env.pop('ROS_LOCALHOST_ONLY', None)
     group = ProcessGroup()
     echo = group.add(Child('echo', PingPong.argv(), workdir / 'echo.log', env))
@@ -525,11 +576,11 @@ def run_pingpong(workdir: Path, domain_id: int, seconds: float) -> dict[str, Any
 def echo_main() -> int:
     """``--echo``: republish every /bench/ping as /bench/pong, unchanged."""
     import rclpy
+    from apf_swarm_nodes.node_common import control_qos
     from nav_msgs.msg import Odometry
     from rclpy.executors import ExternalShutdownException
     from rclpy.node import Node
 
-    from apf_swarm_nodes.node_common import control_qos
     rclpy.init()
     node = Node('bench_echo')
     qos = control_qos('realtime')
@@ -556,23 +607,31 @@ def pct(sorted_vals: list[float], q: float) -> float:
 # driver
 # --------------------------------------------------------------------------------------------
 
+
 def run_case(case: Case, used: set[int], keep: Path | None = None) -> list[tuple[str, int]]:
     from apf_swarm_nodes.bringup import pick_domain_id
+
     dom = pick_domain_id(exclude=used, lo=DOMAIN_LO, hi=DOMAIN_HI)
     used.add(dom)
     with tempfile.TemporaryDirectory(prefix='bench_graph_') as tmp:
         work = Path(tmp)
         if keep is not None:
-            work = keep / (f'{case.kind}_n{case.n}_{case.executor}_{case.inputs}'
-                           + ('_pingpong' if case.pingpong else ''))
+            work = keep / (
+                f'{case.kind}_n{case.n}_{case.executor}_{case.inputs}'
+                + ('_pingpong' if case.pingpong else '')
+            )
             work.mkdir(parents=True, exist_ok=True)
         if case.kind == 'lockstep':
             params = [f'executor:={case.executor}', f'inputs:={case.inputs}']
             g = Graph(work, dom, 'triangle', case.n, 'lockstep', case.steps * 0.001, params)
             runner = run_lockstep
         else:
-            params = [f'executor:={case.executor}', f'inputs:={case.inputs}',
-                      'publish_rate:=100.0', 'trigger:=odom']
+            params = [
+                f'executor:={case.executor}',
+                f'inputs:={case.inputs}',
+                'publish_rate:=100.0',
+                'trigger:=odom',
+            ]
             g = Graph(work, dom, 'realtime', case.n, 'realtime', case.seconds + 30.0, params)
             runner = run_latency
         try:
@@ -588,7 +647,7 @@ def run_case(case: Case, used: set[int], keep: Path | None = None) -> list[tuple
 
 
 def fmt(v: float, spec: str = '.0f') -> str:
-    return '-' if v != v else format(v, spec)
+    return '-' if math.isnan(v) else format(v, spec)
 
 
 def role_cells(res: dict[str, Any], roles: tuple[str, ...]) -> list[str]:
@@ -608,11 +667,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--quick', action='store_true', help='fewer steps, shorter windows')
     ap.add_argument('--only', choices=('lockstep', 'latency'), help='one part only')
-    ap.add_argument('--case', metavar='TEXT', action='append', default=[],
-                    help='only the cases whose label contains TEXT (repeatable), e.g. '
-                    '"n=3 executor=multi"')
-    ap.add_argument('--keep', metavar='DIR', type=Path,
-                    help='keep every case\'s config and node logs under DIR')
+    ap.add_argument(
+        '--case',
+        metavar='TEXT',
+        action='append',
+        default=[],
+        help='only the cases whose label contains TEXT (repeatable), e.g. "n=3 executor=multi"',
+    )
+    ap.add_argument(
+        '--keep', metavar='DIR', type=Path, help="keep every case's config and node logs under DIR"
+    )
     ap.add_argument('--echo', action='store_true', help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.echo:
@@ -644,17 +708,26 @@ def main(argv: list[str] | None = None) -> int:
         r = case.result
         if 'error' not in r:
             if case.kind == 'lockstep':
-                log(f'  {r["rate"]:.0f} steps/s, {r["received"]} steps, missed {r["missed"]}, '
+                log(
+                    f'  {r["rate"]:.0f} steps/s, {r["received"]} steps, missed {r["missed"]}, '
                     f'graph ready after {r["ready"]:.1f} s, CPU total {r["total_cpu"]:.0f} %, '
-                    f'other load {r["other_cpu"]:.0f} %')
+                    f'other load {r["other_cpu"]:.0f} %'
+                )
             else:
-                log(f'  latency p50 {r["p50"]:.2f} ms, p99 {r["p99"]:.2f} ms over '
+                log(
+                    f'  latency p50 {r["p50"]:.2f} ms, p99 {r["p99"]:.2f} ms over '
                     f'{r["samples"]} commands'
-                    + (f'; concurrent ping-pong round trip p50 {r["ping"]["p50"]:.2f} ms, p99 '
-                       f'{r["ping"]["p99"]:.2f} ms' if 'ping' in r else ''))
+                    + (
+                        f'; concurrent ping-pong round trip p50 {r["ping"]["p50"]:.2f} ms, p99 '
+                        f'{r["ping"]["p99"]:.2f} ms'
+                        if 'ping' in r
+                        else ''
+                    )
+                )
     ping = None
     if args.only in (None, 'latency'):
         from apf_swarm_nodes.bringup import pick_domain_id
+
         dom = pick_domain_id(exclude=used, lo=DOMAIN_LO, hi=DOMAIN_HI)
         log(f'[ping-pong] raw rclpy Odometry ping-pong at 100 Hz, {lat_s:g} s')
         with tempfile.TemporaryDirectory(prefix='bench_graph_') as tmp:
@@ -666,62 +739,105 @@ def main(argv: list[str] | None = None) -> int:
                 log(f'  FAILED: {exc}')
 
     # ---- tables ----------------------------------------------------------------------------
-    out = [f'Machine: {m["nproc"]} CPUs ({m["cpu"]}), Linux {m["kernel"]}, Python {m["python"]}, '
-           f'{m["rmw"]}; load average before measuring: {m["load"]}.', '']
+    out = [
+        (
+            f'Machine: {m["nproc"]} CPUs ({m["cpu"]}), Linux {m["kernel"]}, Python {m["python"]}, '
+            f'{m["rmw"]}; load average before measuring: {m["load"]}.'
+        ),
+        '',
+    ]
     floor_ok = None
     lock = [c for c in cases if c.kind == 'lockstep']
     if lock:
-        out += ['Lockstep throughput (triangle preset, dt = 1 ms; steps/s after a 10 % warm-up; '
-                'step period = time between consecutive /swarm/state arrivals):', '',
+        out += [
+            (
+                'Lockstep throughput (triangle preset, dt = 1 ms; steps/s after a 10 % warm-up; '
+                'step period = time between consecutive /swarm/state arrivals):'
+            ),
+            '',
+            (
                 '| trackers | executor | inputs | steps | steps/s | period p50 / p99 / max '
-                '[ms] | missed | floor / goal |',
-                '|---:|---|---|---:|---:|---|---:|---|']
+                '[ms] | missed | floor / goal |'
+            ),
+            '|---:|---|---|---:|---:|---|---:|---|',
+        ]
         for c in lock:
             r = c.result
             if 'error' in r:
-                out.append(f'| {c.n} | {c.executor} | {c.inputs} | {c.steps} | failed: '
-                           f'{r["error"]} | | | |')
+                out.append(
+                    f'| {c.n} | {c.executor} | {c.inputs} | {c.steps} | failed: '
+                    f'{r["error"]} | | | |'
+                )
                 continue
             verdict = ''
             if c.n == 3:
-                verdict = ('goal met' if r['rate'] >= GOAL_N3 else
-                           'floor met' if r['rate'] >= FLOOR_N3 else 'below floor')
+                verdict = (
+                    'goal met'
+                    if r['rate'] >= GOAL_N3
+                    else 'floor met'
+                    if r['rate'] >= FLOOR_N3
+                    else 'below floor'
+                )
                 if c.executor == 'single' and c.inputs == 'aggregate':
                     floor_ok = r['rate'] >= FLOOR_N3
             done = '' if r['complete'] else f' (bounded: {r["received"]} in {c.cap:g} s)'
-            out.append(f'| {c.n} | {c.executor} | {c.inputs} | {c.steps}{done} | '
-                       f'{r["rate"]:.0f} | {r["p50"]:.2f} / {r["p99"]:.2f} / {r["max"]:.1f} | '
-                       f'{r["missed"]} | {verdict} |')
-        out += ['', 'CPU (% of one core, over the measured window) / RSS (MB, max) per process, '
-                'lockstep; trackers: mean (max) over the tracker processes:', '',
+            out.append(
+                f'| {c.n} | {c.executor} | {c.inputs} | {c.steps}{done} | '
+                f'{r["rate"]:.0f} | {r["p50"]:.2f} / {r["p99"]:.2f} / {r["max"]:.1f} | '
+                f'{r["missed"]} | {verdict} |'
+            )
+        out += [
+            '',
+            (
+                'CPU (% of one core, over the measured window) / RSS (MB, max) per process, '
+                'lockstep; trackers: mean (max) over the tracker processes:'
+            ),
+            '',
+            (
                 '| trackers | executor | inputs | plant | target | tracker | observer | '
-                'total CPU % | other load CPU % |', '|---:|---|---|---|---|---|---|---:|---:|']
+                'total CPU % | other load CPU % |'
+            ),
+            '|---:|---|---|---|---|---|---|---:|---:|',
+        ]
         for c in lock:
             if 'error' in c.result:
                 continue
             cells = role_cells(c.result, ('plant', 'target', 'tracker', 'observer'))
-            out.append(f'| {c.n} | {c.executor} | {c.inputs} | ' + ' | '.join(cells) +
-                       f' | {c.result["total_cpu"]:.0f} | {fmt(c.result["other_cpu"])} |')
+            out.append(
+                f'| {c.n} | {c.executor} | {c.inputs} | '
+                + ' | '.join(cells)
+                + f' | {c.result["total_cpu"]:.0f} | {fmt(c.result["other_cpu"])} |'
+            )
         out.append('')
     lat = [c for c in cases if c.kind == 'latency']
     if lat:
-        out += ['Realtime control-loop latency at 100 Hz (realtime preset, 3 trackers, '
+        out += [
+            (
+                'Realtime control-loop latency at 100 Hz (realtime preset, 3 trackers, '
                 'trigger:=odom, inputs:=aggregate): arrival of /uav_1/force_cmd at the observer '
                 '- its header stamp, which is the time the plant published the triggering '
-                '/swarm/odom; two hops (plant -> tracker -> observer) with the tracker\'s '
+                "/swarm/odom; two hops (plant -> tracker -> observer) with the tracker's "
                 'callback between them. Raw reference: rclpy ping-pong at 100 Hz, observer -> '
                 'echo process -> observer, nav_msgs/Odometry, best effort depth 1, round trip = '
                 'arrival - stamp, also two hops with one callback between them. "alone": no '
                 'swarm running; "concurrent": in the same graph during the control-loop run of '
                 'that row. Ratio = control-loop p99 / round-trip p99 of the named reference '
-                f'(goal <= {GOAL_LATENCY_RATIO}).', '',
+                f'(goal <= {GOAL_LATENCY_RATIO}).'
+            ),
+            '',
+            (
                 '| path | executor | samples | p50 [ms] | p90 [ms] | p99 [ms] | max [ms] | '
-                'p99 ratio (reference) |', '|---|---|---:|---:|---:|---:|---:|---|']
+                'p99 ratio (reference) |'
+            ),
+            '|---|---|---:|---:|---:|---:|---:|---|',
+        ]
         raw99 = ping['p99'] if ping else float('nan')
 
         def row(path: str, ex: str, r: dict[str, Any], ratio: str) -> str:
-            return (f'| {path} | {ex} | {r["samples"]} | {r["p50"]:.2f} | {r["p90"]:.2f} | '
-                    f'{r["p99"]:.2f} | {r["max"]:.2f} | {ratio} |')
+            return (
+                f'| {path} | {ex} | {r["samples"]} | {r["p50"]:.2f} | {r["p90"]:.2f} | '
+                f'{r["p99"]:.2f} | {r["max"]:.2f} | {ratio} |'
+            )
 
         for c in lat:
             r = c.result
@@ -738,27 +854,44 @@ def main(argv: list[str] | None = None) -> int:
                 out.append(row('control loop', c.executor, r, ratio))
         if ping:
             out.append(row('ping-pong round trip, alone', 'single', ping, '-'))
-            half = {k: (v / 2 if k in ('p50', 'p90', 'p99', 'max') else v)
-                    for k, v in ping.items()}
+            half = {
+                k: (v / 2 if k in ('p50', 'p90', 'p99', 'max') else v) for k, v in ping.items()
+            }
             out.append(row('ping-pong one way (round trip / 2), alone', 'single', half, '-'))
-        out += ['', 'CPU (% of one core) / RSS (MB, max) per process during the latency runs:',
-                '', '| run | executor | plant | target | tracker | observer | echo | '
-                'total CPU % | other load CPU % |', '|---|---|---|---|---|---|---|---:|---:|']
+        out += [
+            '',
+            'CPU (% of one core) / RSS (MB, max) per process during the latency runs:',
+            '',
+            (
+                '| run | executor | plant | target | tracker | observer | echo | '
+                'total CPU % | other load CPU % |'
+            ),
+            '|---|---|---|---|---|---|---|---:|---:|',
+        ]
         for c in lat:
             if 'error' not in c.result:
                 name = 'control loop + ping-pong' if c.pingpong else 'control loop'
-                out.append(f'| {name} | {c.executor} | ' + ' | '.join(
-                    role_cells(c.result, ('plant', 'target', 'tracker', 'observer', 'echo')))
-                    + f' | {c.result["total_cpu"]:.0f} | {fmt(c.result["other_cpu"])} |')
+                out.append(
+                    f'| {name} | {c.executor} | '
+                    + ' | '.join(
+                        role_cells(c.result, ('plant', 'target', 'tracker', 'observer', 'echo'))
+                    )
+                    + f' | {c.result["total_cpu"]:.0f} | {fmt(c.result["other_cpu"])} |'
+                )
         if ping:
-            out.append('| ping-pong alone | single | - | - | - | ' + ' | '.join(
-                role_cells(ping, ('observer', 'echo'))) + f' | {ping["total_cpu"]:.0f} | '
-                f'{fmt(ping["other_cpu"])} |')
+            out.append(
+                '| ping-pong alone | single | - | - | - | '
+                + ' | '.join(role_cells(ping, ('observer', 'echo')))
+                + f' | {ping["total_cpu"]:.0f} | '
+                f'{fmt(ping["other_cpu"])} |'
+            )
         out.append('')
     load = os.getloadavg()
-    out.append(f'Load average after: {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}. Wall time of '
-               f'the bench: {time.monotonic() - t_start:.0f} s. Processes left behind: '
-               f'{len(leftovers)}.')
+    out.append(
+        f'Load average after: {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}. Wall time of '
+        f'the bench: {time.monotonic() - t_start:.0f} s. Processes left behind: '
+        f'{len(leftovers)}.'
+    )
     print('\n'.join(out))
     if leftovers:
         return 1

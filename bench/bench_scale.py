@@ -49,7 +49,9 @@ end; they are killed), else 0.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import math
 import os
 import signal
 import statistics
@@ -58,22 +60,21 @@ import sys
 import tempfile
 import time
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_graph  # noqa: E402
-from bench_graph import (CLK_TCK, Case, cpu_ticks, machine, machine_busy_ticks,  # noqa: E402
-                         rss_mb, run_pingpong)
+from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
+from bench_graph import CLK_TCK, Case, cpu_ticks, machine, machine_busy_ticks, rss_mb, run_pingpong  # noqa: E402
 from soak import node_pids  # noqa: E402  (the same /proc lookup)
 
-from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
-
 DOMAIN_LO, DOMAIN_HI = 202, 230
-POLL = 0.25                   # s between /proc samples of a case
-READY_TIMEOUT = 90.0          # --ready-timeout of every bring-up (32 processes on 2 cores)
+POLL = 0.25  # s between /proc samples of a case
+READY_TIMEOUT = 90.0  # --ready-timeout of every bring-up (32 processes on 2 cores)
 READY_LINE = 'published /swarm/start'
 STALE_PER_TRACKER = 3
 MIN_SAMPLES = 0.95
@@ -91,6 +92,7 @@ def log(msg: str) -> None:
 # one bring-up case
 # --------------------------------------------------------------------------------------------
 
+
 @dataclass
 class UpCase:
     """One run of the bring-up; ``flight``: wall seconds (realtime) or simulated (lockstep)."""
@@ -103,20 +105,24 @@ class UpCase:
     executor: str = 'events'
     inputs: str = 'aggregate'
     part: str = 'ladder'
-    depth: int = 1               # realtime qos_depth of the control topics
+    depth: int = 1  # realtime qos_depth of the control topics
     result: dict[str, Any] = field(default_factory=dict)
 
     @property
     def label(self) -> str:
         if self.mode == 'lockstep':
             return f'lockstep n={self.n} K={self.k} ({self.flight:g} s simulated)'
-        return (f'realtime {self.rate:g} Hz n={self.n} K={self.k} executor={self.executor} '
-                f'inputs={self.inputs} depth={self.depth} ({self.flight:g} s)')
+        return (
+            f'realtime {self.rate:g} Hz n={self.n} K={self.k} executor={self.executor} '
+            f'inputs={self.inputs} depth={self.depth} ({self.flight:g} s)'
+        )
 
     @property
     def slug(self) -> str:
-        return (f'{self.part}_{self.mode}_{self.rate:g}hz_{self.executor}_{self.inputs}'
-                f'_d{self.depth}_n{self.n}_k{self.k}')
+        return (
+            f'{self.part}_{self.mode}_{self.rate:g}hz_{self.executor}_{self.inputs}'
+            f'_d{self.depth}_n{self.n}_k{self.k}'
+        )
 
     @property
     def processes(self) -> int:
@@ -130,13 +136,29 @@ class UpCase:
 
 def bringup_argv(case: UpCase, out: Path, domain: int) -> list[str]:
     preset = 'realtime' if case.mode == 'realtime' else 'triangle'
-    cmd = [sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--preset', preset,
-           '--mode', case.mode, '--n-trackers', str(case.n), '--trackers-per-process',
-           str(case.k), '--duration', str(case.flight), '--domain-id', str(domain),
-           '--out', str(out), '--no-plots', '--allow-overload',
-           '--ready-timeout', str(READY_TIMEOUT)]
-    params = [f'executor:={case.executor}', f'inputs:={case.inputs}',
-              f'qos_depth:={case.depth}']
+    cmd = [
+        sys.executable,
+        str(ROOT / 'scripts' / 'swarm_up.py'),
+        '--preset',
+        preset,
+        '--mode',
+        case.mode,
+        '--n-trackers',
+        str(case.n),
+        '--trackers-per-process',
+        str(case.k),
+        '--duration',
+        str(case.flight),
+        '--domain-id',
+        str(domain),
+        '--out',
+        str(out),
+        '--no-plots',
+        '--allow-overload',
+        '--ready-timeout',
+        str(READY_TIMEOUT),
+    ]
+    params = [f'executor:={case.executor}', f'inputs:={case.inputs}', f'qos_depth:={case.depth}']
     if case.mode == 'realtime':
         cmd += ['--set', f'control_rate={float(case.rate)!r}']
     for p in params:
@@ -153,9 +175,9 @@ def case_timeout(case: UpCase) -> float:
 @dataclass
 class Snapshot:
     t: float
-    busy: int                    # machine busy ticks
-    ticks: dict[int, int]        # pid -> utime + stime
-    alive: set[int]              # node pids with a VmRSS (not gone, not a zombie)
+    busy: int  # machine busy ticks
+    ticks: dict[int, int]  # pid -> utime + stime
+    alive: set[int]  # node pids with a VmRSS (not gone, not a zombie)
 
 
 class CaseSampler:
@@ -168,7 +190,7 @@ class CaseSampler:
         self.rss: dict[int, float] = {}
         self.start = self.snapshot()
         self.ready: Snapshot | None = None
-        self.last: Snapshot | None = None      # last sample inside the flight window
+        self.last: Snapshot | None = None  # last sample inside the flight window
 
     def snapshot(self) -> Snapshot:
         if len(self.names) < self.expected:
@@ -211,11 +233,14 @@ class CaseSampler:
 
         nodes = [p for p in self.names if p in b.ticks]
         node = pct(sum(b.ticks[p] - a.ticks.get(p, 0) for p in nodes))
-        harness = pct(sum(b.ticks[p] - a.ticks.get(p, 0) for p in self.harness
-                          if p in b.ticks))
+        harness = pct(sum(b.ticks[p] - a.ticks.get(p, 0) for p in self.harness if p in b.ticks))
         total = pct(b.busy - a.busy)
-        return {'nodes': node, 'harness': harness, 'other': max(0.0, total - node - harness),
-                'seconds': dt}
+        return {
+            'nodes': node,
+            'harness': harness,
+            'other': max(0.0, total - node - harness),
+            'seconds': dt,
+        }
 
     def flight_cpu(self) -> dict[str, float] | None:
         return self.window(self.ready, self.last)
@@ -287,26 +312,42 @@ def failure_reasons(case: UpCase, r: dict[str, Any]) -> list[str]:
         why.append(f'{r["received"]}/{r["expected"]:.0f} samples')
     run = (r.get('prediction') or {}).get('run') or {}
     if not run.get('flies'):
-        why.append('formation lost' if run.get('formation_error_rms') is not None
-                   else 'no flight judgement')
+        why.append(
+            'formation lost'
+            if run.get('formation_error_rms') is not None
+            else 'no flight judgement'
+        )
     return why
 
 
-def summarize(case: UpCase, rc: int, summary: dict[str, Any] | None,
-              sampler: CaseSampler) -> dict[str, Any]:
+def summarize(
+    case: UpCase, rc: int, summary: dict[str, Any] | None, sampler: CaseSampler
+) -> dict[str, Any]:
     trackers, plant = sampler.rss_by_role()
-    res: dict[str, Any] = {'exit': rc, 'cpu': sampler.flight_cpu(),
-                           'cpu_startup': sampler.startup_cpu(), 'rss_plant': plant,
-                           'rss_per_tracker': sum(trackers) / case.n if trackers else None,
-                           'rss_tracker_process': statistics.fmean(trackers)
-                           if trackers else None}
+    res: dict[str, Any] = {
+        'exit': rc,
+        'cpu': sampler.flight_cpu(),
+        'cpu_startup': sampler.startup_cpu(),
+        'rss_plant': plant,
+        'rss_per_tracker': sum(trackers) / case.n if trackers else None,
+        'rss_tracker_process': statistics.fmean(trackers) if trackers else None,
+    }
     if summary is not None:
-        res.update({'status': summary.get('status'), 'missed': summary['missed_deadlines'],
-                    'stale': summary['stale_inputs'],
-                    'received': summary['messages']['received'],
-                    'ready_s': summary['timing']['ready'], 'rate': summary['timing']['rate'],
-                    'prediction': {k: v for k, v in (summary.get('prediction') or {}).items()
-                                   if k != 'latency_samples'}})
+        res.update(
+            {
+                'status': summary.get('status'),
+                'missed': summary['missed_deadlines'],
+                'stale': summary['stale_inputs'],
+                'received': summary['messages']['received'],
+                'ready_s': summary['timing']['ready'],
+                'rate': summary['timing']['rate'],
+                'prediction': {
+                    k: v
+                    for k, v in (summary.get('prediction') or {}).items()
+                    if k != 'latency_samples'
+                },
+            }
+        )
     if case.mode == 'realtime':
         res['expected'] = case.flight * case.rate
         res['why'] = failure_reasons(case, res)
@@ -318,11 +359,12 @@ def summarize(case: UpCase, rc: int, summary: dict[str, Any] | None,
 # the bench: domains, cases, leftovers
 # --------------------------------------------------------------------------------------------
 
+
 class Bench:
     def __init__(self, work: Path) -> None:
         self.work = work
         self.t0 = time.monotonic()
-        self.recent: deque[int] = deque(maxlen=10)   # domains not reused right away
+        self.recent: deque[int] = deque(maxlen=10)  # domains not reused right away
         self.configs: list[str] = []
         self.graph_left: list[tuple[str, int]] = []
         self.count = 0
@@ -346,8 +388,14 @@ class Bench:
         env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
         env.pop('ROS_LOCALHOST_ONLY', None)
         with open(log_path, 'wb') as f:
-            p = subprocess.Popen(bringup_argv(case, out, self.domain()), stdin=subprocess.DEVNULL,
-                                 stdout=f, stderr=subprocess.STDOUT, env=env, cwd=ROOT)
+            p = subprocess.Popen(
+                bringup_argv(case, out, self.domain()),
+                stdin=subprocess.DEVNULL,
+                stdout=f,
+                stderr=subprocess.STDOUT,
+                env=env,
+                cwd=ROOT,
+            )
         sampler = CaseSampler(config, p.pid, case.processes)
         ready = LogWatcher(log_path, READY_LINE)
         limit = case.flight - POLL if case.mode == 'realtime' else None
@@ -359,8 +407,7 @@ class Bench:
             except subprocess.TimeoutExpired:
                 sampler.sample(ready.poll(), limit)
                 if time.monotonic() > deadline:
-                    log(f'  overran {case_timeout(case):.0f} s: stopped with '
-                        f'{stop_bringup(p)}')
+                    log(f'  overran {case_timeout(case):.0f} s: stopped with {stop_bringup(p)}')
                     rc = p.returncode if p.returncode is not None else -9
         try:
             summary = json.loads((out / 'summary.json').read_text())
@@ -382,15 +429,21 @@ class Bench:
         self.recent.extend(sorted(used - before))
         r = case.result
         if 'error' not in r:
-            log(f'  p50 {r["p50"]:.2f} / p99 {r["p99"]:.2f} ms ({r["samples"]} commands)'
-                + (f'; ping-pong p50 {r["ping"]["p50"]:.2f} / p99 {r["ping"]["p99"]:.2f} ms'
-                   if 'ping' in r else ''))
+            log(
+                f'  p50 {r["p50"]:.2f} / p99 {r["p99"]:.2f} ms ({r["samples"]} commands)'
+                + (
+                    f'; ping-pong p50 {r["ping"]["p50"]:.2f} / p99 {r["ping"]["p99"]:.2f} ms'
+                    if 'ping' in r
+                    else ''
+                )
+            )
         return case
 
     def pingpong(self, seconds: float) -> dict[str, Any] | None:
         self.count += 1
-        log(f'[{self.count}] raw ping-pong alone, 100 Hz, {seconds:g} s ({self.elapsed()} '
-            'elapsed)')
+        log(
+            f'[{self.count}] raw ping-pong alone, 100 Hz, {seconds:g} s ({self.elapsed()} elapsed)'
+        )
         with tempfile.TemporaryDirectory(prefix='bench_scale_', dir=self.work) as tmp:
             try:
                 res = run_pingpong(Path(tmp), self.domain(), seconds)
@@ -409,10 +462,8 @@ class Bench:
             left += [(name, pid) for pid, name in node_pids(config).items()]
         for name, pid in left:
             log(f'ERROR: left behind: {name} pid {pid}; killing it')
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
         return left
 
 
@@ -420,9 +471,11 @@ def short(case: UpCase) -> str:
     r = case.result
     if 'missed' not in r:
         return f'failed: exit {r["exit"]}: {r.get("error", "")}'
-    text = (f'exit {r["exit"]}, missed {r["missed"]}, stale {r["stale"]}, received '
-            f'{r["received"]}, ready {r["ready_s"]} s, {cpu_cell(r["cpu"])} % CPU '
-            '(nodes / harness / other)')
+    text = (
+        f'exit {r["exit"]}, missed {r["missed"]}, stale {r["stale"]}, received '
+        f'{r["received"]}, ready {r["ready_s"]} s, {cpu_cell(r["cpu"])} % CPU '
+        '(nodes / harness / other)'
+    )
     if case.mode == 'realtime':
         text += f' -> {"flies" if r["flies"] else "does not fly: " + ", ".join(r["why"])}'
     else:
@@ -434,8 +487,17 @@ def short(case: UpCase) -> str:
 # the parts
 # --------------------------------------------------------------------------------------------
 
-def run_ladder(bench: Bench, rate: float, executor: str, inputs: str, k: int, depth: int,
-               sizes: Iterable[int], flight: float) -> list[UpCase]:
+
+def run_ladder(
+    bench: Bench,
+    rate: float,
+    executor: str,
+    inputs: str,
+    k: int,
+    depth: int,
+    sizes: Iterable[int],
+    flight: float,
+) -> list[UpCase]:
     """Climb n until the first size that does not fly."""
     cases = []
     for n in sizes:
@@ -460,43 +522,67 @@ def ladder_plan(quick: bool, rates: list[float]) -> list[tuple[float, str, str, 
     return plan
 
 
-def run_discovery(bench: Bench, done: list[UpCase], sizes: Iterable[int]
-                  ) -> list[tuple[UpCase, str]]:
+def run_discovery(
+    bench: Bench, done: list[UpCase], sizes: Iterable[int]
+) -> list[tuple[UpCase, str]]:
     """(case, 'ladder' | 'own') per (n, K): a ladder case of the discovery configuration
     when there is one, else a short flight of its own."""
     rows = []
     for k in (1, 4):
         for n in sizes:
-            found = [c for c in done if c.mode == 'realtime' and c.n == n and c.k == k
-                     and c.key == (DISCOVERY_RATE, 'events', 'aggregate', k, 1)
-                     and c.result.get('ready_s') is not None]
+            found = [
+                c
+                for c in done
+                if c.mode == 'realtime'
+                and c.n == n
+                and c.k == k
+                and c.key == (DISCOVERY_RATE, 'events', 'aggregate', k, 1)
+                and c.result.get('ready_s') is not None
+            ]
             if found:
                 rows.append((found[0], 'ladder case'))
             else:
-                rows.append((bench.up(UpCase('realtime', n, k, DISCOVERY_FLIGHT,
-                                             DISCOVERY_RATE, part='discovery')),
-                             f'{DISCOVERY_FLIGHT:g} s flight'))
+                rows.append(
+                    (
+                        bench.up(
+                            UpCase(
+                                'realtime',
+                                n,
+                                k,
+                                DISCOVERY_FLIGHT,
+                                DISCOVERY_RATE,
+                                part='discovery',
+                            )
+                        ),
+                        f'{DISCOVERY_FLIGHT:g} s flight',
+                    )
+                )
     return rows
 
 
 def run_latency(bench: Bench, seconds: float) -> tuple[list[Case], dict[str, Any] | None]:
-    cases = [bench.graph_case(Case('latency', 3, 'events', inputs, seconds=seconds,
-                                   pingpong=True)) for inputs in ('aggregate', 'odom')]
+    cases = [
+        bench.graph_case(Case('latency', 3, 'events', inputs, seconds=seconds, pingpong=True))
+        for inputs in ('aggregate', 'odom')
+    ]
     return cases, bench.pingpong(seconds)
 
 
 def run_lockstep(bench: Bench, quick: bool) -> list[UpCase]:
     plan = [(3, 1), (3, 3), (10, 1)] + ([] if quick else [(30, 1), (30, 5)])
-    return [bench.up(UpCase('lockstep', n, k, 2.0 if n <= 10 else 1.0, part='lockstep'))
-            for n, k in plan]
+    return [
+        bench.up(UpCase('lockstep', n, k, 2.0 if n <= 10 else 1.0, part='lockstep'))
+        for n, k in plan
+    ]
 
 
 # --------------------------------------------------------------------------------------------
 # tables
 # --------------------------------------------------------------------------------------------
 
+
 def f1(v: float | None, spec: str = '.1f') -> str:
-    return '-' if v is None or v != v else format(v, spec)
+    return '-' if v is None or math.isnan(v) else format(v, spec)
 
 
 def cpu_cell(cpu: dict[str, float] | None) -> str:
@@ -506,25 +592,33 @@ def cpu_cell(cpu: dict[str, float] | None) -> str:
 
 
 def ladder_summary(ladders: list[list[UpCase]], multi: UpCase | None) -> list[str]:
-    out = ['| rate [Hz] | executor | inputs | QoS depth | trackers per process | largest '
-           'flying / first failing | why the first failing size fails | sizes tried |',
-           '|---:|---|---|---:|---:|---|---|---|']
+    out = [
+        (
+            '| rate [Hz] | executor | inputs | QoS depth | trackers per process | largest '
+            'flying / first failing | why the first failing size fails | sizes tried |'
+        ),
+        '|---:|---|---|---:|---:|---|---|---|',
+    ]
     for cases in ladders:
         c0 = cases[0]
         flying = [c.n for c in cases if c.result.get('flies')]
         failing = [c for c in cases if not c.result.get('flies')]
         top = str(max(flying)) if flying else 'none'
-        first = (f'{failing[0].n}' if failing else f'none up to {cases[-1].n}')
+        first = f'{failing[0].n}' if failing else f'none up to {cases[-1].n}'
         why = ', '.join(failing[0].result.get('why', [])) if failing else '-'
-        out.append(f'| {c0.rate:g} | {c0.executor} | {c0.inputs} | {c0.depth} | {c0.k} | '
-                   f'{top} / {first} | '
-                   f'{why} | {", ".join(str(c.n) for c in cases)} |')
+        out.append(
+            f'| {c0.rate:g} | {c0.executor} | {c0.inputs} | {c0.depth} | {c0.k} | '
+            f'{top} / {first} | '
+            f'{why} | {", ".join(str(c.n) for c in cases)} |'
+        )
     if multi is not None:
         r = multi.result
         verdict = 'flies' if r.get('flies') else 'does not fly'
-        out.append(f'| {multi.rate:g} | multi | {multi.inputs} | {multi.depth} | {multi.k} | '
-                   f'n = {multi.n} '
-                   f'only: {verdict} | {", ".join(r.get("why", [])) or "-"} | {multi.n} |')
+        out.append(
+            f'| {multi.rate:g} | multi | {multi.inputs} | {multi.depth} | {multi.k} | '
+            f'n = {multi.n} '
+            f'only: {verdict} | {", ".join(r.get("why", [])) or "-"} | {multi.n} |'
+        )
     return out
 
 
@@ -536,35 +630,44 @@ def flight_cell(f: dict[str, Any] | None) -> str:
 
 
 def realtime_rows(cases: list[UpCase]) -> list[str]:
-    out = ['| rate [Hz] | executor | inputs | depth | K | trackers | flies | exit | missed | '
-           'stale | samples / expected | formation err / closest pair (run; headless) | '
-           'latency p50 / p99 [ms] | graph ready [s] | CPU nodes / harness / other [%] | '
-           'RSS per tracker [MB] | plant RSS [MB] |',
-           '|---:|---|---|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---|---:|---:|']
+    out = [
+        (
+            '| rate [Hz] | executor | inputs | depth | K | trackers | flies | exit | missed | '
+            'stale | samples / expected | formation err / closest pair (run; headless) | '
+            'latency p50 / p99 [ms] | graph ready [s] | CPU nodes / harness / other [%] | '
+            'RSS per tracker [MB] | plant RSS [MB] |'
+        ),
+        '|---:|---|---|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---|---:|---:|',
+    ]
     for c in cases:
         r = c.result
         head = f'| {c.rate:g} | {c.executor} | {c.inputs} | {c.depth} | {c.k} | {c.n} |'
         if 'missed' not in r:
-            out.append(f'{head} no | {r["exit"]} | failed: {r.get("error", "")} '
-                       '| | | | | | |')
+            out.append(f'{head} no | {r["exit"]} | failed: {r.get("error", "")} | | | | | | |')
             continue
         pr = r.get('prediction') or {}
         lat = pr.get('latency') or {}
-        out.append(f'{head} {"yes" if r["flies"] else "no"} | {r["exit"]} | {r["missed"]} | '
-                   f'{r["stale"]} | {r["received"]} / {r["expected"]:.0f} | '
-                   f'{flight_cell(pr.get("run"))}; {flight_cell(pr.get("emulation"))} | '
-                   f'{f1(1e3 * lat["p50"]) if lat else "-"} / '
-                   f'{f1(1e3 * lat["p99"]) if lat else "-"} | '
-                   f'{f1(r["ready_s"])} | {cpu_cell(r["cpu"])} | '
-                   f'{f1(r["rss_per_tracker"])} | {f1(r["rss_plant"], ".0f")} |')
+        out.append(
+            f'{head} {"yes" if r["flies"] else "no"} | {r["exit"]} | {r["missed"]} | '
+            f'{r["stale"]} | {r["received"]} / {r["expected"]:.0f} | '
+            f'{flight_cell(pr.get("run"))}; {flight_cell(pr.get("emulation"))} | '
+            f'{f1(1e3 * lat["p50"]) if lat else "-"} / '
+            f'{f1(1e3 * lat["p99"]) if lat else "-"} | '
+            f'{f1(r["ready_s"])} | {cpu_cell(r["cpu"])} | '
+            f'{f1(r["rss_per_tracker"])} | {f1(r["rss_plant"], ".0f")} |'
+        )
     return out
 
 
 def latency_rows(cases: list[Case], alone: dict[str, Any] | None) -> list[str]:
-    out = ['| inputs | executor | commands | control loop p50 / p99 [ms] | ping-pong in the '
-           'same graph p50 / p99 [ms] | p50 ratio | p99 ratio | p99 ratio against the '
-           'ping-pong alone | CPU total / other [%] |',
-           '|---|---|---:|---|---|---:|---:|---:|---|']
+    out = [
+        (
+            '| inputs | executor | commands | control loop p50 / p99 [ms] | ping-pong in the '
+            'same graph p50 / p99 [ms] | p50 ratio | p99 ratio | p99 ratio against the '
+            'ping-pong alone | CPU total / other [%] |'
+        ),
+        '|---|---|---:|---|---|---:|---:|---:|---|',
+    ]
     a99 = alone['p99'] if alone else float('nan')
     for c in cases:
         r = c.result
@@ -573,47 +676,68 @@ def latency_rows(cases: list[Case], alone: dict[str, Any] | None) -> list[str]:
             continue
         pp = r.get('ping', {})
         p50, p99 = pp.get('p50', float('nan')), pp.get('p99', float('nan'))
-        out.append(f'| {c.inputs} | {c.executor} | {r["samples"]} | {r["p50"]:.2f} / '
-                   f'{r["p99"]:.2f} | {f1(p50, ".2f")} / {f1(p99, ".2f")} | '
-                   f'{f1(r["p50"] / p50, ".2f")} | {f1(r["p99"] / p99, ".2f")} | '
-                   f'{f1(r["p99"] / a99, ".2f")} | {r["total_cpu"]:.0f} / '
-                   f'{f1(r["other_cpu"], ".0f")} |')
+        out.append(
+            f'| {c.inputs} | {c.executor} | {r["samples"]} | {r["p50"]:.2f} / '
+            f'{r["p99"]:.2f} | {f1(p50, ".2f")} / {f1(p99, ".2f")} | '
+            f'{f1(r["p50"] / p50, ".2f")} | {f1(r["p99"] / p99, ".2f")} | '
+            f'{f1(r["p99"] / a99, ".2f")} | {r["total_cpu"]:.0f} / '
+            f'{f1(r["other_cpu"], ".0f")} |'
+        )
     if alone:
-        out.append(f'| (ping-pong alone) | single | {alone["samples"]} | - | {alone["p50"]:.2f} '
-                   f'/ {alone["p99"]:.2f} | - | - | - | {alone["total_cpu"]:.0f} / '
-                   f'{f1(alone["other_cpu"], ".0f")} |')
+        out.append(
+            f'| (ping-pong alone) | single | {alone["samples"]} | - | {alone["p50"]:.2f} '
+            f'/ {alone["p99"]:.2f} | - | - | - | {alone["total_cpu"]:.0f} / '
+            f'{f1(alone["other_cpu"], ".0f")} |'
+        )
     return out
 
 
 def discovery_rows(rows: list[tuple[UpCase, str]]) -> list[str]:
-    out = ['| trackers | per process | node processes | graph ready [s] | start-up CPU nodes '
-           '/ harness / other [%] | from |', '|---:|---:|---:|---:|---|---|']
+    out = [
+        (
+            '| trackers | per process | node processes | graph ready [s] | start-up CPU nodes '
+            '/ harness / other [%] | from |'
+        ),
+        '|---:|---:|---:|---:|---|---|',
+    ]
     for c, src in sorted(rows, key=lambda x: (x[0].n, x[0].k)):
         r = c.result
         ready = f1(r.get('ready_s')) if 'missed' in r else f'failed: {r.get("error", "")}'
-        out.append(f'| {c.n} | {c.k} | {c.processes} | {ready} | '
-                   f'{cpu_cell(r.get("cpu_startup"))} | {src} |')
+        out.append(
+            f'| {c.n} | {c.k} | {c.processes} | {ready} | '
+            f'{cpu_cell(r.get("cpu_startup"))} | {src} |'
+        )
     return out
 
 
 def lockstep_rows(cases: list[UpCase]) -> list[str]:
-    out = ['| trackers | per process | steps/s | exit | missed | graph ready [s] | CPU nodes / '
-           'harness / other [%] | RSS per tracker [MB] |',
-           '|---:|---:|---:|---:|---:|---:|---|---:|']
+    out = [
+        (
+            '| trackers | per process | steps/s | exit | missed | graph ready [s] | CPU nodes / '
+            'harness / other [%] | RSS per tracker [MB] |'
+        ),
+        '|---:|---:|---:|---:|---:|---:|---|---:|',
+    ]
     for c in cases:
         r = c.result
         if 'missed' not in r:
             out.append(f'| {c.n} | {c.k} | failed: {r.get("error", "")} | {r["exit"]} | | | | |')
             continue
-        out.append(f'| {c.n} | {c.k} | {f1(r["rate"], ".0f")} | {r["exit"]} | {r["missed"]} | '
-                   f'{f1(r["ready_s"])} | {cpu_cell(r["cpu"])} | {f1(r["rss_per_tracker"])} |')
+        out.append(
+            f'| {c.n} | {c.k} | {f1(r["rate"], ".0f")} | {r["exit"]} | {r["missed"]} | '
+            f'{f1(r["ready_s"])} | {cpu_cell(r["cpu"])} | {f1(r["rss_per_tracker"])} |'
+        )
     return out
 
 
 def rss_rows(cases: list[UpCase]) -> list[str]:
-    out = ['| trackers per process | cases | trackers | RSS per tracker [MB] mean (min-max) | '
-           'tracker process RSS [MB] mean | plant RSS [MB] min-max |',
-           '|---:|---:|---|---|---:|---|']
+    out = [
+        (
+            '| trackers per process | cases | trackers | RSS per tracker [MB] mean (min-max) | '
+            'tracker process RSS [MB] mean | plant RSS [MB] min-max |'
+        ),
+        '|---:|---:|---|---|---:|---|',
+    ]
 
     def span(vals: list[float], spec: str = '.1f') -> str:
         return f'{min(vals):{spec}}-{max(vals):{spec}}'
@@ -626,15 +750,18 @@ def rss_rows(cases: list[UpCase]) -> list[str]:
         proc = [c.result['rss_tracker_process'] for c in own]
         plant = [c.result['rss_plant'] for c in own if c.result['rss_plant'] is not None]
         ns = sorted({c.n for c in own})
-        out.append(f'| {k} | {len(own)} | {ns[0]}-{ns[-1]} | {statistics.fmean(per):.1f} '
-                   f'({span(per)}) | {statistics.fmean(proc):.1f} | '
-                   f'{span(plant, ".0f") if plant else "-"} |')
+        out.append(
+            f'| {k} | {len(own)} | {ns[0]}-{ns[-1]} | {statistics.fmean(per):.1f} '
+            f'({span(per)}) | {statistics.fmean(proc):.1f} | '
+            f'{span(plant, ".0f") if plant else "-"} |'
+        )
     return out
 
 
 # --------------------------------------------------------------------------------------------
 # driver
 # --------------------------------------------------------------------------------------------
+
 
 def parse_parts(text: str) -> list[str]:
     parts = [p.strip() for p in text.split(',') if p.strip()]
@@ -646,19 +773,45 @@ def parse_parts(text: str) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--quick', action='store_true',
-                    help='50 Hz, events / aggregate only, n in (8, 16), short windows')
-    ap.add_argument('--rates', type=float, nargs='+', metavar='HZ',
-                    help='realtime rates of the ladders (default 50 100; --quick 50)')
-    ap.add_argument('--flight', type=float, metavar='S',
-                    help='wall seconds of flight per ladder case (default 25; --quick 5)')
-    ap.add_argument('--only', type=parse_parts, default=list(PARTS), metavar='PARTS',
-                    help=f'comma-separated subset of {",".join(PARTS)}')
-    ap.add_argument('--ladder', metavar='TEXT', action='append', default=[],
-                    help='only the ladders whose label contains TEXT (repeatable), e.g. '
-                    '"depth=10"; labels: "<rate> Hz <executor> <inputs> K=<k> depth=<d>"')
-    ap.add_argument('--keep', type=Path, metavar='DIR',
-                    help='keep every bring-up case\'s output and logs under DIR')
+    ap.add_argument(
+        '--quick',
+        action='store_true',
+        help='50 Hz, events / aggregate only, n in (8, 16), short windows',
+    )
+    ap.add_argument(
+        '--rates',
+        type=float,
+        nargs='+',
+        metavar='HZ',
+        help='realtime rates of the ladders (default 50 100; --quick 50)',
+    )
+    ap.add_argument(
+        '--flight',
+        type=float,
+        metavar='S',
+        help='wall seconds of flight per ladder case (default 25; --quick 5)',
+    )
+    ap.add_argument(
+        '--only',
+        type=parse_parts,
+        default=list(PARTS),
+        metavar='PARTS',
+        help=f'comma-separated subset of {",".join(PARTS)}',
+    )
+    ap.add_argument(
+        '--ladder',
+        metavar='TEXT',
+        action='append',
+        default=[],
+        help='only the ladders whose label contains TEXT (repeatable), e.g. '
+        '"depth=10"; labels: "<rate> Hz <executor> <inputs> K=<k> depth=<d>"',
+    )
+    ap.add_argument(
+        '--keep',
+        type=Path,
+        metavar='DIR',
+        help="keep every bring-up case's output and logs under DIR",
+    )
     return ap
 
 
@@ -667,15 +820,23 @@ def run_parts(bench: Bench, args: argparse.Namespace) -> dict[str, Any]:
     rates = args.rates or ([50.0] if q else [50.0, 100.0])
     flight = args.flight or (5.0 if q else 25.0)  # the formation is judged over the last 40 %
     sizes = (8, 16) if q else LADDER
-    res: dict[str, Any] = {'rates': rates, 'flight': flight, 'ladders': [], 'multi': None,
-                           'latency': ([], None), 'discovery': [], 'lockstep': []}
+    res: dict[str, Any] = {
+        'rates': rates,
+        'flight': flight,
+        'ladders': [],
+        'multi': None,
+        'latency': ([], None),
+        'discovery': [],
+        'lockstep': [],
+    }
     if 'ladder' in args.only:
         for rate, executor, inputs, k, depth in ladder_plan(q, rates):
             label = f'{rate:g} Hz {executor} {inputs} K={k} depth={depth}'
             if args.ladder and not any(t in label for t in args.ladder):
                 continue
-            res['ladders'].append(run_ladder(bench, rate, executor, inputs, k, depth, sizes,
-                                             flight))
+            res['ladders'].append(
+                run_ladder(bench, rate, executor, inputs, k, depth, sizes, flight)
+            )
         if not q and not args.ladder:
             res['multi'] = bench.up(UpCase('realtime', 4, 1, flight, 50.0, 'multi'))
     if 'discovery' in args.only:
@@ -690,48 +851,91 @@ def run_parts(bench: Bench, args: argparse.Namespace) -> dict[str, Any]:
 
 def report(res: dict[str, Any], m_before: dict[str, str], wall: float, left: int) -> str:
     load = os.getloadavg()
-    out = [f'Machine: {m_before["nproc"]} CPUs ({m_before["cpu"]}), Linux {m_before["kernel"]}, '
-           f'Python {m_before["python"]}, {m_before["rmw"]}; load average before: '
-           f'{m_before["load"]}; after: {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}. CPU '
-           'figures are % of one core over the flight window: the case\'s node processes / the '
-           'harness (bring-up + this bench) / other load on the machine.', '']
+    out = [
+        (
+            f'Machine: {m_before["nproc"]} CPUs ({m_before["cpu"]}), Linux {m_before["kernel"]}, '
+            f'Python {m_before["python"]}, {m_before["rmw"]}; load average before: '
+            f'{m_before["load"]}; after: {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}. CPU '
+            "figures are % of one core over the flight window: the case's node processes / the "
+            'harness (bring-up + this bench) / other load on the machine.'
+        ),
+        '',
+    ]
     ladders = res['ladders']
     if ladders:
-        out += [f'Max trackers in realtime, {res["flight"]:g} s per case ("flies": exit 0, no '
+        out += [
+            (
+                f'Max trackers in realtime, {res["flight"]:g} s per case ("flies": exit 0, no '
                 f'missed deadline, <= {STALE_PER_TRACKER} stale commands per tracker, >= '
                 f'{MIN_SAMPLES:.0%} of the expected samples, the formation held over the '
                 f'last 40 %; each ladder stops at its first '
-                'failing size):', '', *ladder_summary(ladders, res['multi']), '',
-                'Every realtime case:', '',
-                *realtime_rows([c for cases in ladders for c in cases]
-                               + ([res['multi']] if res['multi'] else [])), '']
+                'failing size):'
+            ),
+            '',
+            *ladder_summary(ladders, res['multi']),
+            '',
+            'Every realtime case:',
+            '',
+            *realtime_rows(
+                [c for cases in ladders for c in cases] + ([res['multi']] if res['multi'] else [])
+            ),
+            '',
+        ]
     lat, alone = res['latency']
     if lat:
-        out += ['Control-loop latency at 100 Hz (bench_graph: events executor, 3 trackers, '
+        out += [
+            (
+                'Control-loop latency at 100 Hz (bench_graph: events executor, 3 trackers, '
                 'trigger:=odom; plant /swarm/odom stamp -> /uav_1/force_cmd at the observer) '
                 'against the raw rclpy ping-pong (observer -> echo -> observer, round trip), '
                 'run in the same graph at the same time, and alone; ratio = control loop / '
-                'ping-pong:', '', *latency_rows(lat, alone), '']
+                'ping-pong:'
+            ),
+            '',
+            *latency_rows(lat, alone),
+            '',
+        ]
     if res['discovery']:
-        out += [f'Discovery: the bring-up\'s "graph ready" (process start to every node seen and '
+        out += [
+            (
+                f'Discovery: the bring-up\'s "graph ready" (process start to every node seen and '
                 f'every subscription matched), realtime {DISCOVERY_RATE:g} Hz, events / '
-                'aggregate:', '', *discovery_rows(res['discovery']), '']
+                'aggregate:'
+            ),
+            '',
+            *discovery_rows(res['discovery']),
+            '',
+        ]
     if res['lockstep']:
-        out += ['Lockstep (triangle, dt = 1 ms) through the bring-up:', '',
-                *lockstep_rows(res['lockstep']), '']
-    every = ([c for cases in ladders for c in cases] + [c for c, src in res['discovery']
-                                                        if src != 'ladder case']
-             + res['lockstep'] + ([res['multi']] if res['multi'] else []))
+        out += [
+            'Lockstep (triangle, dt = 1 ms) through the bring-up:',
+            '',
+            *lockstep_rows(res['lockstep']),
+            '',
+        ]
+    every = (
+        [c for cases in ladders for c in cases]
+        + [c for c, src in res['discovery'] if src != 'ladder case']
+        + res['lockstep']
+        + ([res['multi']] if res['multi'] else [])
+    )
     if every:
-        out += ['RSS per tracker by hosting mode (sum of the tracker processes\' max RSS / n, '
-                'over every case above):', '', *rss_rows(every), '']
+        out += [
+            (
+                "RSS per tracker by hosting mode (sum of the tracker processes' max RSS / n, "
+                'over every case above):'
+            ),
+            '',
+            *rss_rows(every),
+            '',
+        ]
     out.append(f'Wall time of the bench: {wall:.0f} s. Processes left behind: {left}.')
     return '\n'.join(out)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'   # the in-process observers too
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'  # the in-process observers too
     os.environ.pop('ROS_LOCALHOST_ONLY', None)
     m = machine()
     log(f'machine: {m["nproc"]} CPUs, {m["cpu"]}, load average {m["load"]} (before)')

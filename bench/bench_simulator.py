@@ -15,7 +15,8 @@ Before timing anything the bench checks that the loop reproduces the simulator's
 
 Timing: ``time.perf_counter`` around ``BatchSimulator.run(steps, record=...)`` and around the
 loop's ``run(steps)``, after a warm-up, alternating the two, several repeats; the table gives
-the best and the median time per step, and the floors are judged on the ratio of the bests. Both sides draw the disturbance in the timed region; the target's
+the best and the median time per step, and the floors are judged on the ratio of the bests.
+Both sides draw the disturbance in the timed region; the target's
 trajectory is evaluated inside the simulator's timed region and precomputed for the loop.
 
 Output: Markdown tables on stdout (``--plain`` for aligned text), progress on stderr. Exit
@@ -40,14 +41,14 @@ try:
 except ImportError:  # run from the workspace root without PYTHONPATH
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'apf_swarm_core'))
 
-from apf_swarm_core.config import SwarmConfig, load_preset  # noqa: E402
-from apf_swarm_core.plant import DisturbanceSource  # noqa: E402
-from apf_swarm_core.simulator import BatchSimulator, initial_positions  # noqa: E402
+from apf_swarm_core.config import SwarmConfig, load_preset
+from apf_swarm_core.plant import DisturbanceSource
+from apf_swarm_core.simulator import BatchSimulator, initial_positions
 
 #: floors of the issue
-FLOOR_N3 = 3.0            # simulator vs loop, single run, 3 trackers
-FLOOR_N100 = 50.0         # simulator vs loop, single run, 100 trackers
-FLOOR_BATCH = 5e6         # tracker-steps per second, batched runs of 3 trackers
+FLOOR_N3 = 3.0  # simulator vs loop, single run, 3 trackers
+FLOOR_N100 = 50.0  # simulator vs loop, single run, 100 trackers
+FLOOR_BATCH = 5e6  # tracker-steps per second, batched runs of 3 trackers
 
 
 def log(msg: str) -> None:
@@ -122,7 +123,7 @@ class LoopSimulator:
 def base_config(n: int, **changes) -> SwarmConfig:
     """The default preset (triangle) with ``n`` trackers; 'uniform_ball' noise."""
     cfg = load_preset('triangle').replace(n_trackers=n, **changes)
-    if n > 3:     # keep the swarm's initial spacing comparable to the 3-tracker preset
+    if n > 3:  # keep the swarm's initial spacing comparable to the 3-tracker preset
         cfg = cfg.replace(init_spread=cfg.init_spread * (n / 3) ** (1 / 3))
     return cfg
 
@@ -136,8 +137,9 @@ def verify(n: int, steps: int) -> float:
     lrec = loop.run(steps, record=True)
     err = max(np.abs(rec['x'][0] - lrec['x']).max(), np.abs(rec['v'][0] - lrec['v']).max())
     # and the state after the last step
-    err = max(err, np.abs(sim.x[0] - np.array(loop.x)).max(),
-              np.abs(sim.v[0] - np.array(loop.v)).max())
+    err = max(
+        err, np.abs(sim.x[0] - np.array(loop.x)).max(), np.abs(sim.v[0] - np.array(loop.v)).max()
+    )
     return float(err)
 
 
@@ -145,8 +147,9 @@ def best_and_median(samples: list[float]) -> tuple[float, float]:
     return min(samples), statistics.median(samples)
 
 
-def single_case(n: int, sim_steps: int, loop_steps: int, repeats: int,
-                loop_repeats: int | None = None) -> dict[str, tuple[float, float]]:
+def single_case(
+    n: int, sim_steps: int, loop_steps: int, repeats: int, loop_repeats: int | None = None
+) -> dict[str, tuple[float, float]]:
     """Seconds per step (best, median) of a single run of n trackers: the simulator with
     recording off and on, and the loop.
 
@@ -157,7 +160,7 @@ def single_case(n: int, sim_steps: int, loop_steps: int, repeats: int,
     loop_repeats = repeats if loop_repeats is None else loop_repeats
     sims = {rec: BatchSimulator([cfg]) for rec in (False, True)}
     for rec, sim in sims.items():
-        sim.run(min(sim_steps, 50), record=rec)                      # warm-up
+        sim.run(min(sim_steps, 50), record=rec)  # warm-up
     loop = LoopSimulator(cfg, 2 + loop_repeats * loop_steps)
     loop.run(2)
     times: dict[str, list[float]] = {'off': [], 'on': [], 'loop': []}
@@ -171,8 +174,10 @@ def single_case(n: int, sim_steps: int, loop_steps: int, repeats: int,
             loop.run(loop_steps)
             times['loop'].append((time.perf_counter() - t0) / loop_steps)
     res = {k: best_and_median(v) for k, v in times.items()}
-    log(f'  n={n}: simulator best {res["off"][0] * 1e6:.1f} us (record on '
-        f'{res["on"][0] * 1e6:.1f} us), loop best {res["loop"][0] * 1e6:.1f} us')
+    log(
+        f'  n={n}: simulator best {res["off"][0] * 1e6:.1f} us (record on '
+        f'{res["on"][0] * 1e6:.1f} us), loop best {res["loop"][0] * 1e6:.1f} us'
+    )
     return res
 
 
@@ -190,8 +195,10 @@ def batch_case(R: int, steps: int, repeats: int, noise: str) -> tuple[float, flo
         t0 = time.perf_counter()
         sim.run(steps, record=False)
         rates.append(R * 3 * steps / (time.perf_counter() - t0))
-    log(f'  R={R} noise={noise}: best {max(rates) / 1e6:.2f}, median '
-        f'{statistics.median(rates) / 1e6:.2f} M tracker-steps/s (set-up {setup:.1f} s)')
+    log(
+        f'  R={R} noise={noise}: best {max(rates) / 1e6:.2f}, median '
+        f'{statistics.median(rates) / 1e6:.2f} M tracker-steps/s (set-up {setup:.1f} s)'
+    )
     return max(rates), statistics.median(rates)
 
 
@@ -211,8 +218,10 @@ def machine() -> str:
                 break
     except OSError:
         pass
-    return (f'nproc {os.cpu_count()}, CPU {cpu}, Python {platform.python_version()}, '
-            f'numpy {np.__version__}')
+    return (
+        f'nproc {os.cpu_count()}, CPU {cpu}, Python {platform.python_version()}, '
+        f'numpy {np.__version__}'
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -234,11 +243,12 @@ def main(argv: list[str] | None = None) -> int:
     ok_verify = all(e <= 1e-9 for e in errors.values())
 
     log('single runs (simulator and loop timed alternately) ...')
-    rows = []   # case, (sim best, median), (loop best, median), floor or None
+    rows = []  # case, (sim best, median), (loop best, median), floor or None
     for n, sim_steps, loop_steps, reps, loop_reps, floor in (
-            (3, 100, 100, 30 if q else 150, None, FLOOR_N3),
-            (100, 50, 2, 4 if q else 7, None, FLOOR_N100),
-            (1000, 5 if q else 10, 1, 2 if q else 3, 1 if q else 2, None)):
+        (3, 100, 100, 30 if q else 150, None, FLOOR_N3),
+        (100, 50, 2, 4 if q else 7, None, FLOOR_N100),
+        (1000, 5 if q else 10, 1, 2 if q else 3, 1 if q else 2, None),
+    ):
         res = single_case(n, sim_steps, loop_steps, reps, loop_reps)
         rows.append((f'n={n}, record off', res['off'], res['loop'], floor))
         rows.append((f'n={n}, record on', res['on'], res['loop'], floor))
@@ -258,13 +268,17 @@ def main(argv: list[str] | None = None) -> int:
     all_ok = ok_verify
     if md:
         out.append(f'Machine: {machine()}.\n')
-        out.append('| case | simulator / step (best, median) | loop / step (best, median) '
-                   '| ratio of bests | floor | result |')
+        out.append(
+            '| case | simulator / step (best, median) | loop / step (best, median) '
+            '| ratio of bests | floor | result |'
+        )
         out.append('|---|---:|---:|---:|---:|---|')
     else:
         out.append(machine())
-        out.append(f"{'case':20s}{'simulator/step best, median':>30s}"
-                   f"{'loop/step best, median':>26s}{'ratio':>8s}{'floor':>7s}  result")
+        out.append(
+            f'{"case":20s}{"simulator/step best, median":>30s}'
+            f'{"loop/step best, median":>26s}{"ratio":>8s}{"floor":>7s}  result'
+        )
     for case, ts, tl, floor in rows:
         ratio = tl[0] / ts[0]
         res = '(reported)' if floor is None else ('pass' if ratio >= floor else 'FAIL')
@@ -278,16 +292,20 @@ def main(argv: list[str] | None = None) -> int:
             out.append(f'{case:20s}{st:>30s}{lt:>26s}{ratio:>7.1f}x{fl:>7s}  {res}')
     out.append('')
     if md:
-        out.append('| batched, R runs x 3 trackers | noise | time / step (best) '
-                   '| tracker-steps/s (best, median) | floor | result |')
+        out.append(
+            '| batched, R runs x 3 trackers | noise | time / step (best) '
+            '| tracker-steps/s (best, median) | floor | result |'
+        )
         out.append('|---|---|---:|---:|---:|---|')
     else:
-        out.append(f"{'batched R x 3':16s}{'noise':>14s}{'time/step':>12s}"
-                   f"{'tracker-steps/s best, median':>31s}{'floor':>7s}  result")
+        out.append(
+            f'{"batched R x 3":16s}{"noise":>14s}{"time/step":>12s}'
+            f'{"tracker-steps/s best, median":>31s}{"floor":>7s}  result'
+        )
     for R, noise, (best, med) in batch:
         if noise != 'uniform_ball':
             res = '(reported)'
-        elif R == best_R:                       # the floor is judged at the best R
+        elif best_R == R:  # the floor is judged at the best R
             res = 'pass' if best >= FLOOR_BATCH else 'FAIL'
             all_ok &= res == 'pass'
         else:
@@ -297,17 +315,23 @@ def main(argv: list[str] | None = None) -> int:
         if md:
             out.append(f'| R = {R} | {noise} | {fmt_t(tstep)} | {rate} | 5 M | {res} |')
         else:
-            out.append(f'{"R = " + str(R):16s}{noise:>14s}{fmt_t(tstep):>12s}{rate:>31s}'
-                       f'{"5 M":>7s}  {res}')
+            out.append(
+                f'{"R = " + str(R):16s}{noise:>14s}{fmt_t(tstep):>12s}{rate:>31s}'
+                f'{"5 M":>7s}  {res}'
+            )
     out.append('')
     checks_txt = ', '.join(f'n={n} over {s} steps: {e:.1e}' for (n, s), e in errors.items())
-    out.append(f'Loop vs simulator, max |difference| of positions and velocities: {checks_txt} '
-               f"({'pass' if ok_verify else 'FAIL'}, tolerance 1e-9).")
+    out.append(
+        f'Loop vs simulator, max |difference| of positions and velocities: {checks_txt} '
+        f'({"pass" if ok_verify else "FAIL"}, tolerance 1e-9).'
+    )
     wall = time.perf_counter() - t_start
-    out.append(f'Batched floor judged at the best R ({best_R}). Wall time of the bench: '
-               f'{wall:.0f} s, of which this process had the CPU for '
-               f'{(time.process_time() - cpu_start) / wall:.0%}; load average (1, 5, 15 min) '
-               f'{load_start} at the start, {load_average()} at the end.')
+    out.append(
+        f'Batched floor judged at the best R ({best_R}). Wall time of the bench: '
+        f'{wall:.0f} s, of which this process had the CPU for '
+        f'{(time.process_time() - cpu_start) / wall:.0%}; load average (1, 5, 15 min) '
+        f'{load_start} at the start, {load_average()} at the end.'
+    )
     print('\n'.join(out))
     return 0 if all_ok else 1
 

@@ -29,13 +29,15 @@ def main(argv: list[str]) -> int:
         return 2
     scripts = sorted((ROOT / 'bench').glob('bench_*.py'))
     if names:
-        scripts = [s for s in scripts if s.stem[len('bench_'):] in names]
+        scripts = [s for s in scripts if s.stem[len('bench_') :] in names]
         if len(scripts) != len(set(names)):
             print(f'unknown benchmark among {names}', file=sys.stderr)
             return 2
     env = dict(os.environ)
-    env['PYTHONPATH'] = os.pathsep.join([str(ROOT / 'src' / 'apf_swarm_core')]
-                                        + ([env['PYTHONPATH']] if env.get('PYTHONPATH') else []))
+    env['PYTHONPATH'] = os.pathsep.join(
+        [str(ROOT / 'src' / 'apf_swarm_core')]
+        + ([env['PYTHONPATH']] if env.get('PYTHONPATH') else [])
+    )
     status = 0
     for script in scripts:
         print(f'\n## {script.relative_to(ROOT)}\n', flush=True)

@@ -35,11 +35,10 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
 from bench_graph import cpu_ticks, machine, rss_mb  # noqa: E402  (the same /proc readers)
 
-from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
-
-GROWTH_LIMIT = 5.0           # percent
+GROWTH_LIMIT = 5.0  # percent
 TICKS = os.sysconf('SC_CLK_TCK')
 
 
@@ -49,8 +48,9 @@ def log(msg: str) -> None:
 
 def node_name(cmdline: list[str]) -> str:
     """A readable name from a node's command line: tracker_<id>, plant, target, recorder."""
-    exe = Path(cmdline[1] if cmdline[0].endswith('python') and len(cmdline) > 1
-               else cmdline[0]).name
+    exe = Path(
+        cmdline[1] if cmdline[0].endswith('python') and len(cmdline) > 1 else cmdline[0]
+    ).name
     for arg in cmdline:
         if arg.startswith('uav_id:='):
             return f'{exe}_{arg.split(":=", 1)[1]}'
@@ -77,8 +77,9 @@ def mean(values: list[float]) -> float:
     return sum(values) / len(values) if values else float('nan')
 
 
-def analyse(samples: list[dict[str, Any]], warmup: float, window: float, duration: float
-            ) -> list[dict[str, Any]]:
+def analyse(
+    samples: list[dict[str, Any]], warmup: float, window: float, duration: float
+) -> list[dict[str, Any]]:
     """Per node: RSS after the warm-up and at the end (means over ``window`` of the run),
     growth in percent, maximum RSS, mean CPU (% of one core)."""
     rows = []
@@ -89,21 +90,32 @@ def analyse(samples: list[dict[str, Any]], warmup: float, window: float, duratio
         early = [s['rss_mb'] for s in own if t0 <= s['t'] < t1]
         late = [s['rss_mb'] for s in own if s['t'] >= (1 - window) * duration]
         cpu = [s for s in own if s['t'] >= t0]
-        cpu_pct = (100.0 * (cpu[-1]['cpu_s'] - cpu[0]['cpu_s']) / (cpu[-1]['t'] - cpu[0]['t'])
-                   if len(cpu) > 1 and cpu[-1]['t'] > cpu[0]['t'] else float('nan'))
+        cpu_pct = (
+            100.0 * (cpu[-1]['cpu_s'] - cpu[0]['cpu_s']) / (cpu[-1]['t'] - cpu[0]['t'])
+            if len(cpu) > 1 and cpu[-1]['t'] > cpu[0]['t']
+            else float('nan')
+        )
         e, lt = mean(early), mean(late)
-        rows.append({'node': name, 'rss_after_warmup_mb': round(e, 2),
-                     'rss_end_mb': round(lt, 2), 'growth_pct': round(100.0 * (lt - e) / e, 2)
-                     if e == e and e > 0 else float('nan'),
-                     'rss_max_mb': round(max(s['rss_mb'] for s in own), 2),
-                     'cpu_pct': round(cpu_pct, 1), 'samples': len(own)})
+        rows.append(
+            {
+                'node': name,
+                'rss_after_warmup_mb': round(e, 2),
+                'rss_end_mb': round(lt, 2),
+                'growth_pct': round(100.0 * (lt - e) / e, 2) if e > 0 else float('nan'),
+                'rss_max_mb': round(max(s['rss_mb'] for s in own), 2),
+                'cpu_pct': round(cpu_pct, 1),
+                'samples': len(own),
+            }
+        )
     return rows
 
 
 def plot(samples: list[dict[str, Any]], path: Path, title: str) -> None:
     import matplotlib
+
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for name in sorted({s['node'] for s in samples}):
         own = [s for s in samples if s['node'] == name]
@@ -124,8 +136,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--n-trackers', type=int, default=3)
     p.add_argument('--every', type=float, default=5.0, help='sampling period [s]')
     p.add_argument('--warmup', type=float, default=0.1, help='fraction of the run skipped')
-    p.add_argument('--window', type=float, default=0.1,
-                   help='fraction of the run averaged at each end')
+    p.add_argument(
+        '--window', type=float, default=0.1, help='fraction of the run averaged at each end'
+    )
     p.add_argument('--out', type=Path, default=None, help='output directory')
     p.add_argument('--domain-id', type=int, default=None)
     args = p.parse_args(argv)
@@ -135,15 +148,34 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     run_dir = out / 'run'
     domain = args.domain_id if args.domain_id is not None else pick_domain_id(lo=231, hi=232)
-    cmd = [sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--preset', 'realtime',
-           '--mode', 'realtime', '--duration', str(args.duration), '--n-trackers',
-           str(args.n_trackers), '--domain-id', str(domain), '--out', str(run_dir),
-           '--no-plots']
+    cmd = [
+        sys.executable,
+        str(ROOT / 'scripts' / 'swarm_up.py'),
+        '--preset',
+        'realtime',
+        '--mode',
+        'realtime',
+        '--duration',
+        str(args.duration),
+        '--n-trackers',
+        str(args.n_trackers),
+        '--domain-id',
+        str(domain),
+        '--out',
+        str(run_dir),
+        '--no-plots',
+    ]
     log(f'{" ".join(cmd[1:])}')
     err_path = out / 'bringup.stderr'
     with open(err_path, 'wb') as err, open(out / 'bringup.stdout', 'wb') as sout:
-        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=sout, stderr=err,
-                                cwd=ROOT, start_new_session=True)
+        proc = subprocess.Popen(
+            cmd,
+            stdin=subprocess.DEVNULL,
+            stdout=sout,
+            stderr=err,
+            cwd=ROOT,
+            start_new_session=True,
+        )
     config = str(run_dir / 'config.yaml')
     samples: list[dict[str, Any]] = []
     t_start: float | None = None
@@ -160,8 +192,15 @@ def main(argv: list[str] | None = None) -> int:
                 for pid, name in node_pids(config).items():
                     rss, ticks = rss_mb(pid), cpu_ticks(pid)
                     if rss is not None and ticks is not None:
-                        samples.append({'t': round(now - t_start, 3), 'node': name, 'pid': pid,
-                                        'rss_mb': round(rss, 3), 'cpu_s': ticks / TICKS})
+                        samples.append(
+                            {
+                                't': round(now - t_start, 3),
+                                'node': name,
+                                'pid': pid,
+                                'rss_mb': round(rss, 3),
+                                'cpu_s': ticks / TICKS,
+                            }
+                        )
             if t_start is not None and now >= next_report:
                 next_report += 60
                 total = sum(s['rss_mb'] for s in samples if s['t'] == samples[-1]['t'])
@@ -179,36 +218,62 @@ def main(argv: list[str] | None = None) -> int:
         w.writeheader()
         w.writerows(samples)
     rows = analyse(samples, args.warmup, args.window, args.duration) if samples else []
-    run = {'bringup_exit': rc, 'status': summary.get('status'),
-           'missed_deadlines': summary.get('missed_deadlines'),
-           'stale_inputs': summary.get('stale_inputs'),
-           'rejected_inputs': summary.get('rejected_inputs'),
-           'dropped': (summary.get('messages') or {}).get('dropped'),
-           'samples_received': (summary.get('messages') or {}).get('received')}
+    run = {
+        'bringup_exit': rc,
+        'status': summary.get('status'),
+        'missed_deadlines': summary.get('missed_deadlines'),
+        'stale_inputs': summary.get('stale_inputs'),
+        'rejected_inputs': summary.get('rejected_inputs'),
+        'dropped': (summary.get('messages') or {}).get('dropped'),
+        'samples_received': (summary.get('messages') or {}).get('received'),
+    }
     worst = max((r['growth_pct'] for r in rows), default=float('nan'))
-    ok = (rc == 0 and rows and worst < GROWTH_LIMIT and run['missed_deadlines'] == 0
-          and run['dropped'] == 0)
-    result = {'machine': machine(), 'duration_s': args.duration, 'n_trackers': args.n_trackers,
-              'every_s': args.every, 'nodes': rows, 'run': run,
-              'max_growth_pct': worst, 'pass': bool(ok)}
+    ok = (
+        rc == 0
+        and rows
+        and worst < GROWTH_LIMIT
+        and run['missed_deadlines'] == 0
+        and run['dropped'] == 0
+    )
+    result = {
+        'machine': machine(),
+        'duration_s': args.duration,
+        'n_trackers': args.n_trackers,
+        'every_s': args.every,
+        'nodes': rows,
+        'run': run,
+        'max_growth_pct': worst,
+        'pass': bool(ok),
+    }
     (out / 'soak.json').write_text(json.dumps(result, indent=2) + '\n')
     if samples:
-        plot(samples, out / 'soak_rss.png',
-             f'RSS per node, realtime swarm of {args.n_trackers}, {args.duration / 60:g} min')
+        plot(
+            samples,
+            out / 'soak_rss.png',
+            f'RSS per node, realtime swarm of {args.n_trackers}, {args.duration / 60:g} min',
+        )
     m = result['machine']
-    print(f'Soak: realtime swarm, {args.n_trackers} trackers, {args.duration:g} s, sampled every '
-          f'{args.every:g} s; machine: {m["nproc"]} CPUs ({m["cpu"]}), Python {m["python"]}, '
-          f'{m["rmw"]}, load average at the end {m["load"]}.\n')
-    print('| node | RSS after warm-up [MB] | RSS at the end [MB] | growth [%] | max RSS [MB] '
-          '| CPU [% of a core] |')
+    print(
+        f'Soak: realtime swarm, {args.n_trackers} trackers, {args.duration:g} s, sampled every '
+        f'{args.every:g} s; machine: {m["nproc"]} CPUs ({m["cpu"]}), Python {m["python"]}, '
+        f'{m["rmw"]}, load average at the end {m["load"]}.\n'
+    )
+    print(
+        '| node | RSS after warm-up [MB] | RSS at the end [MB] | growth [%] | max RSS [MB] '
+        '| CPU [% of a core] |'
+    )
     print('|---|---:|---:|---:|---:|---:|')
     for r in rows:
-        print(f"| {r['node']} | {r['rss_after_warmup_mb']:.1f} | {r['rss_end_mb']:.1f} | "
-              f"{r['growth_pct']:+.2f} | {r['rss_max_mb']:.1f} | {r['cpu_pct']:.1f} |")
-    print(f"\nRun: exit {rc}, status {run['status']}, missed deadlines {run['missed_deadlines']}, "
-          f"stale inputs {run['stale_inputs']}, rejected {run['rejected_inputs']}, samples "
-          f"{run['samples_received']} received / {run['dropped']} dropped. Largest growth "
-          f"{worst:+.2f} % (limit {GROWTH_LIMIT:g} %): {'pass' if ok else 'FAIL'}.")
+        print(
+            f'| {r["node"]} | {r["rss_after_warmup_mb"]:.1f} | {r["rss_end_mb"]:.1f} | '
+            f'{r["growth_pct"]:+.2f} | {r["rss_max_mb"]:.1f} | {r["cpu_pct"]:.1f} |'
+        )
+    print(
+        f'\nRun: exit {rc}, status {run["status"]}, missed deadlines {run["missed_deadlines"]}, '
+        f'stale inputs {run["stale_inputs"]}, rejected {run["rejected_inputs"]}, samples '
+        f'{run["samples_received"]} received / {run["dropped"]} dropped. Largest growth '
+        f'{worst:+.2f} % (limit {GROWTH_LIMIT:g} %): {"pass" if ok else "FAIL"}.'
+    )
     print(f'Files: {out}/soak.csv, soak.json, soak_rss.png, run/')
     return 0 if ok else 1
 

@@ -24,6 +24,7 @@ machine that cannot make namespaces.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import json
 import os
@@ -63,10 +64,8 @@ def unavailable() -> str | None:
         ip('netns', 'add', probe)
     except RuntimeError as exc:
         return f'cannot create a network namespace: {exc}'
-    try:
+    with contextlib.suppress(RuntimeError):
         ip('netns', 'del', probe)
-    except RuntimeError:
-        pass
     return None
 
 
@@ -81,7 +80,7 @@ class Lab:
         self.addr = {ns: f'{self.net}.{h}' for h, ns in enumerate(self.hosts, start=1)}
         self.made: list[str] = []
 
-    def __enter__(self) -> 'Lab':
+    def __enter__(self) -> Lab:
         try:
             ip('netns', 'add', self.switch)
             self.made.append(self.switch)
@@ -90,8 +89,20 @@ class Lab:
             for h, ns in enumerate(self.hosts, start=1):
                 ip('netns', 'add', ns)
                 self.made.append(ns)
-                ip('link', 'add', 'eth0', 'netns', ns, 'type', 'veth', 'peer', 'name', f'p{h}',
-                   'netns', self.switch)
+                ip(
+                    'link',
+                    'add',
+                    'eth0',
+                    'netns',
+                    ns,
+                    'type',
+                    'veth',
+                    'peer',
+                    'name',
+                    f'p{h}',
+                    'netns',
+                    self.switch,
+                )
                 ip('-n', self.switch, 'link', 'set', f'p{h}', 'master', 'br0')
                 ip('-n', self.switch, 'link', 'set', f'p{h}', 'up')
                 ip('-n', ns, 'addr', 'add', f'{self.addr[ns]}/24', 'dev', 'eth0')
@@ -128,8 +139,10 @@ def tracker_process_names(n: int, per_process: int) -> list[str]:
 def fastdds_library_path() -> str:
     """LD_LIBRARY_PATH for the wheels' fast-discovery-server binary."""
     venv = Path(sys.prefix)
-    dirs = [str(venv / 'lib')] + sorted(glob.glob(str(Path(sysconfig.get_paths()['purelib'])
-                                                      / 'ros_fastrtps.libs')))
+    dirs = [
+        str(venv / 'lib'),
+        *sorted(glob.glob(str(Path(sysconfig.get_paths()['purelib']) / 'ros_fastrtps.libs'))),
+    ]
     old = os.environ.get('LD_LIBRARY_PATH')
     return os.pathsep.join(dirs + ([old] if old else []))
 
@@ -141,7 +154,7 @@ class HostCpu:
         self.by_inode = {lab.inode(ns): ns for ns in lab.hosts}
         self.needle = needle
         self.last: dict[int, int] = {}
-        self.used = {ns: 0 for ns in lab.hosts}
+        self.used = dict.fromkeys(lab.hosts, 0)
         self.procs: dict[str, set[int]] = {ns: set() for ns in lab.hosts}
 
     def sample(self) -> None:
@@ -175,9 +188,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep')
     p.add_argument('--preset', default=None, help='default: triangle (lockstep), realtime')
     p.add_argument('--duration', type=float, default=5.0)
-    p.add_argument('--rate', type=float, default=None,
-                   help='realtime: the control rate (plant publications, trackers\' watchdog) '
-                        '[Hz]; default: what this machine carries (apf-swarm probe)')
+    p.add_argument(
+        '--rate',
+        type=float,
+        default=None,
+        help="realtime: the control rate (plant publications, trackers' watchdog) "
+        '[Hz]; default: what this machine carries (apf-swarm probe)',
+    )
     p.add_argument('--domain-id', type=int, default=None)
     p.add_argument('--out', type=Path, required=True)
     p.add_argument('--keep', action='store_true', help='keep the namespaces (debugging)')
@@ -186,14 +203,17 @@ def main(argv: list[str] | None = None) -> int:
         p.error('--hosts: at least 2 (one for the plant and target, one for trackers)')
     why = unavailable()
     if why is not None:
-        print(f'multihost.py: error: this machine cannot run simulated hosts: {why}',
-              file=sys.stderr)
+        print(
+            f'multihost.py: error: this machine cannot run simulated hosts: {why}', file=sys.stderr
+        )
         return 2
     try:
         from apf_swarm_nodes.bringup import stop_process
     except ImportError as exc:
-        print(f'multihost.py: error: {exc}; run `make setup` and `source scripts/activate.sh` '
-              'first', file=sys.stderr)
+        print(
+            f'multihost.py: error: {exc}; run `make setup` and `source scripts/activate.sh` first',
+            file=sys.stderr,
+        )
         return 2
     preset = args.preset or ('realtime' if args.mode == 'realtime' else 'triangle')
     out = args.out.resolve()
@@ -202,18 +222,34 @@ def main(argv: list[str] | None = None) -> int:
         env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS='UDPv4', PYTHONUNBUFFERED='1')
         server = None
         if args.discovery == 'server':
-            exe = shutil.which('fast-discovery-server') or str(Path(sys.prefix) / 'bin' /
-                                                               'fast-discovery-server')
+            exe = shutil.which('fast-discovery-server') or str(
+                Path(sys.prefix) / 'bin' / 'fast-discovery-server'
+            )
             server = subprocess.Popen(
-                ['ip', 'netns', 'exec', h1, 'env', f'LD_LIBRARY_PATH={fastdds_library_path()}',
-                 exe, '-i', '0', '-l', lab.addr[h1], '-p', str(SERVER_PORT)],
-                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+                [
+                    'ip',
+                    'netns',
+                    'exec',
+                    h1,
+                    'env',
+                    f'LD_LIBRARY_PATH={fastdds_library_path()}',
+                    exe,
+                    '-i',
+                    '0',
+                    '-l',
+                    lab.addr[h1],
+                    '-p',
+                    str(SERVER_PORT),
+                ],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
             line = server.stdout.readline().decode(errors='replace')
             while line and 'Server is running' not in line:
                 line = server.stdout.readline().decode(errors='replace')
             if not line:
-                print('multihost.py: error: the discovery server did not start',
-                      file=sys.stderr)
+                print('multihost.py: error: the discovery server did not start', file=sys.stderr)
                 return 2
             env['ROS_DISCOVERY_SERVER'] = f'{lab.addr[h1]}:{SERVER_PORT}'
             # plain clients only learn the endpoints they match; the bring-up waits on the
@@ -221,33 +257,53 @@ def main(argv: list[str] | None = None) -> int:
             env['ROS_SUPER_CLIENT'] = 'TRUE'
         names = tracker_process_names(args.n_trackers, args.trackers_per_process)
         tracker_hosts = lab.hosts[1:]
-        placement = {name: tracker_hosts[k % len(tracker_hosts)] for k, name in
-                     enumerate(names)}
-        cmd = ['ip', 'netns', 'exec', h1, sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'),
-               '--preset', preset, '--mode', args.mode, '--n-trackers', str(args.n_trackers),
-               '--trackers-per-process', str(args.trackers_per_process), '--duration',
-               str(args.duration), '--discovery-range', 'SUBNET', '--out', str(out),
-               '--no-plots', '--allow-overload']
+        placement = {name: tracker_hosts[k % len(tracker_hosts)] for k, name in enumerate(names)}
+        cmd = [
+            'ip',
+            'netns',
+            'exec',
+            h1,
+            sys.executable,
+            str(ROOT / 'scripts' / 'swarm_up.py'),
+            '--preset',
+            preset,
+            '--mode',
+            args.mode,
+            '--n-trackers',
+            str(args.n_trackers),
+            '--trackers-per-process',
+            str(args.trackers_per_process),
+            '--duration',
+            str(args.duration),
+            '--discovery-range',
+            'SUBNET',
+            '--out',
+            str(out),
+            '--no-plots',
+            '--allow-overload',
+        ]
         if args.domain_id is not None:
             cmd += ['--domain-id', str(args.domain_id)]
         if args.rate is not None:
             cmd += ['--set', f'control_rate={float(args.rate)!r}']
         for name, ns in placement.items():
             cmd += ['--node-netns', f'{name}={ns}']
-        say(f'{args.hosts} hosts on {lab.net}.0/24 ({", ".join(f"{ns}={a}" for ns, a in lab.addr.items())}), '
+        say(
+            f'{args.hosts} hosts on {lab.net}.0/24 '
+            f'({", ".join(f"{ns}={a}" for ns, a in lab.addr.items())}), '
             f'discovery {args.discovery}; host 1: plant, target, bring-up; trackers: '
-            + ', '.join(f'{n}@{ns}' for n, ns in placement.items()))
+            + ', '.join(f'{n}@{ns}' for n, ns in placement.items())
+        )
         cpu = HostCpu(lab, str(out / 'config.yaml'))
-        bring = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, cwd=ROOT,
-                                 start_new_session=True)
+        bring = subprocess.Popen(
+            cmd, env=env, stdin=subprocess.DEVNULL, cwd=ROOT, start_new_session=True
+        )
         t0 = time.monotonic()
         try:
             while bring.poll() is None:
                 cpu.sample()
-                try:
+                with contextlib.suppress(subprocess.TimeoutExpired):
                     bring.wait(1.0)
-                except subprocess.TimeoutExpired:
-                    pass
         except KeyboardInterrupt:
             os.killpg(bring.pid, signal.SIGINT)
             bring.wait(60)
@@ -261,21 +317,39 @@ def main(argv: list[str] | None = None) -> int:
         rc = bring.returncode
         hosts = []
         for h, ns in enumerate(lab.hosts, start=1):
-            role = 'plant, target, bring-up' if h == 1 else ', '.join(
-                n for n, where in placement.items() if where == ns) or '-'
-            hosts.append({'host': h, 'netns': ns, 'address': lab.addr[ns], 'runs': role,
-                          'processes': len(cpu.procs[ns]),
-                          'cpu_pct': round(100.0 * cpu.used[ns] / TICKS / wall, 1)})
-        result = {'hosts': hosts, 'discovery': args.discovery, 'mode': args.mode,
-                  'n_trackers': args.n_trackers, 'trackers_per_process':
-                  args.trackers_per_process, 'wall_s': round(wall, 2), 'bringup_exit': rc}
+            role = (
+                'plant, target, bring-up'
+                if h == 1
+                else ', '.join(n for n, where in placement.items() if where == ns) or '-'
+            )
+            hosts.append(
+                {
+                    'host': h,
+                    'netns': ns,
+                    'address': lab.addr[ns],
+                    'runs': role,
+                    'processes': len(cpu.procs[ns]),
+                    'cpu_pct': round(100.0 * cpu.used[ns] / TICKS / wall, 1),
+                }
+            )
+        result = {
+            'hosts': hosts,
+            'discovery': args.discovery,
+            'mode': args.mode,
+            'n_trackers': args.n_trackers,
+            'trackers_per_process': args.trackers_per_process,
+            'wall_s': round(wall, 2),
+            'bringup_exit': rc,
+        }
         out.mkdir(parents=True, exist_ok=True)
         (out / 'multihost.json').write_text(json.dumps(result, indent=2) + '\n')
         print('\n| host | address | runs | node processes | CPU [% of a core] |')
         print('|---:|---|---|---:|---:|')
         for r in hosts:
-            print(f"| {r['host']} | {r['address']} | {r['runs']} | {r['processes']} | "
-                  f"{r['cpu_pct']:.1f} |")
+            print(
+                f'| {r["host"]} | {r["address"]} | {r["runs"]} | {r["processes"]} | '
+                f'{r["cpu_pct"]:.1f} |'
+            )
         print(f'\nwall time {wall:.1f} s, discovery {args.discovery}, bring-up exit {rc}')
         return rc
 

@@ -14,8 +14,9 @@ import sys
 try:
     from apf_swarm_nodes.bringup import main
 except ImportError as exc:  # pragma: no cover - only without the workspace environment
-    sys.stderr.write(f'swarm_up.py: error: {exc}; run `make setup` and '
-                     '`source scripts/activate.sh` first\n')
+    sys.stderr.write(
+        f'swarm_up.py: error: {exc}; run `make setup` and `source scripts/activate.sh` first\n'
+    )
     sys.exit(2)
 
 if __name__ == '__main__':

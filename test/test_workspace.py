@@ -11,27 +11,28 @@ Run in the workspace environment (`make test`, or `source scripts/activate.sh` t
 """
 
 import ast
+import contextlib
 import importlib.metadata
 import math
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PY_PACKAGES = ('apf_swarm_core', 'apf_swarm_nodes')
-ALL_PACKAGES = ('apf_swarm_msgs',) + PY_PACKAGES
+ALL_PACKAGES = ('apf_swarm_msgs', *PY_PACKAGES)
 MSG_NAMES = ('ForceCommand', 'SwarmOdometry', 'SwarmState')
 
 
 def _installed_console_scripts(pkg):
     """Console scripts of the installed distribution `pkg` (entry point objects)."""
     dist = importlib.metadata.distribution(pkg)
-    return sorted((ep for ep in dist.entry_points if ep.group == 'console_scripts'),
-                  key=lambda ep: ep.name)
+    return sorted(
+        (ep for ep in dist.entry_points if ep.group == 'console_scripts'), key=lambda ep: ep.name
+    )
 
 
 def _declared_console_scripts(pkg):
@@ -39,7 +40,7 @@ def _declared_console_scripts(pkg):
     tree = ast.parse((ROOT / 'src' / pkg / 'setup.py').read_text())
     for node in ast.walk(tree):
         if isinstance(node, ast.Dict):
-            for key, value in zip(node.keys, node.values):
+            for key, value in zip(node.keys, node.values, strict=False):
                 if isinstance(key, ast.Constant) and key.value == 'console_scripts':
                     try:
                         entries = ast.literal_eval(value)
@@ -52,10 +53,9 @@ def _declared_console_scripts(pkg):
 def _all_console_scripts():
     out = []
     for pkg in PY_PACKAGES:
-        try:
+        # a missing package is reported by test_python_packages_installed
+        with contextlib.suppress(importlib.metadata.PackageNotFoundError):
             out.extend((pkg, ep) for ep in _installed_console_scripts(pkg))
-        except importlib.metadata.PackageNotFoundError:
-            pass  # reported by test_python_packages_installed
     return out
 
 
@@ -66,13 +66,15 @@ CONSOLE_SCRIPTS = _all_console_scripts()
 # (a) ament index and `ros2 run` lookup
 # --------------------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize('pkg', ALL_PACKAGES)
 def test_package_registered_in_ament_index(pkg):
     from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
     prefix = Path(get_package_prefix(pkg))
     assert prefix.resolve() == (ROOT / 'install' / pkg).resolve(), (
-        f'{pkg} resolves to {prefix}, not to this workspace: source scripts/activate.sh')
+        f'{pkg} resolves to {prefix}, not to this workspace: source scripts/activate.sh'
+    )
     share = Path(get_package_share_directory(pkg))
     assert share == prefix / 'share' / pkg
     assert (share / 'package.xml').is_file()
@@ -82,8 +84,14 @@ def test_wheel_packages_in_ament_index():
     # The venv must be on AMENT_PREFIX_PATH so that the wheels' packages are found.
     from ament_index_python.packages import get_package_share_directory
 
-    for pkg in ('rclpy', 'std_msgs', 'geometry_msgs', 'nav_msgs', 'rosgraph_msgs',
-                'visualization_msgs'):
+    for pkg in (
+        'rclpy',
+        'std_msgs',
+        'geometry_msgs',
+        'nav_msgs',
+        'rosgraph_msgs',
+        'visualization_msgs',
+    ):
         assert (Path(get_package_share_directory(pkg)) / 'package.xml').is_file(), pkg
 
 
@@ -94,7 +102,8 @@ def test_python_packages_installed(pkg):
     if declared is not None:
         installed = [ep.name for ep in _installed_console_scripts(pkg)]
         assert installed == declared, (
-            f'{pkg}: setup.py declares {declared} but the build has {installed}: run make setup')
+            f'{pkg}: setup.py declares {declared} but the build has {installed}: run make setup'
+        )
 
 
 def test_console_scripts_found():
@@ -124,8 +133,14 @@ def test_apf_swarm_on_path_but_not_node_executables():
     assert Path(found).resolve() == (ROOT / '.venv' / 'bin' / 'apf-swarm').resolve()
     for entry in os.environ.get('PATH', '').split(os.pathsep):
         assert not entry.rstrip('/').endswith('lib/apf_swarm_nodes'), entry
-    res = subprocess.run([found, '--help'], capture_output=True, text=True, timeout=120,
-                         stdin=subprocess.DEVNULL, check=False)
+    res = subprocess.run(
+        [found, '--help'],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        stdin=subprocess.DEVNULL,
+        check=False,
+    )
     assert res.returncode == 0, res.stdout + res.stderr
     assert 'usage' in (res.stdout + res.stderr).lower()
 
@@ -133,6 +148,7 @@ def test_apf_swarm_on_path_but_not_node_executables():
 # --------------------------------------------------------------------------------------------
 # (b) apf_swarm_msgs
 # --------------------------------------------------------------------------------------------
+
 
 def _vec(cls, x, y, z):
     return cls(x=float(x), y=float(y), z=float(z))
@@ -184,7 +200,7 @@ def _swarm_state():
     msg.stale_inputs = 3
     msg.rejected_inputs = 4
     msg.active = [True, False, True]
-    msg.command_latency = [0.001, 0.002, 0.003]    # the plant fills one entry per tracker
+    msg.command_latency = [0.001, 0.002, 0.003]  # the plant fills one entry per tracker
     return msg
 
 
@@ -238,7 +254,7 @@ def test_swarm_state_roundtrip():
     for name in ('positions', 'velocities', 'forces', 'sliding_surfaces'):
         got, want = getattr(out, name), getattr(src, name)
         assert len(got) == len(want) == 3, name
-        for a, b in zip(got, want):
+        for a, b in zip(got, want, strict=False):
             _assert_vec(a, b)
     _assert_vec(out.target_position, src.target_position)
     _assert_vec(out.target_velocity, src.target_velocity)
@@ -265,6 +281,7 @@ def test_numpy_arrays_in_wheel_messages():
 # (c) message definitions
 # --------------------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize('name', MSG_NAMES)
 def test_installed_definition_matches_source(name):
     from ament_index_python.packages import get_package_share_directory
@@ -287,17 +304,20 @@ def test_rosbags_reads_rclpy_cdr():
     """rosbags (the recorder's writer) and rclpy agree on the CDR of the custom types."""
     from ament_index_python.packages import get_package_share_directory
     from rclpy.serialization import serialize_message
-    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     share = Path(get_package_share_directory('apf_swarm_msgs')) / 'msg'
     store = get_typestore(Stores.ROS2_JAZZY)
     types = {}
     for name in MSG_NAMES:
-        types.update(get_types_from_msg((share / f'{name}.msg').read_text(),
-                                        f'apf_swarm_msgs/msg/{name}'))
+        types.update(
+            get_types_from_msg((share / f'{name}.msg').read_text(), f'apf_swarm_msgs/msg/{name}')
+        )
     store.register(types)
 
-    fc = store.deserialize_cdr(serialize_message(_force_command()), 'apf_swarm_msgs/msg/ForceCommand')
+    fc = store.deserialize_cdr(
+        serialize_message(_force_command()), 'apf_swarm_msgs/msg/ForceCommand'
+    )
     assert (fc.uav_id, fc.step, fc.law, fc.saturated) == (3, 2**40 + 7, 1, True)
     assert fc.force.x == pytest.approx(-125.0) and fc.header.frame_id == 'world'
 
@@ -312,7 +332,7 @@ def test_rosbags_reads_rclpy_cdr():
 
     from apf_swarm_msgs.msg import SwarmState
 
-    again = deserialize_message(bytes(store.serialize_cdr(ss, 'apf_swarm_msgs/msg/SwarmState')),
-                                SwarmState)
+    again = deserialize_message(
+        bytes(store.serialize_cdr(ss, 'apf_swarm_msgs/msg/SwarmState')), SwarmState
+    )
     assert list(again.uav_ids) == [1, 2, 3] and again.step == 1234
-

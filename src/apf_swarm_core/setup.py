@@ -6,6 +6,7 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
+    package_data={'apf_swarm_core': ['py.typed']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -18,7 +19,6 @@ setup(
     license='Apache-2.0',
     # Executables (if any) go in this one list; they are installed to lib/apf_swarm_core.
     entry_points={
-        'console_scripts': [
-        ],
+        'console_scripts': [],
     },
 )

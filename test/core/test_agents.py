@@ -6,11 +6,18 @@ import math
 
 import numpy as np
 import pytest
+from apf_swarm_core.agents import (
+    MAX_FORCE,
+    MAX_POSITION,
+    MAX_SPEED,
+    PlantModel,
+    TrackerAgent,
+    brake_force,
+    input_problem,
+)
+from apf_swarm_core.simulator import BatchSimulator
 
 from apf_swarm_core import load_preset
-from apf_swarm_core.agents import (MAX_FORCE, MAX_POSITION, MAX_SPEED, PlantModel, TrackerAgent,
-                                  brake_force, input_problem)
-from apf_swarm_core.simulator import BatchSimulator
 
 
 @pytest.fixture
@@ -36,8 +43,8 @@ def test_trackers_and_plant_reproduce_the_simulator_bit_for_bit(cfg) -> None:
             feed(a, k, plant.x, plant.v, tx[0], tv[0])
             assert a.ready(k)
         outs = [a.command(k) for a in agents]
-        for i, (a, out) in enumerate(zip(agents, outs), start=1):
-            assert not a.ready(k)                     # answered once
+        for i, (a, out) in enumerate(zip(agents, outs, strict=False), start=1):
+            assert not a.ready(k)  # answered once
             assert plant.offer_command(i, k, out.force[0], out.sliding_surface[0])
         assert plant.missing(k) == []
         ref, _, _ = sim.step()
@@ -52,20 +59,25 @@ def test_offer_refuses_non_finite_unknown_and_out_of_order_inputs(cfg) -> None:
     ok = np.zeros(3)
     assert not a.offer(1, 0, np.array([0.0, math.nan, 0.0]), ok, 0.0)
     assert not a.offer(0, 0, ok, np.array([math.inf, 0.0, 0.0]), 0.0)
-    assert not a.offer(7, 0, ok, ok, 0.0)             # no tracker 7 in a swarm of 3
+    assert not a.offer(7, 0, ok, ok, 0.0)  # no tracker 7 in a swarm of 3
     assert a.rejected == 3
     assert a.offer(1, 5, ok, ok, 0.0)
-    assert not a.offer(1, 4, ok, ok, 0.0)             # older than the held step 5
+    assert not a.offer(1, 4, ok, ok, 0.0)  # older than the held step 5
     assert a.rejected == 4
-    assert not a.ready(5)                             # 0, 2 and 3 are still missing
+    assert not a.ready(5)  # 0, 2 and 3 are still missing
     with pytest.raises(ValueError, match='uav_id = 4'):
         TrackerAgent(cfg, 4)
 
 
 def _input_problem_reference(name: str, arr) -> str | None:
     """The check as it was written before the one-reduction fast path (the reference)."""
-    lim = {'x': MAX_POSITION, 'target_x': MAX_POSITION, 'v': MAX_SPEED, 'force': MAX_FORCE,
-           's': MAX_SPEED}[name]
+    lim = {
+        'x': MAX_POSITION,
+        'target_x': MAX_POSITION,
+        'v': MAX_SPEED,
+        'force': MAX_FORCE,
+        's': MAX_SPEED,
+    }[name]
     a = np.asarray(arr, dtype=float)
     if not np.all(np.isfinite(a)):
         return f'{name} is not finite ({a.tolist()})'
@@ -78,13 +90,28 @@ def _input_problem_reference(name: str, arr) -> str | None:
 def test_input_problem_equals_the_elementwise_checks(name: str) -> None:
     """The fast path (max |value| <= limit, false for NaN) gives the same verdict and message
     as isfinite + a comparison per element, for every kind of value."""
-    lim = {'x': MAX_POSITION, 'target_x': MAX_POSITION, 'v': MAX_SPEED, 'force': MAX_FORCE,
-           's': MAX_SPEED}[name]
-    cases = [np.zeros(3), np.array([1.0, -2.0, 3.0]), np.array([math.nan, 0, 0]),
-             np.array([0, math.inf, 0]), np.array([0, 0, -math.inf]), np.zeros(0),
-             np.array([1, 2, 3]), np.float64(2.0), np.array(math.nan),
-             np.array([lim, -lim, 0]), np.array([np.nextafter(lim, np.inf), 0, 0]),
-             np.array([[0.0, 1.0, 2.0], [3.0, math.nan, 5.0]]), [0.5, 0.25, -lim]]
+    lim = {
+        'x': MAX_POSITION,
+        'target_x': MAX_POSITION,
+        'v': MAX_SPEED,
+        'force': MAX_FORCE,
+        's': MAX_SPEED,
+    }[name]
+    cases = [
+        np.zeros(3),
+        np.array([1.0, -2.0, 3.0]),
+        np.array([math.nan, 0, 0]),
+        np.array([0, math.inf, 0]),
+        np.array([0, 0, -math.inf]),
+        np.zeros(0),
+        np.array([1, 2, 3]),
+        np.float64(2.0),
+        np.array(math.nan),
+        np.array([lim, -lim, 0]),
+        np.array([np.nextafter(lim, np.inf), 0, 0]),
+        np.array([[0.0, 1.0, 2.0], [3.0, math.nan, 5.0]]),
+        [0.5, 0.25, -lim],
+    ]
     for arr in cases:
         assert input_problem(**{name: arr}) == _input_problem_reference(name, arr), arr
 
@@ -97,11 +124,11 @@ def test_offer_swarm_refuses_a_bad_row_and_ignores_rows_of_non_neighbours(cfg) -
     x, v, t = np.arange(9.0).reshape(3, 3), np.zeros((3, 3)), np.zeros(3)
     act = [True] * 3
     bad = x.copy()
-    bad[1, 0] = math.nan                              # uav_2: a neighbour
+    bad[1, 0] = math.nan  # uav_2: a neighbour
     assert not a.offer_swarm(0, [1, 2, 3], bad, v, act, t, t, 0.0, 0.0)
     assert a.rejected == 1 and 'uav_2' in a.last_rejection and a.inputs == {}
     bad = x.copy()
-    bad[2, 0] = math.nan                              # uav_3: not a neighbour of uav_1
+    bad[2, 0] = math.nan  # uav_3: not a neighbour of uav_1
     assert a.offer_swarm(0, [1, 2, 3], bad, v, act, t, t, 0.0, 0.0)
     assert a.rejected == 1 and sorted(a.inputs) == [0, 1, 2] and a.ready(0)
 
@@ -111,16 +138,16 @@ def test_a_repeated_target_window_is_ignored_not_refused(cfg) -> None:
     already answered or already held are ignored without a rejection."""
     a = TrackerAgent(cfg, 2)
     ok = np.zeros(3)
-    for k in range(4):                                # the target's batch, 0..3
+    for k in range(4):  # the target's batch, 0..3
         assert a.offer(0, k, ok, ok, 0.0)
     for j in (1, 2, 3):
         assert a.offer(j, 0, ok, ok, 0.0)
     a.command(0)
-    for k in range(4):                                # the window again
+    for k in range(4):  # the window again
         assert a.offer(0, k, ok + 1.0, ok, 0.0)
     assert a.rejected == 0
-    assert np.array_equal(a.pending[1][0].x, ok)      # the first copy is kept
-    assert not a.offer(0, 4, np.array([math.nan, 0, 0]), ok, 0.0)   # a new step: checked
+    assert np.array_equal(a.pending[1][0].x, ok)  # the first copy is kept
+    assert not a.offer(0, 4, np.array([math.nan, 0, 0]), ok, 0.0)  # a new step: checked
     assert a.rejected == 1
 
 
@@ -155,7 +182,7 @@ def test_retune_changes_gains_and_keeps_the_filter_state(cfg) -> None:
     fresh = TrackerAgent(cfg.replace(u0=40.0, b=7.0), 2)
     feed(fresh, 1, x, v, np.zeros(3), np.zeros(3))
     assert np.array_equal(fresh.command(1).gradient, out1.gradient)
-    assert not np.array_equal(out0.gradient, out1.gradient)     # b moved the potential
+    assert not np.array_equal(out0.gradient, out1.gradient)  # b moved the potential
     with pytest.raises(ValueError, match='seed cannot change'):
         a.retune(cfg.replace(seed=9))
 
@@ -166,10 +193,10 @@ def test_plant_refuses_bad_commands_and_holds_missing_ones(cfg) -> None:
     assert not p.offer_command(1, 0, np.array([math.nan, 0, 0]), np.ones(3))
     assert p.rejected == 2
     assert p.offer_command(1, 3, np.ones(3), np.ones(3))
-    assert not p.offer_command(1, 2, np.ones(3), np.ones(3))     # out of order
+    assert not p.offer_command(1, 2, np.ones(3), np.ones(3))  # out of order
     assert p.missing(3) == [2, 3]
     x0 = p.x.copy()
-    p.advance()                                   # 2 and 3 hold their zero command
+    p.advance()  # 2 and 3 hold their zero command
     assert p.k == 1 and not np.array_equal(p.x, x0)
     j, ce, fe = p.metrics(np.array([0.0, 0.0, 5.0]))
     assert j > 0 and ce > 0 and math.isfinite(fe)
@@ -177,6 +204,7 @@ def test_plant_refuses_bad_commands_and_holds_missing_ones(cfg) -> None:
 
 def test_obstacle_gradient_matches_finite_differences_of_the_repulsion() -> None:
     from apf_swarm_core.potential import obstacle_gradient
+
     rng = np.random.default_rng(5)
     x = rng.normal(size=(2, 3))
     obs = rng.normal(size=(3, 3))
@@ -201,6 +229,7 @@ def test_an_inactive_neighbour_leaves_the_formation_term_and_repels(cfg) -> None
     """With uav_3 inactive, uav_2's gradient is that of the pair (1, 2) plus the repulsion
     of uav_3 only: far away uav_3 changes nothing, close by it pushes uav_2 away."""
     from apf_swarm_core.potential import gradient
+
     p = cfg.potential_params()
     x = np.array([[1.0, 0.0, 5.0], [-1.0, 0.0, 5.0], [30.0, 0.0, 5.0]])
     v = np.zeros((3, 3))
@@ -211,9 +240,9 @@ def test_an_inactive_neighbour_leaves_the_formation_term_and_repels(cfg) -> None
     assert a.offer(0, 0, tx, np.zeros(3), 0.0)
     g = a.command(0).gradient[0]
     assert a.neighbours_used == 1
-    assert np.allclose(g, gradient(x[:2], tx, **p)[1], atol=1e-12)   # uav_3 is 29 m away
+    assert np.allclose(g, gradient(x[:2], tx, **p)[1], atol=1e-12)  # uav_3 is 29 m away
     near = x.copy()
-    near[2] = [-1.5, 0.0, 5.0]                                        # 0.5 m from uav_2
+    near[2] = [-1.5, 0.0, 5.0]  # 0.5 m from uav_2
     b = TrackerAgent(cfg, 2)
     for j in (1, 2, 3):
         assert b.offer(j, 0, near[j - 1], v[j - 1], 0.0, active=j != 3)
@@ -233,11 +262,11 @@ def test_plant_follows_one_tracker_process_per_id(cfg) -> None:
     p = PlantModel(cfg)
     f = np.ones(3)
     assert p.offer_command(2, 0, f, f, instance=11)
-    assert not p.offer_command(2, 1, f, f, instance=22)          # a second process
+    assert not p.offer_command(2, 1, f, f, instance=22)  # a second process
     assert 'duplicate uav_id 2' in p.last_rejection
     assert p.offer_command(2, 1, f, f, instance=11)
-    p.deactivate([2])                                            # the followed one is silent
-    assert p.offer_command(2, 0, f, f, instance=22)              # a respawn starts anew
+    p.deactivate([2])  # the followed one is silent
+    assert p.offer_command(2, 0, f, f, instance=22)  # a respawn starts anew
     assert p.active[1] and p.instances[2] == 22
     assert not p.offer_command(2, 5, f, f, instance=11)
 
@@ -248,14 +277,14 @@ def test_plant_counts_stale_brakes_only_after_a_tracker_has_commanded(cfg) -> No
     p = PlantModel(cfg)
     f = np.ones(3)
     for k in range(5):
-        assert p.offer_command(1, k, f, f, stale=True, instance=7)   # waiting for inputs
+        assert p.offer_command(1, k, f, f, stale=True, instance=7)  # waiting for inputs
     assert p.stale == 0
-    assert p.offer_command(1, 5, f, f, instance=7)                   # commands
+    assert p.offer_command(1, 5, f, f, instance=7)  # commands
     for k in range(6, 9):
-        assert p.offer_command(1, k, f, f, stale=True, instance=7)   # inputs went silent
+        assert p.offer_command(1, k, f, f, stale=True, instance=7)  # inputs went silent
     assert p.stale == 3
     p.deactivate([1])
-    assert p.offer_command(1, 0, f, f, stale=True, instance=8)       # respawned, waiting
+    assert p.offer_command(1, 0, f, f, stale=True, instance=8)  # respawned, waiting
     assert p.stale == 3
     assert p.offer_command(1, 1, f, f, instance=8)
     assert p.offer_command(1, 2, f, f, stale=True, instance=8)
@@ -266,16 +295,16 @@ def test_the_realtime_clock_waits_for_the_trackers_that_have_not_commanded(cfg) 
     p = PlantModel(cfg)
     f = np.ones(3)
     assert p.uncommanded() == [1, 2, 3]
-    assert p.offer_command(2, 0, f, f, stale=True)       # a brake: no inputs yet
+    assert p.offer_command(2, 0, f, f, stale=True)  # a brake: no inputs yet
     assert p.offer_command(3, 0, f, f)
     assert p.uncommanded() == [1, 2]
-    p.deactivate([1])                                    # inactive ones are not waited for
+    p.deactivate([1])  # inactive ones are not waited for
     assert p.uncommanded() == [2]
-    assert p.clock_start(5.0, deadline=10.0) is None         # uav_2 still waited for
-    assert p.clock_start(10.0, deadline=10.0) == [2]         # the deadline: without it
+    assert p.clock_start(5.0, deadline=10.0) is None  # uav_2 still waited for
+    assert p.clock_start(10.0, deadline=10.0) == [2]  # the deadline: without it
     assert p.offer_command(2, 1, f, f)
     assert p.uncommanded() == []
-    assert p.clock_start(5.0, deadline=10.0) == []           # every tracker commands
+    assert p.clock_start(5.0, deadline=10.0) == []  # every tracker commands
 
 
 def test_realtime_expiry_zeroes_first_and_deactivates_later(cfg) -> None:
@@ -283,21 +312,21 @@ def test_realtime_expiry_zeroes_first_and_deactivates_later(cfg) -> None:
     0.1 s ago gets zero force; not answered one published 1 s ago, it is inactive."""
     p = PlantModel(cfg)
     f = np.ones(3)
-    assert p.expire(100.0, 0.1, 1.0) == []              # nothing published yet
-    for k in range(0, 21):                              # the state goes out every 50 ms
+    assert p.expire(100.0, 0.1, 1.0) == []  # nothing published yet
+    for k in range(21):  # the state goes out every 50 ms
         p.published(10.0 + 0.05 * k)
     for i in (1, 2, 3):
-        assert p.offer_command(i, i, f, f, now=10.02)   # all answered the 10.00 state
-    assert p.expire(10.1, 0.1, 1.0) == []               # asked at 10.00: answered
+        assert p.offer_command(i, i, f, f, now=10.02)  # all answered the 10.00 state
+    assert p.expire(10.1, 0.1, 1.0) == []  # asked at 10.00: answered
     assert np.array_equal(p.u, np.ones((3, 3)))
-    assert p.expire(10.2, 0.1, 1.0) == []               # asked at 10.10: no answer, zero
+    assert p.expire(10.2, 0.1, 1.0) == []  # asked at 10.10: no answer, zero
     assert np.array_equal(p.u, np.zeros((3, 3))) and p.active.all()
     for i in (1, 3):
         assert p.offer_command(i, 10 + i, f, f, now=10.96)
-    assert p.expire(11.05, 0.1, 1.0) == [2]             # uav_2 never answered 10.05
+    assert p.expire(11.05, 0.1, 1.0) == [2]  # uav_2 never answered 10.05
     assert list(p.active) == [True, False, True]
-    assert np.array_equal(p.u[0], f)                    # uav_1 answered 10.95
-    assert p.expire(11.06, 0.1, 1.0) == []              # reported once
+    assert np.array_equal(p.u[0], f)  # uav_1 answered 10.95
+    assert p.expire(11.06, 0.1, 1.0) == []  # reported once
 
 
 def test_a_late_plant_does_not_blame_the_trackers(cfg) -> None:
@@ -312,8 +341,13 @@ def test_a_late_plant_does_not_blame_the_trackers(cfg) -> None:
     assert p.active.all() and np.array_equal(p.u, np.ones((3, 3)))
 
 
-@pytest.mark.parametrize('rule', [{'neighbours': 'nearest', 'neighbour_count': 2},
-                                  {'neighbours': 'radius', 'sensing_radius': 1.7}])
+@pytest.mark.parametrize(
+    'rule',
+    [
+        {'neighbours': 'nearest', 'neighbour_count': 2},
+        {'neighbours': 'radius', 'sensing_radius': 1.7},
+    ],
+)
 def test_limited_neighbour_sets_agents_equal_the_simulator(cfg, rule) -> None:
     """6 trackers, each seeing only its 2 nearest (or those within 1.7 m): trackers and
     plant stepped by hand equal the batch simulator bit for bit, and the sets are used."""
@@ -342,14 +376,20 @@ def test_limited_neighbour_sets_agents_equal_the_simulator(cfg, rule) -> None:
 
 def test_neighbour_mask_rules() -> None:
     from apf_swarm_core.potential import neighbour_mask
+
     x = np.array([[0.0, 0, 0], [1.0, 0, 0], [3.0, 0, 0], [10.0, 0, 0]])
     near = neighbour_mask(x, rule='nearest', count=2)
-    assert near.tolist() == [[False, True, True, False], [True, False, True, False],
-                             [True, True, False, False], [False, True, True, False]]
+    assert near.tolist() == [
+        [False, True, True, False],
+        [True, False, True, False],
+        [True, True, False, False],
+        [False, True, True, False],
+    ]
     assert neighbour_mask(x, rule='radius', radius=2.5).sum(axis=1).tolist() == [1, 2, 1, 0]
     assert neighbour_mask(x, rule='all').sum() == 12
     assert neighbour_mask(x, rule='nearest', count=1, rows=[3]).tolist() == [
-        [False, False, True, False]]
+        [False, False, True, False]
+    ]
     assert neighbour_mask(x, rule='nearest', count=9).sum(axis=1).tolist() == [3, 3, 3, 3]
     with pytest.raises(ValueError, match='neighbours must be one of'):
         neighbour_mask(x, rule='psychic')

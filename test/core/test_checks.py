@@ -4,10 +4,14 @@ import math
 
 import numpy as np
 import pytest
+from apf_swarm_core.checks import (
+    check_config,
+    gain_bounds,
+    gain_bounds_from_run,
+    pair_hessian_bound,
+)
 
 from apf_swarm_core import load_preset
-from apf_swarm_core.checks import (check_config, gain_bounds, gain_bounds_from_run,
-                                   pair_hessian_bound)
 
 
 def _by_code(rep):
@@ -23,7 +27,8 @@ def test_triangle_preset_is_consistent():
     assert '1.599' in f['formation'].message
     assert rep.exit_code == 0
     assert rep.warnings == []
-    # the boundary-layer lag of docs/THEORY.md section 2: v_N / (k_N (alpha + beta/gamma)) = 1.5 / 10.01
+    # the boundary-layer lag of docs/THEORY.md section 2:
+    # v_N / (k_N (alpha + beta/gamma)) = 1.5 / 10.01
     assert f['lag'].level == 'info' and '0.15' in f['lag'].message
 
 
@@ -40,13 +45,16 @@ def test_paper_preset_warns_about_beta_and_formation():
     assert rep.as_dict()['exit_code'] == 1
 
 
-@pytest.mark.parametrize('changes, code, level', [
-    (dict(b=1.3), 'formation', 'warning'),         # a < b < a + k_n/(3 k_f): no triangle
-    (dict(b=1.34), 'formation', 'ok'),
-    (dict(beta=1.5), 'beta_vs_vn', 'ok'),           # beta == v_N is enough (eq. 10-11: >=)
-    (dict(beta=1.49), 'beta_vs_vn', 'warning'),
-    (dict(lambda_filter=0.005), 'filter_dt', 'warning'),
-])
+@pytest.mark.parametrize(
+    'changes, code, level',
+    [
+        ({'b': 1.3}, 'formation', 'warning'),  # a < b < a + k_n/(3 k_f): no triangle
+        ({'b': 1.34}, 'formation', 'ok'),
+        ({'beta': 1.5}, 'beta_vs_vn', 'ok'),  # beta == v_N is enough (eq. 10-11: >=)
+        ({'beta': 1.49}, 'beta_vs_vn', 'warning'),
+        ({'lambda_filter': 0.005}, 'filter_dt', 'warning'),
+    ],
+)
 def test_individual_conditions(changes, code, level):
     cfg = load_preset('triangle').replace(**changes)
     assert _by_code(check_config(cfg))[code].level == level
@@ -55,8 +63,9 @@ def test_individual_conditions(changes, code, level):
 def test_formation_check_for_other_n():
     base = load_preset('triangle')
     assert _by_code(check_config(base.replace(n_trackers=4)))['formation'].level == 'ok'
-    assert _by_code(check_config(base.replace(n_trackers=4, b=0.9)))['formation'].level == \
-        'warning'
+    assert (
+        _by_code(check_config(base.replace(n_trackers=4, b=0.9)))['formation'].level == 'warning'
+    )
     assert _by_code(check_config(base.replace(n_trackers=1)))['formation'].level == 'info'
 
 
@@ -66,28 +75,31 @@ def test_gain_bound_arithmetic(preset, j_bar, j_bar_s):
     cfg = load_preset(preset).replace(lambda_filter=0.08, f_bar=1.3, epsilon=0.7, mu=0.2)
     bounds, est = gain_bounds(cfg, j_bar=j_bar, j_bar_s=j_bar_s)
     m_lo, m_hi, f = 0.5, 1.5, 1.3
-    j_sign = 2 * 2.0 / 0.08                    # eq. 35: 2 beta / lambda = 50
+    j_sign = 2 * 2.0 / 0.08  # eq. 35: 2 beta / lambda = 50
     assert est['J_bar_sign'] == pytest.approx(50.0, rel=1e-14)
     assert est['J_bar'] == j_bar and est['J_bar_s'] == j_bar_s
     b = {bd.name: bd for bd in bounds}
     assert set(b) == {'theorem1_eq29', 'eq37', 'eq43'}
     # eq. 29 as printed: M_hi (-f/M_lo + J + J_sign + eps); corrected: +f/M_lo
-    assert b['theorem1_eq29'].printed == pytest.approx(m_hi * (-f / m_lo + j_bar + j_sign + 0.7),
-                                                       rel=1e-14)
-    assert b['theorem1_eq29'].corrected == pytest.approx(m_hi * (f / m_lo + j_bar + j_sign + 0.7),
-                                                         rel=1e-14)
+    assert b['theorem1_eq29'].printed == pytest.approx(
+        m_hi * (-f / m_lo + j_bar + j_sign + 0.7), rel=1e-14
+    )
+    assert b['theorem1_eq29'].corrected == pytest.approx(
+        m_hi * (f / m_lo + j_bar + j_sign + 0.7), rel=1e-14
+    )
     # eq. 37 as printed: M_hi (-f/M_hi + J_sign + J + eps)
     assert b['eq37'].printed == pytest.approx(m_hi * (-f / m_hi + j_sign + j_bar + 0.7), rel=1e-14)
-    assert b['eq37'].corrected == pytest.approx(m_hi * (f / m_lo + j_sign + j_bar + 0.7),
-                                                rel=1e-14)
+    assert b['eq37'].corrected == pytest.approx(
+        m_hi * (f / m_lo + j_sign + j_bar + 0.7), rel=1e-14
+    )
     # eq. 43 as printed: M_hi (-f/M_hi + J_s + mu)
     assert b['eq43'].printed == pytest.approx(m_hi * (-f / m_hi + j_bar_s + 0.2), rel=1e-14)
     assert b['eq43'].corrected == pytest.approx(m_hi * (f / m_lo + j_bar_s + 0.2), rel=1e-14)
     for bd in bounds:
         assert bd.corrected > bd.printed
         assert bd.u0 == 125.0
-        assert bd.holds_printed == (125.0 > bd.printed)
-        assert bd.holds_corrected == (125.0 > bd.corrected)
+        assert bd.holds_printed == (bd.printed < 125.0)
+        assert bd.holds_corrected == (bd.corrected < 125.0)
 
 
 def test_gain_bound_verdicts_between_printed_and_corrected():
@@ -106,12 +118,20 @@ def test_a_priori_estimates():
     h = pair_hessian_bound(1.0, 6.0)
     assert h == pytest.approx(max(5.0, 1.0 + 12.0 * math.exp(-1.5)), rel=1e-14)
     assert est['lipschitz_grad'] == pytest.approx(1.0 + 2 * 2 * 1.0 * h, rel=1e-14)
-    lip, g0, a, beta, gam, vn = est['lipschitz_grad'], est['initial_gradient_max'], 0.01, 2.0, \
-        0.2, 1.5
-    assert est['J_bar'] == pytest.approx(a * (lip * (a * g0 + math.sqrt(3) * beta) + vn),
-                                         rel=1e-14)
-    assert est['J_bar_s'] == pytest.approx((a + beta / gam) * (lip * (a * gam + beta) + vn),
-                                           rel=1e-14)
+    lip, g0, a, beta, gam, vn = (
+        est['lipschitz_grad'],
+        est['initial_gradient_max'],
+        0.01,
+        2.0,
+        0.2,
+        1.5,
+    )
+    assert est['J_bar'] == pytest.approx(
+        a * (lip * (a * g0 + math.sqrt(3) * beta) + vn), rel=1e-14
+    )
+    assert est['J_bar_s'] == pytest.approx(
+        (a + beta / gam) * (lip * (a * gam + beta) + vn), rel=1e-14
+    )
     assert est['J_bar_sign'] == pytest.approx(40.0)
 
 
@@ -137,7 +157,7 @@ def test_gain_bounds_from_run_by_hand():
     assert est['J_bar'] == pytest.approx(0.01 * 5.0, rel=1e-12)
     assert est['J_bar_s'] == 0.0
     assert est['fraction_inside_layer'] == 0.0
-    x[1, 0, 0] = 0.15                               # now sample 1 is inside the layer
+    x[1, 0, 0] = 0.15  # now sample 1 is inside the layer
     _, est = gain_bounds_from_run(cfg, t, x, tx, steady_fraction=1.0)
     assert est['J_bar'] == pytest.approx(0.01 * 8.5, rel=1e-12)
     assert est['J_bar_s'] == pytest.approx((0.01 + 2.0 / 0.2) * 0.5, rel=1e-12)
@@ -161,11 +181,18 @@ def test_gain_bounds_from_run_uses_the_steady_part():
 def test_check_config_with_run_adds_measured_bounds():
     cfg = load_preset('triangle').replace(duration=0.05)
     from apf_swarm_core import simulate
+
     run = simulate(cfg).trajectory
     rep = check_config(cfg, run)
     names = [b.name for b in rep.bounds]
-    assert names == ['theorem1_eq29', 'eq37', 'eq43', 'theorem1_eq29_measured', 'eq37_measured',
-                     'eq43_measured']
+    assert names == [
+        'theorem1_eq29',
+        'eq37',
+        'eq43',
+        'theorem1_eq29_measured',
+        'eq37_measured',
+        'eq43_measured',
+    ]
     assert 'measured_J_bar' in rep.estimates and 'a_priori_J_bar' in rep.estimates
     codes = {f.code for f in rep.findings}
     assert {'u0_theorem1_eq29_measured', 'u0_eq43_measured'} <= codes

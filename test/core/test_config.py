@@ -5,10 +5,18 @@ import math
 import numpy as np
 import pytest
 import yaml
-
-from apf_swarm_core.config import (KEYS, REQUIRED_KEYS, SwarmConfig, apply_overrides,
-                                   config_from_mapping, load_config, load_preset, parse_set,
-                                   preset_names, to_ros_params)
+from apf_swarm_core.config import (
+    KEYS,
+    REQUIRED_KEYS,
+    SwarmConfig,
+    apply_overrides,
+    config_from_mapping,
+    load_config,
+    load_preset,
+    parse_set,
+    preset_names,
+    to_ros_params,
+)
 from apf_swarm_core.errors import ConfigError, UnknownPresetError
 
 
@@ -67,32 +75,35 @@ def test_missing_required_key(tmp_path, key):
         load_config(_write(tmp_path / 'c.yaml', base))
 
 
-@pytest.mark.parametrize('key, value, pattern', [
-    ('gamma', 'big', r'gamma = .big.: expected a number'),
-    ('n_trackers', 2.5, r'n_trackers = 2.5: expected an integer'),
-    ('beta', True, r'beta = True: expected a number'),
-    ('seed', False, r'seed = False: expected an integer'),
-    ('law', 3, r'law = 3: expected a string'),
-    ('mass', 'heavy', r'mass = .heavy.: expected a list of numbers'),
-    ('target_start', [0.0, 1.0], r'target_start = .*expected a list of 3 numbers'),
-    ('mass', [1.0, 1.0], r'mass = .*expected a list of 1 or 3 numbers'),
-    ('k_n', -1.0, r'k_n = -1.0: must be > 0'),
-    ('k_n', 0.0, r'k_n = 0.0: must be > 0'),
-    ('alpha', -0.01, r'alpha = -0.01: must be >= 0'),
-    ('u0', -5, r'u0 = -5.0: must be > 0'),
-    ('b', -6.0, r'b = -6.0: must be >= 0'),
-    ('gamma', math.inf, r'gamma = inf: must be a finite number'),
-    ('n_trackers', 0, r'n_trackers = 0: must be >= 1'),
-    ('law', 'pid', r"law = 'pid': must be one of proposed, traditional"),
-    ('saturation', 'tanh', r"saturation = 'tanh': must be one of paper, continuous"),
-    ('target_trajectory', 'spiral', r"target_trajectory = 'spiral'"),
-    ('dt', 2.0, r'dt = 2.0: must be > 0 and <= 1'),
-    ('target_pitch_deg', 95.0, r'target_pitch_deg = 95.0'),
-    ('mass', [2.0], r'mass 2 is outside \[mass_lo, mass_hi\] = \[0.5, 1.5\]'),
-    ('mass', [1.0, 0.4, 1.0], r'mass 0.4 is outside'),
-    ('mass_lo', 2.0, r'mass_lo = 2.0 > mass_hi'),
-    ('target_waypoints', [1.0, 2.0, 3.0, 4.0], r'target_waypoints has 4 numbers'),
-])
+@pytest.mark.parametrize(
+    'key, value, pattern',
+    [
+        ('gamma', 'big', r'gamma = .big.: expected a number'),
+        ('n_trackers', 2.5, r'n_trackers = 2.5: expected an integer'),
+        ('beta', True, r'beta = True: expected a number'),
+        ('seed', False, r'seed = False: expected an integer'),
+        ('law', 3, r'law = 3: expected a string'),
+        ('mass', 'heavy', r'mass = .heavy.: expected a list of numbers'),
+        ('target_start', [0.0, 1.0], r'target_start = .*expected a list of 3 numbers'),
+        ('mass', [1.0, 1.0], r'mass = .*expected a list of 1 or 3 numbers'),
+        ('k_n', -1.0, r'k_n = -1.0: must be > 0'),
+        ('k_n', 0.0, r'k_n = 0.0: must be > 0'),
+        ('alpha', -0.01, r'alpha = -0.01: must be >= 0'),
+        ('u0', -5, r'u0 = -5.0: must be > 0'),
+        ('b', -6.0, r'b = -6.0: must be >= 0'),
+        ('gamma', math.inf, r'gamma = inf: must be a finite number'),
+        ('n_trackers', 0, r'n_trackers = 0: must be >= 1'),
+        ('law', 'pid', r"law = 'pid': must be one of proposed, traditional"),
+        ('saturation', 'tanh', r"saturation = 'tanh': must be one of paper, continuous"),
+        ('target_trajectory', 'spiral', r"target_trajectory = 'spiral'"),
+        ('dt', 2.0, r'dt = 2.0: must be > 0 and <= 1'),
+        ('target_pitch_deg', 95.0, r'target_pitch_deg = 95.0'),
+        ('mass', [2.0], r'mass 2 is outside \[mass_lo, mass_hi\] = \[0.5, 1.5\]'),
+        ('mass', [1.0, 0.4, 1.0], r'mass 0.4 is outside'),
+        ('mass_lo', 2.0, r'mass_lo = 2.0 > mass_hi'),
+        ('target_waypoints', [1.0, 2.0, 3.0, 4.0], r'target_waypoints has 4 numbers'),
+    ],
+)
 def test_invalid_values_raise_config_error_naming_the_key(key, value, pattern):
     base = _base()
     base[key] = value
@@ -105,7 +116,7 @@ def test_integral_float_for_int_is_accepted_and_converted():
     base['n_trackers'] = 4.0
     cfg = config_from_mapping(base)
     assert cfg.n_trackers == 4 and isinstance(cfg.n_trackers, int)
-    base['gamma'] = 1        # an int for a float is fine
+    base['gamma'] = 1  # an int for a float is fine
     assert isinstance(config_from_mapping(base).gamma, float)
 
 
@@ -129,8 +140,7 @@ def test_waypoints_with_zero_speed_is_rejected_or_well_defined():
     """target_speed = 0 is allowed by the schema (lo = 0); with waypoints the trajectory must
     then either be refused by the configuration or hover at its start, not crash."""
     base = _base()
-    base.update(target_trajectory='waypoints', target_waypoints=[1.0, 0.0, 0.0],
-                target_speed=0.0)
+    base.update(target_trajectory='waypoints', target_waypoints=[1.0, 0.0, 0.0], target_speed=0.0)
     try:
         cfg = config_from_mapping(base)
     except ConfigError as exc:
@@ -147,27 +157,35 @@ def test_waypoints_with_zero_speed_is_rejected_or_well_defined():
 
 def test_per_uav_overrides_from_file(tmp_path):
     base = _base()
-    path = _write(tmp_path / 'c.yaml', base, {
-        '/uav_2/tracker': {'ros__parameters': {'mass': [1.2, 1.3, 1.4], 'uav_id': 2}},
-        'uav_3': {'ros__parameters': {'initial_position': [1.0, 2.0, 3.0]}},
-        '/plant': {'ros__parameters': {'rate_hz': 100}},
-    })
+    path = _write(
+        tmp_path / 'c.yaml',
+        base,
+        {
+            '/uav_2/tracker': {'ros__parameters': {'mass': [1.2, 1.3, 1.4], 'uav_id': 2}},
+            'uav_3': {'ros__parameters': {'initial_position': [1.0, 2.0, 3.0]}},
+            '/plant': {'ros__parameters': {'rate_hz': 100}},
+        },
+    )
     cfg = load_config(path)
     assert cfg.mass_matrix_diag() == [[1.0] * 3, [1.2, 1.3, 1.4], [1.0] * 3]
     assert set(cfg.uav_overrides) == {2, 3}
     assert 'uav_id' not in cfg.uav_overrides[2]
     from apf_swarm_core.simulator import initial_positions
+
     np.testing.assert_array_equal(initial_positions(cfg)[2], [1.0, 2.0, 3.0])
 
 
-@pytest.mark.parametrize('section, params, pattern', [
-    ('/uav_2/tracker', {'gamma': 0.3}, r"uav_2 overrides 'gamma'"),
-    ('/uav_5/tracker', {'mass': 1.0}, r'override section for uav_5: there are only 3'),
-    ('/uav_0/tracker', {'mass': 1.0}, r'override section for uav_0'),
-    ('/uav_1/tracker', {'mass': 3.0}, r'mass 3 is outside \[mass_lo, mass_hi\]'),
-    ('/uav_1/tracker', {'initial_position': [1.0, 2.0]}, r'uav_1.initial_position'),
-    ('/uav_1/tracker', {'mass': 'x'}, r'uav_1.mass'),
-])
+@pytest.mark.parametrize(
+    'section, params, pattern',
+    [
+        ('/uav_2/tracker', {'gamma': 0.3}, r"uav_2 overrides 'gamma'"),
+        ('/uav_5/tracker', {'mass': 1.0}, r'override section for uav_5: there are only 3'),
+        ('/uav_0/tracker', {'mass': 1.0}, r'override section for uav_0'),
+        ('/uav_1/tracker', {'mass': 3.0}, r'mass 3 is outside \[mass_lo, mass_hi\]'),
+        ('/uav_1/tracker', {'initial_position': [1.0, 2.0]}, r'uav_1.initial_position'),
+        ('/uav_1/tracker', {'mass': 'x'}, r'uav_1.mass'),
+    ],
+)
 def test_bad_per_uav_sections(tmp_path, section, params, pattern):
     path = _write(tmp_path / 'c.yaml', _base(), {section: {'ros__parameters': params}})
     with pytest.raises(ConfigError, match=pattern):
@@ -198,14 +216,26 @@ def test_node_keys_are_ignored(tmp_path):
 
 
 def test_parse_set():
-    out = parse_set(['gamma=0.5', 'n_trackers=4', 'law=traditional', 'mass=[1, 1.2, 1.3]',
-                     'target_start = [0, 0, 10]'])
-    assert out == {'gamma': 0.5, 'n_trackers': 4, 'law': 'traditional', 'mass': [1, 1.2, 1.3],
-                   'target_start': [0, 0, 10]}
+    out = parse_set(
+        [
+            'gamma=0.5',
+            'n_trackers=4',
+            'law=traditional',
+            'mass=[1, 1.2, 1.3]',
+            'target_start = [0, 0, 10]',
+        ]
+    )
+    assert out == {
+        'gamma': 0.5,
+        'n_trackers': 4,
+        'law': 'traditional',
+        'mass': [1, 1.2, 1.3],
+        'target_start': [0, 0, 10],
+    }
     assert isinstance(out['gamma'], float) and isinstance(out['n_trackers'], int)
     with pytest.raises(ConfigError, match=r"'novalue': expected KEY=VALUE"):
         parse_set(['novalue'])
-    with pytest.raises(ConfigError, match=r"expected KEY=VALUE"):
+    with pytest.raises(ConfigError, match=r'expected KEY=VALUE'):
         parse_set(['=3'])
     with pytest.raises(ConfigError, match=r"unknown key 'gama' in --set.*did you mean gamma"):
         parse_set(['gama=0.3'])
@@ -218,7 +248,7 @@ def test_apply_overrides_validates():
     new = apply_overrides(cfg, parse_set(['gamma=0.5', 'law=traditional']))
     assert (new.gamma, new.law) == (0.5, 'traditional')
     assert new.replace(gamma=0.2, law='proposed') == cfg
-    assert cfg.gamma == 0.2                     # the original is unchanged
+    assert cfg.gamma == 0.2  # the original is unchanged
     with pytest.raises(ConfigError, match='gamma'):
         apply_overrides(cfg, {'gamma': -1.0})
     with pytest.raises(ConfigError, match="unknown key 'uav_overrides'"):
@@ -238,9 +268,15 @@ def test_to_ros_params_round_trip(tmp_path, preset):
 
 
 def test_to_ros_params_round_trip_with_overrides_from_file(tmp_path):
-    src = _write(tmp_path / 'src.yaml', _base(), {
-        '/uav_2/tracker': {'ros__parameters': {'mass': [1.2, 1.3, 1.4],
-                                               'initial_position': [1.0, 2.0, 3.0]}}})
+    src = _write(
+        tmp_path / 'src.yaml',
+        _base(),
+        {
+            '/uav_2/tracker': {
+                'ros__parameters': {'mass': [1.2, 1.3, 1.4], 'initial_position': [1.0, 2.0, 3.0]}
+            }
+        },
+    )
     cfg = load_config(src).replace(gamma=0.35, target_waypoints=(1.0, 2.0, 3.0))
     path = tmp_path / 'resolved.yaml'
     path.write_text(yaml.safe_dump(to_ros_params(cfg)))
@@ -252,8 +288,9 @@ def test_to_ros_params_round_trip_with_overrides_from_file(tmp_path):
 def test_to_ros_params_round_trip_with_overrides_built_in_python(tmp_path):
     """Overrides given as Python tuples (as the dataclass fields themselves are) must survive
     a write/load cycle: the loaded configuration equals the one written."""
-    cfg = config_from_mapping(_base(), overrides={2: {'mass': 1.2,
-                                                      'initial_position': (1.0, 2.0, 3.0)}})
+    cfg = config_from_mapping(
+        _base(), overrides={2: {'mass': 1.2, 'initial_position': (1.0, 2.0, 3.0)}}
+    )
     path = tmp_path / 'resolved.yaml'
     path.write_text(yaml.safe_dump(to_ros_params(cfg)))
     assert load_config(path) == cfg

@@ -4,11 +4,16 @@ import math
 
 import numpy as np
 import pytest
-
-from apf_swarm_core.design import (b_for_spacing, equilibrium_formation, expected_spacing,
-                                   pair_equilibrium_distance, swarm_size_bound,
-                                   triangle_b_for_spacing, triangle_c_for_spacing,
-                                   triangle_spacing)
+from apf_swarm_core.design import (
+    b_for_spacing,
+    equilibrium_formation,
+    expected_spacing,
+    pair_equilibrium_distance,
+    swarm_size_bound,
+    triangle_b_for_spacing,
+    triangle_c_for_spacing,
+    triangle_spacing,
+)
 from apf_swarm_core.errors import ConfigError
 from apf_swarm_core.laws import kinematic_velocity
 from apf_swarm_core.potential import gradient
@@ -19,14 +24,15 @@ def _spec_triangle_side(a, b, c, k_n, k_f):
     return math.sqrt(c * math.log(b / (a + k_n / (3.0 * k_f))))
 
 
-def _equilateral(d, centre=np.zeros(3)):
+def _equilateral(d, centre=None):
     """Equilateral triangle of side d in a tilted plane, centroid at ``centre``."""
     rho = d / math.sqrt(3.0)
     ang = np.array([0.0, 2 * np.pi / 3, 4 * np.pi / 3]) + 0.3
     x = np.stack([rho * np.cos(ang), rho * np.sin(ang), np.zeros(3)], axis=1)
-    rot = np.array([[1, 0, 0], [0, math.cos(0.7), -math.sin(0.7)],
-                    [0, math.sin(0.7), math.cos(0.7)]])
-    return x @ rot.T + centre
+    rot = np.array(
+        [[1, 0, 0], [0, math.cos(0.7), -math.sin(0.7)], [0, math.sin(0.7), math.cos(0.7)]]
+    )
+    return x @ rot.T + (np.zeros(3) if centre is None else centre)
 
 
 def test_triangle_spacing_value_for_default_parameters():
@@ -35,9 +41,10 @@ def test_triangle_spacing_value_for_default_parameters():
     assert d == pytest.approx(1.599, abs=5e-4)
 
 
-@pytest.mark.parametrize('a, b, c, k_n, k_f', [(1.0, 6.0, 1.7, 1.0, 1.0),
-                                               (0.5, 3.0, 2.5, 2.0, 1.5),
-                                               (2.0, 20.0, 0.8, 0.5, 3.0)])
+@pytest.mark.parametrize(
+    'a, b, c, k_n, k_f',
+    [(1.0, 6.0, 1.7, 1.0, 1.0), (0.5, 3.0, 2.5, 2.0, 1.5), (2.0, 20.0, 0.8, 0.5, 3.0)],
+)
 def test_equilibrium_formation_of_three_is_the_spec_triangle(a, b, c, k_n, k_f):
     d = _spec_triangle_side(a, b, c, k_n, k_f)
     assert triangle_spacing(a, b, c, k_n, k_f) == pytest.approx(d, rel=1e-14)
@@ -67,14 +74,19 @@ def test_triangle_inverses(d):
 
 
 def test_triangle_c_for_spacing_refuses_without_triangle():
-    with pytest.raises(ConfigError, match='b = 1.2'):
-        triangle_c_for_spacing(1.0, 1.0, 1.2, 1.0, 1.0)    # threshold 4/3
+    with pytest.raises(ConfigError, match=r'b = 1\.2'):
+        triangle_c_for_spacing(1.0, 1.0, 1.2, 1.0, 1.0)  # threshold 4/3
 
 
-@pytest.mark.parametrize('a, b, k_n, k_f', [(1.0, 0.6, 1.0, 1.0),      # the paper's b < a
-                                            (1.0, 4.0 / 3.0, 1.0, 1.0),  # exactly the threshold
-                                            (1.0, 1.3, 1.0, 1.0),
-                                            (1.0, 1.9, 3.0, 1.0)])      # threshold 2
+@pytest.mark.parametrize(
+    'a, b, k_n, k_f',
+    [
+        (1.0, 0.6, 1.0, 1.0),  # the paper's b < a
+        (1.0, 4.0 / 3.0, 1.0, 1.0),  # exactly the threshold
+        (1.0, 1.3, 1.0, 1.0),
+        (1.0, 1.9, 3.0, 1.0),
+    ],
+)  # threshold 2
 def test_triangle_spacing_none_at_or_below_threshold(a, b, k_n, k_f):
     assert triangle_spacing(a, b, 1.7, k_n, k_f) is None
     assert expected_spacing(3, k_n=k_n, k_f=k_f, a=a, b=b, c=1.7) is None
@@ -92,13 +104,14 @@ def test_gazi_passino_pair_distance_by_kinematic_law():
     delta = math.sqrt(c * math.log(b / a))
     assert pair_equilibrium_distance(a, b, c) == pytest.approx(delta, rel=1e-14)
     assert pair_equilibrium_distance(1.0, 0.6, 1.7) is None
-    params = dict(k_n=0.0, k_f=1.0, a=a, b=b, c=c)
-    for start in (0.3, 4.0):                      # from inside and from outside delta
+    params = {'k_n': 0.0, 'k_f': 1.0, 'a': a, 'b': b, 'c': c}
+    for start in (0.3, 4.0):  # from inside and from outside delta
         x = np.array([[0.0, 0.0, 0.0], [start, 0.2, -0.1]])
         dt = 1e-2
         for _ in range(3000):
-            x = x + dt * kinematic_velocity(gradient(x, np.zeros(3), **params), alpha=1.0,
-                                            beta=0.0, gamma=1.0)
+            x = x + dt * kinematic_velocity(
+                gradient(x, np.zeros(3), **params), alpha=1.0, beta=0.0, gamma=1.0
+            )
         assert np.linalg.norm(x[0] - x[1]) == pytest.approx(delta, rel=1e-8)
     f = equilibrium_formation(2, **params, starts=2)
     assert f.spacing == pytest.approx(delta, rel=1e-6)
@@ -113,10 +126,11 @@ def test_swarm_size_bound_formula_and_property():
     # Gazi-Passino: without a target every agent ends within eps of the centroid
     rng = np.random.default_rng(3)
     x = rng.normal(scale=3.0, size=(7, 3))
-    params = dict(k_n=0.0, k_f=1.0, a=a, b=b, c=c)
+    params = {'k_n': 0.0, 'k_f': 1.0, 'a': a, 'b': b, 'c': c}
     for _ in range(4000):
-        x = x + 1e-2 * kinematic_velocity(gradient(x, np.zeros(3), **params), alpha=1.0,
-                                          beta=0.0, gamma=1.0)
+        x = x + 1e-2 * kinematic_velocity(
+            gradient(x, np.zeros(3), **params), alpha=1.0, beta=0.0, gamma=1.0
+        )
     assert np.linalg.norm(gradient(x, np.zeros(3), **params), axis=-1).max() < 1e-4
     r = np.linalg.norm(x - x.mean(axis=0), axis=-1)
     assert r.max() <= eps

@@ -4,20 +4,24 @@ trajectory): every check here is exact equality, not a tolerance."""
 
 import numpy as np
 import pytest
-
-from apf_swarm_core import load_preset, simulate, simulate_batch
 from apf_swarm_core.laws import SlidingModeController
 from apf_swarm_core.plant import DisturbanceSource, plant_step
 from apf_swarm_core.potential import _pair_weight_neg, gradient, pair_weight
 from apf_swarm_core.saturation import _layer_bound, outside_layer
-from apf_swarm_core.simulator import BatchSimulator, TRAJECTORY_KEYS
+from apf_swarm_core.simulator import TRAJECTORY_KEYS, BatchSimulator
+
+from apf_swarm_core import load_preset, simulate, simulate_batch
 
 
 def _params(rng, R=None):
     size = None if R is None else R
-    return dict(k_n=rng.uniform(0.2, 3.0, size), k_f=rng.uniform(0.2, 3.0, size),
-                a=rng.uniform(0.2, 2.0, size), b=rng.uniform(0.5, 8.0, size),
-                c=rng.uniform(0.3, 3.0, size))
+    return {
+        'k_n': rng.uniform(0.2, 3.0, size),
+        'k_f': rng.uniform(0.2, 3.0, size),
+        'a': rng.uniform(0.2, 2.0, size),
+        'b': rng.uniform(0.5, 8.0, size),
+        'c': rng.uniform(0.3, 3.0, size),
+    }
 
 
 def _whole_array_gradient(x, xt, k_n, k_f, a, b, c):
@@ -39,7 +43,7 @@ def test_three_tracker_gradient_equals_the_whole_array_form_and_its_rows(unit):
         scale = 10.0 ** rng.uniform(-3, 2)
         x = rng.normal(scale=scale, size=(3, 3))
         if trial % 10 == 0:
-            x[1] = x[0]                          # coincident trackers: zero differences
+            x[1] = x[0]  # coincident trackers: zero differences
         xt = rng.normal(scale=scale, size=3)
         full = gradient(x, xt, **p)
         assert np.array_equal(full, _whole_array_gradient(x, xt, **p)), trial
@@ -80,10 +84,15 @@ def test_pair_weight_forms_agree():
 
 def test_layer_bound_gives_the_norm_test_exactly():
     rng = np.random.default_rng(5)
-    gammas = np.concatenate([rng.uniform(1e-3, 10, 400), 10.0 ** rng.uniform(-160, 150, 200),
-                             [0.0, 0.2, 1.0, 3.0, 5e-324, 1e-310, 1e300, np.inf, -1.0]])
+    gammas = np.concatenate(
+        [
+            rng.uniform(1e-3, 10, 400),
+            10.0 ** rng.uniform(-160, 150, 200),
+            [0.0, 0.2, 1.0, 3.0, 5e-324, 1e-310, 1e300, np.inf, -1.0],
+        ]
+    )
     bound = _layer_bound(gammas)
-    for g, q in zip(gammas, bound):
+    for g, q in zip(gammas, bound, strict=False):
         cands = [0.0, np.inf]
         with np.errstate(over='ignore'):
             square = g * g
@@ -99,16 +108,27 @@ def test_layer_bound_gives_the_norm_test_exactly():
     v = rng.normal(size=(20000, 3))
     gam = 0.2
     v *= gam / np.linalg.norm(v, axis=-1, keepdims=True)
-    v *= 1 + rng.integers(-3, 4, size=(20000, 1)) * 2.0 ** -52
+    v *= 1 + rng.integers(-3, 4, size=(20000, 1)) * 2.0**-52
     assert np.array_equal(outside_layer(v, gam), np.linalg.norm(v, axis=-1) >= gam)
 
 
-@pytest.mark.parametrize('law, saturation', [('proposed', 'paper'), ('traditional', 'paper'),
-                                             ('proposed', 'continuous')])
+@pytest.mark.parametrize(
+    'law, saturation',
+    [('proposed', 'paper'), ('traditional', 'paper'), ('proposed', 'continuous')],
+)
 def test_controller_on_one_row_equals_that_row_of_all_rows(law, saturation):
     rng = np.random.default_rng(9)
-    gains = dict(law=law, alpha=0.01, beta=2.0, gamma=0.2, lambda_filter=0.1, u0=125.0,
-                 drag=0.1, dt=1e-3, saturation=saturation)
+    gains = {
+        'law': law,
+        'alpha': 0.01,
+        'beta': 2.0,
+        'gamma': 0.2,
+        'lambda_filter': 0.1,
+        'u0': 125.0,
+        'drag': 0.1,
+        'dt': 1e-3,
+        'saturation': saturation,
+    }
     whole = SlidingModeController(**gains, shape=(3, 3))
     rows = [SlidingModeController(**gains, shape=(1, 3)) for _ in range(3)]
     for step in range(300):
@@ -116,7 +136,7 @@ def test_controller_on_one_row_equals_that_row_of_all_rows(law, saturation):
         g = rng.normal(scale=0.3 if step % 2 else 0.05, size=(3, 3))
         out = whole.step(v, g)
         for i, ctl in enumerate(rows):
-            o = ctl.step(v[i:i + 1], g[i:i + 1])
+            o = ctl.step(v[i : i + 1], g[i : i + 1])
             for name in ('force', 'sliding_surface', 'filter_state', 'saturated'):
                 assert np.array_equal(getattr(o, name)[0], getattr(out, name)[i]), (step, i)
     assert all(np.array_equal(ctl.z[0], whole.z[i]) for i, ctl in enumerate(rows))
@@ -136,11 +156,11 @@ def test_plant_step_in_place_and_allocating_paths_agree():
             dr = np.asarray(drag)[..., None, None] if np.ndim(drag) else drag
             want = formula(x, v, u, m, dr, d, 1e-3)
             got = plant_step(x, v, u, mass=m, dt=1e-3, drag=drag, disturbance=d)
-            assert all(np.array_equal(a, b) for a, b in zip(got, want))
+            assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=False))
     # an unbatched state with a batched force: the allocating path
     got = plant_step(x[0], v[0], u, mass=1.0, dt=1e-3, drag=0.1, disturbance=0.0)
     want = formula(x[0], v[0], u, 1.0, 0.1, 0.0, 1e-3)
-    assert all(np.array_equal(a, b) for a, b in zip(got, want))
+    assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=False))
 
 
 @pytest.mark.parametrize('every', [1, 3])
@@ -152,14 +172,21 @@ def test_run_equals_repeated_steps(every):
     rec = sim.run(1500)
     rec2 = sim.run(1100)
     ref = BatchSimulator([cfg])
-    samples = {key: [] for key in TRAJECTORY_KEYS + ('saturated',)}
+    samples = {key: [] for key in (*TRAJECTORY_KEYS, 'saturated')}
     for k in range(2600):
         x, v = ref.x, ref.v
         out, tx, tv = ref.step()
         if k % every == 0:
-            for key, val in (('t', k * cfg.dt), ('x', x), ('v', v), ('u', out.force),
-                             ('s', out.sliding_surface), ('target_x', tx), ('target_v', tv),
-                             ('saturated', out.saturated)):
+            for key, val in (
+                ('t', k * cfg.dt),
+                ('x', x),
+                ('v', v),
+                ('u', out.force),
+                ('s', out.sliding_surface),
+                ('target_x', tx),
+                ('target_v', tv),
+                ('saturated', out.saturated),
+            ):
                 samples[key].append(np.copy(val))
     for key, vals in samples.items():
         got = np.concatenate([rec[key], rec2[key]], axis=0 if key == 't' else 1)
@@ -171,14 +198,20 @@ def test_run_equals_repeated_steps(every):
 
 def test_batch_and_single_runs_agree_bit_for_bit():
     base = load_preset('triangle').replace(duration=1.5)
-    cfgs = [base, base.replace(seed=7, gamma=0.5), base.replace(seed=3, mass=(1.2,)),
-            base.replace(seed=4, b=5.0)]
+    cfgs = [
+        base,
+        base.replace(seed=7, gamma=0.5),
+        base.replace(seed=3, mass=(1.2,)),
+        base.replace(seed=4, b=5.0),
+    ]
     batch = simulate_batch(cfgs).trajectory
     for r, cfg in enumerate(cfgs):
         single = simulate(cfg).trajectory
-        for key in TRAJECTORY_KEYS + ('saturated',):
-            assert np.array_equal(batch[key] if key == 't' else batch[key][r], single[key]), \
-                (r, key)
+        for key in (*TRAJECTORY_KEYS, 'saturated'):
+            assert np.array_equal(batch[key] if key == 't' else batch[key][r], single[key]), (
+                r,
+                key,
+            )
 
 
 def test_disturbance_views_stay_valid():
@@ -189,4 +222,4 @@ def test_disturbance_views_stay_valid():
     kept = [f.copy() for f in first]
     for _ in range(20):
         src.next()
-    assert all(np.array_equal(a, b) for a, b in zip(first, kept))
+    assert all(np.array_equal(a, b) for a, b in zip(first, kept, strict=False))

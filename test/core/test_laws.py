@@ -2,11 +2,16 @@
 
 import numpy as np
 import pytest
+from apf_swarm_core.laws import (
+    SlidingModeController,
+    filter_step,
+    kinematic_velocity,
+    known_force,
+    sliding_surface_proposed,
+    sliding_surface_traditional,
+    switching_force,
+)
 from scipy.integrate import solve_ivp
-
-from apf_swarm_core.laws import (SlidingModeController, filter_step, kinematic_velocity,
-                                 known_force, sliding_surface_proposed,
-                                 sliding_surface_traditional, switching_force)
 
 
 def test_kinematic_velocity_by_hand():
@@ -40,8 +45,14 @@ def test_filter_step_matches_ode_solution_with_switching_input():
     for _ in range(12):
         g = rng.normal(size=(1, 3))
         u = beta * np.sign(g[0])
-        sol = solve_ivp(lambda t, y: (u - y) / lam, (0.0, dt), z_ode, rtol=1e-12, atol=1e-14,
-                        method='DOP853')
+        sol = solve_ivp(
+            lambda t, y, u=u: (u - y) / lam,
+            (0.0, dt),
+            z_ode,
+            rtol=1e-12,
+            atol=1e-14,
+            method='DOP853',
+        )
         z_ode = sol.y[:, -1]
         z = filter_step(z, g, beta=beta, lambda_filter=lam, dt=dt)
         np.testing.assert_allclose(z[0], z_ode, rtol=1e-9, atol=1e-11)
@@ -65,42 +76,47 @@ def test_filter_step_batched_gains():
     lam = np.array([0.05, 0.1, 0.2])
     out = filter_step(z, g, beta=beta, lambda_filter=lam, dt=0.01)
     for r in range(3):
-        np.testing.assert_allclose(out[r], filter_step(z[r], g[r], beta=beta[r],
-                                                       lambda_filter=lam[r], dt=0.01),
-                                   rtol=1e-15)
+        np.testing.assert_allclose(
+            out[r],
+            filter_step(z[r], g[r], beta=beta[r], lambda_filter=lam[r], dt=0.01),
+            rtol=1e-15,
+        )
 
 
 def test_sliding_surface_proposed_inside_and_outside_by_hand():
     alpha, beta, gamma = 0.01, 2.0, 0.2
     v = np.array([[0.1, 0.2, 0.3], [1.0, -1.0, 0.5]])
-    g = np.array([[0.05, -0.1, 0.0],        # |g| = 0.112 < 0.2: eq. 31
-                  [1.0, 0.0, -2.0]])        # |g| = 2.24 >= 0.2: eq. 28
+    g = np.array(
+        [
+            [0.05, -0.1, 0.0],  # |g| = 0.112 < 0.2: eq. 31
+            [1.0, 0.0, -2.0],
+        ]
+    )  # |g| = 2.24 >= 0.2: eq. 28
     z = np.array([[9.0, 9.0, 9.0], [0.7, -0.3, 0.1]])
     s, outside = sliding_surface_proposed(v, g, z, alpha=alpha, beta=beta, gamma=gamma)
     assert outside.tolist() == [False, True]
-    k = alpha + beta / gamma                 # 10.01
+    k = alpha + beta / gamma  # 10.01
     np.testing.assert_allclose(s[0], [0.1 + k * 0.05, 0.2 - k * 0.1, 0.3], rtol=1e-14)
-    np.testing.assert_allclose(s[1], [1.0 + 0.01 + 0.7, -1.0 - 0.3, 0.5 - 0.02 + 0.1],
-                               rtol=1e-14)
+    np.testing.assert_allclose(s[1], [1.0 + 0.01 + 0.7, -1.0 - 0.3, 0.5 - 0.02 + 0.1], rtol=1e-14)
 
 
 def test_sliding_surface_proposed_continuous_saturation_uses_no_filter():
     alpha, beta, gamma = 0.5, 2.0, 1.0
     v = np.zeros((1, 3))
     g = np.array([[3.0, 0.0, 4.0]])
-    s, outside = sliding_surface_proposed(v, g, np.full((1, 3), 100.0), alpha=alpha, beta=beta,
-                                          gamma=gamma, saturation='continuous')
+    s, outside = sliding_surface_proposed(
+        v, g, np.full((1, 3), 100.0), alpha=alpha, beta=beta, gamma=gamma, saturation='continuous'
+    )
     assert outside.tolist() == [True]
     np.testing.assert_allclose(s[0], [1.5 + 2.0 * 0.6, 0.0, 2.0 + 2.0 * 0.8], rtol=1e-14)
 
 
 def test_sliding_surface_traditional_by_hand():
     v = np.array([[0.1, 0.2, 0.3]])
-    g = np.array([[0.01, -0.02, 0.0]])      # tiny gradient: still s = v + alpha g + z
+    g = np.array([[0.01, -0.02, 0.0]])  # tiny gradient: still s = v + alpha g + z
     z = np.array([[0.5, -0.5, 0.25]])
     s = sliding_surface_traditional(v, g, z, alpha=2.0)
-    np.testing.assert_allclose(s, [[0.1 + 0.02 + 0.5, 0.2 - 0.04 - 0.5, 0.3 + 0.25]],
-                               rtol=1e-14)
+    np.testing.assert_allclose(s, [[0.1 + 0.02 + 0.5, 0.2 - 0.04 - 0.5, 0.3 + 0.25]], rtol=1e-14)
 
 
 def test_switching_force_and_known_force():
@@ -113,8 +129,16 @@ def test_switching_force_and_known_force():
 
 
 def _controller(law, **kw):
-    args = dict(alpha=0.01, beta=2.0, gamma=0.2, lambda_filter=0.1, u0=125.0, dt=0.001,
-                shape=(2, 3), drag=0.1)
+    args = {
+        'alpha': 0.01,
+        'beta': 2.0,
+        'gamma': 0.2,
+        'lambda_filter': 0.1,
+        'u0': 125.0,
+        'dt': 0.001,
+        'shape': (2, 3),
+        'drag': 0.1,
+    }
     args.update(kw)
     return SlidingModeController(law=law, **args)
 
@@ -137,8 +161,9 @@ def test_controller_step_reset_and_filter_advance(law):
     np.testing.assert_allclose(ctl.z, expected_z, rtol=1e-15)
     assert np.all(ctl.z != 0)
     if law == 'proposed':
-        s_ref, out_ref = sliding_surface_proposed(v, g, np.zeros((2, 3)), alpha=0.01, beta=2.0,
-                                                  gamma=0.2)
+        s_ref, out_ref = sliding_surface_proposed(
+            v, g, np.zeros((2, 3)), alpha=0.01, beta=2.0, gamma=0.2
+        )
     else:
         s_ref = sliding_surface_traditional(v, g, np.zeros((2, 3)), alpha=0.01)
         out_ref = np.linalg.norm(g, axis=-1) >= 0.2

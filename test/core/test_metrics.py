@@ -4,17 +4,31 @@ import math
 
 import numpy as np
 import pytest
-
-from apf_swarm_core.metrics import (SUMMARY_KEYS, centroid_error, flight, formation_error,
-                                    heading_rate, hf_velocity_rms, moving_average,
-                                    nearest_design, pair_distances, potential_series,
-                                    steady_slice, summarize, time_to_converge)
+from apf_swarm_core.metrics import (
+    SUMMARY_KEYS,
+    centroid_error,
+    flight,
+    formation_error,
+    heading_rate,
+    hf_velocity_rms,
+    moving_average,
+    nearest_design,
+    pair_distances,
+    potential_series,
+    steady_slice,
+    summarize,
+    time_to_converge,
+)
 from apf_swarm_core.potential import potential
 
 
 def test_centroid_error_by_hand():
-    x = np.array([[[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 3.0, 0.0]],
-                  [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]])
+    x = np.array(
+        [
+            [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 3.0, 0.0]],
+            [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]],
+        ]
+    )
     tx = np.array([[1.0, 1.0, 2.0], [1.0, 1.0, 1.0]])
     np.testing.assert_allclose(centroid_error(x, tx), [2.0, 0.0], atol=1e-15)
 
@@ -24,9 +38,11 @@ def test_pair_distances_by_hand():
     # triu order: (0,1), (0,2), (1,2)
     np.testing.assert_allclose(pair_distances(x), [5.0, 2.0, math.sqrt(29.0)], rtol=1e-15)
     xt = np.stack([x, 2 * x])
-    np.testing.assert_allclose(pair_distances(xt), [[5.0, 2.0, math.sqrt(29.0)],
-                                                    [10.0, 4.0, 2 * math.sqrt(29.0)]],
-                               rtol=1e-15)
+    np.testing.assert_allclose(
+        pair_distances(xt),
+        [[5.0, 2.0, math.sqrt(29.0)], [10.0, 4.0, 2 * math.sqrt(29.0)]],
+        rtol=1e-15,
+    )
     assert pair_distances(np.zeros((4, 1, 3))).shape == (4, 0)
 
 
@@ -40,8 +56,9 @@ def test_formation_error_by_hand():
     np.testing.assert_allclose(formation_error(x, np.full(3, d)), 0.0, atol=1e-14)
     # pairs (3, 4, 5) against design (4, 4, 4): RMS of (-1, 0, 1) = sqrt(2/3)
     right = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, 4.0, 0.0]])
-    assert float(formation_error(right, [4.0, 4.0, 4.0])) == pytest.approx(math.sqrt(2 / 3),
-                                                                           rel=1e-14)
+    assert float(formation_error(right, [4.0, 4.0, 4.0])) == pytest.approx(
+        math.sqrt(2 / 3), rel=1e-14
+    )
     # unsorted design pairs are sorted before comparison
     assert float(formation_error(right, [5.0, 3.0, 4.0])) == pytest.approx(0.0, abs=1e-15)
 
@@ -50,10 +67,12 @@ def test_potential_series_matches_potential():
     rng = np.random.default_rng(0)
     x = rng.normal(size=(6, 3, 3))
     tx = rng.normal(size=(6, 3))
-    p = dict(k_n=1.0, k_f=2.0, a=1.0, b=6.0, c=1.7)
-    np.testing.assert_allclose(potential_series(x, tx, p),
-                               [float(potential(x[k], tx[k], **p)) for k in range(6)],
-                               rtol=1e-14)
+    p = {'k_n': 1.0, 'k_f': 2.0, 'a': 1.0, 'b': 6.0, 'c': 1.7}
+    np.testing.assert_allclose(
+        potential_series(x, tx, p),
+        [float(potential(x[k], tx[k], **p)) for k in range(6)],
+        rtol=1e-14,
+    )
 
 
 def test_moving_average_by_hand():
@@ -67,12 +86,12 @@ def test_moving_average_by_hand():
 
 @pytest.mark.parametrize('freq, amp', [(100.0, 0.3), (250.0, 2.0)])
 def test_hf_velocity_rms_of_a_fast_sinusoid(freq, amp):
-    dt, T = 1e-4, 20000                         # 2 s; window 0.1 s = 1000 samples
+    dt, T = 1e-4, 20000  # 2 s; window 0.1 s = 1000 samples
     t = np.arange(T) * dt
     v = np.zeros((T, 2, 3))
     v[:, 0, 1] = amp * np.sin(2 * np.pi * freq * t + 0.3)
     v[:, 1, 2] = amp * np.sin(2 * np.pi * freq * t + 1.1)
-    v[:, :, 0] = 1.5                            # a constant cruise velocity is not HF energy
+    v[:, :, 0] = 1.5  # a constant cruise velocity is not HF energy
     assert hf_velocity_rms(v, dt, window=0.1) == pytest.approx(amp / math.sqrt(2), rel=0.02)
 
 
@@ -82,7 +101,7 @@ def test_hf_velocity_rms_of_constant_and_slow_velocity():
     v = np.tile([1.0, -2.0, 0.5], (T, 3, 1))
     assert hf_velocity_rms(v, dt) < 1e-12
     slow = np.zeros((T, 1, 3))
-    slow[:, 0, 0] = np.sin(2 * np.pi * 0.2 * t)   # 0.2 Hz, far below 1/window = 10 Hz
+    slow[:, 0, 0] = np.sin(2 * np.pi * 0.2 * t)  # 0.2 Hz, far below 1/window = 10 Hz
     assert hf_velocity_rms(slow, dt, window=0.1) < 0.01
 
 
@@ -135,9 +154,14 @@ def test_summarize_on_a_perfect_formation():
     x = tx[:, None, :] + rel[None]
     v = np.tile([1.0, 0.0, 0.0], (T, 3, 1))
     traj = {'t': t, 'x': x, 'v': v, 'target_x': tx, 'target_v': np.tile([1.0, 0, 0], (T, 1))}
-    s = summarize(traj, law='proposed', dt=dt, seed=1,
-                  potential_params=dict(k_n=1.0, k_f=1.0, a=1.0, b=6.0, c=1.7),
-                  expected_pairs=np.full(3, d))
+    s = summarize(
+        traj,
+        law='proposed',
+        dt=dt,
+        seed=1,
+        potential_params={'k_n': 1.0, 'k_f': 1.0, 'a': 1.0, 'b': 6.0, 'c': 1.7},
+        expected_pairs=np.full(3, d),
+    )
     assert tuple(s) == SUMMARY_KEYS
     assert s['converged'] is True and s['time_to_converge'] == 0.0
     assert s['centroid_error']['rms_steady'] < 1e-12
@@ -156,20 +180,27 @@ def test_summary_and_flight_judge_the_nearest_of_several_designs():
     sq = np.array([[0.0, 0, 5], [1, 0, 5], [1, 1, 5], [0, 1, 5]])
     x = np.tile(sq - sq.mean(axis=0) + [0, 0, 5], (T, 1, 1))
     tx = np.tile([0.0, 0, 5], (T, 1))
-    traj = {'t': np.arange(T) * 0.01, 'x': x, 'v': np.zeros_like(x), 'target_x': tx,
-            'target_v': np.zeros_like(tx)}
+    traj = {
+        't': np.arange(T) * 0.01,
+        'x': x,
+        'v': np.zeros_like(x),
+        'target_x': tx,
+        'target_v': np.zeros_like(tx),
+    }
     square = pair_distances(sq)
     wide = 1.3 * square
-    params = dict(k_n=1.0, k_f=1.0, a=1.0, b=6.0, c=1.7)
+    params = {'k_n': 1.0, 'k_f': 1.0, 'a': 1.0, 'b': 6.0, 'c': 1.7}
     for designs in ([wide, square], [square, wide]):
-        s = summarize(traj, law='proposed', dt=0.01, seed=1, potential_params=params,
-                      expected_pairs=designs)
+        s = summarize(
+            traj, law='proposed', dt=0.01, seed=1, potential_params=params, expected_pairs=designs
+        )
         f = flight(traj, designs)
         assert s['converged'] is True and f['converged'] is True and f['flies'] is True
         assert s['formation']['error_rms_steady'] < 1e-12
         assert nearest_design(x, designs) is not None
         assert np.array_equal(nearest_design(x, designs), square)
-    s = summarize(traj, law='proposed', dt=0.01, seed=1, potential_params=params,
-                  expected_pairs=[wide])
+    s = summarize(
+        traj, law='proposed', dt=0.01, seed=1, potential_params=params, expected_pairs=[wide]
+    )
     assert s['converged'] is False and not flight(traj, [wide])['flies']
     assert nearest_design(x, []) is None

@@ -2,9 +2,8 @@
 
 import numpy as np
 import pytest
-from scipy import stats
-
 from apf_swarm_core.plant import DisturbanceSource, plant_step, uniform_ball
+from scipy import stats
 
 
 @pytest.mark.parametrize('dt, steps', [(1e-3, 500), (0.1, 37)])
@@ -30,7 +29,7 @@ def test_plant_step_known_drag_by_hand():
     u = np.array([[1.0, 1.0, 1.0]])
     d = np.array([[0.5, 0.0, -0.5]])
     xn, vn = plant_step(x, v, u, mass=2.0, dt=0.1, drag=0.3, disturbance=d)
-    acc = (u - 0.3 * v - d) / 2.0          # M xdd + f_known + f_unknown = u
+    acc = (u - 0.3 * v - d) / 2.0  # M xdd + f_known + f_unknown = u
     np.testing.assert_allclose(vn, v + 0.1 * acc, rtol=1e-15)
     np.testing.assert_allclose(xn, x + 0.1 * v + 0.005 * acc, rtol=1e-15)
 
@@ -42,8 +41,9 @@ def test_plant_step_batched_equals_per_run():
     drag = np.array([0.0, 0.1, 0.2, 0.3])
     xb, vb = plant_step(x, v, u, mass=mass, dt=0.01, drag=drag, disturbance=d)
     for r in range(4):
-        xr, vr = plant_step(x[r], v[r], u[r], mass=mass[r], dt=0.01, drag=float(drag[r]),
-                            disturbance=d[r])
+        xr, vr = plant_step(
+            x[r], v[r], u[r], mass=mass[r], dt=0.01, drag=float(drag[r]), disturbance=d[r]
+        )
         np.testing.assert_allclose(xb[r], xr, rtol=1e-15)
         np.testing.assert_allclose(vb[r], vr, rtol=1e-15)
 
@@ -55,7 +55,7 @@ def test_disturbance_is_bounded(f_bar):
     assert f.shape == (2500, 4, 3)
     norms = np.linalg.norm(f, axis=-1)
     assert norms.max() <= f_bar * (1 + 1e-12)
-    assert norms.max() > 0.95 * f_bar               # it does use the whole ball
+    assert norms.max() > 0.95 * f_bar  # it does use the whole ball
 
 
 def test_disturbance_same_seed_same_sequence_and_different_seed_differs():
@@ -67,7 +67,7 @@ def test_disturbance_same_seed_same_sequence_and_different_seed_differs():
     fc = np.array([c.next() for _ in range(50)])
     np.testing.assert_array_equal(fa, fb)
     assert not np.allclose(fa, fc)
-    assert len({tuple(f.ravel()) for f in fa}) == 50   # a new draw every step
+    assert len({tuple(f.ravel()) for f in fa}) == 50  # a new draw every step
 
 
 def test_disturbance_block_size_does_not_change_the_sequence():
@@ -115,7 +115,9 @@ def test_uniform_ball_is_uniform_in_volume():
 def test_batched_disturbance_source_equals_single_sources():
     seeds, bounds = [3, 4, 3], [1.0, 2.0, 0.0]
     batch = DisturbanceSource(seeds, n=2, f_bar=bounds, block=5)
-    singles = [DisturbanceSource(s, n=2, f_bar=f, block=8) for s, f in zip(seeds, bounds)]
+    singles = [
+        DisturbanceSource(s, n=2, f_bar=f, block=8) for s, f in zip(seeds, bounds, strict=False)
+    ]
     for _ in range(23):
         fb = batch.next()
         assert fb.shape == (3, 2, 3)

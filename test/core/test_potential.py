@@ -2,14 +2,18 @@
 
 import numpy as np
 import pytest
-
 from apf_swarm_core.laws import kinematic_velocity
 from apf_swarm_core.potential import gradient, pair_weight, potential, target_gradient
 
 
 def _random_params(rng):
-    return dict(k_n=rng.uniform(0.2, 3.0), k_f=rng.uniform(0.2, 3.0), a=rng.uniform(0.2, 2.0),
-                b=rng.uniform(0.0, 10.0), c=rng.uniform(0.3, 3.0))
+    return {
+        'k_n': rng.uniform(0.2, 3.0),
+        'k_f': rng.uniform(0.2, 3.0),
+        'a': rng.uniform(0.2, 2.0),
+        'b': rng.uniform(0.0, 10.0),
+        'c': rng.uniform(0.3, 3.0),
+    }
 
 
 def _fd_gradient(x, xt, params, h=1e-5):
@@ -25,7 +29,8 @@ def _fd_gradient(x, xt, params, h=1e-5):
 
 
 def _hand_potential(x, xt, k_n, k_f, a, b, c):
-    """J of docs/THEORY.md section 1 written with explicit loops (independent of the vectorized code)."""
+    """J of docs/THEORY.md section 1 written with explicit loops (independent of the
+    vectorized code)."""
     n = x.shape[0]
     j = 0.0
     for i in range(n):
@@ -44,7 +49,8 @@ def test_potential_matches_hand_written_sum(n, seed):
     x = rng.normal(scale=1.5, size=(n, 3))
     xt = rng.normal(size=3)
     assert float(potential(x, xt, **params)) == pytest.approx(
-        _hand_potential(x, xt, **params), rel=1e-12, abs=1e-12)
+        _hand_potential(x, xt, **params), rel=1e-12, abs=1e-12
+    )
 
 
 def test_potential_known_value():
@@ -85,8 +91,9 @@ def test_gradient_with_mask_matches_masked_potential(seed):
             xp, xm = x.copy(), x.copy()
             xp[i, k] += h
             xm[i, k] -= h
-            g_fd[i, k] = (potential(xp, xt, **params, mask=mask)
-                          - potential(xm, xt, **params, mask=mask)) / (2 * h)
+            g_fd[i, k] = (
+                potential(xp, xt, **params, mask=mask) - potential(xm, xt, **params, mask=mask)
+            ) / (2 * h)
     np.testing.assert_allclose(g, g_fd, rtol=1e-6, atol=1e-7 * (1.0 + np.abs(g_fd).max()))
     # a mask that removes every pair leaves only the tracking term
     g0 = gradient(x, xt, **params, mask=np.zeros((n, n), dtype=bool))
@@ -105,8 +112,9 @@ def test_gradient_rows_equal_rows_of_full_gradient(n):
         assert row.shape == (1, 3)
         np.testing.assert_allclose(row[0], full[i], rtol=1e-13, atol=1e-13)
     rows = [n - 1, 0]
-    np.testing.assert_allclose(gradient(x, xt, **params, rows=rows), full[rows], rtol=1e-13,
-                               atol=1e-13)
+    np.testing.assert_allclose(
+        gradient(x, xt, **params, rows=rows), full[rows], rtol=1e-13, atol=1e-13
+    )
 
 
 @pytest.mark.parametrize('n', [1, 3, 7])
@@ -122,14 +130,17 @@ def test_batched_inputs_equal_per_run_calls(n):
     gt = target_gradient(x, xt, k_n=batched['k_n'])
     assert g.shape == (R, n, 3) and j.shape == (R,) and gt.shape == (R, 3)
     for r in range(R):
-        np.testing.assert_allclose(g[r], gradient(x[r], xt[r], **per_run[r]), rtol=1e-13,
-                                   atol=1e-13)
+        np.testing.assert_allclose(
+            g[r], gradient(x[r], xt[r], **per_run[r]), rtol=1e-13, atol=1e-13
+        )
         assert j[r] == pytest.approx(float(potential(x[r], xt[r], **per_run[r])), rel=1e-13)
-        np.testing.assert_allclose(gt[r], target_gradient(x[r], xt[r], k_n=per_run[r]['k_n']),
-                                   rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(
+            gt[r], target_gradient(x[r], xt[r], k_n=per_run[r]['k_n']), rtol=1e-13, atol=1e-13
+        )
     # batched rows as well
-    np.testing.assert_allclose(gradient(x, xt, **batched, rows=[0])[:, 0], g[:, 0], rtol=1e-13,
-                               atol=1e-13)
+    np.testing.assert_allclose(
+        gradient(x, xt, **batched, rows=[0])[:, 0], g[:, 0], rtol=1e-13, atol=1e-13
+    )
 
 
 def test_batched_with_scalar_gains_equals_per_run_calls():
@@ -138,8 +149,9 @@ def test_batched_with_scalar_gains_equals_per_run_calls():
     xt = rng.normal(size=(3, 3))
     g = gradient(x, xt, k_n=2.0, b=4.0)
     for r in range(3):
-        np.testing.assert_allclose(g[r], gradient(x[r], xt[r], k_n=2.0, b=4.0), rtol=1e-14,
-                                   atol=1e-14)
+        np.testing.assert_allclose(
+            g[r], gradient(x[r], xt[r], k_n=2.0, b=4.0), rtol=1e-14, atol=1e-14
+        )
 
 
 @pytest.mark.parametrize('n', [1, 3, 7])
@@ -161,12 +173,14 @@ def test_target_gradient_matches_finite_differences(n):
     np.testing.assert_allclose(gradient(x, xt, **params).sum(axis=0) + gt, 0.0, atol=1e-10)
 
 
-@pytest.mark.parametrize('n, seed, saturation', [(3, 0, 'paper'), (3, 1, 'continuous'),
-                                                 (7, 2, 'paper'), (2, 3, 'paper')])
+@pytest.mark.parametrize(
+    'n, seed, saturation',
+    [(3, 0, 'paper'), (3, 1, 'continuous'), (7, 2, 'paper'), (2, 3, 'paper')],
+)
 def test_potential_decreases_along_kinematic_law(n, seed, saturation):
     """Eq. 7 is a descent law: dJ/dt = -alpha|g|^2 - beta g.sat(g) <= 0 for a static target."""
     rng = np.random.default_rng([seed, 8])
-    params = dict(k_n=1.0, k_f=1.0, a=1.0, b=6.0, c=1.7)
+    params = {'k_n': 1.0, 'k_f': 1.0, 'a': 1.0, 'b': 6.0, 'c': 1.7}
     x = rng.normal(scale=2.0, size=(n, 3))
     xt = rng.normal(size=3)
     dt = 2e-3
@@ -192,7 +206,7 @@ def test_pair_term_never_repels_when_b_below_a(seed):
     r2 = np.concatenate([[0.0], np.logspace(-8, 3, 2000)])
     w = pair_weight(r2, a, b, c)
     assert np.all(w > 0)
-    assert w.min() == pytest.approx(a - b, rel=1e-12)   # the minimum is at r = 0
+    assert w.min() == pytest.approx(a - b, rel=1e-12)  # the minimum is at r = 0
 
 
 def test_pair_weight_sign_change_at_gazi_passino_distance():

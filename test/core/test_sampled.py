@@ -7,28 +7,33 @@ import math
 
 import numpy as np
 import pytest
-
 from apf_swarm_core.config import load_preset
 from apf_swarm_core.errors import ConfigError
 from apf_swarm_core.laws import layer_switching_force
 from apf_swarm_core.metrics import flight
 from apf_swarm_core.potential import gradient, hessian, newton_basis, newton_direction
-from apf_swarm_core.sampled import (RELAY_LIMIT, design_hessian_spectrum, mode_radius, predict,
-                                    propose_gains)
+from apf_swarm_core.sampled import (
+    RELAY_LIMIT,
+    design_hessian_spectrum,
+    mode_radius,
+    predict,
+    propose_gains,
+)
 from apf_swarm_core.simulator import CommandHold, expected_pairs, simulate
 
 
 def test_hessian_equals_finite_differences_of_the_gradient() -> None:
     rng = np.random.default_rng(3)
     x, t = rng.normal(size=(5, 3)) * 1.5, rng.normal(size=3)
-    p = dict(k_n=1.3, k_f=0.7, a=1.0, b=6.0, c=1.7)
+    p = {'k_n': 1.3, 'k_f': 0.7, 'a': 1.0, 'b': 6.0, 'c': 1.7}
     h, fd, eps = hessian(x, t, **p), np.zeros((15, 15)), 1e-6
     for i in range(15):
         xp, xm = x.ravel().copy(), x.ravel().copy()
         xp[i] += eps
         xm[i] -= eps
-        fd[:, i] = (gradient(xp.reshape(5, 3), t, **p) - gradient(xm.reshape(5, 3), t, **p)
-                    ).ravel() / (2 * eps)
+        fd[:, i] = (
+            gradient(xp.reshape(5, 3), t, **p) - gradient(xm.reshape(5, 3), t, **p)
+        ).ravel() / (2 * eps)
     assert np.abs(h - fd).max() < 1e-7
     assert np.allclose(h, h.T)
 
@@ -36,14 +41,15 @@ def test_hessian_equals_finite_differences_of_the_gradient() -> None:
 def test_design_spectrum_has_rotations_centroid_and_a_stiff_mode_growing_with_n() -> None:
     cfg = load_preset('realtime')
     eig3 = design_hessian_spectrum(cfg)
-    assert np.allclose(eig3[:3], 0.0, atol=1e-6)                 # three rigid rotations
-    assert np.sum(np.isclose(eig3, cfg.k_n, atol=1e-6)) == 3      # the centroid, one per axis
+    assert np.allclose(eig3[:3], 0.0, atol=1e-6)  # three rigid rotations
+    assert np.sum(np.isclose(eig3, cfg.k_n, atol=1e-6)) == 3  # the centroid, one per axis
     eig8 = design_hessian_spectrum(cfg.replace(n_trackers=8))
     assert eig8.max() > 2 * eig3.max()
 
 
-def _mode_growth(lam: float, K: float, g: float, T: float, tau: float, periods: int = 400,
-                 horizon: float = 0.0) -> float:
+def _mode_growth(
+    lam: float, K: float, g: float, T: float, tau: float, periods: int = 400, horizon: float = 0.0
+) -> float:
     """Per-period growth of one linear mode, simulated on a fine grid (independent of the
     matrix): e'' = u, u = -g (e' + K lam e) from samples every T, acting tau later; with a
     ``horizon`` h, of the predicted e + h e' and e' + h u_last (u_last: the last sent)."""
@@ -65,20 +71,32 @@ def _mode_growth(lam: float, K: float, g: float, T: float, tau: float, periods: 
     return math.exp((b - a) / (periods - 1 - periods // 2))
 
 
-@pytest.mark.parametrize('lam,K,g,T,tau', [(12.0, 10.0, 60.0, 0.01, 0.004),
-                                           (49.0, 3.0, 100.0, 0.005, 0.007),
-                                           (26.0, 10.0, 200.0, 0.01, 0.013)])
+@pytest.mark.parametrize(
+    'lam,K,g,T,tau',
+    [
+        (12.0, 10.0, 60.0, 0.01, 0.004),
+        (49.0, 3.0, 100.0, 0.005, 0.007),
+        (26.0, 10.0, 200.0, 0.01, 0.013),
+    ],
+)
 def test_mode_radius_is_the_growth_of_the_simulated_mode(lam, K, g, T, tau) -> None:
     rho = mode_radius(lam, layer_gain=K, inner_rate=g, period=T, latency=tau)
     assert _mode_growth(lam, K, g, T, tau) == pytest.approx(rho, rel=0.02)
 
 
-@pytest.mark.parametrize('lam,K,g,T,tau', [(1.0, 10.0, 33.0, 0.02, 0.025),
-                                           (1.0, 20.0, 40.0, 0.01, 0.012),
-                                           (12.0, 3.0, 60.0, 0.01, 0.004)])
-def test_mode_radius_with_prediction_is_the_growth_of_the_simulated_mode(lam, K, g, T, tau
-                                                                         ) -> None:
+@pytest.mark.parametrize(
+    'lam,K,g,T,tau',
+    [
+        (1.0, 10.0, 33.0, 0.02, 0.025),
+        (1.0, 20.0, 40.0, 0.01, 0.012),
+        (12.0, 3.0, 60.0, 0.01, 0.004),
+    ],
+)
+def test_mode_radius_with_prediction_is_the_growth_of_the_simulated_mode(
+    lam, K, g, T, tau
+) -> None:
     from apf_swarm_core.prediction import compensation_horizon
+
     h = compensation_horizon(tau)
     rho = mode_radius(lam, layer_gain=K, inner_rate=g, period=T, latency=tau, horizon=h)
     assert _mode_growth(lam, K, g, T, tau, horizon=h) == pytest.approx(rho, rel=0.02)
@@ -88,7 +106,8 @@ def test_prediction_takes_a_delayed_mode_from_growing_to_decaying() -> None:
     """A layer loop at 50 Hz with 25 ms of latency (g (T + tau) = 1.8): unstable as sampled,
     stable on the state predicted by the latency."""
     from apf_swarm_core.prediction import compensation_horizon
-    kw = dict(layer_gain=10.0, inner_rate=40.0, period=0.02, latency=0.025)
+
+    kw = {'layer_gain': 10.0, 'inner_rate': 40.0, 'period': 0.02, 'latency': 0.025}
     assert compensation_horizon(0.025) == 0.025
     assert mode_radius(1.0, **kw) > 1.0
     assert mode_radius(1.0, horizon=0.025, **kw) < 0.9
@@ -96,32 +115,40 @@ def test_prediction_takes_a_delayed_mode_from_growing_to_decaying() -> None:
 
 def test_predicted_velocity_is_exact_under_the_held_force_and_positions_first_order() -> None:
     from apf_swarm_core.prediction import Predictor, predict_positions, predict_velocity
-    x, v, u, M, h = np.array([1.0, 2.0, 3.0]), np.array([0.5, -1.0, 0.0]), \
-        np.array([2.0, 0.0, -4.0]), 1.5, 0.03
+
+    x, v, u, M, h = (
+        np.array([1.0, 2.0, 3.0]),
+        np.array([0.5, -1.0, 0.0]),
+        np.array([2.0, 0.0, -4.0]),
+        1.5,
+        0.03,
+    )
     # e'' = u / M exactly over h: v(h) = v + h u / M, x(h) = x + h v + h^2 u / (2 M)
     assert np.allclose(predict_velocity(v, u, h, M), v + h * u / M, rtol=0, atol=1e-15)
     assert np.allclose(predict_positions(x, v, h), x + h * v, rtol=0, atol=1e-15)
     p = Predictor(h, M)
     xs, vs = np.stack([x, 2 * x]), np.stack([v, -v])
-    px, pv, pt = p.state(xs, vs, vs[:1], x, v)          # no command held yet: v as sampled
-    assert np.array_equal(pv, vs[:1]) and np.allclose(px, xs + h * vs) and \
-        np.allclose(pt, x + h * v)
+    px, pv, pt = p.state(xs, vs, vs[:1], x, v)  # no command held yet: v as sampled
+    assert (
+        np.array_equal(pv, vs[:1]) and np.allclose(px, xs + h * vs) and np.allclose(pt, x + h * v)
+    )
     p.hold(u[None, :])
     assert np.allclose(p.state(xs, vs, vs[:1], x, v)[1], v + h * u / M)
 
 
 def test_latency_estimate_is_the_running_median_and_ignores_unmeasured_commands() -> None:
     from apf_swarm_core.prediction import LatencyEstimate
+
     est = LatencyEstimate(0.005, window=5)
-    assert est.value == 0.005                           # nothing reported yet
-    est.add([0.0, 0.0, np.nan])                         # not yet measured: ignored
+    assert est.value == 0.005  # nothing reported yet
+    est.add([0.0, 0.0, np.nan])  # not yet measured: ignored
     assert est.value == 0.005
     for lat in ([0.010, 0.012, 0.0], [0.011], [0.5], [0.012], [0.010]):
         est.add(lat)
-    assert est.value == pytest.approx(0.011)            # one 0.5 s outlier does not move it
+    assert est.value == pytest.approx(0.011)  # one 0.5 s outlier does not move it
     for _ in range(5):
         est.add([0.020])
-    assert est.value == pytest.approx(0.020)            # the window follows the load
+    assert est.value == pytest.approx(0.020)  # the window follows the load
 
 
 def test_layer_switching_force_is_linear_inside_and_saturates_outside() -> None:
@@ -134,24 +161,24 @@ def test_command_hold_delays_each_command_and_drops_overtaken_ones() -> None:
     hold = CommandHold((1, 2), 0.003, 0.001)
     hold.submit(0, np.ones((1, 2, 3)))
     assert np.all(hold.applied(2) == 0.0) and np.all(hold.applied(3) == 1.0)
-    jitter = CommandHold((1, 1), 0.0, 0.001, latency_samples=[0.005],
-                         rng=np.random.default_rng(0))
+    jitter = CommandHold((1, 1), 0.0, 0.001, latency_samples=[0.005], rng=np.random.default_rng(0))
     jitter.submit(0, np.full((1, 1, 3), 1.0))
-    jitter.samples = np.array([1])              # the next command overtakes the first
+    jitter.samples = np.array([1])  # the next command overtakes the first
     jitter.submit(1, np.full((1, 1, 3), 2.0))
     assert np.all(jitter.applied(2) == 2.0)
-    assert np.all(jitter.applied(6) == 2.0)     # the older command arrives late: dropped
+    assert np.all(jitter.applied(6) == 2.0)  # the older command arrives late: dropped
 
 
 def test_the_emulation_holds_each_command_for_the_period_and_delays_it() -> None:
-    cfg = load_preset('realtime').replace(duration=0.2, control_rate=50.0, latency=0.004,
-                                          noise='none')
+    cfg = load_preset('realtime').replace(
+        duration=0.2, control_rate=50.0, latency=0.004, noise='none'
+    )
     u = simulate(cfg).trajectory['u']
-    assert np.all(u[:4] == 0.0)                            # nothing acts before 4 ms
+    assert np.all(u[:4] == 0.0)  # nothing acts before 4 ms
     assert np.any(u[4] != 0.0)
     held = u[4:24]
-    assert np.all(held == held[0])                         # one command for the 20 ms hold
-    assert np.any(u[24] != u[23])                          # the next sample's, 4 ms after 20
+    assert np.all(held == held[0])  # one command for the 20 ms hold
+    assert np.any(u[24] != u[23])  # the next sample's, 4 ms after 20
 
 
 def test_control_rate_must_divide_the_step() -> None:
@@ -160,15 +187,29 @@ def test_control_rate_must_divide_the_step() -> None:
 
 
 #: points of the grid away from the boundary kappa (T + tau) = RELAY_LIMIT: (n, rate, latency)
-GRID = [(3, 100.0, 0.0), (3, 50.0, 0.004), (8, 200.0, 0.0), (8, 50.0, 0.0),
-        (16, 500.0, 0.0), (16, 100.0, 0.0)]
+GRID = [
+    (3, 100.0, 0.0),
+    (3, 50.0, 0.004),
+    (8, 200.0, 0.0),
+    (8, 50.0, 0.0),
+    (16, 500.0, 0.0),
+    (16, 100.0, 0.0),
+]
 
 
 @pytest.mark.parametrize('n,rate,latency', GRID)
 def test_prediction_agrees_with_the_emulation_of_the_sign_law(n, rate, latency) -> None:
     cfg = load_preset('realtime').replace(
-        n_trackers=n, seed=2, duration=25.0, record_every=10, control_rate=rate,
-        latency=latency, switching='sign', feedforward=0.0, precondition='none')
+        n_trackers=n,
+        seed=2,
+        duration=25.0,
+        record_every=10,
+        control_rate=rate,
+        latency=latency,
+        switching='sign',
+        feedforward=0.0,
+        precondition='none',
+    )
     pred = predict(cfg)
     margin = abs(pred.formation_rate * (pred.control_period + latency) / RELAY_LIMIT - 1.0)
     assert margin > 0.1, 'a grid point on the boundary decides nothing'
@@ -177,9 +218,15 @@ def test_prediction_agrees_with_the_emulation_of_the_sign_law(n, rate, latency) 
 
 
 def test_designed_gains_hold_eight_trackers_at_100_hz_where_the_gradient_fails() -> None:
-    cfg = load_preset('realtime').replace(n_trackers=8, seed=2, duration=25.0,
-                                          record_every=10, latency=0.004, precondition='none',
-                                          control_rate=100.0)
+    cfg = load_preset('realtime').replace(
+        n_trackers=8,
+        seed=2,
+        duration=25.0,
+        record_every=10,
+        latency=0.004,
+        precondition='none',
+        control_rate=100.0,
+    )
     before = predict(cfg)
     assert not before.holds and any('formation predicted to fail' in w for w in before.warnings)
     tuned = cfg.replace(**propose_gains(cfg, control_rate=100.0, latency=0.004))
@@ -196,13 +243,18 @@ def test_triangle_at_100_hz_warns_of_chattering_with_its_numbers() -> None:
 
 
 def test_lag_prediction_matches_the_emulated_centroid_error() -> None:
-    cfg = load_preset('realtime').replace(duration=20.0, control_rate=200.0, feedforward=0.0,
-                                          noise='none', precondition='none')
+    cfg = load_preset('realtime').replace(
+        duration=20.0, control_rate=200.0, feedforward=0.0, noise='none', precondition='none'
+    )
     traj = simulate(cfg).trajectory
     ce = np.linalg.norm(traj['x'].mean(axis=1) - traj['target_x'], axis=1)
     assert ce[-2000:].mean() == pytest.approx(predict(cfg).steady_lag, rel=0.1)
-    assert flight(simulate(cfg.replace(feedforward=1.0)).trajectory,
-                  expected_pairs(cfg))['centroid_error_rms'] < 0.03
+    assert (
+        flight(simulate(cfg.replace(feedforward=1.0)).trajectory, expected_pairs(cfg))[
+            'centroid_error_rms'
+        ]
+        < 0.03
+    )
 
 
 def test_flight_criteria_pass_the_design_and_fail_a_collapse() -> None:
@@ -216,8 +268,9 @@ def test_flight_criteria_pass_the_design_and_fail_a_collapse() -> None:
     assert not flight({'x': 0.3 * x, 'target_x': np.zeros((50, 3))}, pairs)['flies']
 
 
-def test_newton_direction_is_the_inverse_hessian_where_h_is_stiff_and_a_descent_everywhere(
-        ) -> None:
+def test_newton_direction_is_the_inverse_hessian_where_h_is_stiff_and_a_descent_everywhere() -> (
+    None
+):
     cfg = load_preset('realtime').replace(n_trackers=5)
     p = cfg.potential_params()
     rng = np.random.default_rng(1)
@@ -226,30 +279,33 @@ def test_newton_direction_is_the_inverse_hessian_where_h_is_stiff_and_a_descent_
     w, v = np.linalg.eigh(h)
     basis = newton_basis(x, np.zeros(3), **p)
     g = gradient(x, np.zeros(3), **p)
-    if np.abs(w).min() > 1e-3:                              # H invertible: |H|^-1 g
+    if np.abs(w).min() > 1e-3:  # H invertible: |H|^-1 g
         d = newton_direction(basis, g, mu=1e-9)
         assert np.allclose((v @ np.diag(np.abs(w)) @ v.T) @ d.ravel(), g.ravel(), atol=1e-8)
     d = newton_direction(basis, g, mu=0.1)
-    assert float(np.sum(d * g)) > 0.0                       # a descent direction
+    assert float(np.sum(d * g)) > 0.0  # a descent direction
     from apf_swarm_core.design import equilibrium_formation
+
     eq = equilibrium_formation(5, **p).relative_positions
-    d0 = newton_direction(newton_basis(eq, np.zeros(3), **p), gradient(eq, np.zeros(3), **p),
-                          mu=0.1)
-    assert np.abs(d0).max() < 1e-6                          # the equilibria are kept
+    d0 = newton_direction(
+        newton_basis(eq, np.zeros(3), **p), gradient(eq, np.zeros(3), **p), mu=0.1
+    )
+    assert np.abs(d0).max() < 1e-6  # the equilibria are kept
 
 
 def test_trust_region_shortens_a_long_step_to_its_radius_and_keeps_a_short_one() -> None:
     p = load_preset('realtime').potential_params()
-    x = np.random.default_rng(2).normal(size=(8, 3))        # far from any formation
+    x = np.random.default_rng(2).normal(size=(8, 3))  # far from any formation
     basis, g = newton_basis(x, np.zeros(3), **p), gradient(x, np.zeros(3), **p)
 
     def rms(d: np.ndarray) -> float:
-        return float(np.sqrt(np.sum(d ** 2) / 8))
+        return float(np.sqrt(np.sum(d**2) / 8))
+
     free = newton_direction(basis, g, mu=1e-3)
     assert rms(free) > 0.5
     for trust in (0.3, 0.05):
         d = newton_direction(basis, g, mu=1e-3, trust=trust)
-        assert rms(d) == pytest.approx(trust, rel=1e-6)     # Levenberg-Marquardt's floor
+        assert rms(d) == pytest.approx(trust, rel=1e-6)  # Levenberg-Marquardt's floor
         assert float(np.sum(d * g)) > 0.0
     # a radius the step fits in changes nothing
     assert np.array_equal(newton_direction(basis, g, mu=1e-3, trust=2 * rms(free)), free)
@@ -259,15 +315,17 @@ def test_trust_region_shortens_a_long_step_to_its_radius_and_keeps_a_short_one()
     expect = (v @ ((v.T @ g.ravel()) / np.maximum(np.abs(w), 1.0))).reshape(8, 3)
     assert np.allclose(capped, expect, atol=1e-12) and rms(capped) > 1e-4
     # batched: each run its own floor
-    both = newton_direction((np.stack([w, w]), np.stack([v, v])), np.stack([g, 0.01 * g]),
-                            mu=1e-3, trust=0.05)
+    both = newton_direction(
+        (np.stack([w, w]), np.stack([v, v])), np.stack([g, 0.01 * g]), mu=1e-3, trust=0.05
+    )
     assert rms(both[0]) == pytest.approx(0.05, rel=1e-6)
     assert np.allclose(both[1], newton_direction(basis, 0.01 * g, mu=1e-3, trust=0.05))
 
 
 def test_newton_direction_flies_16_trackers_at_100_hz_where_the_gradient_cannot() -> None:
-    cfg = load_preset('realtime').replace(n_trackers=16, seed=2, duration=25.0,
-                                          record_every=10, latency=0.005, control_rate=100.0)
+    cfg = load_preset('realtime').replace(
+        n_trackers=16, seed=2, duration=25.0, record_every=10, latency=0.005, control_rate=100.0
+    )
     assert cfg.precondition == 'newton'
     pred = predict(cfg)
     assert pred.holds and pred.formation_rate == pytest.approx(pred.layer_gain)
@@ -279,13 +337,16 @@ def test_newton_direction_flies_16_trackers_at_100_hz_where_the_gradient_cannot(
 
 
 @pytest.mark.parametrize('compensation,latency', [('none', 0.012), ('predict', 0.02)])
-def test_a_narrow_layer_is_predicted_to_fail_and_chatters_in_the_emulation(compensation,
-                                                                           latency) -> None:
+def test_a_narrow_layer_is_predicted_to_fail_and_chatters_in_the_emulation(
+    compensation, latency
+) -> None:
     """phi = 0.25 m/s at 100 Hz: the layer's loop is unstable at 12 ms as sampled, and on
     the predicted state (compensation) only at 20 ms; phi = 0.75 m/s holds both."""
     from apf_swarm_core.metrics import hf_velocity_rms
-    cfg = load_preset('realtime').replace(duration=10.0, latency=latency, phi=0.25,
-                                          control_rate=100.0, compensation=compensation)
+
+    cfg = load_preset('realtime').replace(
+        duration=10.0, latency=latency, phi=0.25, control_rate=100.0, compensation=compensation
+    )
     pred = predict(cfg)
     assert not pred.inner_stable and any('too narrow' in w for w in pred.warnings)
     assert predict(cfg.replace(phi=0.75)).inner_stable
@@ -296,13 +357,16 @@ def test_a_narrow_layer_is_predicted_to_fail_and_chatters_in_the_emulation(compe
 
 def test_the_compensation_keeps_a_narrow_layer_calm_where_it_chatters_without() -> None:
     from apf_swarm_core.metrics import hf_velocity_rms
-    cfg = load_preset('realtime').replace(duration=10.0, latency=0.012, phi=0.25,
-                                          control_rate=100.0)
+
+    cfg = load_preset('realtime').replace(
+        duration=10.0, latency=0.012, phi=0.25, control_rate=100.0
+    )
     assert cfg.compensation == 'predict' and predict(cfg).inner_stable
     assert not predict(cfg.replace(compensation='none')).inner_stable
     calm = hf_velocity_rms(simulate(cfg).trajectory['v'][-4000:], cfg.dt)
-    chatter = hf_velocity_rms(simulate(cfg.replace(compensation='none')).trajectory['v']
-                              [-4000:], cfg.dt)
+    chatter = hf_velocity_rms(
+        simulate(cfg.replace(compensation='none')).trajectory['v'][-4000:], cfg.dt
+    )
     assert chatter > 10 * calm, (chatter, calm)
 
 
@@ -314,12 +378,17 @@ NEWTON_GRID = [(100.0, 0.005, 10.0), (20.0, 0.02, 5.0), (50.0, 0.025, 37.5), (20
 
 
 @pytest.mark.parametrize('rate,latency,K', NEWTON_GRID)
-def test_prediction_agrees_with_the_emulation_of_the_newton_direction(rate, latency, K
-                                                                     ) -> None:
+def test_prediction_agrees_with_the_emulation_of_the_newton_direction(rate, latency, K) -> None:
     cfg = load_preset('realtime').replace(
-        n_trackers=16, seed=2, duration=25.0, record_every=10, control_rate=rate,
-        latency=latency, gamma=2.0 / (K - 0.01), phi=min(2 * 25.0 * (1 / rate + latency),
-                                                           25.0 / (2 * K)))
+        n_trackers=16,
+        seed=2,
+        duration=25.0,
+        record_every=10,
+        control_rate=rate,
+        latency=latency,
+        gamma=2.0 / (K - 0.01),
+        phi=min(2 * 25.0 * (1 / rate + latency), 25.0 / (2 * K)),
+    )
     pred = predict(cfg)
     f = flight(simulate(cfg).trajectory, expected_pairs(cfg))
     assert pred.holds == f['flies'], (pred, f)
@@ -330,10 +399,16 @@ def test_each_tracker_descends_its_row_of_the_simulators_newton_direction(rate) 
     """Bit for bit, with the trust region; at 50 Hz also with the delay compensation (the
     same predicted state in the tracker as in the simulator)."""
     from apf_swarm_core.agents import TrackerAgent
-    from apf_swarm_core.simulator import (control_step, make_controller, make_preconditioner,
-                                          make_predictor)
-    cfg = load_preset('realtime').replace(n_trackers=5, newton_every=1, control_rate=rate,
-                                          latency=0.01)
+    from apf_swarm_core.simulator import (
+        control_step,
+        make_controller,
+        make_preconditioner,
+        make_predictor,
+    )
+
+    cfg = load_preset('realtime').replace(
+        n_trackers=5, newton_every=1, control_rate=rate, latency=0.01
+    )
     assert cfg.newton_trust > 0 and cfg.compensation == 'predict'
     rng = np.random.default_rng(4)
     x, v = rng.normal(scale=1.5, size=(5, 3)), rng.normal(size=(5, 3))
@@ -343,28 +418,37 @@ def test_each_tracker_descends_its_row_of_the_simulators_newton_direction(rate) 
     ctl = make_controller(cfg, (5, 3))
     agents = [TrackerAgent(cfg, i) for i in range(1, 6)]
     pre = make_preconditioner(cfg)
-    for k in range(3):                  # the held command enters the prediction from k = 1
-        full = control_step(ctl, x, v, tx, cfg.potential_params(), target_v=tv,
-                            precondition=pre, predictor=predictor)
+    for k in range(3):  # the held command enters the prediction from k = 1
+        full = control_step(
+            ctl,
+            x,
+            v,
+            tx,
+            cfg.potential_params(),
+            target_v=tv,
+            precondition=pre,
+            predictor=predictor,
+        )
         for i, agent in enumerate(agents, start=1):
             for j in range(1, 6):
                 agent.offer(j, -1, x[j - 1], v[j - 1], 0.0, seq=k)
             agent.offer(0, -1, tx, tv, 0.0, seq=k)
             out = agent.command(-1)
-            assert np.array_equal(out.gradient[0], full.gradient[i - 1])     # bit for bit
+            assert np.array_equal(out.gradient[0], full.gradient[i - 1])  # bit for bit
             assert np.array_equal(out.force[0], full.force[i - 1])
         x, v = x + 0.01 * v, v + 0.01 * full.force
 
 
 def test_trackers_of_one_process_share_the_newton_basis() -> None:
     from apf_swarm_core.simulator import Preconditioner
+
     p = load_preset('realtime').potential_params()
     x = np.random.default_rng(5).normal(size=(6, 3))
     a, b = Preconditioner(0.1), Preconditioner(0.1)
     da = a.direction(x, np.zeros(3), p)
     db = b.direction(x, np.zeros(3), p)
-    assert b.basis is a.basis and db is da                   # computed once
-    dc = b.direction(x + 0.1, np.zeros(3), p)                # new positions: recomputed
+    assert b.basis is a.basis and db is da  # computed once
+    dc = b.direction(x + 0.1, np.zeros(3), p)  # new positions: recomputed
     assert b.basis is not a.basis and not np.array_equal(dc, da)
 
 
@@ -373,6 +457,7 @@ def test_schedule_gains_keeps_a_holding_configuration_and_replaces_a_failing_one
     100 Hz, 5 ms), the proposed gains where it is not (16 at 20 Hz, 20 ms), and those then
     hold with a smaller layer gain than the preset's."""
     from apf_swarm_core.sampled import schedule_gains
+
     base = load_preset('realtime')
     held = base.replace(control_rate=100.0)
     cfg, pred, gains, warnings = schedule_gains(held, latency=0.005)

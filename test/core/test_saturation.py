@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from apf_swarm_core.saturation import outside_layer, sat, sat_continuous, saturate, sign
 
 
@@ -47,7 +46,7 @@ def test_sat_random_rows_follow_eq8(seed):
     gamma = 1.0
     out = sat(g, gamma)
     norms = np.linalg.norm(g, axis=1)
-    for row, gi, ni in zip(out, g, norms):
+    for row, gi, ni in zip(out, g, norms, strict=False):
         expected = np.sign(gi) if ni >= gamma else gi / gamma
         np.testing.assert_array_equal(row, expected)
     assert (norms < gamma).any() and (norms >= gamma).any()
@@ -64,8 +63,7 @@ def test_sat_continuous_is_continuous_at_the_boundary_and_unit_outside():
     np.testing.assert_allclose(sat_continuous((gamma * d)[None], gamma)[0], d, rtol=1e-15)
     rng = np.random.default_rng(4)
     g = rng.normal(size=(100, 3))
-    g *= (gamma * rng.uniform(1.0, 50.0, size=(100, 1))) / np.linalg.norm(g, axis=1,
-                                                                             keepdims=True)
+    g *= (gamma * rng.uniform(1.0, 50.0, size=(100, 1))) / np.linalg.norm(g, axis=1, keepdims=True)
     out = sat_continuous(g, gamma)
     np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, rtol=1e-14)
     np.testing.assert_allclose(out, g / np.linalg.norm(g, axis=1, keepdims=True), rtol=1e-14)

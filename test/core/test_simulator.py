@@ -2,15 +2,26 @@
 
 import numpy as np
 import pytest
-
-from apf_swarm_core import load_preset, simulate, simulate_batch
 from apf_swarm_core.checks import check_config
 from apf_swarm_core.design import triangle_spacing
-from apf_swarm_core.metrics import (centroid_error, heading_rate, hf_velocity_rms,
-                                    pair_distances, steady_slice)
+from apf_swarm_core.metrics import (
+    centroid_error,
+    heading_rate,
+    hf_velocity_rms,
+    pair_distances,
+    steady_slice,
+)
 from apf_swarm_core.plant import DisturbanceSource
-from apf_swarm_core.simulator import (TRAJECTORY_KEYS, BatchSimulator, control_step,
-                                      initial_positions, integrate, make_controller)
+from apf_swarm_core.simulator import (
+    TRAJECTORY_KEYS,
+    BatchSimulator,
+    control_step,
+    initial_positions,
+    integrate,
+    make_controller,
+)
+
+from apf_swarm_core import load_preset, simulate, simulate_batch
 
 
 def _steady(traj, fraction=0.25):
@@ -21,7 +32,7 @@ def test_trajectory_shapes_and_times():
     cfg = load_preset('triangle').replace(duration=0.1, record_every=3)
     res = simulate(cfg)
     tr = res.trajectory
-    T, n = 34, 3                                   # ceil(100 / 3)
+    T, n = 34, 3  # ceil(100 / 3)
     assert set(TRAJECTORY_KEYS) <= set(tr)
     assert tr['t'].shape == (T,)
     for key in ('x', 'v', 'u', 's'):
@@ -42,8 +53,9 @@ def test_trajectory_shapes_and_times():
 
 
 def test_initial_positions_are_in_the_configured_ball():
-    cfg = load_preset('triangle').replace(n_trackers=50, init_center=(1.0, 2.0, 3.0),
-                                          init_spread=0.7)
+    cfg = load_preset('triangle').replace(
+        n_trackers=50, init_center=(1.0, 2.0, 3.0), init_spread=0.7
+    )
     x = initial_positions(cfg)
     assert x.shape == (50, 3)
     assert np.linalg.norm(x - [1.0, 2.0, 3.0], axis=-1).max() <= 0.7
@@ -81,8 +93,9 @@ def test_simulate_equals_a_hand_written_loop():
         np.testing.assert_allclose(v, tr['v'][k], rtol=1e-12, atol=1e-12)
         out = control_step(ctl, x, v, tx, cfg.potential_params())
         np.testing.assert_allclose(out.force, tr['u'][k], rtol=1e-12, atol=1e-12)
-        x, v = integrate(x, v, out.force, mass=mass, dt=cfg.dt, drag=cfg.drag,
-                         disturbance=noise.next())
+        x, v = integrate(
+            x, v, out.force, mass=mass, dt=cfg.dt, drag=cfg.drag, disturbance=noise.next()
+        )
 
 
 def test_batch_and_single_runs_agree():
@@ -93,16 +106,19 @@ def test_batch_and_single_runs_agree():
         single = simulate(cfg).trajectory
         np.testing.assert_array_equal(batch['t'], single['t'])
         for key in ('x', 'v', 'u', 's', 'target_x', 'target_v'):
-            np.testing.assert_allclose(batch[key][r], single[key], rtol=1e-12, atol=1e-12,
-                                       err_msg=f'run {r} key {key}')
+            np.testing.assert_allclose(
+                batch[key][r], single[key], rtol=1e-12, atol=1e-12, err_msg=f'run {r} key {key}'
+            )
         np.testing.assert_array_equal(batch['saturated'][r], single['saturated'])
 
 
 def test_batch_with_different_targets_and_masses_agrees_with_single_runs():
     base = load_preset('triangle').replace(duration=0.3)
-    cfgs = [base.replace(target_trajectory='straight', target_speed=1.0, mass=(1.2,)),
-            base.replace(seed=4, drag=0.0, b=5.0, u0=100.0),
-            base.replace(seed=4, target_trajectory='straight', target_speed=1.0)]
+    cfgs = [
+        base.replace(target_trajectory='straight', target_speed=1.0, mass=(1.2,)),
+        base.replace(seed=4, drag=0.0, b=5.0, u0=100.0),
+        base.replace(seed=4, target_trajectory='straight', target_speed=1.0),
+    ]
     batch = simulate_batch(cfgs).trajectory
     for r, cfg in enumerate(cfgs):
         single = simulate(cfg).trajectory
@@ -114,7 +130,7 @@ def test_batch_rejects_mismatched_runs():
     base = load_preset('triangle').replace(duration=0.01)
     with pytest.raises(ValueError, match='at least one'):
         BatchSimulator([])
-    for change in (dict(law='traditional'), dict(n_trackers=4), dict(dt=0.002)):
+    for change in ({'law': 'traditional'}, {'n_trackers': 4}, {'dt': 0.002}):
         with pytest.raises(ValueError, match=next(iter(change))):
             BatchSimulator([base, base.replace(**change)])
 
@@ -152,8 +168,9 @@ def test_paper_preset_collapses_as_check_predicts():
 @pytest.fixture(scope='module')
 def straight_runs():
     """Straight target at v = 1 m/s < beta = 2 m/s: proposed law with two gammas, traditional."""
-    base = load_preset('triangle').replace(target_trajectory='straight', target_speed=1.0,
-                                           duration=8.0)
+    base = load_preset('triangle').replace(
+        target_trajectory='straight', target_speed=1.0, duration=8.0
+    )
     gammas = (0.2, 0.5)
     proposed = simulate_batch([base.replace(gamma=g) for g in gammas]).trajectory
     traditional = simulate(base.replace(law='traditional')).trajectory

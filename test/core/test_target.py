@@ -4,9 +4,15 @@ import math
 
 import numpy as np
 import pytest
-
-from apf_swarm_core.target import (Circle, FigureEight, Helix, Straight, Waypoints,
-                                   make_trajectory, target_velocity)
+from apf_swarm_core.target import (
+    Circle,
+    FigureEight,
+    Helix,
+    Straight,
+    Waypoints,
+    make_trajectory,
+    target_velocity,
+)
 
 
 @pytest.mark.parametrize('seed', range(3))
@@ -23,10 +29,10 @@ def test_target_velocity_eq1_norm_and_components(seed):
 
 
 def test_target_velocity_known_values():
-    np.testing.assert_allclose(target_velocity(2.0, math.pi / 2, 0.0), [0.0, 2.0, 0.0],
-                               atol=1e-15)
-    np.testing.assert_allclose(target_velocity(2.0, 0.0, math.pi / 6),
-                               [2.0 * math.cos(math.pi / 6), 0.0, 1.0], atol=1e-15)
+    np.testing.assert_allclose(target_velocity(2.0, math.pi / 2, 0.0), [0.0, 2.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(
+        target_velocity(2.0, 0.0, math.pi / 6), [2.0 * math.cos(math.pi / 6), 0.0, 1.0], atol=1e-15
+    )
 
 
 TRAJECTORIES = [
@@ -61,13 +67,13 @@ def test_trajectory_starts_at_start_and_speed_is_bounded(traj):
 def test_circle_stays_on_its_circle():
     start, r, yaw = np.array([1.0, -2.0, 5.0]), 7.0, 0.8
     tr = Circle(tuple(start), 1.5, radius=r, yaw=yaw)
-    centre = start + r * np.array([-math.sin(yaw), math.cos(yaw), 0.0])   # left of heading
+    centre = start + r * np.array([-math.sin(yaw), math.cos(yaw), 0.0])  # left of heading
     for t in np.linspace(0, 100, 201):
         p, v = tr.state(t)
         assert np.linalg.norm(p - centre) == pytest.approx(r, rel=1e-12)
         assert p[2] == pytest.approx(5.0)
         assert np.linalg.norm(v) == pytest.approx(1.5, rel=1e-12)
-        assert abs(np.dot(v, p - centre)) < 1e-9          # tangent
+        assert abs(np.dot(v, p - centre)) < 1e-9  # tangent
     # one revolution takes 2 pi r / v
     p_end, _ = tr.state(2 * math.pi * r / 1.5)
     np.testing.assert_allclose(p_end, start, atol=1e-9)
@@ -96,8 +102,9 @@ def test_figure_eight_peak_speed_equals_speed():
     # closed curve, half-width radius along the rotated x axis
     np.testing.assert_allclose(tr.state(period)[0], tr.state(0.0)[0], atol=1e-9)
     p_q, _ = tr.state(period / 4)
-    np.testing.assert_allclose(p_q - np.array(tr.start),
-                               [12.0 * math.cos(0.3), 12.0 * math.sin(0.3), 0.0], atol=1e-9)
+    np.testing.assert_allclose(
+        p_q - np.array(tr.start), [12.0 * math.cos(0.3), 12.0 * math.sin(0.3), 0.0], atol=1e-9
+    )
 
 
 def test_waypoints_reach_points_on_time_and_hover():
@@ -106,18 +113,18 @@ def test_waypoints_reach_points_on_time_and_hover():
     speed = 2.0
     tr = Waypoints(tuple(start), speed, points=pts)
     # leg lengths 3, 4, 0 (repeated point), 2 -> arrival times 1.5, 3.5, 3.5, 4.5
-    for t_arr, p in zip((1.5, 3.5, 3.5, 4.5), pts):
+    for t_arr, p in zip((1.5, 3.5, 3.5, 4.5), pts, strict=False):
         pos, _ = tr.state(t_arr)
         np.testing.assert_allclose(pos, start + np.array(p), atol=1e-12)
     # mid-leg: constant speed along the leg direction
     pos, vel = tr.state(2.5)
-    np.testing.assert_allclose(pos, start + [3.0, 2.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(pos, start + np.array([3.0, 2.0, 0.0]), atol=1e-12)
     np.testing.assert_allclose(vel, [0.0, 2.0, 0.0], atol=1e-12)
-    _, vel = tr.state(4.0)                                    # the vertical leg
+    _, vel = tr.state(4.0)  # the vertical leg
     np.testing.assert_allclose(vel, [0.0, 0.0, -2.0], atol=1e-12)
     for t in (4.5, 5.0, 100.0):
         pos, vel = tr.state(t)
-        np.testing.assert_allclose(pos, start + [3.0, 4.0, -2.0], atol=1e-12)
+        np.testing.assert_allclose(pos, start + np.array([3.0, 4.0, -2.0]), atol=1e-12)
         np.testing.assert_array_equal(vel, 0.0)
 
 
@@ -136,8 +143,9 @@ def test_make_trajectory_by_name():
         make_trajectory('spiral')
 
 
-@pytest.mark.parametrize('traj', TRAJECTORIES + [make_trajectory('hover')],
-                         ids=lambda t: type(t).__name__)
+@pytest.mark.parametrize(
+    'traj', [*TRAJECTORIES, make_trajectory('hover')], ids=lambda t: type(t).__name__
+)
 def test_state_is_vectorized_over_time(traj):
     ts = np.array([0.0, 0.37, 1.5, 2.9, 4.5, 7.0, 33.3])
     pos, vel = traj.state(ts)

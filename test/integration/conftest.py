@@ -6,21 +6,29 @@ import os
 import signal
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import pytest
 import rclpy
 from ament_index_python.packages import get_package_prefix
+from apf_swarm_nodes.bringup import pick_domain_id, stop_process
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from apf_swarm_nodes.bringup import pick_domain_id, stop_process
-
 LIB = Path(get_package_prefix('apf_swarm_nodes')) / 'lib' / 'apf_swarm_nodes'
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / 'config'
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Every test of this directory runs real node processes: marked ``integration``."""
+    here = Path(__file__).parent
+    for item in items:
+        if here in Path(str(item.path)).parents:
+            item.add_marker(pytest.mark.integration)
 
 
 def free_domain_id() -> int:
@@ -34,8 +42,11 @@ class Graph:
 
     def __init__(self, tmp: Path, domain_id: int | None = None) -> None:
         self.domain_id = domain_id if domain_id is not None else free_domain_id()
-        self.env = {**os.environ, 'ROS_DOMAIN_ID': str(self.domain_id),
-                    'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+        self.env = {
+            **os.environ,
+            'ROS_DOMAIN_ID': str(self.domain_id),
+            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+        }
         self.tmp = tmp
         self.procs: dict[str, subprocess.Popen] = {}
         self.context = Context()
@@ -45,17 +56,23 @@ class Graph:
         self.executor.add_node(self.node)
 
     def start(self, name: str, exe: str, *ros_args: str) -> subprocess.Popen:
-        log = open(self.tmp / f'{name}.log', 'w')
-        p = subprocess.Popen([str(LIB / exe), '--ros-args', *ros_args], env=self.env,
-                             stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        with open(self.tmp / f'{name}.log', 'w') as log:  # the child keeps its own copy
+            p = subprocess.Popen(
+                [str(LIB / exe), '--ros-args', *ros_args],
+                env=self.env,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
         self.procs[name] = p
         return p
 
     def log(self, name: str) -> str:
         return (self.tmp / f'{name}.log').read_text()
 
-    def spin_until(self, cond: Callable[[], bool], timeout: float, what: str,
-                   fail: bool = True) -> bool:
+    def spin_until(
+        self, cond: Callable[[], bool], timeout: float, what: str, fail: bool = True
+    ) -> bool:
         """Spin the observer until ``cond()`` holds (True); after ``timeout`` s fail naming
         ``what``, or with ``fail=False`` return False. A node process that died fails."""
         end = time.monotonic() + timeout
@@ -70,8 +87,7 @@ class Graph:
             self.executor.spin_once(timeout_sec=0.02)
         return True
 
-    def call(self, send: Callable[[], Any], timeout: float, what: str,
-             resend: float = 2.0) -> Any:
+    def call(self, send: Callable[[], Any], timeout: float, what: str, resend: float = 2.0) -> Any:
         """The result of the service future ``send()`` returns, re-sent every ``resend`` s
         until answered or ``timeout`` s: a server that has not yet matched the client's
         response reader drops the response (rmw_fastrtps waits 100 ms for the match), so
@@ -84,13 +100,16 @@ class Graph:
                 return future.result()
             future.cancel()
             if time.monotonic() >= end:
-                raise AssertionError(f'timed out after {timeout:g} s waiting for {what} '
-                                     f'(re-sent every {resend:g} s)')
+                raise AssertionError(
+                    f'timed out after {timeout:g} s waiting for {what} '
+                    f'(re-sent every {resend:g} s)'
+                )
 
     def stop(self, name: str, timeout: float = 5.0) -> int:
         """SIGINT the process group, then SIGKILL; returns the exit code."""
-        return stop_process(self.procs.pop(name), ((signal.SIGINT, timeout),
-                                                   (signal.SIGKILL, timeout)))
+        return stop_process(
+            self.procs.pop(name), ((signal.SIGINT, timeout), (signal.SIGKILL, timeout))
+        )
 
     def close(self) -> None:
         for name in list(self.procs):

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from apf_swarm_nodes.bringup import pick_domain_id, stop_process
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
 from apf_swarm_msgs.msg import ForceCommand
 from apf_swarm_nodes import bags
-from apf_swarm_nodes.bringup import pick_domain_id, stop_process
 
 ROOT = Path(__file__).resolve().parents[2]
 SWARM_UP = ROOT / 'scripts' / 'swarm_up.py'
@@ -30,8 +30,13 @@ STEPS = 2000
 
 
 def apf(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(['apf-swarm', *args], capture_output=True, text=True, timeout=timeout,
-                          env={**os.environ, 'PYTHONWARNINGS': 'ignore'})
+    return subprocess.run(
+        ['apf-swarm', *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, 'PYTHONWARNINGS': 'ignore'},
+    )
 
 
 @pytest.fixture(scope='module')
@@ -41,11 +46,27 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     domain = pick_domain_id(lo=102, hi=201)
     err = out.parent / 'bringup.stderr'
     with open(err, 'wb') as fh:
-        p = subprocess.Popen([sys.executable, str(SWARM_UP), '--preset', 'triangle',
-                              '--duration', str(DURATION), '--record', '--domain-id', str(domain),
-                              '--out', str(out), '--no-plots'], stdin=subprocess.DEVNULL,
-                             stdout=fh, stderr=subprocess.STDOUT, cwd=ROOT,
-                             start_new_session=True)
+        p = subprocess.Popen(
+            [
+                sys.executable,
+                str(SWARM_UP),
+                '--preset',
+                'triangle',
+                '--duration',
+                str(DURATION),
+                '--record',
+                '--domain-id',
+                str(domain),
+                '--out',
+                str(out),
+                '--no-plots',
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+            cwd=ROOT,
+            start_new_session=True,
+        )
     try:
         rc = p.wait(240)
     finally:
@@ -57,6 +78,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
 # --------------------------------------------------------------------------------------------
 # the recorded run
 # --------------------------------------------------------------------------------------------
+
 
 def test_info_counts_equal_what_the_nodes_published(recorded: Path) -> None:
     summary = json.loads((recorded / 'summary.json').read_text())
@@ -75,7 +97,7 @@ def test_info_counts_equal_what_the_nodes_published(recorded: Path) -> None:
     assert STEPS <= topics['/clock']['count'] <= STEPS + 5
     # steps 0..STEPS: the plant asks ahead, and its last request is capped at the final step
     assert topics['/target/odom']['count'] == STEPS + 1
-    assert topics['/rosout']['count'] >= 5                  # every node's start-up lines
+    assert topics['/rosout']['count'] >= 5  # every node's start-up lines
     # the recorder counted every message it received and wrote, and they are what info reads
     assert rec['received'] == rec['written'] == info['messages'] == rec['messages']
     assert rec['dropped'] == 0
@@ -101,7 +123,7 @@ def test_bag_reads_back_with_rosbags_and_mcap(recorded: Path) -> None:
     # rosbags: every message deserializes, the custom types from the bag's definitions
     counts: dict[str, int] = {}
     states = []
-    with AnyReader([bag]) as reader:   # no typestore given: the bag's own definitions
+    with AnyReader([bag]) as reader:  # no typestore given: the bag's own definitions
         for conn, _ts, raw in reader.messages():
             msg = reader.deserialize(raw, conn.msgtype)
             counts[conn.topic] = counts.get(conn.topic, 0) + 1
@@ -116,8 +138,12 @@ def test_bag_reads_back_with_rosbags_and_mcap(recorded: Path) -> None:
         assert states[k].sim_time == pytest.approx(t[k], abs=1e-12)
     # the stored type hash is the one rosidl generated for the custom type
     from ament_index_python.packages import get_package_share_directory
-    generated = json.loads((Path(get_package_share_directory('apf_swarm_msgs')) / 'msg'
-                            / 'SwarmState.json').read_text())
+
+    generated = json.loads(
+        (
+            Path(get_package_share_directory('apf_swarm_msgs')) / 'msg' / 'SwarmState.json'
+        ).read_text()
+    )
     assert hashes['/swarm/state'] == generated['type_hashes'][0]['hash_string']
     # mcap + mcap_ros2: the same messages, decoded from the embedded ros2msg schemas
     mcounts: dict[str, int] = {}
@@ -125,7 +151,8 @@ def test_bag_reads_back_with_rosbags_and_mcap(recorded: Path) -> None:
     for file in bags.bag_files(bag):
         with open(file, 'rb') as f:
             for _schema, channel, _m, dec in make_reader(
-                    f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+                f, decoder_factories=[DecoderFactory()]
+            ).iter_decoded_messages():
                 mcounts[channel.topic] = mcounts.get(channel.topic, 0) + 1
                 if channel.topic == '/uav_2/force_cmd':
                     forces.append((dec.step, dec.force.x, dec.force.y, dec.force.z))
@@ -142,18 +169,32 @@ def test_metrics_equal_the_live_summary(recorded: Path) -> None:
     for key, value in got.items():
         if key in ('mode',):
             continue
-        assert value == live[key], key   # the same samples through the same function
-    sim_keys = ('law', 'n_trackers', 'dt', 'duration', 'seed', 'centroid_error', 'formation',
-                'chattering', 'potential', 'converged', 'time_to_converge', 'warnings')
+        assert value == live[key], key  # the same samples through the same function
+    sim_keys = (
+        'law',
+        'n_trackers',
+        'dt',
+        'duration',
+        'seed',
+        'centroid_error',
+        'formation',
+        'chattering',
+        'potential',
+        'converged',
+        'time_to_converge',
+        'warnings',
+    )
     assert all(k in got for k in sim_keys)
 
 
 def test_export_and_plot(recorded: Path, tmp_path: Path) -> None:
     csv_path = tmp_path / 'state.csv'
-    p = apf('bag', 'export', str(recorded / 'bag'), '--topic', '/swarm/state', '--csv',
-            str(csv_path))
+    p = apf(
+        'bag', 'export', str(recorded / 'bag'), '--topic', '/swarm/state', '--csv', str(csv_path)
+    )
     assert p.returncode == 0, p.stderr
     import csv
+
     with open(csv_path) as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == STEPS
@@ -164,16 +205,22 @@ def test_export_and_plot(recorded: Path, tmp_path: Path) -> None:
     p = apf('bag', 'plot', str(recorded / 'bag'), '--out', str(tmp_path / 'fig'))
     assert p.returncode == 0, p.stderr
     pngs = sorted(q.name for q in (tmp_path / 'fig').glob('*.png'))
-    assert pngs == ['fig2_trajectories_proposed.png', 'fig4_xy_proposed.png',
-                    'fig6_centroid_proposed.png', 'fig7_centroid_error.png']
+    assert pngs == [
+        'fig2_trajectories_proposed.png',
+        'fig4_xy_proposed.png',
+        'fig6_centroid_proposed.png',
+        'fig7_centroid_error.png',
+    ]
 
 
 # --------------------------------------------------------------------------------------------
 # replay
 # --------------------------------------------------------------------------------------------
 
-def test_replay_drives_a_fresh_tracker_as_in_the_live_run(recorded: Path, graph,
-                                                         tmp_path: Path) -> None:
+
+def test_replay_drives_a_fresh_tracker_as_in_the_live_run(
+    recorded: Path, graph, tmp_path: Path
+) -> None:
     """/swarm/odom of the bag into a new tracker 1: its commands equal the recorded ones.
 
     At the recorded pace. A second recorder takes the fresh tracker's commands (its take
@@ -184,45 +231,90 @@ def test_replay_drives_a_fresh_tracker_as_in_the_live_run(recorded: Path, graph,
     1-5 % of the steps).
     """
     from std_msgs.msg import String
+
     status: list[dict] = []
-    graph.node.create_subscription(String, '/recorder/status',
-                                   lambda m: status.append(json.loads(m.data)),
-                                   QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    graph.start('tracker', 'tracker', '--params-file', str(recorded / 'config.yaml'),
-                '-r', '__ns:=/uav_1', '-r', '__node:=tracker', '-p', 'uav_id:=1',
-                '-p', 'mode:=lockstep')
+    graph.node.create_subscription(
+        String,
+        '/recorder/status',
+        lambda m: status.append(json.loads(m.data)),
+        QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL),
+    )
+    graph.start(
+        'tracker',
+        'tracker',
+        '--params-file',
+        str(recorded / 'config.yaml'),
+        '-r',
+        '__ns:=/uav_1',
+        '-r',
+        '__node:=tracker',
+        '-p',
+        'uav_id:=1',
+        '-p',
+        'mode:=lockstep',
+    )
     replayed = tmp_path / 'replayed'
-    graph.start('recorder', 'recorder', '-p', f'output:={replayed}',
-                '-p', 'topics:=[/uav_1/force_cmd]')
+    graph.start(
+        'recorder', 'recorder', '-p', f'output:={replayed}', '-p', 'topics:=[/uav_1/force_cmd]'
+    )
 
     def recording() -> bool:
         t = status[-1]['topics'].get('/uav_1/force_cmd') if status else None
         return bool(t) and t['matched'] >= 1
+
     graph.spin_until(recording, 30, 'the second recorder to record /uav_1/force_cmd')
-    graph.start('player', 'player', '-p', f'bag:={recorded / "bag"}', '-p',
-                'topics:=[/swarm/odom]', '-p', 'wait_for:=[/swarm/odom]')
-    graph.spin_until(lambda: status[-1]['received'] >= STEPS, 60,
-                     f'{STEPS} commands of the fresh tracker (recorder status)')
+    graph.start(
+        'player',
+        'player',
+        '-p',
+        f'bag:={recorded / "bag"}',
+        '-p',
+        'topics:=[/swarm/odom]',
+        '-p',
+        'wait_for:=[/swarm/odom]',
+    )
+    graph.spin_until(
+        lambda: status[-1]['received'] >= STEPS,
+        60,
+        f'{STEPS} commands of the fresh tracker (recorder status)',
+    )
     assert graph.stop('recorder') == 0
 
     def commands(bag: Path) -> np.ndarray:
         out = []
         for _t, _type, _ts, raw in bags.iter_raw(bag, ['/uav_1/force_cmd']):
             m = deserialize_message(raw, ForceCommand)
-            out.append((m.step, m.force.x, m.force.y, m.force.z, m.sliding_surface.x,
-                        m.filter_state.y, m.gradient.z))
+            out.append(
+                (
+                    m.step,
+                    m.force.x,
+                    m.force.y,
+                    m.force.z,
+                    m.sliding_surface.x,
+                    m.filter_state.y,
+                    m.gradient.z,
+                )
+            )
         return np.array(out)
+
     live, fresh = commands(recorded / 'bag'), commands(replayed)
     assert live.shape == fresh.shape == (STEPS, 7)
-    np.testing.assert_array_equal(fresh, live)      # bit for bit, every step
+    np.testing.assert_array_equal(fresh, live)  # bit for bit, every step
 
 
 def _timing_bag(path: Path, n: int, hz: float) -> list[int]:
     from std_msgs.msg import Int64
+
     stamps = []
     with bags.BagWriter(path) as w:
-        q = bags.qos_from_dict({'history': 'keep_last', 'depth': 10, 'reliability': 'reliable',
-                                'durability': 'volatile'})
+        q = bags.qos_from_dict(
+            {
+                'history': 'keep_last',
+                'depth': 10,
+                'reliability': 'reliable',
+                'durability': 'volatile',
+            }
+        )
         conn = w.add_topic('/timing', 'std_msgs/msg/Int64', offered_qos=[q])
         t0 = 1_700_000_000_000_000_000
         for i in range(n):
@@ -243,18 +335,22 @@ P99_BOUND_MS = 10.0
 def _play_once(graph, bag: Path, stamps: list[int], attempt: int) -> tuple[float, float]:
     """Play ``bag`` into a listener; (p99 |error|, drift) in ms, every message in order."""
     from std_msgs.msg import Int64
+
     n = len(stamps)
     got: list[tuple[int, int]] = []
     sub = graph.node.create_subscription(
-        Int64, '/timing', lambda m, info: got.append((m.data, info['received_timestamp'])),
-        QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+        Int64,
+        '/timing',
+        lambda m, info: got.append((m.data, info['received_timestamp'])),
+        QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
+    )
     name = f'player{attempt}'
     graph.start(name, 'player', '-p', f'bag:={bag}', '-p', 'wait_for:=[/timing]')
     graph.spin_until(lambda: len(got) >= n, 30, f'{n} played messages')
     player = graph.procs.pop(name)
-    assert player.wait(20) == 0, graph.log(name)     # it exits by itself when done
+    assert player.wait(20) == 0, graph.log(name)  # it exits by itself when done
     graph.node.destroy_subscription(sub)
-    assert [d for d, _ in got] == list(range(n))        # every message, in order
+    assert [d for d, _ in got] == list(range(n))  # every message, in order
     recv = np.array([r for _, r in got], dtype=np.int64)
     err = (recv - recv[0]) - (np.array(stamps) - stamps[0])
     err_ms = (err - np.median(err)) / 1e6
@@ -277,35 +373,65 @@ def test_play_offset_loop_clock_and_remap(graph, tmp_path: Path) -> None:
     """start_offset skips, loop repeats, /clock follows the bag time, -r renames."""
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Int64
-    stamps = _timing_bag(tmp_path / 'small', 50, 100.0)        # 0.49 s of bag time
+
+    stamps = _timing_bag(tmp_path / 'small', 50, 100.0)  # 0.49 s of bag time
     got: list[int] = []
     clocks: list[int] = []
-    graph.node.create_subscription(Int64, '/renamed', lambda m: got.append(m.data),
-                                   QoSProfile(depth=1000))
-    graph.node.create_subscription(Clock, '/clock', lambda m: clocks.append(
-        m.clock.sec * 1_000_000_000 + m.clock.nanosec), QoSProfile(depth=1000))
-    graph.start('player', 'player', '-p', f'bag:={tmp_path / "small"}', '-p', 'loop:=true',
-                '-p', 'start_offset:=0.2', '-p', 'clock:=50.0', '-r', '/timing:=/renamed',
-                '-p', 'wait_for:=[/renamed]')
+    graph.node.create_subscription(
+        Int64, '/renamed', lambda m: got.append(m.data), QoSProfile(depth=1000)
+    )
+    graph.node.create_subscription(
+        Clock,
+        '/clock',
+        lambda m: clocks.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),
+        QoSProfile(depth=1000),
+    )
+    graph.start(
+        'player',
+        'player',
+        '-p',
+        f'bag:={tmp_path / "small"}',
+        '-p',
+        'loop:=true',
+        '-p',
+        'start_offset:=0.2',
+        '-p',
+        'clock:=50.0',
+        '-r',
+        '/timing:=/renamed',
+        '-p',
+        'wait_for:=[/renamed]',
+    )
     graph.spin_until(lambda: len(got) >= 75, 30, 'two and a half passes')
     assert graph.stop('player') == 0
     first = got[:60]
-    assert first == list(range(20, 50)) * 2              # 0.2 s skipped, then again
-    assert clocks and all(stamps[0] + 200_000_000 - 1 <= c <= stamps[-1] + 20_000_000
-                          for c in clocks)
-    assert len(clocks) >= 20                              # about 50 Hz over >= 0.6 s
+    assert first == list(range(20, 50)) * 2  # 0.2 s skipped, then again
+    assert clocks and all(
+        stamps[0] + 200_000_000 - 1 <= c <= stamps[-1] + 20_000_000 for c in clocks
+    )
+    assert len(clocks) >= 20  # about 50 Hz over >= 0.6 s
 
 
 # --------------------------------------------------------------------------------------------
 # a recorder killed by SIGKILL
 # --------------------------------------------------------------------------------------------
 
+
 def test_sigkilled_recorder_leaves_a_bag_that_reindex_recovers(graph, tmp_path: Path) -> None:
     from std_msgs.msg import Int64
+
     bag = tmp_path / 'killed'
     pub = graph.node.create_publisher(Int64, '/kill_test', QoSProfile(depth=100))
-    graph.start('recorder', 'recorder', '-p', f'output:={bag}', '-p', 'flush_period:=0.1',
-                '-p', 'topics:=[/kill_test]')
+    graph.start(
+        'recorder',
+        'recorder',
+        '-p',
+        f'output:={bag}',
+        '-p',
+        'flush_period:=0.1',
+        '-p',
+        'topics:=[/kill_test]',
+    )
     graph.spin_until(lambda: pub.get_subscription_count() >= 1, 30, 'the recorder to subscribe')
     sent = 0
 
@@ -319,8 +445,11 @@ def test_sigkilled_recorder_leaves_a_bag_that_reindex_recovers(graph, tmp_path: 
     graph.spin_until(lambda: publish_and_count(300), 30, '300 messages published')
     file = bag / 'killed_0.mcap'
     # a flush every 0.1 s: the complete chunks hold >= 300 messages soon
-    graph.spin_until(lambda: publish_and_count(sent + 1) and
-                     len(bags._scan_mcap(file).messages) >= 300, 20, 'a flushed chunk')
+    graph.spin_until(
+        lambda: publish_and_count(sent + 1) and len(bags._scan_mcap(file).messages) >= 300,
+        20,
+        'a flushed chunk',
+    )
     proc = graph.procs.pop('recorder')
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(10)
@@ -333,9 +462,11 @@ def test_sigkilled_recorder_leaves_a_bag_that_reindex_recovers(graph, tmp_path: 
     info = json.loads(apf('bag', 'info', str(bag), '--json').stdout)
     m = info['topics']['/kill_test']['count']
     assert 300 <= m <= sent
-    values = [deserialize_message(raw, Int64).data
-              for _t, _y, _ts, raw in bags.iter_raw(bag, ['/kill_test'])]
-    assert values == list(range(m))       # every message up to the last flushed chunk
+    values = [
+        deserialize_message(raw, Int64).data
+        for _t, _y, _ts, raw in bags.iter_raw(bag, ['/kill_test'])
+    ]
+    assert values == list(range(m))  # every message up to the last flushed chunk
     backups = list(bag.glob('reindex-backup-*/killed_0.mcap'))
     assert len(backups) == 1 and backups[0].read_bytes() == before
 
@@ -346,26 +477,43 @@ def test_recorder_selects_compresses_and_splits(graph, tmp_path: Path) -> None:
     import time
 
     from std_msgs.msg import Int64
+
     bag = tmp_path / 'sel'
-    pubs = {t: graph.node.create_publisher(Int64, t, QoSProfile(depth=100))
-            for t in ('/sel/a', '/sel/b', '/other')}
-    graph.start('recorder', 'recorder', '-p', f'output:={bag}', '-p', 'regex:=^/sel/',
-                '-p', 'exclude:=b$', '-p', 'compress:=true', '-p', 'split_duration:=0.2')
-    graph.spin_until(lambda: pubs['/sel/a'].get_subscription_count() >= 1, 30,
-                     'the recorder on /sel/a')
+    pubs = {
+        t: graph.node.create_publisher(Int64, t, QoSProfile(depth=100))
+        for t in ('/sel/a', '/sel/b', '/other')
+    }
+    graph.start(
+        'recorder',
+        'recorder',
+        '-p',
+        f'output:={bag}',
+        '-p',
+        'regex:=^/sel/',
+        '-p',
+        'exclude:=b$',
+        '-p',
+        'compress:=true',
+        '-p',
+        'split_duration:=0.2',
+    )
+    graph.spin_until(
+        lambda: pubs['/sel/a'].get_subscription_count() >= 1, 30, 'the recorder on /sel/a'
+    )
     sent = [0]
     next_at = [time.monotonic()]
 
-    def publish_paced() -> bool:          # 100 Hz, driven by the spin loop
+    def publish_paced() -> bool:  # 100 Hz, driven by the spin loop
         if time.monotonic() >= next_at[0] and sent[0] < 80:
             for pub in pubs.values():
                 pub.publish(Int64(data=sent[0]))
             sent[0] += 1
             next_at[0] += 0.01
         return sent[0] >= 80
+
     graph.spin_until(publish_paced, 30, '80 messages on each topic')
-    assert pubs['/sel/b'].get_subscription_count() == 0          # excluded: no subscription
-    assert pubs['/other'].get_subscription_count() == 0          # not matching the regex
+    assert pubs['/sel/b'].get_subscription_count() == 0  # excluded: no subscription
+    assert pubs['/other'].get_subscription_count() == 0  # not matching the regex
     assert graph.stop('recorder') == 0
     info = bags.open_bag(bag)
     assert [t.name for t in info.topics] == ['/sel/a']

@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from apf_swarm_core.config import load_config
 from apf_swarm_core.simulator import simulate
 from apf_swarm_nodes.bringup import pick_domain_id
@@ -30,9 +29,23 @@ pytestmark = pytest.mark.skipif(REASON is not None, reason=f'simulated hosts: {R
 
 
 def run_lab(out: Path, *args: str) -> tuple[subprocess.CompletedProcess, dict]:
-    p = subprocess.run([sys.executable, str(SCRIPT), '--hosts', '3', '--out', str(out),
-                        '--domain-id', str(pick_domain_id(lo=102, hi=201)), *args],
-                       capture_output=True, text=True, timeout=240, cwd=ROOT)
+    p = subprocess.run(
+        [
+            sys.executable,
+            str(SCRIPT),
+            '--hosts',
+            '3',
+            '--out',
+            str(out),
+            '--domain-id',
+            str(pick_domain_id(lo=102, hi=201)),
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=240,
+        cwd=ROOT,
+    )
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
     return p, json.loads((out / 'multihost.json').read_text())
 
@@ -67,8 +80,9 @@ def test_three_hosts_multicast_lockstep_equals_the_simulator(tmp_path: Path) -> 
 def test_three_hosts_discovery_server_realtime_forms_the_triangle(tmp_path: Path) -> None:
     """The Fast DDS discovery server on host 1, realtime: the triangle forms across hosts."""
     out = tmp_path / 'ds'
-    _, result = run_lab(out, '--n-trackers', '3', '--mode', 'realtime', '--duration', '16',
-                        '--discovery', 'server')
+    _, result = run_lab(
+        out, '--n-trackers', '3', '--mode', 'realtime', '--duration', '16', '--discovery', 'server'
+    )
     assert result['discovery'] == 'server'
     cfg = load_config(out / 'config.yaml')
     d = math.sqrt(cfg.c * math.log(cfg.b / (cfg.a + cfg.k_n / (3 * cfg.k_f))))
@@ -78,13 +92,20 @@ def test_three_hosts_discovery_server_realtime_forms_the_triangle(tmp_path: Path
     # 4 s leave room for a slow start on a loaded one
     x = x[t >= 12.0]
     assert len(x) > 100
-    pairs = np.stack([np.linalg.norm(x[:, i] - x[:, j], axis=-1)
-                      for i, j in combinations(range(3), 2)])
+    pairs = np.stack(
+        [np.linalg.norm(x[:, i] - x[:, j], axis=-1) for i, j in combinations(range(3), 2)]
+    )
     # realtime on a loaded 2-core machine: 90 % of the samples (see test_bringup.within)
     summary = json.loads((out / 'summary.json').read_text())
     assert np.quantile(np.abs(pairs - d).max(axis=0), 0.9) <= 0.05 * d, (
-        pairs.min(), pairs.max(), d, {k: summary.get(k) for k in (
-            'missed_deadlines', 'stale_inputs', 'rejected_inputs', 'faults', 'timing')})
+        pairs.min(),
+        pairs.max(),
+        d,
+        {
+            k: summary.get(k)
+            for k in ('missed_deadlines', 'stale_inputs', 'rejected_inputs', 'faults', 'timing')
+        },
+    )
     # judged by flight over the last 40 %, next to the headless emulation with the latencies
     # measured across the hosts
     assert summary['prediction']['run']['flies'], summary['prediction']['run']

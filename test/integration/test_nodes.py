@@ -8,23 +8,35 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from apf_swarm_core.agents import TrackerAgent
+from apf_swarm_nodes.conversions import dt_to_ns, odom_msg, step_stamp, swarm_state_arrays
+from apf_swarm_nodes.node_common import (
+    REQUEST_QOS,
+    START_QOS,
+    STATE_QOS,
+    TARGET_LOOKAHEAD,
+    control_qos,
+)
 from nav_msgs.msg import Odometry
 from std_msgs.msg import Empty, UInt64
 
 from apf_swarm_core import load_preset, simulate
-from apf_swarm_core.agents import TrackerAgent
 from apf_swarm_msgs.msg import ForceCommand, SwarmState
-from apf_swarm_nodes.conversions import (dt_to_ns, odom_msg, step_stamp, swarm_state_arrays)
-from apf_swarm_nodes.node_common import (REQUEST_QOS, START_QOS, STATE_QOS, TARGET_LOOKAHEAD,
-                                         control_qos)
 
 CONFIG = Path(__file__).resolve().parents[2] / 'config'
 
 
 def start_swarm(g, duration: float, *extra: str, n: int = 3) -> None:
     cfg = str(CONFIG / 'triangle.yaml')
-    common = ['--params-file', cfg, '-p', f'duration:={duration}', '-p', f'n_trackers:={n}',
-              *extra]
+    common = [
+        '--params-file',
+        cfg,
+        '-p',
+        f'duration:={duration}',
+        '-p',
+        f'n_trackers:={n}',
+        *extra,
+    ]
     g.start('target', 'target', *common, '-r', '__ns:=/target')
     for i in range(1, n + 1):
         g.start(f'tracker{i}', 'tracker', *common, '-p', f'uav_id:={i}', '-r', f'__ns:=/uav_{i}')
@@ -35,18 +47,26 @@ def test_lockstep_equals_headless_simulator(graph) -> None:
     """Same preset, seed and dt: the ROS trajectory equals simulate() to 1e-9."""
     steps = 600
     got: dict[int, object] = {}
-    graph.node.create_subscription(SwarmState, '/swarm/state',
-                                   lambda m: got.__setitem__(m.step, swarm_state_arrays(m)),
-                                   STATE_QOS)
+    graph.node.create_subscription(
+        SwarmState,
+        '/swarm/state',
+        lambda m: got.__setitem__(m.step, swarm_state_arrays(m)),
+        STATE_QOS,
+    )
     start = graph.node.create_publisher(Empty, '/swarm/start', START_QOS)
     start_swarm(graph, steps * 0.001)
     node = graph.node
-    graph.spin_until(lambda: all(node.count_publishers(f'/uav_{i}/force_cmd') == 1
-                                 for i in (1, 2, 3))
-                     and node.count_subscribers('/swarm/odom') == 3
-                     and node.count_publishers('/swarm/state') == 1
-                     and node.count_subscribers('/target/request') >= 1
-                     and node.count_subscribers('/swarm/start') >= 1, 30, 'the graph')
+    graph.spin_until(
+        lambda: (
+            all(node.count_publishers(f'/uav_{i}/force_cmd') == 1 for i in (1, 2, 3))
+            and node.count_subscribers('/swarm/odom') == 3
+            and node.count_publishers('/swarm/state') == 1
+            and node.count_subscribers('/target/request') >= 1
+            and node.count_subscribers('/swarm/start') >= 1
+        ),
+        30,
+        'the graph',
+    )
     start.publish(Empty())
     graph.spin_until(lambda: steps - 1 in got, 120, f'{steps} steps of /swarm/state')
     assert sorted(got) == list(range(steps))
@@ -57,17 +77,20 @@ def test_lockstep_equals_headless_simulator(graph) -> None:
     assert got[steps - 1].missed_deadlines == 0
     # every topic exists with the expected type
     topics = dict(graph.node.get_topic_names_and_types())
-    expected = {'/uav_1/odom': 'nav_msgs/msg/Odometry', '/target/odom': 'nav_msgs/msg/Odometry',
-                '/uav_2/force_cmd': 'apf_swarm_msgs/msg/ForceCommand',
-                '/swarm/state': 'apf_swarm_msgs/msg/SwarmState',
-                '/swarm/odom': 'apf_swarm_msgs/msg/SwarmOdometry',
-                '/clock': 'rosgraph_msgs/msg/Clock',
-                '/swarm/markers': 'visualization_msgs/msg/MarkerArray'}
+    expected = {
+        '/uav_1/odom': 'nav_msgs/msg/Odometry',
+        '/target/odom': 'nav_msgs/msg/Odometry',
+        '/uav_2/force_cmd': 'apf_swarm_msgs/msg/ForceCommand',
+        '/swarm/state': 'apf_swarm_msgs/msg/SwarmState',
+        '/swarm/odom': 'apf_swarm_msgs/msg/SwarmOdometry',
+        '/clock': 'rosgraph_msgs/msg/Clock',
+        '/swarm/markers': 'visualization_msgs/msg/MarkerArray',
+    }
     for name, typ in expected.items():
         assert topics.get(name) == [typ], name
     assert node.count_publishers('/target/odom') == 1
-    assert node.count_subscribers('/target/odom') == 1          # the plant
-    assert node.count_subscribers('/uav_3/force_cmd') == 1      # the plant
+    assert node.count_subscribers('/target/odom') == 1  # the plant
+    assert node.count_subscribers('/uav_3/force_cmd') == 1  # the plant
     for name in list(graph.procs):
         assert graph.stop(name) == 0, graph.log(name)
 
@@ -79,8 +102,9 @@ def test_lockstep_target_answers_requests_ahead_with_the_exact_trajectory(graph)
     the last TARGET_LOOKAHEAD steps instead of replaying the run from step 0; asked the same
     again, it sends that window again."""
     cfg = load_preset('triangle')
-    graph.start('target', 'target', '--params-file', str(CONFIG / 'triangle.yaml'),
-                '-r', '__ns:=/target')
+    graph.start(
+        'target', 'target', '--params-file', str(CONFIG / 'triangle.yaml'), '-r', '__ns:=/target'
+    )
     got: dict[int, list] = {}
     dt_ns = dt_to_ns(cfg.dt)
 
@@ -89,11 +113,15 @@ def test_lockstep_target_answers_requests_ahead_with_the_exact_trajectory(graph)
         p, v = msg.pose.pose.position, msg.twist.twist.linear
         got.setdefault(int(k), []).append((p.x, p.y, p.z, v.x, v.y, v.z))
 
-    sub = graph.node.create_subscription(Odometry, '/target/odom', on_odom,
-                                         control_qos('lockstep'))
+    sub = graph.node.create_subscription(
+        Odometry, '/target/odom', on_odom, control_qos('lockstep')
+    )
     req = graph.node.create_publisher(UInt64, '/target/request', REQUEST_QOS)
-    graph.spin_until(lambda: req.get_subscription_count() == 1
-                     and sub.get_publisher_count() == 1, 30, 'the target')
+    graph.spin_until(
+        lambda: req.get_subscription_count() == 1 and sub.get_publisher_count() == 1,
+        30,
+        'the target',
+    )
     # our reader matching the target's writer does not mean its writer has matched our
     # reader yet (what it publishes before that is lost, as for the plant, which repeats its
     # request for a late step): ask for step 0 until it arrives; a repeated request sends
@@ -113,7 +141,7 @@ def test_lockstep_target_answers_requests_ahead_with_the_exact_trajectory(graph)
     graph.spin_until(lambda: far in got, 10, f'the state of step {far}')
     window = list(range(far + 1 - TARGET_LOOKAHEAD, far + 1))
     assert sorted(got) == list(range(1, 21)) + window
-    assert all(len(v) == 1 for v in got.values())          # each step once
+    assert all(len(v) == 1 for v in got.values())  # each step once
     # the same request again (the plant's step is late): that window once more
     req.publish(UInt64(data=far))
     graph.spin_until(lambda: all(len(got[k]) == 2 for k in window), 10, 'the window again')
@@ -128,8 +156,18 @@ def test_lockstep_target_answers_requests_ahead_with_the_exact_trajectory(graph)
 @pytest.mark.parametrize('inputs', ['odom', 'aggregate'])
 def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: str) -> None:
     cfg = load_preset('triangle')
-    graph.start('tracker', 'tracker', '--params-file', str(CONFIG / 'triangle.yaml'),
-                '-p', 'uav_id:=2', '-p', f'inputs:={inputs}', '-r', '__ns:=/uav_2')
+    graph.start(
+        'tracker',
+        'tracker',
+        '--params-file',
+        str(CONFIG / 'triangle.yaml'),
+        '-p',
+        'uav_id:=2',
+        '-p',
+        f'inputs:={inputs}',
+        '-r',
+        '__ns:=/uav_2',
+    )
     qos = control_qos('lockstep')
     forces: list[ForceCommand] = []
     graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
@@ -141,8 +179,14 @@ def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: st
     if inputs == 'odom':
         pubs = {j: graph.node.create_publisher(Odometry, f'/uav_{j}/odom', qos) for j in (1, 2, 3)}
         tpub = graph.node.create_publisher(Odometry, '/target/odom', qos)
-        graph.spin_until(lambda: all(p.get_subscription_count() == 1 for p in pubs.values())
-                         and tpub.get_subscription_count() == 1, 30, 'the tracker subscriptions')
+        graph.spin_until(
+            lambda: (
+                all(p.get_subscription_count() == 1 for p in pubs.values())
+                and tpub.get_subscription_count() == 1
+            ),
+            30,
+            'the tracker subscriptions',
+        )
 
         def send(step: int, xs: np.ndarray) -> None:
             stamp = step_stamp(step, dt_ns)
@@ -150,16 +194,29 @@ def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: st
             for j in (1, 2, 3):
                 pubs[j].publish(odom_msg(xs[j - 1], v[j - 1], stamp, f'uav_{j}'))
     else:
-        from apf_swarm_msgs.msg import SwarmOdometry
         from apf_swarm_nodes.conversions import swarm_odom_msg
+
+        from apf_swarm_msgs.msg import SwarmOdometry
+
         spub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
         graph.spin_until(lambda: spub.get_subscription_count() == 1, 30, 'the subscription')
 
         def send(step: int, xs: np.ndarray) -> None:
-            spub.publish(swarm_odom_msg(step=step, stamp=step_stamp(step, dt_ns),
-                                        uav_ids=[1, 2, 3], x=xs, v=v, target_x=tx, target_v=tv))
-    graph.spin_until(lambda: graph.node.count_publishers('/uav_2/force_cmd') == 1, 30,
-                     'the force publisher')
+            spub.publish(
+                swarm_odom_msg(
+                    step=step,
+                    stamp=step_stamp(step, dt_ns),
+                    uav_ids=[1, 2, 3],
+                    x=xs,
+                    v=v,
+                    target_x=tx,
+                    target_v=tv,
+                )
+            )
+
+    graph.spin_until(
+        lambda: graph.node.count_publishers('/uav_2/force_cmd') == 1, 30, 'the force publisher'
+    )
     send(0, x)
     graph.spin_until(lambda: len(forces) == 1, 10, 'the force of step 0')
     ref = TrackerAgent(cfg, 2)
@@ -171,8 +228,11 @@ def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: st
     assert f.uav_id == 2 and f.step == 0
     assert np.allclose([f.force.x, f.force.y, f.force.z], out.force[0], atol=1e-12, rtol=0)
     assert np.allclose([f.gradient.x, f.gradient.y, f.gradient.z], out.gradient[0], atol=1e-12)
-    assert np.allclose([f.sliding_surface.x, f.sliding_surface.y, f.sliding_surface.z],
-                       out.sliding_surface[0], atol=1e-12)
+    assert np.allclose(
+        [f.sliding_surface.x, f.sliding_surface.y, f.sliding_surface.z],
+        out.sliding_surface[0],
+        atol=1e-12,
+    )
     # a NaN position is refused: no command for that step, a log line saying so
     bad = x.copy()
     bad[0, 1] = math.nan
@@ -184,17 +244,19 @@ def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: st
     assert all(math.isfinite(c) for c in (forces[1].force.x, forces[1].force.y, forces[1].force.z))
 
 
-@pytest.mark.parametrize('args, needle', [
-    (('-p', 'beta:=-1.0'), 'beta'),
-    (('-p', 'uav_id:=4'), 'uav_id'),
-    (('-p', 'law:=fuzzy'), 'law'),
-    (('-p', 'mode:=sometimes'), 'mode'),
-    (('-p', 'n_trackers:=0'), 'n_trackers'),
-    (('-p', 'gamma:=not_a_number'), 'gamma'),  # wrong type (without a file, see below)
-    (('-p', 'qos_depth:=0'), 'qos_depth'),
-])
-def test_bad_parameter_stops_the_node_naming_it(graph, args: tuple[str, ...],
-                                                needle: str) -> None:
+@pytest.mark.parametrize(
+    'args, needle',
+    [
+        (('-p', 'beta:=-1.0'), 'beta'),
+        (('-p', 'uav_id:=4'), 'uav_id'),
+        (('-p', 'law:=fuzzy'), 'law'),
+        (('-p', 'mode:=sometimes'), 'mode'),
+        (('-p', 'n_trackers:=0'), 'n_trackers'),
+        (('-p', 'gamma:=not_a_number'), 'gamma'),  # wrong type (without a file, see below)
+        (('-p', 'qos_depth:=0'), 'qos_depth'),
+    ],
+)
+def test_bad_parameter_stops_the_node_naming_it(graph, args: tuple[str, ...], needle: str) -> None:
     # rcl lets a params file's value win over a wrongly typed -p, so the type case has none
     files = [] if 'not_a_number' in args[-1] else ['--params-file', str(CONFIG / 'triangle.yaml')]
     p = graph.start('tracker', 'tracker', *files, '-p', 'uav_id:=1', *args)
@@ -209,17 +271,23 @@ def test_qos_depth_sets_the_realtime_control_topics_depth(graph) -> None:
     """qos_depth: 7: a realtime tracker's command publisher and its /swarm/odom subscription
     are best effort, keep last 7; lockstep ignores it (reliable, keep last 1000). The nodes
     are built in this process (remote endpoint info does not carry the depth)."""
+    from apf_swarm_nodes.tracker_node import TrackerNode
     from rclpy.parameter import Parameter
     from rclpy.qos import ReliabilityPolicy
 
-    from apf_swarm_nodes.tracker_node import TrackerNode
-
-    for mode, want in (('realtime', (ReliabilityPolicy.BEST_EFFORT, 7)),
-                       ('lockstep', (ReliabilityPolicy.RELIABLE, 1000))):
-        node = TrackerNode(context=graph.node.context, namespace='/uav_2',
-                           parameter_overrides=[Parameter('uav_id', value=2),
-                                                Parameter('mode', value=mode),
-                                                Parameter('qos_depth', value=7)])
+    for mode, want in (
+        ('realtime', (ReliabilityPolicy.BEST_EFFORT, 7)),
+        ('lockstep', (ReliabilityPolicy.RELIABLE, 1000)),
+    ):
+        node = TrackerNode(
+            context=graph.node.context,
+            namespace='/uav_2',
+            parameter_overrides=[
+                Parameter('uav_id', value=2),
+                Parameter('mode', value=mode),
+                Parameter('qos_depth', value=7),
+            ],
+        )
         try:
             qos = [node.pub.qos_profile] + [sub.qos_profile for sub in node.subscriptions]
             assert {(q.reliability, q.depth) for q in qos} == {want}, mode
@@ -231,23 +299,46 @@ def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale
     """Realtime: commands follow /swarm/odom; once it stops for input_timeout, the tracker
     sends the safe brake (eq. 24 on s = v, brake_force of the last own velocity), flagged."""
     from apf_swarm_core.agents import brake_force
-    from apf_swarm_msgs.msg import SwarmOdometry
     from apf_swarm_nodes.conversions import swarm_odom_msg
+
+    from apf_swarm_msgs.msg import SwarmOdometry
+
     # eq. 24 as printed, below; at 50 Hz the tracker predicts the state by the latency
     # (compensation), as the reference agent does before any latency is reported
     cfg = load_preset('realtime').replace(switching='sign', control_rate=50.0)
     timeout = 0.3
-    graph.start('tracker', 'tracker', '--params-file', str(CONFIG / 'realtime.yaml'),
-                '-p', 'uav_id:=2', '-p', 'mode:=realtime', '-p', f'input_timeout:={timeout}',
-                '-p', 'control_rate:=50.0', '-p', 'switching:=sign', '-r', '__ns:=/uav_2')
+    graph.start(
+        'tracker',
+        'tracker',
+        '--params-file',
+        str(CONFIG / 'realtime.yaml'),
+        '-p',
+        'uav_id:=2',
+        '-p',
+        'mode:=realtime',
+        '-p',
+        f'input_timeout:={timeout}',
+        '-p',
+        'control_rate:=50.0',
+        '-p',
+        'switching:=sign',
+        '-r',
+        '__ns:=/uav_2',
+    )
     qos = control_qos('realtime')
     forces: list[tuple[float, ForceCommand]] = []
-    graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd',
-                                   lambda m: forces.append((time.monotonic(), m)), qos)
+    graph.node.create_subscription(
+        ForceCommand, '/uav_2/force_cmd', lambda m: forces.append((time.monotonic(), m)), qos
+    )
     spub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
-    graph.spin_until(lambda: spub.get_subscription_count() == 1
-                     and graph.node.count_publishers('/uav_2/force_cmd') == 1, 30,
-                     'the tracker endpoints')
+    graph.spin_until(
+        lambda: (
+            spub.get_subscription_count() == 1
+            and graph.node.count_publishers('/uav_2/force_cmd') == 1
+        ),
+        30,
+        'the tracker endpoints',
+    )
     rng = np.random.default_rng(3)
     x = rng.normal(scale=2.0, size=(3, 3))
     v = np.array([[0.3, -0.2, 0.1], [0.5, -0.4, 0.2], [0.0, 0.1, -0.3]])
@@ -256,8 +347,17 @@ def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale
 
     def publish() -> None:
         nonlocal sent
-        spub.publish(swarm_odom_msg(step=sent, stamp=graph.node.get_clock().now().to_msg(),
-                                    uav_ids=[1, 2, 3], x=x, v=v, target_x=tx, target_v=tv))
+        spub.publish(
+            swarm_odom_msg(
+                step=sent,
+                stamp=graph.node.get_clock().now().to_msg(),
+                uav_ids=[1, 2, 3],
+                x=x,
+                v=v,
+                target_x=tx,
+                target_v=tv,
+            )
+        )
         sent += 1
 
     # fresh inputs at ~100 Hz until 20 controller commands came back (the first messages may
@@ -270,8 +370,9 @@ def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale
         return 0 if first is None else len(forces) - first
 
     graph.node.create_timer(0.01, lambda: publish() if feeding[0] else None)
-    graph.spin_until(lambda: sent >= 40 and fresh_commands() >= 20, 30,
-                     '20 controller commands on fresh inputs')
+    graph.spin_until(
+        lambda: sent >= 40 and fresh_commands() >= 20, 30, '20 controller commands on fresh inputs'
+    )
     feeding[0] = False
     stopped = time.monotonic()
     # before the first input the watchdog brakes (nothing is known yet); from the first
@@ -279,7 +380,7 @@ def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale
     assert forces and any(not m.stale for _, m in forces)
     first = next(i for i, (_, m) in enumerate(forces) if not m.stale)
     fresh = [m for _, m in forces[first:]]
-    assert len(fresh) >= 20, len(fresh)                   # trigger:=odom, best effort
+    assert len(fresh) >= 20, len(fresh)  # trigger:=odom, best effort
     assert not any(m.stale for m in fresh)
     ref = TrackerAgent(cfg, 2)
     for j in (1, 2, 3):
@@ -293,15 +394,18 @@ def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale
         # eq. 24: -u0 sign(s) + drag v, componentwise, with the velocity predicted by the
         # latency under the held command (at most u0 + drag |v| per axis)
         from apf_swarm_core.config import DEFAULT_LATENCY
+
         dv = DEFAULT_LATENCY * (cfg.u0 + cfg.drag) / (0.5 * (cfg.mass_lo + cfg.mass_hi))
         assert np.allclose(np.abs(f - cfg.drag * v[1]), cfg.u0, atol=cfg.drag * dv + 1e-9), f
     # inputs stop: within the timeout plus a watchdog period or two, the brake goes out
-    graph.spin_until(lambda: any(m.stale for t, m in forces if t > stopped), 10,
-                     'a stale-flagged command')
+    graph.spin_until(
+        lambda: any(m.stale for t, m in forces if t > stopped), 10, 'a stale-flagged command'
+    )
     first_stale = next(t for t, m in forces if m.stale and t > stopped)
     assert timeout <= first_stale - stopped + 0.02 <= timeout + 1.0, first_stale - stopped
-    graph.spin_until(lambda: sum(m.stale for t, m in forces if t > stopped) >= 5, 10,
-                     'a stream of brakes')
+    graph.spin_until(
+        lambda: sum(m.stale for t, m in forces if t > stopped) >= 5, 10, 'a stream of brakes'
+    )
     stale = [m for t, m in forces if m.stale and t > stopped]
     brake = brake_force(v[1], u0=cfg.u0, drag=cfg.drag)
     for m in stale:
@@ -311,41 +415,71 @@ def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale
     # fresh inputs again: controller commands resume
     n_before = len(forces)
     publish()
-    graph.spin_until(lambda: any(not m.stale for _, m in forces[n_before:]), 10,
-                     'a controller command after the inputs came back')
+    graph.spin_until(
+        lambda: any(not m.stale for _, m in forces[n_before:]),
+        10,
+        'a controller command after the inputs came back',
+    )
 
 
 def test_parameters_set_at_run_time_are_applied_or_refused_with_a_reason(graph) -> None:
     """A running tracker takes a valid gain at once, refuses a bad one with the core's
     reason, and refuses read-only keys; the plant and the target refuse every key."""
+    from apf_swarm_nodes.conversions import swarm_odom_msg
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
+
     from apf_swarm_msgs.msg import SwarmOdometry
-    from apf_swarm_nodes.conversions import swarm_odom_msg
+
     cfg = load_preset('triangle')
-    graph.start('tracker', 'tracker', '--params-file', str(CONFIG / 'triangle.yaml'),
-                '-p', 'uav_id:=2', '-r', '__ns:=/uav_2')
+    graph.start(
+        'tracker',
+        'tracker',
+        '--params-file',
+        str(CONFIG / 'triangle.yaml'),
+        '-p',
+        'uav_id:=2',
+        '-r',
+        '__ns:=/uav_2',
+    )
     qos = control_qos('lockstep')
     forces: list[ForceCommand] = []
     graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
     spub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
     client = AsyncParameterClient(graph.node, '/uav_2/tracker')
-    graph.spin_until(lambda: spub.get_subscription_count() == 1
-                     and graph.node.count_publishers('/uav_2/force_cmd') == 1
-                     and client.services_are_ready(), 30, 'the tracker endpoints')
+    graph.spin_until(
+        lambda: (
+            spub.get_subscription_count() == 1
+            and graph.node.count_publishers('/uav_2/force_cmd') == 1
+            and client.services_are_ready()
+        ),
+        30,
+        'the tracker endpoints',
+    )
 
     def set_params(**values) -> list:
-        return graph.call(lambda: client.set_parameters(
-            [Parameter(k, value=v) for k, v in values.items()]), 30,
-            f'the answer to setting {values}').results
+        return graph.call(
+            lambda: client.set_parameters([Parameter(k, value=v) for k, v in values.items()]),
+            30,
+            f'the answer to setting {values}',
+        ).results
 
     x = np.array([[3.0, 0.0, 0.0], [0.0, 2.0, 0.5], [-1.0, -1.0, 0.0]])
     v = np.array([[0.0, 0.0, 0.0], [0.4, -0.3, 0.2], [0.0, 0.0, 0.0]])
     tx, tv = np.array([0.0, 0.0, 4.0]), np.zeros(3)
 
     def command(step: int) -> np.ndarray:
-        spub.publish(swarm_odom_msg(step=step, stamp=step_stamp(step, dt_to_ns(cfg.dt)),
-                                    uav_ids=[1, 2, 3], x=x, v=v, target_x=tx, target_v=tv))
+        spub.publish(
+            swarm_odom_msg(
+                step=step,
+                stamp=step_stamp(step, dt_to_ns(cfg.dt)),
+                uav_ids=[1, 2, 3],
+                x=x,
+                v=v,
+                target_x=tx,
+                target_v=tv,
+            )
+        )
         graph.spin_until(lambda: any(m.step == step for m in forces), 10, f'step {step}')
         m = next(m for m in forces if m.step == step)
         return np.array([m.force.x, m.force.y, m.force.z])
@@ -367,10 +501,14 @@ def test_parameters_set_at_run_time_are_applied_or_refused_with_a_reason(graph) 
     assert np.allclose(np.abs(command(2) - cfg.drag * v[1]), 40.0, atol=1e-9)
     graph.spin_until(lambda: 'retuned: u0 = 40.0' in graph.log('tracker'), 10, 'the log line')
     # the target's parameters are all read-only
-    graph.start('target', 'target', '--params-file', str(CONFIG / 'triangle.yaml'),
-                '-r', '__ns:=/target')
+    graph.start(
+        'target', 'target', '--params-file', str(CONFIG / 'triangle.yaml'), '-r', '__ns:=/target'
+    )
     tclient = AsyncParameterClient(graph.node, '/target/target')
     graph.spin_until(tclient.services_are_ready, 30, 'the target parameter services')
-    (res,) = graph.call(lambda: tclient.set_parameters([Parameter('target_speed', value=3.0)]),
-                        30, 'the target answer').results
+    (res,) = graph.call(
+        lambda: tclient.set_parameters([Parameter('target_speed', value=3.0)]),
+        30,
+        'the target answer',
+    ).results
     assert not res.successful and 'read-only' in res.reason, res.reason

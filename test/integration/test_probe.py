@@ -10,26 +10,35 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from apf_swarm_nodes.bringup import pick_domain_id
 
 from apf_swarm_nodes import probe
-from apf_swarm_nodes.bringup import pick_domain_id
 
 APF = shutil.which('apf-swarm')
 
 
 def test_probe_measures_caches_and_rereads(tmp_path: Path) -> None:
     assert APF is not None, 'apf-swarm is not on PATH: source scripts/activate.sh'
-    env = {**os.environ, 'APF_SWARM_CACHE': str(tmp_path), 'ROS_DOMAIN_ID':
-           str(pick_domain_id(lo=102, hi=201)), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
-    first = subprocess.run([APF, 'probe', '--json', '--n-trackers', '16'], env=env,
-                           capture_output=True, text=True, timeout=120)
+    env = {
+        **os.environ,
+        'APF_SWARM_CACHE': str(tmp_path),
+        'ROS_DOMAIN_ID': str(pick_domain_id(lo=102, hi=201)),
+        'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+    }
+    first = subprocess.run(
+        [APF, 'probe', '--json', '--n-trackers', '16'],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert first.returncode == 0, first.stderr
     assert 'measuring this machine' in first.stderr
     doc = json.loads(first.stdout)
     p, d = doc['probe'], doc['derived']
     # a round trip over DDS on one machine: more than the wire, less than a control period
     assert 0.0 < p['rtt']['p50'] <= p['rtt']['p90'] <= p['rtt']['p99'] < 0.1
-    assert p['round_trips'] >= 0.8 * p['messages'] > 0      # best effort, on loopback
+    assert p['round_trips'] >= 0.8 * p['messages'] > 0  # best effort, on loopback
     assert 0.0 < p['cpu_per_message'] < 0.01
     # one command cost per size, each well under a control period (no ordering by size:
     # that would be a timed assertion between close figures)
@@ -42,17 +51,21 @@ def test_probe_measures_caches_and_rereads(tmp_path: Path) -> None:
     assert lim['processes'] == max(1, min(lim['cpu'], lim['memory'])) >= 1
     cached = json.loads((tmp_path / 'probe.json').read_text())
     assert cached['machine'] == probe.machine() and cached['rtt'] == p['rtt']
-    again = subprocess.run([APF, 'probe', '--json'], env=env, capture_output=True,
-                           text=True, timeout=60)
+    again = subprocess.run(
+        [APF, 'probe', '--json'], env=env, capture_output=True, text=True, timeout=60
+    )
     assert again.returncode == 0 and 'measuring' not in again.stderr
     assert json.loads(again.stdout)['probe'] == p
 
 
 def _probe(cpu_per_message: float, cost16: float, cores: int = 2) -> dict:
-    return {'machine': {'cpu': 'x', 'cores': cores, 'host': 'h'}, 'cpu_per_message':
-            cpu_per_message, 'rtt': {'p50': 0.001, 'p90': 0.002, 'p99': 0.004},
-            'command_cost': {'3': cost16 / 4, '16': cost16, '32': 4 * cost16},
-            'process_rss': 60 * 2**20}
+    return {
+        'machine': {'cpu': 'x', 'cores': cores, 'host': 'h'},
+        'cpu_per_message': cpu_per_message,
+        'rtt': {'p50': 0.001, 'p90': 0.002, 'p99': 0.004},
+        'command_cost': {'3': cost16 / 4, '16': cost16, '32': 4 * cost16},
+        'process_rss': 60 * 2**20,
+    }
 
 
 def test_the_process_limit_is_the_smaller_of_cpu_at_the_lowest_rate_and_memory() -> None:
@@ -61,7 +74,7 @@ def test_the_process_limit_is_the_smaller_of_cpu_at_the_lowest_rate_and_memory()
     cpu = int(0.5 * 2 / (20 * (3 * 50e-6 + 50e-6)))
     lim = probe.process_limit(p, available=64 * 2**30)
     assert lim == {'processes': cpu, 'cpu': cpu, 'memory': int(0.5 * 64 * 1024 / 60)}
-    small = probe.process_limit(p, available=3 * 2**30)       # 1.5 GiB for 60 MiB each
+    small = probe.process_limit(p, available=3 * 2**30)  # 1.5 GiB for 60 MiB each
     assert small['processes'] == small['memory'] == 25
     assert probe.process_limit(p, available=0)['processes'] == 1
 

@@ -21,15 +21,21 @@ import pytest
 from apf_swarm_nodes import bags
 
 APF = shutil.which('apf-swarm')
-pytestmark = pytest.mark.skipif(APF is None, reason='apf-swarm is not on PATH: source '
-                                'scripts/activate.sh (make test does)')
+pytestmark = pytest.mark.skipif(
+    APF is None, reason='apf-swarm is not on PATH: source scripts/activate.sh (make test does)'
+)
 T0 = 1_700_000_000_000_000_000
 QOS = {'history': 'keep_last', 'depth': 10, 'reliability': 'reliable', 'durability': 'volatile'}
 
 
 def run(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([APF, *args], capture_output=True, text=True, timeout=timeout,
-                          env={**os.environ, 'PYTHONWARNINGS': 'ignore'})
+    return subprocess.run(
+        [APF, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, 'PYTHONWARNINGS': 'ignore'},
+    )
 
 
 def assert_bad(p: subprocess.CompletedProcess[str], *words: str) -> None:
@@ -43,13 +49,15 @@ def assert_bad(p: subprocess.CompletedProcess[str], *words: str) -> None:
         assert w in lines[0], (w, lines[0])
 
 
-def write_bag(path: Path, n: int = 200, *, compress: bool = False, chunk_size: int = 2048,
-              **kw) -> Path:
+def write_bag(
+    path: Path, n: int = 200, *, compress: bool = False, chunk_size: int = 2048, **kw
+) -> Path:
     """A bag with /counter (std_msgs/Int64 at 100 Hz) and /uav (ForceCommand, custom)."""
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Int64
 
     from apf_swarm_msgs.msg import ForceCommand
+
     with bags.BagWriter(path, compress=compress, chunk_size=chunk_size, **kw) as w:
         q = bags.qos_from_dict(QOS)
         c1 = w.add_topic('/counter', 'std_msgs/msg/Int64', offered_qos=[q])
@@ -63,13 +71,17 @@ def write_bag(path: Path, n: int = 200, *, compress: bool = False, chunk_size: i
 
 
 def digest(path: Path) -> dict[str, str]:
-    return {str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(path.rglob('*')) if p.is_file()}
+    return {
+        str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(path.rglob('*'))
+        if p.is_file()
+    }
 
 
 # --------------------------------------------------------------------------------------------
 # good bags
 # --------------------------------------------------------------------------------------------
+
 
 def test_info_export_and_nothing_modified(tmp_path: Path) -> None:
     bag = write_bag(tmp_path / 'b')
@@ -92,22 +104,25 @@ def test_info_export_and_nothing_modified(tmp_path: Path) -> None:
     assert float(rows[7]['force.x']) == 3.5 and rows[7]['uav_id'] == '2'
     assert int(rows[7]['timestamp_ns']) == T0 + 7 * 10_000_000 + 1
     assert 'header.stamp.sec' in rows[0]
-    p = run('bag', 'export', str(bag), '--topic', '/counter')      # to stdout
+    p = run('bag', 'export', str(bag), '--topic', '/counter')  # to stdout
     assert p.returncode == 0 and p.stdout.splitlines()[1].endswith(',0')
-    assert digest(bag) == before          # info and export never modify a bag
+    assert digest(bag) == before  # info and export never modify a bag
 
 
 def test_compressed_and_split_bag_reads_back(tmp_path: Path) -> None:
     from rosbags.highlevel import AnyReader
+
     bag = write_bag(tmp_path / 's', 500, compress=True, split_duration=1.0)
     files = bags.bag_files(bag)
-    assert [f.name for f in files] == ['s_0.mcap', 's_1.mcap', 's_2.mcap', 's_3.mcap',
-                                       's_4.mcap']
+    assert [f.name for f in files] == ['s_0.mcap', 's_1.mcap', 's_2.mcap', 's_3.mcap', 's_4.mcap']
     info = bags.open_bag(bag)
     assert info.count == 1000 and {f.compression for f in info.files} == {'zstd'}
     with AnyReader([bag]) as r:
-        vals = [r.deserialize(raw, c.msgtype).data for c, _t, raw in r.messages()
-                if c.topic == '/counter']
+        vals = [
+            r.deserialize(raw, c.msgtype).data
+            for c, _t, raw in r.messages()
+            if c.topic == '/counter'
+        ]
     assert vals == list(range(500))
     bag2 = write_bag(tmp_path / 'z', 300, split_size=4096)
     assert len(bags.bag_files(bag2)) > 2 and bags.open_bag(bag2).count == 600
@@ -121,11 +136,12 @@ def test_reindex_of_a_complete_bag_keeps_the_data_and_backs_up_metadata(tmp_path
     assert p.returncode == 0, p.stderr
     backups = list(bag.glob('reindex-backup-*/metadata.yaml'))
     assert len(backups) == 1 and backups[0].read_text() == old
-    assert (bag / 'r_0.mcap').read_bytes() == mcap_before   # a complete file is kept as is
+    assert (bag / 'r_0.mcap').read_bytes() == mcap_before  # a complete file is kept as is
     new = bags.open_bag(bag)
     assert new.count == 400
-    assert new.topic('/uav').type_hash == bags.type_definition(
-        'apf_swarm_msgs/msg/ForceCommand')[1]
+    assert (
+        new.topic('/uav').type_hash == bags.type_definition('apf_swarm_msgs/msg/ForceCommand')[1]
+    )
 
 
 def test_reindex_recovers_the_complete_chunks_of_a_truncated_file(tmp_path: Path) -> None:
@@ -133,7 +149,7 @@ def test_reindex_recovers_the_complete_chunks_of_a_truncated_file(tmp_path: Path
     src = bag / 't_0.mcap'
     data = src.read_bytes()
     (bag / 'metadata.yaml').unlink()
-    src.write_bytes(data[: len(data) // 2])        # killed half way through
+    src.write_bytes(data[: len(data) // 2])  # killed half way through
     assert_bad(run('bag', 'info', str(bag)), 'metadata.yaml is missing', 'reindex')
     p = run('bag', 'reindex', str(bag))
     assert p.returncode == 0, p.stderr
@@ -142,6 +158,7 @@ def test_reindex_recovers_the_complete_chunks_of_a_truncated_file(tmp_path: Path
     assert 50 < counter < 400
     from rclpy.serialization import deserialize_message
     from std_msgs.msg import Int64
+
     vals = [deserialize_message(raw, Int64).data for *_x, raw in bags.iter_raw(bag, ['/counter'])]
     assert vals == list(range(counter))
 
@@ -150,12 +167,23 @@ def test_reindex_recovers_the_complete_chunks_of_a_truncated_file(tmp_path: Path
 # bad input: one line, exit 2
 # --------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize('cmd', [('info',), ('metrics',), ('export', '--topic', '/x'),
-                                 ('reindex',), ('plot', '--out', 'OUT'), ('play',)])
+
+@pytest.mark.parametrize(
+    'cmd',
+    [
+        ('info',),
+        ('metrics',),
+        ('export', '--topic', '/x'),
+        ('reindex',),
+        ('plot', '--out', 'OUT'),
+        ('play',),
+    ],
+)
 def test_path_that_does_not_exist(tmp_path: Path, cmd: tuple[str, ...]) -> None:
     args = [a.replace('OUT', str(tmp_path / 'o')) for a in cmd]
-    assert_bad(run('bag', args[0], str(tmp_path / 'nope'), *args[1:]), 'nope',
-               'no such file or directory')
+    assert_bad(
+        run('bag', args[0], str(tmp_path / 'nope'), *args[1:]), 'nope', 'no such file or directory'
+    )
 
 
 def test_directory_that_is_not_a_bag(tmp_path: Path) -> None:
@@ -170,8 +198,11 @@ def test_missing_metadata_yaml(tmp_path: Path) -> None:
     bag = write_bag(tmp_path / 'm')
     (bag / 'metadata.yaml').unlink()
     for cmd in (('info',), ('metrics',), ('export', '--topic', '/counter')):
-        assert_bad(run('bag', cmd[0], str(bag), *cmd[1:]), 'metadata.yaml is missing',
-                   'apf-swarm bag reindex')
+        assert_bad(
+            run('bag', cmd[0], str(bag), *cmd[1:]),
+            'metadata.yaml is missing',
+            'apf-swarm bag reindex',
+        )
 
 
 def test_truncated_and_corrupt_mcap(tmp_path: Path) -> None:
@@ -179,9 +210,9 @@ def test_truncated_and_corrupt_mcap(tmp_path: Path) -> None:
     before = digest(bag)
     f = bag / 'c_0.mcap'
     data = f.read_bytes()
-    f.write_bytes(data[:-100])                       # the footer is gone
+    f.write_bytes(data[:-100])  # the footer is gone
     assert_bad(run('bag', 'info', str(bag)), 'c_0.mcap', 'truncated or corrupt', 'reindex')
-    f.write_bytes(b'\x00' * 64 + data[64:])          # garbage where the magic should be
+    f.write_bytes(b'\x00' * 64 + data[64:])  # garbage where the magic should be
     assert_bad(run('bag', 'info', str(bag)), 'truncated or corrupt')
     assert_bad(run('bag', 'export', str(bag), '--topic', '/counter'), 'truncated or corrupt')
     f.write_bytes(os.urandom(5000))
@@ -195,24 +226,34 @@ def test_truncated_and_corrupt_mcap(tmp_path: Path) -> None:
 
 def test_topic_that_is_not_in_the_bag(tmp_path: Path) -> None:
     bag = write_bag(tmp_path / 'tp')
-    assert_bad(run('bag', 'export', str(bag), '--topic', '/nothere'), 'topic /nothere is not in',
-               '/counter')
+    assert_bad(
+        run('bag', 'export', str(bag), '--topic', '/nothere'),
+        'topic /nothere is not in',
+        '/counter',
+    )
     assert_bad(run('bag', 'play', str(bag), '--topics', '/nothere'), 'topic /nothere is not in')
-    assert_bad(run('bag', 'metrics', str(bag), '--config', 'config/triangle.yaml'),
-               'topic /swarm/state is not in')
+    assert_bad(
+        run('bag', 'metrics', str(bag), '--config', 'config/triangle.yaml'),
+        'topic /swarm/state is not in',
+    )
     assert_bad(run('bag', 'metrics', str(bag)), 'no apf_swarm configuration', '--config')
 
 
 def test_a_type_nobody_knows(tmp_path: Path) -> None:
     bag = tmp_path / 'u'
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
     msgdef = 'int32 a\n'
     store = get_typestore(Stores.EMPTY)
     store.register(get_types_from_msg(msgdef, 'nobody_msgs/msg/Thing'))
     with bags.BagWriter(bag) as w:
-        c = w.add_topic('/mystery', 'nobody_msgs/msg/Thing', msgdef=msgdef,
-                        rihs01=store.hash_rihs01('nobody_msgs/msg/Thing'),
-                        offered_qos=[bags.qos_from_dict(QOS)])
+        c = w.add_topic(
+            '/mystery',
+            'nobody_msgs/msg/Thing',
+            msgdef=msgdef,
+            rihs01=store.hash_rihs01('nobody_msgs/msg/Thing'),
+            offered_qos=[bags.qos_from_dict(QOS)],
+        )
         w.write(c, T0, b'\x00\x01\x00\x00\x07\x00\x00\x00')
     # the bag carries the definition: inspection works
     p = run('bag', 'export', str(bag), '--topic', '/mystery')
@@ -225,8 +266,12 @@ def test_a_type_nobody_knows(tmp_path: Path) -> None:
     # a bag whose stored definition is broken
     bag2 = tmp_path / 'u2'
     with bags.BagWriter(bag2) as w:
-        c = w.add_topic('/broken', 'nobody_msgs/msg/Thing', msgdef='this is not a msg',
-                        rihs01='RIHS01_' + '0' * 64)
+        c = w.add_topic(
+            '/broken',
+            'nobody_msgs/msg/Thing',
+            msgdef='this is not a msg',
+            rihs01='RIHS01_' + '0' * 64,
+        )
         w.write(c, T0, b'\x00\x01\x00\x00')
     assert_bad(run('bag', 'export', str(bag2), '--topic', '/broken'), 'type definitions stored')
 
@@ -238,26 +283,39 @@ def test_bag_arguments_are_checked(tmp_path: Path) -> None:
     assert_bad(run('bag', 'play', str(bag), '--remap', 'nocolon'), 'FROM:=TO')
     out = tmp_path / 'x.csv'
     out.write_text('keep')
-    assert_bad(run('bag', 'export', str(bag), '--topic', '/counter', '--csv', str(out)),
-               'exists', '--force')
+    assert_bad(
+        run('bag', 'export', str(bag), '--topic', '/counter', '--csv', str(out)),
+        'exists',
+        '--force',
+    )
     assert out.read_text() == 'keep'
 
 
 def test_flatten_nested_and_arrays() -> None:
     from rosbags.typesys import Stores, get_typestore
+
     store = get_typestore(Stores.ROS2_JAZZY)
     Point = store.types['geometry_msgs/msg/Point']
     Poly = store.types['geometry_msgs/msg/Polygon']
     P32 = store.types['geometry_msgs/msg/Point32']
     poly = Poly(points=[P32(x=1.0, y=2.0, z=3.0), P32(x=4.0, y=5.0, z=6.0)])
-    assert bags.flatten(poly) == {'points.0.x': 1.0, 'points.0.y': 2.0, 'points.0.z': 3.0,
-                                  'points.1.x': 4.0, 'points.1.y': 5.0, 'points.1.z': 6.0}
+    assert bags.flatten(poly) == {
+        'points.0.x': 1.0,
+        'points.0.y': 2.0,
+        'points.0.z': 3.0,
+        'points.1.x': 4.0,
+        'points.1.y': 5.0,
+        'points.1.z': 6.0,
+    }
     assert bags.flatten(Point(x=1.0, y=2.0, z=3.0)) == {'x': 1.0, 'y': 2.0, 'z': 3.0}
     Cov = store.types['geometry_msgs/msg/PoseWithCovariance']
-    pose = Cov(pose=store.types['geometry_msgs/msg/Pose'](
-        position=Point(x=0.0, y=0.0, z=0.0),
-        orientation=store.types['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0)),
-        covariance=np.arange(36, dtype=float))
+    pose = Cov(
+        pose=store.types['geometry_msgs/msg/Pose'](
+            position=Point(x=0.0, y=0.0, z=0.0),
+            orientation=store.types['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0),
+        ),
+        covariance=np.arange(36, dtype=float),
+    )
     flat = bags.flatten(pose)
     assert flat['covariance.35'] == 35.0 and flat['pose.orientation.w'] == 1.0
     assert len(flat) == 7 + 36

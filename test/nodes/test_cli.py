@@ -7,40 +7,68 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 APF = shutil.which('apf-swarm')
-pytestmark = pytest.mark.skipif(APF is None, reason='apf-swarm is not on PATH: source '
-                                'scripts/activate.sh (make test does)')
+pytestmark = pytest.mark.skipif(
+    APF is None, reason='apf-swarm is not on PATH: source scripts/activate.sh (make test does)'
+)
 
 
 def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([APF, *args], capture_output=True, text=True, timeout=timeout,
-                          env={**os.environ, 'PYTHONWARNINGS': 'ignore'})
+    return subprocess.run(
+        [APF, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, 'PYTHONWARNINGS': 'ignore'},
+    )
 
 
 def test_simulate_writes_schema(tmp_path: Path) -> None:
     out = tmp_path / 'run'
-    p = run('simulate', '--preset', 'triangle', '--duration', '6', '--seed', '3', '--out', str(out))
+    p = run(
+        'simulate', '--preset', 'triangle', '--duration', '6', '--seed', '3', '--out', str(out)
+    )
     assert p.returncode == 0, p.stderr
     with np.load(out / 'trajectory.npz') as z:
         T = z['t'].shape[0]
         assert T == 6000
-        for key, shape in {'x': (T, 3, 3), 'v': (T, 3, 3), 'u': (T, 3, 3), 's': (T, 3, 3),
-                           'target_x': (T, 3), 'target_v': (T, 3)}.items():
+        for key, shape in {
+            'x': (T, 3, 3),
+            'v': (T, 3, 3),
+            'u': (T, 3, 3),
+            's': (T, 3, 3),
+            'target_x': (T, 3),
+            'target_v': (T, 3),
+        }.items():
             assert z[key].shape == shape, key
     s = json.loads((out / 'summary.json').read_text())
-    assert list(s) == ['law', 'n_trackers', 'dt', 'duration', 'seed', 'centroid_error',
-                       'formation', 'chattering', 'potential', 'converged',
-                       'time_to_converge', 'warnings']
+    assert list(s) == [
+        'law',
+        'n_trackers',
+        'dt',
+        'duration',
+        'seed',
+        'centroid_error',
+        'formation',
+        'chattering',
+        'potential',
+        'converged',
+        'time_to_converge',
+        'warnings',
+    ]
     assert s['seed'] == 3 and s['n_trackers'] == 3 and s['duration'] == pytest.approx(6.0)
-    assert set(s['formation']) == {'pair_distance_min', 'pair_distance_max',
-                                   'pair_distance_mean', 'pair_distance_expected',
-                                   'error_rms_steady'}
+    assert set(s['formation']) == {
+        'pair_distance_min',
+        'pair_distance_max',
+        'pair_distance_mean',
+        'pair_distance_expected',
+        'error_rms_steady',
+    }
     # the triangle forms: pair distances within 1 % of sqrt(c ln(b/(a + k_n/(3 k_f))))
     d = np.sqrt(1.7 * np.log(6.0 / (1.0 + 1.0 / 3.0)))
     assert s['formation']['pair_distance_expected'] == pytest.approx(d, rel=1e-9)
@@ -52,8 +80,22 @@ def test_simulate_writes_schema(tmp_path: Path) -> None:
 
 
 def test_simulate_set_and_law(tmp_path: Path) -> None:
-    p = run('simulate', '--preset', 'triangle', '--law', 'traditional', '--set', 'gamma=0.5',
-            '--set', 'n_trackers=2', '--duration', '2', '--out', str(tmp_path), '--quiet')
+    p = run(
+        'simulate',
+        '--preset',
+        'triangle',
+        '--law',
+        'traditional',
+        '--set',
+        'gamma=0.5',
+        '--set',
+        'n_trackers=2',
+        '--duration',
+        '2',
+        '--out',
+        str(tmp_path),
+        '--quiet',
+    )
     assert p.returncode == 0, p.stderr
     s = json.loads((tmp_path / 'summary.json').read_text())
     assert s['law'] == 'traditional' and s['n_trackers'] == 2
@@ -72,7 +114,9 @@ def test_check_exit_codes() -> None:
     rep = json.loads(js.stdout)
     assert rep['exit_code'] == 1
     assert {f['code'] for f in rep['findings'] if f['level'] == 'warning'} >= {
-        'beta_vs_vn', 'formation'}
+        'beta_vs_vn',
+        'formation',
+    }
 
 
 def test_design_matches_formula() -> None:
@@ -87,43 +131,73 @@ def test_design_matches_formula() -> None:
 
 
 def test_sweep_csv_and_png(tmp_path: Path) -> None:
-    p = run('sweep', '--param', 'gamma', '--values', '0.05,0.5', '--seeds', '2',
-            '--duration', '4', '--out', str(tmp_path), '--quiet')
+    p = run(
+        'sweep',
+        '--param',
+        'gamma',
+        '--values',
+        '0.05,0.5',
+        '--seeds',
+        '2',
+        '--duration',
+        '4',
+        '--out',
+        str(tmp_path),
+        '--quiet',
+    )
     assert p.returncode == 0, p.stderr
     rows = list(csv.DictReader((tmp_path / 'sweep.csv').open()))
     assert len(rows) == 2 * 2 * 2  # laws x values x seeds
-    prop = {float(r['value']): float(r['centroid_rms']) for r in rows
-            if r['law'] == 'proposed' and r['seed'] == '1'}
+    prop = {
+        float(r['value']): float(r['centroid_rms'])
+        for r in rows
+        if r['law'] == 'proposed' and r['seed'] == '1'
+    }
     # docs/THEORY.md section 2: the lag grows with gamma, about v / (k_n (alpha + beta/gamma))
     assert prop[0.5] > 5 * prop[0.05]
     assert (tmp_path / 'sweep_tradeoff.png').stat().st_size > 10_000
 
 
-@pytest.mark.parametrize('args, needle', [
-    (('simulate', '--preset', 'nope', '--out', 'X'), "unknown preset 'nope'"),
-    (('simulate', '--preset', 'triangle', '--set', 'gama=1', '--out', 'X'), "did you mean gamma"),
-    (('simulate', '--preset', 'triangle', '--set', 'beta=-1', '--out', 'X'), 'beta = -1.0'),
-    (('simulate', '--preset', 'triangle', '--set', 'law=fuzzy', '--out', 'X'), 'law'),
-    (('simulate', '--preset', 'triangle', '--n-trackers', '0', '--out', 'X'), 'n_trackers'),
-    (('simulate', '--preset', 'triangle', '--set', 'novalue', '--out', 'X'), 'KEY=VALUE'),
-    (('simulate', '--config', '/nonexistent.yaml', '--out', 'X'), 'does not exist'),
-    (('simulate', '--preset', 'triangle', '--duration', '-1', '--out', 'X'), '--duration'),
-    (('check', '--config', '__BADYAML__'), 'not valid YAML'),
-    (('check', '--config', '__NOPARAMS__'), 'ros__parameters'),
-    (('sweep', '--param', 'nokey', '--values', '1,2', '--out', 'X'), "unknown key 'nokey'"),
-    (('sweep', '--param', 'gamma', '--values', '0.1,,2', '--out', 'X'), 'empty value'),
-    (('sweep', '--param', 'gamma', '--values', '-1', '--out', 'X'), 'gamma'),
-    (('design', '--spacing', '1', '--solve', 'c', '--set', 'b=0.6'), 'no c gives a triangle'),
-    (('simulate', '--out', 'X'), 'one of the arguments --preset --config is required'),
-])
-def test_error_paths_exit_2_without_traceback(tmp_path: Path, args: tuple[str, ...],
-                                              needle: str) -> None:
+@pytest.mark.parametrize(
+    'args, needle',
+    [
+        (('simulate', '--preset', 'nope', '--out', 'X'), "unknown preset 'nope'"),
+        (
+            ('simulate', '--preset', 'triangle', '--set', 'gama=1', '--out', 'X'),
+            'did you mean gamma',
+        ),
+        (('simulate', '--preset', 'triangle', '--set', 'beta=-1', '--out', 'X'), 'beta = -1.0'),
+        (('simulate', '--preset', 'triangle', '--set', 'law=fuzzy', '--out', 'X'), 'law'),
+        (('simulate', '--preset', 'triangle', '--n-trackers', '0', '--out', 'X'), 'n_trackers'),
+        (('simulate', '--preset', 'triangle', '--set', 'novalue', '--out', 'X'), 'KEY=VALUE'),
+        (('simulate', '--config', '/nonexistent.yaml', '--out', 'X'), 'does not exist'),
+        (('simulate', '--preset', 'triangle', '--duration', '-1', '--out', 'X'), '--duration'),
+        (('check', '--config', '__BADYAML__'), 'not valid YAML'),
+        (('check', '--config', '__NOPARAMS__'), 'ros__parameters'),
+        (('sweep', '--param', 'nokey', '--values', '1,2', '--out', 'X'), "unknown key 'nokey'"),
+        (('sweep', '--param', 'gamma', '--values', '0.1,,2', '--out', 'X'), 'empty value'),
+        (('sweep', '--param', 'gamma', '--values', '-1', '--out', 'X'), 'gamma'),
+        (('design', '--spacing', '1', '--solve', 'c', '--set', 'b=0.6'), 'no c gives a triangle'),
+        (('simulate', '--out', 'X'), 'one of the arguments --preset --config is required'),
+    ],
+)
+def test_error_paths_exit_2_without_traceback(
+    tmp_path: Path, args: tuple[str, ...], needle: str
+) -> None:
     bad = tmp_path / 'bad.yaml'
     bad.write_text('/**:\n  ros__parameters: [unclosed\n')
     nop = tmp_path / 'nop.yaml'
     nop.write_text('/**:\n  gamma: 1\n')
-    args = tuple(str(bad) if a == '__BADYAML__' else str(nop) if a == '__NOPARAMS__' else
-                 str(tmp_path / 'out') if a == 'X' else a for a in args)
+    args = tuple(
+        str(bad)
+        if a == '__BADYAML__'
+        else str(nop)
+        if a == '__NOPARAMS__'
+        else str(tmp_path / 'out')
+        if a == 'X'
+        else a
+        for a in args
+    )
     p = run(*args)
     assert p.returncode == 2, (p.stdout, p.stderr)
     assert 'Traceback' not in p.stderr

@@ -7,15 +7,21 @@ import pytest
 
 pytest.importorskip('apf_swarm_msgs.msg', reason='apf_swarm_msgs is not built: make setup')
 
-from apf_swarm_nodes.conversions import (step_stamp, stamp_ns,  # noqa: E402
-                                         swarm_odom_arrays, swarm_odom_msg)
+from apf_swarm_nodes.conversions import stamp_ns, step_stamp, swarm_odom_arrays, swarm_odom_msg
 
 
 def _odom(**kw):
     rng = np.random.default_rng(0)
     x, v = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
-    args = dict(step=7, stamp=step_stamp(7, 10_000_000), uav_ids=[1, 2, 3], x=x, v=v,
-                target_x=np.array([1.0, 2.0, 3.0]), target_v=np.array([0.5, 0.0, 0.0]))
+    args = {
+        'step': 7,
+        'stamp': step_stamp(7, 10_000_000),
+        'uav_ids': [1, 2, 3],
+        'x': x,
+        'v': v,
+        'target_x': np.array([1.0, 2.0, 3.0]),
+        'target_v': np.array([0.5, 0.0, 0.0]),
+    }
     args.update(kw)
     return args, swarm_odom_msg(**args)
 
@@ -28,7 +34,7 @@ def test_swarm_odometry_round_trips_with_and_without_command_latency() -> None:
     assert np.array_equal(m.x, args['x']) and np.array_equal(m.v, args['v'])
     assert np.array_equal(m.target_x, args['target_x'])
     assert np.array_equal(m.command_latency, [0.004, 0.0, 0.011])
-    _, lockstep = _odom()                       # lockstep: no latencies, every tracker active
+    _, lockstep = _odom()  # lockstep: no latencies, every tracker active
     m = swarm_odom_arrays(lockstep)
     assert m.command_latency.size == 0 and m.active == [True, True, True]
 

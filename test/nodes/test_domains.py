@@ -14,7 +14,7 @@ from apf_swarm_nodes import bringup
 def quiet(tmp_path, monkeypatch):
     """No bound port anywhere; lease files in a directory of this test."""
     monkeypatch.setenv('XDG_RUNTIME_DIR', str(tmp_path))
-    monkeypatch.setattr(bringup, '_bound_udp_ports', lambda: set())
+    monkeypatch.setattr(bringup, '_bound_udp_ports', set)
     return tmp_path / 'apf_swarm-domains'
 
 
@@ -30,7 +30,7 @@ def test_a_lease_expires_and_a_busy_port_excludes_a_domain(quiet, monkeypatch) -
     assert bringup.pick_domain_id(lo=5, hi=6, exclude=[6]) == 5
     old = time.time() - bringup.DOMAIN_LEASE - 1
     os.utime(quiet / '5', (old, old))
-    assert bringup.pick_domain_id(lo=5, hi=6, exclude=[6]) == 5        # expired: free again
+    assert bringup.pick_domain_id(lo=5, hi=6, exclude=[6]) == 5  # expired: free again
     # a port of domain 5's range is bound (7400 + 250 * 5): domain 6 is picked
     monkeypatch.setattr(bringup, '_bound_udp_ports', lambda: {7400 + 250 * 5 + 10})
     assert bringup.pick_domain_id(lo=5, hi=6) == 6

@@ -4,16 +4,15 @@ the accumulated /swarm/state is complete (bringup.StateAccumulator)."""
 from __future__ import annotations
 
 import numpy as np
-
 from apf_swarm_nodes.runio import TARGET_SILENT_AGE, fault_report
 
 
 def test_inactive_trackers_and_a_silent_target_become_spans_with_warnings() -> None:
     t = np.arange(10) * 0.1
     active = np.ones((10, 3), dtype=bool)
-    active[3:6, 1] = False                       # uav_2 inactive from 0.3 to 0.5 s
+    active[3:6, 1] = False  # uav_2 inactive from 0.3 to 0.5 s
     age = np.zeros(10)
-    age[7:] = TARGET_SILENT_AGE * 2              # target silent from 0.7 s to the end
+    age[7:] = TARGET_SILENT_AGE * 2  # target silent from 0.7 s to the end
     faults, warnings = fault_report(t, active, age)
     assert faults['inactive'] == {'uav_2': [[0.3, 0.5]]}
     assert faults['target_silent'] == [[0.7, 0.9]]
@@ -38,6 +37,7 @@ def test_a_realtime_run_is_complete_with_the_plants_final_state() -> None:
     from types import SimpleNamespace
 
     from apf_swarm_nodes.bringup import StateAccumulator
+
     lock, real = StateAccumulator('lockstep', 100), StateAccumulator('realtime', 100)
     for step in range(100):
         lock.add(SimpleNamespace(step=step))

@@ -7,5 +7,13 @@ from .config import SwarmConfig, load_config, load_preset
 from .errors import ApfSwarmError, ConfigError, UnknownPresetError
 from .simulator import simulate, simulate_batch
 
-__all__ = ['SwarmConfig', 'load_config', 'load_preset', 'ApfSwarmError', 'ConfigError',
-           'UnknownPresetError', 'simulate', 'simulate_batch']
+__all__ = [
+    'ApfSwarmError',
+    'ConfigError',
+    'SwarmConfig',
+    'UnknownPresetError',
+    'load_config',
+    'load_preset',
+    'simulate',
+    'simulate_batch',
+]

@@ -31,8 +31,8 @@ Faults (docs/RELIABILITY.md):
 from __future__ import annotations
 
 import bisect
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -43,11 +43,26 @@ from .metrics import centroid_error, formation_error
 from .plant import DisturbanceSource
 from .potential import neighbour_mask, potential
 from .prediction import LatencyEstimate, compensation_horizon
-from .simulator import (control_step, expected_pairs, initial_positions, integrate,
-                        make_controller, make_preconditioner, make_predictor)
+from .simulator import (
+    control_step,
+    expected_pairs,
+    initial_positions,
+    integrate,
+    make_controller,
+    make_preconditioner,
+    make_predictor,
+)
 
-__all__ = ['brake_force', 'input_problem', 'Sample', 'TrackerAgent', 'PlantModel',
-           'MAX_POSITION', 'MAX_SPEED', 'MAX_FORCE']
+__all__ = [
+    'MAX_FORCE',
+    'MAX_POSITION',
+    'MAX_SPEED',
+    'PlantModel',
+    'Sample',
+    'TrackerAgent',
+    'brake_force',
+    'input_problem',
+]
 
 #: the plant computes the formation error of /swarm/state up to this many trackers
 PLANT_FORMATION_METRIC_MAX = 12
@@ -58,8 +73,13 @@ MAX_SPEED = 1.0e4
 MAX_FORCE = 1.0e6
 
 
-_LIMITS = {'x': MAX_POSITION, 'target_x': MAX_POSITION, 'v': MAX_SPEED, 'force': MAX_FORCE,
-           's': MAX_SPEED}
+_LIMITS = {
+    'x': MAX_POSITION,
+    'target_x': MAX_POSITION,
+    'v': MAX_SPEED,
+    'force': MAX_FORCE,
+    's': MAX_SPEED,
+}
 
 
 def input_problem(**arrays: NDArray[np.float64]) -> str | None:
@@ -116,17 +136,19 @@ class TrackerAgent:
     neighbour_ids: Sequence[int] | None = None
     rejected: int = 0
     stale: int = 0
-    inputs: dict[int, Sample] = field(default_factory=dict)   # latest per source, 0 = target
+    inputs: dict[int, Sample] = field(default_factory=dict)  # latest per source, 0 = target
     pending: dict[int, dict[int, Sample]] = field(default_factory=dict)  # lockstep: by step
     last_rejection: str = ''
-    neighbours_used: int = -1            # neighbours in the formation term of the last command
-    active_neighbours: int = -1          # neighbours the plant reported active then
+    neighbours_used: int = -1  # neighbours in the formation term of the last command
+    active_neighbours: int = -1  # neighbours the plant reported active then
     _last_step: int = -1
 
     def __post_init__(self) -> None:
         if not 1 <= self.uav_id <= self.cfg.n_trackers:
-            raise ValueError(f'uav_id = {self.uav_id}: must be within 1..{self.cfg.n_trackers} '
-                             f'(n_trackers = {self.cfg.n_trackers})')
+            raise ValueError(
+                f'uav_id = {self.uav_id}: must be within 1..{self.cfg.n_trackers} '
+                f'(n_trackers = {self.cfg.n_trackers})'
+            )
         if self.neighbour_ids is None:
             self.neighbour_ids = [j for j in range(1, self.cfg.n_trackers + 1) if j != self.uav_id]
         self.ids = sorted({self.uav_id, *self.neighbour_ids})
@@ -140,8 +162,21 @@ class TrackerAgent:
 
     #: configuration keys a running tracker takes over at once (:meth:`retune`): the
     #: controller's gains (eq. 22-28, 31, 24, 26) and the potential (eq. 2 / 44)
-    RETUNABLE = ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'phi', 'feedforward',
-                 'k_n', 'k_f', 'a', 'b', 'c')
+    RETUNABLE = (
+        'alpha',
+        'beta',
+        'gamma',
+        'lambda_filter',
+        'u0',
+        'drag',
+        'phi',
+        'feedforward',
+        'k_n',
+        'k_f',
+        'a',
+        'b',
+        'c',
+    )
 
     def retune(self, cfg: SwarmConfig) -> list[str]:
         """Take over the gains and potential of ``cfg``; returns the keys that changed.
@@ -150,12 +185,14 @@ class TrackerAgent:
         where it is. Only :data:`RETUNABLE` keys may differ from the current configuration.
         """
         changed = [k for k in self.RETUNABLE if getattr(cfg, k) != getattr(self.cfg, k)]
-        others = [f for f in ('n_trackers', 'law', 'saturation', 'dt', 'seed')
-                  if getattr(cfg, f) != getattr(self.cfg, f)]
+        others = [
+            f
+            for f in ('n_trackers', 'law', 'saturation', 'dt', 'seed')
+            if getattr(cfg, f) != getattr(self.cfg, f)
+        ]
         if others:
             raise ValueError(f'{", ".join(others)} cannot change while the tracker runs')
-        for key in ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'phi',
-                    'feedforward'):
+        for key in ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'phi', 'feedforward'):
             setattr(self.controller, key, getattr(cfg, key))
         self.cfg = cfg
         self.params = cfg.potential_params()
@@ -167,8 +204,17 @@ class TrackerAgent:
         self.controller.reset()
         self._last_step = -1
 
-    def offer(self, source: int, step: int, x: NDArray[np.float64], v: NDArray[np.float64],
-              now: float, *, seq: int | None = None, active: bool = True) -> bool:
+    def offer(
+        self,
+        source: int,
+        step: int,
+        x: NDArray[np.float64],
+        v: NDArray[np.float64],
+        now: float,
+        *,
+        seq: int | None = None,
+        active: bool = True,
+    ) -> bool:
         """Store an input (``source`` = tracker id, 0 = target); False if rejected.
 
         ``now``: when the input was produced, on the caller's clock (arrival time minus the
@@ -182,19 +228,36 @@ class TrackerAgent:
         repeating a window for a late step (see the target node): ignored, not refused.
         """
         seq = step if seq is None else int(seq)
-        if source == 0 and step >= 0 and (
-                step <= self._last_step or 0 in self.pending.get(step, {})):
+        if (
+            source == 0
+            and step >= 0
+            and (step <= self._last_step or 0 in self.pending.get(step, {}))
+        ):
             return True
         if not self._acceptable(source, x, v, seq):
             return False
         self._store(source, step, x, v, now, seq, active)
         return True
 
-    def _store(self, source: int, step: int, x: NDArray[np.float64], v: NDArray[np.float64],
-               now: float, seq: int, active: bool) -> None:
+    def _store(
+        self,
+        source: int,
+        step: int,
+        x: NDArray[np.float64],
+        v: NDArray[np.float64],
+        now: float,
+        seq: int,
+        active: bool,
+    ) -> None:
         """Keep an input already checked by :meth:`_acceptable`."""
-        sample = Sample(step, np.asarray(x, float), np.asarray(v, float), now, seq,
-                        bool(active) or source in (0, self.uav_id))
+        sample = Sample(
+            step,
+            np.asarray(x, float),
+            np.asarray(v, float),
+            now,
+            seq,
+            bool(active) or source in (0, self.uav_id),
+        )
         self.inputs[source] = sample
         if step >= 0:
             by_step = self.pending.setdefault(step, {})
@@ -202,10 +265,20 @@ class TrackerAgent:
             for old in [k for k in self.pending if k < self._last_step - 1]:
                 del self.pending[old]
 
-    def offer_swarm(self, step: int, ids: Sequence[int], x: NDArray[np.float64],
-                    v: NDArray[np.float64], active: Sequence[bool],
-                    target_x: NDArray[np.float64], target_v: NDArray[np.float64], now: float,
-                    target_time: float, *, seq: int | None = None) -> bool:
+    def offer_swarm(
+        self,
+        step: int,
+        ids: Sequence[int],
+        x: NDArray[np.float64],
+        v: NDArray[np.float64],
+        active: Sequence[bool],
+        target_x: NDArray[np.float64],
+        target_v: NDArray[np.float64],
+        now: float,
+        target_time: float,
+        *,
+        seq: int | None = None,
+    ) -> bool:
         """Store one aggregated message (every tracker's state and the target's) as a whole:
         if any part would be refused, nothing is stored and it counts as one rejection.
 
@@ -220,8 +293,7 @@ class TrackerAgent:
         before = self.rejected
         # the values of every row at once (two reductions); only a message that fails this is
         # checked row by row, for the reason and for rows that are not this tracker's inputs
-        clean = input_problem(x=x, v=v) is None and \
-            input_problem(x=target_x, v=target_v) is None
+        clean = input_problem(x=x, v=v) is None and input_problem(x=target_x, v=target_v) is None
         for source, xs, vs in [(0, target_x, target_v)] + [(j, xj, vj) for j, xj, vj, _ in rows]:
             if not self._acceptable(source, xs, vs, seq, checked=clean):
                 self.rejected = before + 1
@@ -231,8 +303,14 @@ class TrackerAgent:
             self._store(j, step, xj, vj, now, seq, act)
         return True
 
-    def _acceptable(self, source: int, x: NDArray[np.float64], v: NDArray[np.float64],
-                    seq: int, checked: bool = False) -> bool:
+    def _acceptable(
+        self,
+        source: int,
+        x: NDArray[np.float64],
+        v: NDArray[np.float64],
+        seq: int,
+        checked: bool = False,
+    ) -> bool:
         """The checks of :meth:`offer` without storing (counts and records a rejection);
         ``checked``: the values are known to pass :func:`input_problem`."""
         name = 'target' if source == 0 else f'uav_{source}'
@@ -279,11 +357,20 @@ class TrackerAgent:
         if self.predictor is not None:
             self.predictor.horizon = compensation_horizon(self.latency.value)
             velocities = np.stack([src[j].v for j in ids])
-        out = control_step(self.controller, x, src[self.uav_id].v[None, :], src[0].x,
-                           self.params, rows=[row], mask=mask,
-                           obstacles=np.stack(silent) if silent else None,
-                           target_v=src[0].v, precondition=self.precondition,
-                           predictor=self.predictor, velocities=velocities)
+        out = control_step(
+            self.controller,
+            x,
+            src[self.uav_id].v[None, :],
+            src[0].x,
+            self.params,
+            rows=[row],
+            mask=mask,
+            obstacles=np.stack(silent) if silent else None,
+            target_v=src[0].v,
+            precondition=self.precondition,
+            predictor=self.predictor,
+            velocities=velocities,
+        )
         self.neighbours_used = len(ids) - 1 if mask is None else int(np.count_nonzero(mask))
         self.active_neighbours = len(ids) - 1
         self._last_step = step
@@ -298,14 +385,18 @@ class TrackerAgent:
 
     def stale_sources(self, now: float, timeout: float) -> list[int]:
         """Inputs missing or older than ``timeout`` seconds (0 = the target)."""
-        return [src for src in (0, *self.ids)
-                if src not in self.inputs or now - self.inputs[src].received > timeout]
+        return [
+            src
+            for src in (0, *self.ids)
+            if src not in self.inputs or now - self.inputs[src].received > timeout
+        ]
 
     def safe_command(self) -> NDArray[np.float64]:
         """:func:`brake_force` from the last own velocity (zero force if none is known)."""
         own = self.inputs.get(self.uav_id)
-        force = np.zeros(3) if own is None else brake_force(own.v, u0=self.cfg.u0,
-                                                            drag=self.cfg.drag)
+        force = (
+            np.zeros(3) if own is None else brake_force(own.v, u0=self.cfg.u0, drag=self.cfg.drag)
+        )
         if self.predictor is not None:
             self.predictor.hold(force[None, :])
         return force
@@ -327,7 +418,7 @@ class PlantModel:
     missed: int = 0
     stale: int = 0
     rejected: int = 0
-    zeroed: int = 0          # realtime: held commands zeroed because their tracker was late
+    zeroed: int = 0  # realtime: held commands zeroed because their tracker was late
     last_rejection: str = ''
 
     def __post_init__(self) -> None:
@@ -339,15 +430,15 @@ class PlantModel:
         self.noise = DisturbanceSource(self.cfg.seed, n, self.cfg.f_bar, self.cfg.noise)
         self.u = np.zeros((n, 3))
         self.s = np.zeros((n, 3))
-        self.got: dict[int, int] = {}       # uav_id -> step of the latest command
+        self.got: dict[int, int] = {}  # uav_id -> step of the latest command
         self.instances: dict[int, int] = {}  # uav_id -> the tracker process it follows
         # uav_ids whose process has sent a command from its inputs: only their stale brakes
         # count (before its first inputs a tracker brakes while the graph still matches)
         self.commanded: set[int] = set()
         self.active = np.ones(n, dtype=bool)
-        self.command_time = np.zeros(n)     # realtime: when each latest command arrived
-        self.latency = np.zeros(n)          # realtime: its arrival minus its state's stamp [s]
-        self._asked: list[float] = []       # realtime: when the state went out, ascending
+        self.command_time = np.zeros(n)  # realtime: when each latest command arrived
+        self.latency = np.zeros(n)  # realtime: its arrival minus its state's stamp [s]
+        self._asked: list[float] = []  # realtime: when the state went out, ascending
         # the formation error published every step needs the design shape; for more than
         # 12 trackers it is a numerical minimization of seconds, which would delay the
         # plant's start: /swarm/state then carries NaN (summary.json still has the metric)
@@ -360,9 +451,17 @@ class PlantModel:
         self.last_rejection = why
         return False
 
-    def offer_command(self, uav_id: int, step: int, force: NDArray[np.float64],
-                      s: NDArray[np.float64], stale: bool = False, now: float = 0.0,
-                      instance: int = 0, latency: float = 0.0) -> bool:
+    def offer_command(
+        self,
+        uav_id: int,
+        step: int,
+        force: NDArray[np.float64],
+        s: NDArray[np.float64],
+        stale: bool = False,
+        now: float = 0.0,
+        instance: int = 0,
+        latency: float = 0.0,
+    ) -> bool:
         """Store the command of one tracker; False (counted, ``last_rejection`` says why) if
         the id is unknown, a value is not finite or out of range, the command comes from
         another tracker process (``instance``) than the one this ``uav_id`` follows (a
@@ -380,20 +479,25 @@ class PlantModel:
         followed = self.instances.get(uav_id)
         if followed is not None and instance != followed:
             if self.active[j]:
-                return self.refuse(f'duplicate uav_id {uav_id}: a command from a second '
-                                   f'tracker process (instance {instance:x}; following '
-                                   f'{followed:x})')
-            self.got.pop(uav_id, None)          # a new process starts its own sequence
+                return self.refuse(
+                    f'duplicate uav_id {uav_id}: a command from a second '
+                    f'tracker process (instance {instance:x}; following '
+                    f'{followed:x})'
+                )
+            self.got.pop(uav_id, None)  # a new process starts its own sequence
         if self.instances.get(uav_id) != instance:
-            self.commanded.discard(uav_id)      # a new process starts without inputs
+            self.commanded.discard(uav_id)  # a new process starts without inputs
         self.instances[uav_id] = instance
         held = self.got.get(uav_id, -1)
         if step >= 0 and step < held:
-            return self.refuse(f'command of uav_{uav_id} for step {step} is out of order '
-                                f'(step {held} held)')
+            return self.refuse(
+                f'command of uav_{uav_id} for step {step} is out of order (step {held} held)'
+            )
         if step >= 0 and step == held:
-            return self.refuse(f'second command of uav_{uav_id} for step {step}: another '
-                                f'tracker with the same uav_id? (the first one is used)')
+            return self.refuse(
+                f'second command of uav_{uav_id} for step {step}: another '
+                f'tracker with the same uav_id? (the first one is used)'
+            )
         self.u[j], self.s[j] = force, s
         self.got[uav_id] = step
         self.active[j] = True
@@ -477,17 +581,28 @@ class PlantModel:
     def advance(self, steps: int = 1) -> None:
         """Integrate ``steps`` steps with the held commands (lockstep: one)."""
         for _ in range(steps):
-            self.x, self.v = integrate(self.x, self.v, self.u, mass=self.mass, dt=self.cfg.dt,
-                                       drag=self.cfg.drag, disturbance=self.noise.next())
+            self.x, self.v = integrate(
+                self.x,
+                self.v,
+                self.u,
+                mass=self.mass,
+                dt=self.cfg.dt,
+                drag=self.cfg.drag,
+                disturbance=self.noise.next(),
+            )
             self.k += 1
 
-    def metrics(self, target_x: NDArray[np.float64], x: NDArray[np.float64] | None = None
-                ) -> tuple[float, float, float]:
+    def metrics(
+        self, target_x: NDArray[np.float64], x: NDArray[np.float64] | None = None
+    ) -> tuple[float, float, float]:
         """J, centroid error and formation error (NaN without a design) of positions ``x``
         (n, 3) [m] (default: the current state) around the target at ``target_x``."""
         x = self.x if x is None else x
         j = float(potential(x, target_x, **self.cfg.potential_params()))
         ce = float(centroid_error(x, target_x))
-        fe = float(formation_error(x, self.expected_pairs)) if (
-            self.expected_pairs is not None) else float('nan')
+        fe = (
+            float(formation_error(x, self.expected_pairs))
+            if (self.expected_pairs is not None)
+            else float('nan')
+        )
         return j, ce, fe

@@ -26,9 +26,16 @@ from .config import SwarmConfig
 from .design import expected_spacing, triangle_spacing
 from .potential import gradient
 
-__all__ = ['sampled_findings', 'Finding', 'GainBound', 'CheckReport', 'pair_hessian_bound',
-           'gain_bounds',
-           'gain_bounds_from_run', 'check_config']
+__all__ = [
+    'CheckReport',
+    'Finding',
+    'GainBound',
+    'check_config',
+    'gain_bounds',
+    'gain_bounds_from_run',
+    'pair_hessian_bound',
+    'sampled_findings',
+]
 
 Level = Literal['ok', 'info', 'warning', 'error']
 
@@ -46,10 +53,10 @@ class Finding:
 class GainBound:
     """A lower bound on u0: the printed form and the corrected form, and whether u0 clears them."""
 
-    name: str              # 'theorem1_eq29', 'eq37', 'eq43'
-    regime: str            # which part of the law it covers
-    printed: float         # bound as printed in the paper [N]
-    corrected: float       # bound with +f_bar/M_lo [N]
+    name: str  # 'theorem1_eq29', 'eq37', 'eq43'
+    regime: str  # which part of the law it covers
+    printed: float  # bound as printed in the paper [N]
+    corrected: float  # bound with +f_bar/M_lo [N]
     u0: float
 
     @property
@@ -61,9 +68,15 @@ class GainBound:
         return self.u0 > self.corrected
 
     def as_dict(self) -> dict[str, Any]:
-        return {'name': self.name, 'regime': self.regime, 'printed': self.printed,
-                'corrected': self.corrected, 'u0': self.u0, 'holds_printed': self.holds_printed,
-                'holds_corrected': self.holds_corrected}
+        return {
+            'name': self.name,
+            'regime': self.regime,
+            'printed': self.printed,
+            'corrected': self.corrected,
+            'u0': self.u0,
+            'holds_printed': self.holds_printed,
+            'holds_corrected': self.holds_corrected,
+        }
 
 
 @dataclass
@@ -85,9 +98,12 @@ class CheckReport:
         return [f.message for f in self.findings if f.level in ('warning', 'error')]
 
     def as_dict(self) -> dict[str, Any]:
-        return {'exit_code': self.exit_code,
-                'findings': [f.__dict__ for f in self.findings],
-                'bounds': [b.as_dict() for b in self.bounds], 'estimates': self.estimates}
+        return {
+            'exit_code': self.exit_code,
+            'findings': [f.__dict__ for f in self.findings],
+            'bounds': [b.as_dict() for b in self.bounds],
+            'estimates': self.estimates,
+        }
 
 
 def pair_hessian_bound(a: float, b: float) -> float:
@@ -100,8 +116,9 @@ def pair_hessian_bound(a: float, b: float) -> float:
     return max(abs(a - b), a + 2.0 * b * math.exp(-1.5))
 
 
-def gain_bounds(cfg: SwarmConfig, *, j_bar: float | None = None,
-                j_bar_s: float | None = None) -> tuple[list[GainBound], dict[str, float]]:
+def gain_bounds(
+    cfg: SwarmConfig, *, j_bar: float | None = None, j_bar_s: float | None = None
+) -> tuple[list[GainBound], dict[str, float]]:
     """The u0 bounds of eq. 29, 37 and 43 for ``cfg``, printed and corrected.
 
     Without ``j_bar`` / ``j_bar_s`` they are estimated a priori (conservatively): with
@@ -115,33 +132,61 @@ def gain_bounds(cfg: SwarmConfig, *, j_bar: float | None = None,
 
     n, vn = cfg.n_trackers, cfg.target_speed_bound
     lip = cfg.k_n + 2.0 * max(0, n - 1) * cfg.k_f * pair_hessian_bound(cfg.a, cfg.b)
-    g0 = float(np.linalg.norm(gradient(initial_positions(cfg), np.asarray(cfg.target_start),
-                                       **cfg.potential_params()), axis=-1).max())
+    g0 = float(
+        np.linalg.norm(
+            gradient(
+                initial_positions(cfg), np.asarray(cfg.target_start), **cfg.potential_params()
+            ),
+            axis=-1,
+        ).max()
+    )
     if j_bar is None:
         j_bar = cfg.alpha * (lip * (cfg.alpha * g0 + math.sqrt(3.0) * cfg.beta) + cfg.k_n * vn)
     if j_bar_s is None:
         j_bar_s = (cfg.alpha + cfg.beta / cfg.gamma) * (
-            lip * (cfg.alpha * cfg.gamma + cfg.beta) + cfg.k_n * vn)
+            lip * (cfg.alpha * cfg.gamma + cfg.beta) + cfg.k_n * vn
+        )
     j_sign = 2.0 * cfg.beta / cfg.lambda_filter
     m_lo, m_hi, f = cfg.mass_lo, cfg.mass_hi, cfg.f_bar
     bounds = [
-        GainBound('theorem1_eq29', 'outside the layer (and the traditional law)',
-                  m_hi * (-f / m_lo + j_bar + j_sign + cfg.epsilon),
-                  m_hi * (f / m_lo + j_bar + j_sign + cfg.epsilon), cfg.u0),
-        GainBound('eq37', 'outside the layer, proof of Theorem 1',
-                  m_hi * (-f / m_hi + j_sign + j_bar + cfg.epsilon),
-                  m_hi * (f / m_lo + j_sign + j_bar + cfg.epsilon), cfg.u0),
-        GainBound('eq43', 'inside the layer (proposed law only)',
-                  m_hi * (-f / m_hi + j_bar_s + cfg.mu),
-                  m_hi * (f / m_lo + j_bar_s + cfg.mu), cfg.u0),
+        GainBound(
+            'theorem1_eq29',
+            'outside the layer (and the traditional law)',
+            m_hi * (-f / m_lo + j_bar + j_sign + cfg.epsilon),
+            m_hi * (f / m_lo + j_bar + j_sign + cfg.epsilon),
+            cfg.u0,
+        ),
+        GainBound(
+            'eq37',
+            'outside the layer, proof of Theorem 1',
+            m_hi * (-f / m_hi + j_sign + j_bar + cfg.epsilon),
+            m_hi * (f / m_lo + j_sign + j_bar + cfg.epsilon),
+            cfg.u0,
+        ),
+        GainBound(
+            'eq43',
+            'inside the layer (proposed law only)',
+            m_hi * (-f / m_hi + j_bar_s + cfg.mu),
+            m_hi * (f / m_lo + j_bar_s + cfg.mu),
+            cfg.u0,
+        ),
     ]
-    return bounds, {'J_bar': j_bar, 'J_bar_sign': j_sign, 'J_bar_s': j_bar_s,
-                    'lipschitz_grad': lip, 'initial_gradient_max': g0}
+    return bounds, {
+        'J_bar': j_bar,
+        'J_bar_sign': j_sign,
+        'J_bar_s': j_bar_s,
+        'lipschitz_grad': lip,
+        'initial_gradient_max': g0,
+    }
 
 
-def gain_bounds_from_run(cfg: SwarmConfig, t: ArrayLike, x: ArrayLike, target_x: ArrayLike,
-                         steady_fraction: float | None = None
-                         ) -> tuple[list[GainBound], dict[str, float]]:
+def gain_bounds_from_run(
+    cfg: SwarmConfig,
+    t: ArrayLike,
+    x: ArrayLike,
+    target_x: ArrayLike,
+    steady_fraction: float | None = None,
+) -> tuple[list[GainBound], dict[str, float]]:
     """The u0 bounds with ``J_bar`` and ``J_bar_s`` measured along a run.
 
     The rate ``||d/dt grad_i J||`` is taken by first differences of the gradient recomputed
@@ -154,42 +199,63 @@ def gain_bounds_from_run(cfg: SwarmConfig, t: ArrayLike, x: ArrayLike, target_x:
     """
     frac = cfg.steady_fraction if steady_fraction is None else steady_fraction
     t = np.asarray(t, dtype=float)
-    g = gradient(np.asarray(x, dtype=float), np.asarray(target_x, dtype=float),
-                 **cfg.potential_params())
+    g = gradient(
+        np.asarray(x, dtype=float), np.asarray(target_x, dtype=float), **cfg.potential_params()
+    )
     start = min(len(t) - 2, int(len(t) * (1.0 - frac))) if len(t) > 1 else 0
-    t, g = t[max(0, start):], g[max(0, start):]
+    t, g = t[max(0, start) :], g[max(0, start) :]
     if len(t) < 2:
         return gain_bounds(cfg, j_bar=0.0, j_bar_s=0.0)
-    rate = np.linalg.norm(np.diff(g, axis=0), axis=-1) / np.diff(t)[:, None]   # (T-1, n)
+    rate = np.linalg.norm(np.diff(g, axis=0), axis=-1) / np.diff(t)[:, None]  # (T-1, n)
     outside = np.linalg.norm(g[:-1], axis=-1) >= cfg.gamma
     r_out = float(rate[outside].max()) if outside.any() else 0.0
     r_in = float(rate[~outside].max()) if (~outside).any() else 0.0
-    bounds, est = gain_bounds(cfg, j_bar=cfg.alpha * r_out,
-                              j_bar_s=(cfg.alpha + cfg.beta / cfg.gamma) * r_in)
+    bounds, est = gain_bounds(
+        cfg, j_bar=cfg.alpha * r_out, j_bar_s=(cfg.alpha + cfg.beta / cfg.gamma) * r_in
+    )
     est['fraction_inside_layer'] = float(np.mean(~outside))
     return bounds, est
 
 
-def _bound_findings(cfg: SwarmConfig, bounds: list[GainBound], source: str,
-                    fail_level: Level) -> list[Finding]:
+def _bound_findings(
+    cfg: SwarmConfig, bounds: list[GainBound], source: str, fail_level: Level
+) -> list[Finding]:
     out = []
     for bnd in bounds:
         if cfg.law == 'traditional' and bnd.name == 'eq43':
             continue
-        code = f"u0_{bnd.name}_{'measured' if source.startswith('measured') else 'a_priori'}"
+        code = f'u0_{bnd.name}_{"measured" if source.startswith("measured") else "a_priori"}'
         if bnd.holds_corrected:
-            out.append(Finding('ok', code, f'{source}: u0 = {cfg.u0:g} > {bnd.corrected:.4g}, the '
-                               f'corrected {bnd.name} bound ({bnd.regime}; printed form '
-                               f'{bnd.printed:.4g}).'))
+            out.append(
+                Finding(
+                    'ok',
+                    code,
+                    f'{source}: u0 = {cfg.u0:g} > {bnd.corrected:.4g}, the '
+                    f'corrected {bnd.name} bound ({bnd.regime}; printed form '
+                    f'{bnd.printed:.4g}).',
+                )
+            )
         elif bnd.holds_printed:
-            out.append(Finding(fail_level, code, f'{source}: u0 = {cfg.u0:g} clears the printed '
-                               f'{bnd.name} bound {bnd.printed:.4g} but not the corrected one '
-                               f'{bnd.corrected:.4g} ({bnd.regime}): reaching the manifold is not '
-                               'guaranteed against the worst-case disturbance.'))
+            out.append(
+                Finding(
+                    fail_level,
+                    code,
+                    f'{source}: u0 = {cfg.u0:g} clears the printed '
+                    f'{bnd.name} bound {bnd.printed:.4g} but not the corrected one '
+                    f'{bnd.corrected:.4g} ({bnd.regime}): reaching the manifold is not '
+                    'guaranteed against the worst-case disturbance.',
+                )
+            )
         else:
-            out.append(Finding(fail_level, code, f'{source}: u0 = {cfg.u0:g} is below both the '
-                               f'printed ({bnd.printed:.4g}) and the corrected '
-                               f'({bnd.corrected:.4g}) {bnd.name} bound ({bnd.regime}).'))
+            out.append(
+                Finding(
+                    fail_level,
+                    code,
+                    f'{source}: u0 = {cfg.u0:g} is below both the '
+                    f'printed ({bnd.printed:.4g}) and the corrected '
+                    f'({bnd.corrected:.4g}) {bnd.name} bound ({bnd.regime}).',
+                )
+            )
     return out
 
 
@@ -201,32 +267,51 @@ def sampled_findings(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> lis
     from .metrics import flight
     from .sampled import predict
     from .simulator import design_pair_sets
+
     pred = predict(cfg)
     T = pred.control_period
-    out = [Finding('info', 'sampled', (
-        f'real time at {1 / T:g} Hz (T = {T * 1e3:g} ms) with {pred.latency * 1e3:g} ms '
-        f'latency, {cfg.switching} switching: formation loop rate K lambda_max = '
-        f'{pred.layer_gain:.4g} x {pred.hessian_max:.4g} = {pred.formation_rate:.4g} 1/s '
-        f'against {pred.rate_allowed:.4g} 1/s allowed; ripple u0 T / M = {pred.ripple:.3g} '
-        f'm/s; steady lag {pred.steady_lag:.3g} m; softest mode settles in '
-        f'{pred.settle_time:.3g} s; predicted to ' + ('hold' if pred.holds else 'fail')
-        + '.'))]
+    out = [
+        Finding(
+            'info',
+            'sampled',
+            (
+                f'real time at {1 / T:g} Hz (T = {T * 1e3:g} ms) with {pred.latency * 1e3:g} ms '
+                f'latency, {cfg.switching} switching: formation loop rate K lambda_max = '
+                f'{pred.layer_gain:.4g} x {pred.hessian_max:.4g} = {pred.formation_rate:.4g} 1/s '
+                f'against {pred.rate_allowed:.4g} 1/s allowed; '
+                f'ripple u0 T / M = {pred.ripple:.3g} '
+                f'm/s; steady lag {pred.steady_lag:.3g} m; softest mode settles in '
+                f'{pred.settle_time:.3g} s; predicted to '
+                + ('hold' if pred.holds else 'fail')
+                + '.'
+            ),
+        )
+    ]
     out += [Finding('warning', 'sampled', w) for w in pred.warnings]
     if run is not None:
         f = flight(run, design_pair_sets(cfg))
         if f['formation_error_rms'] is not None:
-            out.append(Finding('info', 'emulation', (
-                f"the emulation at this rate and latency "
-                f"{'flies' if f['flies'] else 'does not fly'}: "
-                f"formation error RMS {100 * f['formation_error_rms']:.2g} % of the mean design "
-                f"spacing, closest pair {100 * f['closest_pair']:.3g} % of the design's, "
-                f"centroid error RMS {f['centroid_error_rms']:.3g} m over the last "
-                f"{100 * f['window']:g} %.")))
+            out.append(
+                Finding(
+                    'info',
+                    'emulation',
+                    (
+                        f'the emulation at this rate and latency '
+                        f'{"flies" if f["flies"] else "does not fly"}: '
+                        f'formation error RMS {100 * f["formation_error_rms"]:.2g} % '
+                        'of the mean design '
+                        f"spacing, closest pair {100 * f['closest_pair']:.3g} % of the design's, "
+                        f'centroid error RMS {f["centroid_error_rms"]:.3g} m over the last '
+                        f'{100 * f["window"]:g} %.'
+                    ),
+                )
+            )
     return out
 
 
-def check_config(cfg: SwarmConfig, run: dict[str, Any] | None = None, *,
-                 realtime: bool = False) -> CheckReport:
+def check_config(
+    cfg: SwarmConfig, run: dict[str, Any] | None = None, *, realtime: bool = False
+) -> CheckReport:
     """Every condition for ``cfg``, in words: what holds, what fails, and what will happen.
 
     ``run`` (a trajectory with ``t``, ``x``, ``target_x``) adds the u0 bounds measured on it;
@@ -240,71 +325,138 @@ def check_config(cfg: SwarmConfig, run: dict[str, Any] | None = None, *,
     vn = cfg.target_speed_bound
     # beta >= v_N
     if cfg.beta >= vn:
-        add(Finding('ok', 'beta_vs_vn', f'beta = {cfg.beta:g} >= v_N = {vn:g}: the convergence '
-                    'condition of eq. 10-11 holds.'))
+        add(
+            Finding(
+                'ok',
+                'beta_vs_vn',
+                f'beta = {cfg.beta:g} >= v_N = {vn:g}: the convergence '
+                'condition of eq. 10-11 holds.',
+            )
+        )
     else:
-        add(Finding('warning', 'beta_vs_vn',
-                    f'beta = {cfg.beta:g} < v_N = {vn:g}: the convergence proof (eq. 10-11) does '
-                    'not apply. The switching term cannot keep up with the target: the trackers '
-                    f'trail it until alpha |grad J| makes up the missing {vn - cfg.beta:g} m/s '
-                    f'(about {(vn - cfg.beta) / max(cfg.alpha, 1e-12) / cfg.k_n:.3g} m behind for '
-                    'a straight target). Raise beta to at least v_N.'))
+        add(
+            Finding(
+                'warning',
+                'beta_vs_vn',
+                f'beta = {cfg.beta:g} < v_N = {vn:g}: the convergence proof (eq. 10-11) does '
+                'not apply. The switching term cannot keep up with the target: the trackers '
+                f'trail it until alpha |grad J| makes up the missing {vn - cfg.beta:g} m/s '
+                f'(about {(vn - cfg.beta) / max(cfg.alpha, 1e-12) / cfg.k_n:.3g} m behind for '
+                'a straight target). Raise beta to at least v_N.',
+            )
+        )
     # formation existence
     n = cfg.n_trackers
     if n == 3:
         d = triangle_spacing(cfg.a, cfg.b, cfg.c, cfg.k_n, cfg.k_f)
         thr = cfg.a + cfg.k_n / (3 * cfg.k_f)
         if d is None:
-            add(Finding('warning', 'formation',
-                        f'b = {cfg.b:g} <= a + k_n/(3 k_f) = {thr:g}: no triangle exists. '
-                        + ('With b < a the pair term never repels, so ' if cfg.b < cfg.a else
-                           'The repulsion is too weak to balance the target attraction, so ')
-                        + 'the trackers collapse onto the target and onto each other. Choose '
-                        f'b > {thr:g} (apf-swarm design --spacing D gives b for a spacing D).'))
+            add(
+                Finding(
+                    'warning',
+                    'formation',
+                    f'b = {cfg.b:g} <= a + k_n/(3 k_f) = {thr:g}: no triangle exists. '
+                    + (
+                        'With b < a the pair term never repels, so '
+                        if cfg.b < cfg.a
+                        else 'The repulsion is too weak to balance the target attraction, so '
+                    )
+                    + 'the trackers collapse onto the target and onto each other. Choose '
+                    f'b > {thr:g} (apf-swarm design --spacing D gives b for a spacing D).',
+                )
+            )
         else:
-            add(Finding('ok', 'formation', f'the triangle exists with side d = {d:.4g} m '
-                        f'(b = {cfg.b:g} > a + k_n/(3 k_f) = {thr:g}).'))
+            add(
+                Finding(
+                    'ok',
+                    'formation',
+                    f'the triangle exists with side d = {d:.4g} m '
+                    f'(b = {cfg.b:g} > a + k_n/(3 k_f) = {thr:g}).',
+                )
+            )
     elif n >= 2:
         if cfg.b <= cfg.a:
-            add(Finding('warning', 'formation', f'b = {cfg.b:g} <= a = {cfg.a:g}: the pair term '
-                        'never repels; the trackers collapse onto each other.'))
+            add(
+                Finding(
+                    'warning',
+                    'formation',
+                    f'b = {cfg.b:g} <= a = {cfg.a:g}: the pair term '
+                    'never repels; the trackers collapse onto each other.',
+                )
+            )
         else:
             d = expected_spacing(n, **cfg.potential_params())
             if d is None:
-                add(Finding('warning', 'formation', f'no formation of {n} trackers: the '
-                            'equilibrium of J collapses; raise b.'))
+                add(
+                    Finding(
+                        'warning',
+                        'formation',
+                        f'no formation of {n} trackers: the equilibrium of J collapses; raise b.',
+                    )
+                )
             else:
-                add(Finding('ok', 'formation', f'the equilibrium formation of {n} trackers has '
-                            f'nearest-neighbour spacing {d:.4g} m.'))
+                add(
+                    Finding(
+                        'ok',
+                        'formation',
+                        f'the equilibrium formation of {n} trackers has '
+                        f'nearest-neighbour spacing {d:.4g} m.',
+                    )
+                )
     else:
-        add(Finding('info', 'formation', 'one tracker: no formation, it converges onto the target.'))
+        add(
+            Finding(
+                'info', 'formation', 'one tracker: no formation, it converges onto the target.'
+            )
+        )
     # gain bounds: a priori (conservative, informative only) and measured on a run
     bounds, est = gain_bounds(cfg)
     rep.bounds, rep.estimates = bounds, {f'a_priori_{k}': v for k, v in est.items()}
     rep.findings += _bound_findings(cfg, bounds, 'a priori estimate (conservative)', 'info')
     if run is not None:
         mbounds, mest = gain_bounds_from_run(cfg, run['t'], run['x'], run['target_x'])
-        rep.bounds += [GainBound(b.name + '_measured', b.regime, b.printed, b.corrected, b.u0)
-                       for b in mbounds]
+        rep.bounds += [
+            GainBound(b.name + '_measured', b.regime, b.printed, b.corrected, b.u0)
+            for b in mbounds
+        ]
         rep.estimates.update({f'measured_{k}': v for k, v in mest.items()})
-        rep.findings += _bound_findings(cfg, mbounds, 'measured on a run (steady window)',
-                                        'warning')
+        rep.findings += _bound_findings(
+            cfg, mbounds, 'measured on a run (steady window)', 'warning'
+        )
     # numerics
     if cfg.dt > cfg.lambda_filter / 10:
-        add(Finding('warning', 'filter_dt', f'dt = {cfg.dt:g} s is not small against '
-                    f'lambda_filter = {cfg.lambda_filter:g} s: the filter of eq. 26 cannot average '
-                    'the switching; use dt <= lambda_filter / 10.'))
+        add(
+            Finding(
+                'warning',
+                'filter_dt',
+                f'dt = {cfg.dt:g} s is not small against '
+                f'lambda_filter = {cfg.lambda_filter:g} s: the filter of eq. 26 cannot average '
+                'the switching; use dt <= lambda_filter / 10.',
+            )
+        )
     m_lo = min(min(r) for r in cfg.mass_matrix_diag())
     ripple = cfg.u0 * cfg.control_period / m_lo
-    add(Finding('info', 'ripple', f'switching ripple of the velocity about u0 T / M = '
-                f'{ripple:.3g} m/s per control period T = {cfg.control_period:g} s '
-                '(docs/THEORY.md): it scales with the period.'))
+    add(
+        Finding(
+            'info',
+            'ripple',
+            f'switching ripple of the velocity about u0 T / M = '
+            f'{ripple:.3g} m/s per control period T = {cfg.control_period:g} s '
+            '(docs/THEORY.md): it scales with the period.',
+        )
+    )
     if cfg.law == 'proposed' and cfg.beta >= vn:
         lag = vn / (cfg.k_n * (cfg.alpha + cfg.beta / cfg.gamma))
-        add(Finding('info', 'lag', f'inside the boundary layer the law is linear with gain '
-                    f'alpha + beta/gamma = {cfg.alpha + cfg.beta / cfg.gamma:.4g} 1/s: a target '
-                    f'at {vn:g} m/s is trailed by about v_N / (k_n (alpha + beta/gamma)) = '
-                    f'{lag:.3g} m (smaller gamma: less lag, more switching).'))
+        add(
+            Finding(
+                'info',
+                'lag',
+                f'inside the boundary layer the law is linear with gain '
+                f'alpha + beta/gamma = {cfg.alpha + cfg.beta / cfg.gamma:.4g} 1/s: a target '
+                f'at {vn:g} m/s is trailed by about v_N / (k_n (alpha + beta/gamma)) = '
+                f'{lag:.3g} m (smaller gamma: less lag, more switching).',
+            )
+        )
     if realtime:
         rep.findings += sampled_findings(cfg, run)
     return rep

@@ -21,20 +21,29 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ConfigError
-from .potential import gradient, potential
+from .potential import PotentialParams, gradient, potential
 
-__all__ = ['triangle_spacing', 'triangle_b_for_spacing', 'triangle_c_for_spacing',
-           'pair_equilibrium_distance', 'swarm_size_bound', 'Formation',
-           'equilibrium_formation', 'equilibrium_formations', 'b_for_spacing',
-           'expected_spacing']
+__all__ = [
+    'Formation',
+    'b_for_spacing',
+    'equilibrium_formation',
+    'equilibrium_formations',
+    'expected_spacing',
+    'pair_equilibrium_distance',
+    'swarm_size_bound',
+    'triangle_b_for_spacing',
+    'triangle_c_for_spacing',
+    'triangle_spacing',
+]
 
 
 def _triangle_threshold(a: float, k_n: float, k_f: float) -> float:
     return a + k_n / (3.0 * k_f)
 
 
-def triangle_spacing(a: float, b: float, c: float, k_n: float = 1.0,
-                     k_f: float = 1.0) -> float | None:
+def triangle_spacing(
+    a: float, b: float, c: float, k_n: float = 1.0, k_f: float = 1.0
+) -> float | None:
     """Side d [m] of the equilateral equilibrium of 3 trackers centred on the target.
 
     ``d = sqrt(c ln(b / (a + k_N/(3 k_f))))`` (docs/THEORY.md section 2); ``None`` when
@@ -47,19 +56,24 @@ def triangle_spacing(a: float, b: float, c: float, k_n: float = 1.0,
     return math.sqrt(c * math.log(b / thr))
 
 
-def triangle_b_for_spacing(d: float, a: float, c: float, k_n: float = 1.0,
-                           k_f: float = 1.0) -> float:
+def triangle_b_for_spacing(
+    d: float, a: float, c: float, k_n: float = 1.0, k_f: float = 1.0
+) -> float:
     """The b that makes the 3-tracker triangle side equal to ``d`` (inverse of the formula)."""
     return _triangle_threshold(a, k_n, k_f) * math.exp(d * d / c)
 
 
-def triangle_c_for_spacing(d: float, a: float, b: float, k_n: float = 1.0,
-                           k_f: float = 1.0) -> float:
-    """The c that makes the 3-tracker triangle side equal to ``d``; needs ``b > a + k_N/(3k_f)``."""
+def triangle_c_for_spacing(
+    d: float, a: float, b: float, k_n: float = 1.0, k_f: float = 1.0
+) -> float:
+    """The c that makes the 3-tracker triangle side equal to ``d``; needs
+    ``b > a + k_N/(3k_f)``."""
     thr = _triangle_threshold(a, k_n, k_f)
     if b <= thr:
-        raise ConfigError(f'b = {b:g} <= a + k_n/(3 k_f) = {thr:g}: no c gives a triangle; '
-                          'raise b or solve for b instead')
+        raise ConfigError(
+            f'b = {b:g} <= a + k_n/(3 k_f) = {thr:g}: no c gives a triangle; '
+            'raise b or solve for b instead'
+        )
     return d * d / math.log(b / thr)
 
 
@@ -79,9 +93,9 @@ class Formation:
     """An equilibrium of J: positions relative to the target and the pair distances."""
 
     relative_positions: NDArray[np.float64]  # (n, 3) [m]
-    pair_distances: NDArray[np.float64]      # (n(n-1)/2,) sorted [m]
+    pair_distances: NDArray[np.float64]  # (n(n-1)/2,) sorted [m]
     potential: float
-    gradient_norm: float                     # max_i ||grad_i J|| at the solution
+    gradient_norm: float  # max_i ||grad_i J|| at the solution
 
     @property
     def spacing(self) -> float:
@@ -89,21 +103,37 @@ class Formation:
         return float(self.pair_distances.min()) if self.pair_distances.size else 0.0
 
 
-def equilibrium_formation(n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: float = 1.0,
-                          b: float = 6.0, c: float = 1.7, starts: int = 8,
-                          seed: int = 0) -> Formation:
+def equilibrium_formation(
+    n: int,
+    *,
+    k_n: float = 1.0,
+    k_f: float = 1.0,
+    a: float = 1.0,
+    b: float = 6.0,
+    c: float = 1.7,
+    starts: int = 8,
+    seed: int = 0,
+) -> Formation:
     """Equilibrium formation of n trackers around a target at the origin, minimizing J.
 
     Runs L-BFGS (scipy) with the analytic gradient of eq. 44 from ``starts`` random initial
     shapes and keeps the lowest J. Rotations of the result are equilibria too.
     """
-    return equilibrium_formations(n, k_n=k_n, k_f=k_f, a=a, b=b, c=c, starts=starts,
-                                  seed=seed)[0]
+    return equilibrium_formations(n, k_n=k_n, k_f=k_f, a=a, b=b, c=c, starts=starts, seed=seed)[0]
 
 
-def equilibrium_formations(n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: float = 1.0,
-                           b: float = 6.0, c: float = 1.7, starts: int = 8, seed: int = 0,
-                           tolerance: float = 1e-6) -> list[Formation]:
+def equilibrium_formations(
+    n: int,
+    *,
+    k_n: float = 1.0,
+    k_f: float = 1.0,
+    a: float = 1.0,
+    b: float = 6.0,
+    c: float = 1.7,
+    starts: int = 8,
+    seed: int = 0,
+    tolerance: float = 1e-6,
+) -> list[Formation]:
     """The distinct minima of J whose potential is within ``tolerance`` (relative) of the
     lowest found from ``starts`` random shapes, lowest first.
 
@@ -114,7 +144,7 @@ def equilibrium_formations(n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: flo
     """
     from scipy.optimize import minimize
 
-    params = dict(k_n=k_n, k_f=k_f, a=a, b=b, c=c)
+    params: PotentialParams = {'k_n': k_n, 'k_f': k_f, 'a': a, 'b': b, 'c': c}
     origin = np.zeros(3)
     rng = np.random.default_rng(seed)
     scale = pair_equilibrium_distance(a, b, c) or 1.0
@@ -127,14 +157,19 @@ def equilibrium_formations(n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: flo
     iu = np.triu_indices(n, 1)
     for _ in range(max(1, starts)):
         x0 = rng.normal(scale=scale, size=(n, 3))
-        res = minimize(fun, x0.ravel(), jac=True, method='L-BFGS-B',
-                       options={'gtol': 1e-12, 'ftol': 1e-15, 'maxiter': 20000})
+        res = minimize(
+            fun,
+            x0.ravel(),
+            jac=True,
+            method='L-BFGS-B',
+            options={'gtol': 1e-12, 'ftol': 1e-15, 'maxiter': 20000},
+        )
         x = res.x.reshape(n, 3)
         d = np.sort(np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)[iu])
         g = np.linalg.norm(gradient(x, origin, **params), axis=-1).max()
         found.append(Formation(x, d, float(res.fun), float(g)))
     best = found[0]
-    for f in found[1:]:                  # the lowest; of equal ones (1e-12), the first
+    for f in found[1:]:  # the lowest; of equal ones (1e-12), the first
         if f.potential < best.potential - 1e-12:
             best = f
     out = [best]
@@ -147,8 +182,9 @@ def equilibrium_formations(n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: flo
     return out
 
 
-def expected_spacing(n: int, *, k_n: float, k_f: float, a: float, b: float,
-                     c: float) -> float | None:
+def expected_spacing(
+    n: int, *, k_n: float, k_f: float, a: float, b: float, c: float
+) -> float | None:
     """Design spacing the formation metrics compare against.
 
     n = 3: the closed form of :func:`triangle_spacing`; n = 2: the two trackers sit on opposite
@@ -166,8 +202,9 @@ def expected_spacing(n: int, *, k_n: float, k_f: float, a: float, b: float,
     return f.spacing if f.spacing > 1e-6 else None
 
 
-def b_for_spacing(d: float, n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: float = 1.0,
-                  c: float = 1.7) -> float:
+def b_for_spacing(
+    d: float, n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: float = 1.0, c: float = 1.7
+) -> float:
     """The b whose equilibrium nearest-neighbour spacing is ``d`` for n trackers.
 
     Closed form for n = 3; otherwise a bracketed root search (scipy ``brentq``) on the

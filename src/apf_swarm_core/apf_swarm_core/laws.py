@@ -24,18 +24,33 @@ as much as with a Python float.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .saturation import (SATURATIONS, _gamma, _layer_bound, _outside, outside_layer,
-                         sat_continuous, saturate)
+from .saturation import (
+    SATURATIONS,
+    _gamma,
+    _layer_bound,
+    _outside,
+    outside_layer,
+    sat_continuous,
+    saturate,
+)
 
 __all__ = [
-    'LAWS', 'kinematic_velocity', 'filter_step', 'sliding_surface_proposed',
-    'sliding_surface_traditional', 'switching_force', 'layer_switching_force', 'known_force',
-    'ControlOutput', 'SlidingModeController', 'SWITCHINGS',
+    'LAWS',
+    'SWITCHINGS',
+    'ControlOutput',
+    'SlidingModeController',
+    'filter_step',
+    'kinematic_velocity',
+    'known_force',
+    'layer_switching_force',
+    'sliding_surface_proposed',
+    'sliding_surface_traditional',
+    'switching_force',
 ]
 
 LAWS = ('proposed', 'traditional')
@@ -53,40 +68,54 @@ def _g(value: ArrayLike, extra: int = 2) -> NDArray[np.float64]:
 
 def _check_saturation(kind: str) -> None:
     if kind not in SATURATIONS:
-        raise ValueError(f"saturation must be one of {SATURATIONS}, got {kind!r}")
+        raise ValueError(f'saturation must be one of {SATURATIONS}, got {kind!r}')
 
 
 # --- kernels: one per equation, gains already shaped by _g -------------------------------
 # (np.sign is saturation.sign, sign(0) = 0, without its conversion of the argument)
+
 
 def _decay(lambda_filter: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
     """Per-step decay ``e^{-dt/lambda}`` of the discretized filter of eq. 26."""
     return np.exp(-dt / lambda_filter)
 
 
-def _filter(z: NDArray[np.float64], grad: NDArray[np.float64], decay: NDArray[np.float64],
-            gain_in: NDArray[np.float64]) -> NDArray[np.float64]:
+def _filter(
+    z: NDArray[np.float64],
+    grad: NDArray[np.float64],
+    decay: NDArray[np.float64],
+    gain_in: NDArray[np.float64],
+) -> NDArray[np.float64]:
     """Eq. 26 discretized: ``decay z + gain_in sign(grad)``, ``gain_in = (1 - decay) beta``."""
     return decay * z + gain_in * np.sign(grad)
 
 
-def _surface_filtered(v: NDArray[np.float64], grad: NDArray[np.float64], z: NDArray[np.float64],
-                      alpha: NDArray[np.float64]) -> NDArray[np.float64]:
+def _surface_filtered(
+    v: NDArray[np.float64],
+    grad: NDArray[np.float64],
+    z: NDArray[np.float64],
+    alpha: NDArray[np.float64],
+) -> NDArray[np.float64]:
     """``s = v + alpha grad + z``: eq. 28 (outside the layer) and the traditional law."""
     return v + alpha * grad + z
 
 
-def _surface_layer(v: NDArray[np.float64], grad: NDArray[np.float64],
-                   gain: NDArray[np.float64]) -> NDArray[np.float64]:
+def _surface_layer(
+    v: NDArray[np.float64], grad: NDArray[np.float64], gain: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Eq. 31 inside the boundary layer: ``s = v + (alpha + beta/gamma) grad``, ``gain`` the
     bracket."""
     return v + gain * grad
 
 
-def _surface_proposed(v: NDArray[np.float64], grad: NDArray[np.float64],
-                      z: NDArray[np.float64], outside: NDArray[np.bool_],
-                      alpha: NDArray[np.float64], gain: NDArray[np.float64]
-                      ) -> NDArray[np.float64]:
+def _surface_proposed(
+    v: NDArray[np.float64],
+    grad: NDArray[np.float64],
+    z: NDArray[np.float64],
+    outside: NDArray[np.bool_],
+    alpha: NDArray[np.float64],
+    gain: NDArray[np.float64],
+) -> NDArray[np.float64]:
     """Proposed manifold with the paper's sat: eq. 28 where ``outside``, eq. 31 elsewhere.
 
     When no tracker is outside the layer (the steady state) the eq. 28 branch is not
@@ -97,15 +126,19 @@ def _surface_proposed(v: NDArray[np.float64], grad: NDArray[np.float64],
     if b'\x01' not in outside.tobytes():
         return inner
     outer = _surface_filtered(v, grad, z, alpha)
-    if inner.size > 96 and inner.shape == outer.shape == outside.shape + (3,):
+    if inner.size > 96 and inner.shape == outer.shape == (*outside.shape, 3):
         # a contiguous mask: np.where then runs one long loop instead of one per row
         return np.where(np.repeat(outside, 3, axis=-1).reshape(inner.shape), outer, inner)
     return np.where(outside[..., None], outer, inner)
 
 
-def _surface_continuous(v: NDArray[np.float64], grad: NDArray[np.float64],
-                        alpha: NDArray[np.float64], beta: NDArray[np.float64],
-                        gamma: ArrayLike) -> NDArray[np.float64]:
+def _surface_continuous(
+    v: NDArray[np.float64],
+    grad: NDArray[np.float64],
+    alpha: NDArray[np.float64],
+    beta: NDArray[np.float64],
+    gamma: ArrayLike,
+) -> NDArray[np.float64]:
     """Eq. 22 with the continuous sat: ``s = v + alpha grad + beta grad / max(|grad|, gamma)``."""
     return v + alpha * grad + beta * sat_continuous(grad, gamma)
 
@@ -115,23 +148,38 @@ def _known(v: NDArray[np.float64], drag: NDArray[np.float64]) -> NDArray[np.floa
     return drag * v
 
 
-def _switching(s: NDArray[np.float64], v: NDArray[np.float64], neg_u0: NDArray[np.float64],
-               drag: NDArray[np.float64]) -> NDArray[np.float64]:
+def _switching(
+    s: NDArray[np.float64],
+    v: NDArray[np.float64],
+    neg_u0: NDArray[np.float64],
+    drag: NDArray[np.float64],
+) -> NDArray[np.float64]:
     """Eq. 24, ``u = -u0 sign(s) + f_known(v)``, with ``neg_u0 = -u0``."""
     return neg_u0 * np.sign(s) + _known(v, drag)
 
 
-def _switching_layer(s: NDArray[np.float64], v: NDArray[np.float64],
-                     neg_u0: NDArray[np.float64], inv_phi: NDArray[np.float64],
-                     drag: NDArray[np.float64]) -> NDArray[np.float64]:
+def _switching_layer(
+    s: NDArray[np.float64],
+    v: NDArray[np.float64],
+    neg_u0: NDArray[np.float64],
+    inv_phi: NDArray[np.float64],
+    drag: NDArray[np.float64],
+) -> NDArray[np.float64]:
     """Eq. 24 with a boundary layer, ``u = -u0 clip(s/phi, -1, 1) + f_known(v)``, with
     ``inv_phi = 1/phi``."""
     return neg_u0 * np.clip(s * inv_phi, -1.0, 1.0) + _known(v, drag)
 
 
-def kinematic_velocity(grad: ArrayLike, *, alpha: ArrayLike, beta: ArrayLike,
-                       gamma: ArrayLike, saturation: str = 'paper') -> NDArray[np.float64]:
-    """Kinematic (particle) law of paper eq. 7: ``xdot_i = -alpha grad_i J - beta sat(grad_i J, gamma)``.
+def kinematic_velocity(
+    grad: ArrayLike,
+    *,
+    alpha: ArrayLike,
+    beta: ArrayLike,
+    gamma: ArrayLike,
+    saturation: str = 'paper',
+) -> NDArray[np.float64]:
+    """Kinematic (particle) law of paper eq. 7:
+    ``xdot_i = -alpha grad_i J - beta sat(grad_i J, gamma)``.
 
     Parameters
     ----------
@@ -145,11 +193,13 @@ def kinematic_velocity(grad: ArrayLike, *, alpha: ArrayLike, beta: ArrayLike,
     velocity : array, shape (..., m, 3) [m/s]
     """
     grad = np.asarray(grad, dtype=float)
-    return -_g(alpha) * grad - _g(beta) * saturate(grad, gamma, saturation)
+    out: NDArray[np.float64] = -_g(alpha) * grad - _g(beta) * saturate(grad, gamma, saturation)
+    return out
 
 
-def filter_step(z: ArrayLike, grad: ArrayLike, *, beta: ArrayLike, lambda_filter: ArrayLike,
-                dt: float) -> NDArray[np.float64]:
+def filter_step(
+    z: ArrayLike, grad: ArrayLike, *, beta: ArrayLike, lambda_filter: ArrayLike, dt: float
+) -> NDArray[np.float64]:
     """One step of the low-pass filter of paper eq. 26, ``lambda zdot + z = beta sign(grad_i J)``.
 
     Discretized exactly for an input held constant over the step (zero-order hold):
@@ -169,13 +219,21 @@ def filter_step(z: ArrayLike, grad: ArrayLike, *, beta: ArrayLike, lambda_filter
     z_next : array, shape (..., m, 3)
     """
     decay = _decay(_g(lambda_filter), dt)
-    return _filter(np.asarray(z, dtype=float), np.asarray(grad, dtype=float), decay,
-                   (1.0 - decay) * _g(beta))
+    return _filter(
+        np.asarray(z, dtype=float), np.asarray(grad, dtype=float), decay, (1.0 - decay) * _g(beta)
+    )
 
 
-def sliding_surface_proposed(v: ArrayLike, grad: ArrayLike, z: ArrayLike, *, alpha: ArrayLike,
-                             beta: ArrayLike, gamma: ArrayLike, saturation: str = 'paper'
-                             ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+def sliding_surface_proposed(
+    v: ArrayLike,
+    grad: ArrayLike,
+    z: ArrayLike,
+    *,
+    alpha: ArrayLike,
+    beta: ArrayLike,
+    gamma: ArrayLike,
+    saturation: str = 'paper',
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Sliding manifold of the proposed (saturated) law, paper eq. 22, 28 and 31.
 
     * Outside the boundary layer (``||grad|| >= gamma``), eq. 28: ``s = v + alpha grad + z``,
@@ -202,16 +260,23 @@ def sliding_surface_proposed(v: ArrayLike, grad: ArrayLike, z: ArrayLike, *, alp
     grad = np.asarray(grad, dtype=float)
     outside = outside_layer(grad, gamma)
     if saturation == 'paper':
-        s = _surface_proposed(v, grad, np.asarray(z, dtype=float), outside, _g(alpha),
-                              _g(alpha) + _g(beta) / _g(gamma))
+        s = _surface_proposed(
+            v,
+            grad,
+            np.asarray(z, dtype=float),
+            outside,
+            _g(alpha),
+            _g(alpha) + _g(beta) / _g(gamma),
+        )
     else:
         _check_saturation(saturation)
         s = _surface_continuous(v, grad, _g(alpha), _g(beta), gamma)
     return s, outside
 
 
-def sliding_surface_traditional(v: ArrayLike, grad: ArrayLike, z: ArrayLike, *,
-                                alpha: ArrayLike) -> NDArray[np.float64]:
+def sliding_surface_traditional(
+    v: ArrayLike, grad: ArrayLike, z: ArrayLike, *, alpha: ArrayLike
+) -> NDArray[np.float64]:
     """Sliding manifold of the traditional sign law (Yao, Ordonez & Gazi 2006).
 
     ``s = v + alpha grad + z`` everywhere, with ``lambda zdot + z = beta sign(grad)``.
@@ -220,8 +285,12 @@ def sliding_surface_traditional(v: ArrayLike, grad: ArrayLike, z: ArrayLike, *,
     -------
     s : array, shape (..., m, 3) [m/s]
     """
-    return _surface_filtered(np.asarray(v, dtype=float), np.asarray(grad, dtype=float),
-                             np.asarray(z, dtype=float), _g(alpha))
+    return _surface_filtered(
+        np.asarray(v, dtype=float),
+        np.asarray(grad, dtype=float),
+        np.asarray(z, dtype=float),
+        _g(alpha),
+    )
 
 
 def known_force(v: ArrayLike, drag: ArrayLike) -> NDArray[np.float64]:
@@ -232,8 +301,9 @@ def known_force(v: ArrayLike, drag: ArrayLike) -> NDArray[np.float64]:
     return _known(np.asarray(v, dtype=float), _g(drag))
 
 
-def switching_force(s: ArrayLike, v: ArrayLike, *, u0: ArrayLike,
-                    drag: ArrayLike = 0.0) -> NDArray[np.float64]:
+def switching_force(
+    s: ArrayLike, v: ArrayLike, *, u0: ArrayLike, drag: ArrayLike = 0.0
+) -> NDArray[np.float64]:
     """Control input of paper eq. 24, ``u_i = -u0 sign(s_i) + f_i^known(x_i, xdot_i)`` [N].
 
     The printed ``J_i^known`` is the known disturbance ``f_i^known`` of eq. 20
@@ -242,8 +312,9 @@ def switching_force(s: ArrayLike, v: ArrayLike, *, u0: ArrayLike,
     return _switching(np.asarray(s, dtype=float), np.asarray(v, dtype=float), -_g(u0), _g(drag))
 
 
-def layer_switching_force(s: ArrayLike, v: ArrayLike, *, u0: ArrayLike, phi: ArrayLike,
-                          drag: ArrayLike = 0.0) -> NDArray[np.float64]:
+def layer_switching_force(
+    s: ArrayLike, v: ArrayLike, *, u0: ArrayLike, phi: ArrayLike, drag: ArrayLike = 0.0
+) -> NDArray[np.float64]:
     """Switching force with a continuous boundary layer (not in the paper) [N].
 
     ``u_i = -u0 sat(s_i / phi) + f_i^known``, ``sat`` clipping each component to [-1, 1]:
@@ -261,8 +332,9 @@ def layer_switching_force(s: ArrayLike, v: ArrayLike, *, u0: ArrayLike, phi: Arr
         Velocities [m/s].
     u0 : float [N]; phi : float [m/s], > 0; drag : float [N s/m]
     """
-    return _switching_layer(np.asarray(s, dtype=float), np.asarray(v, dtype=float), -_g(u0),
-                            1.0 / _g(phi), _g(drag))
+    return _switching_layer(
+        np.asarray(s, dtype=float), np.asarray(v, dtype=float), -_g(u0), 1.0 / _g(phi), _g(drag)
+    )
 
 
 @dataclass(frozen=True, init=False)
@@ -275,9 +347,14 @@ class ControlOutput:
     filter_state: NDArray[np.float64]
     saturated: NDArray[np.bool_]
 
-    def __init__(self, force: NDArray[np.float64], sliding_surface: NDArray[np.float64],
-                 gradient: NDArray[np.float64], filter_state: NDArray[np.float64],
-                 saturated: NDArray[np.bool_]) -> None:
+    def __init__(
+        self,
+        force: NDArray[np.float64],
+        sliding_surface: NDArray[np.float64],
+        gradient: NDArray[np.float64],
+        filter_state: NDArray[np.float64],
+        saturated: NDArray[np.bool_],
+    ) -> None:
         # what the generated frozen __init__ does (one object.__setattr__ per field), at
         # less than half its cost: it is built once per controller step
         d = self.__dict__
@@ -289,8 +366,22 @@ class ControlOutput:
 
 
 #: controller fields its prepared gains are derived from
-_GAIN_FIELDS = frozenset({'law', 'alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'dt', 'drag',
-                          'saturation', 'switching', 'phi', 'feedforward'})
+_GAIN_FIELDS = frozenset(
+    {
+        'law',
+        'alpha',
+        'beta',
+        'gamma',
+        'lambda_filter',
+        'u0',
+        'dt',
+        'drag',
+        'saturation',
+        'switching',
+        'phi',
+        'feedforward',
+    }
+)
 
 
 @dataclass(frozen=True)
@@ -299,14 +390,14 @@ class _ControllerGains:
 
     alpha: NDArray[np.float64]
     beta: NDArray[np.float64]
-    gamma: Any                      # as given, for sat_continuous
+    gamma: Any  # as given, for sat_continuous
     layer_bound: NDArray[np.float64]  # ||grad||^2 bound of the layer test, against (..., m)
     layer_gain: NDArray[np.float64]  # alpha + beta / gamma of eq. 31
     neg_u0: NDArray[np.float64]
     drag: NDArray[np.float64]
-    decay: NDArray[np.float64]       # e^{-dt/lambda} of eq. 26
-    gain_in: NDArray[np.float64]     # (1 - decay) beta
-    manifold: int                    # 0 proposed with eq. 8, 1 traditional, 2 continuous sat
+    decay: NDArray[np.float64]  # e^{-dt/lambda} of eq. 26
+    gain_in: NDArray[np.float64]  # (1 - decay) beta
+    manifold: int  # 0 proposed with eq. 8, 1 traditional, 2 continuous sat
     inv_phi: NDArray[np.float64] | None  # 1/phi of the boundary-layer switching, None: sign
     feedforward: NDArray[np.float64] | None  # weight w of the target velocity, None: 0
 
@@ -341,7 +432,7 @@ class SlidingModeController:
     modified in place.
     """
 
-    law: Literal['proposed', 'traditional']
+    law: str  # 'proposed' or 'traditional' (LAWS), checked on construction
     alpha: ArrayLike
     beta: ArrayLike
     gamma: ArrayLike
@@ -384,26 +475,34 @@ class SlidingModeController:
         # np.asarray: arithmetic on 0-d arrays gives numpy scalars, which numpy treats like
         # Python floats, the slower operand (see the module docstring)
         gains = _ControllerGains(
-            alpha=alpha, beta=beta, gamma=self.gamma, layer_bound=bound,
-            layer_gain=np.asarray(alpha + beta / gamma), neg_u0=np.asarray(-_g(self.u0)),
-            drag=_g(self.drag), decay=np.asarray(decay),
-            gain_in=np.asarray((1.0 - decay) * beta), manifold=manifold,
+            alpha=alpha,
+            beta=beta,
+            gamma=self.gamma,
+            layer_bound=bound,
+            layer_gain=np.asarray(alpha + beta / gamma),
+            neg_u0=np.asarray(-_g(self.u0)),
+            drag=_g(self.drag),
+            decay=np.asarray(decay),
+            gain_in=np.asarray((1.0 - decay) * beta),
+            manifold=manifold,
             inv_phi=np.asarray(1.0 / _g(self.phi)) if self.switching == 'layer' else None,
-            feedforward=ff if np.any(ff != 0.0) else None)
+            feedforward=ff if np.any(ff != 0.0) else None,
+        )
         object.__setattr__(self, '_gains', gains)
         return gains
 
     def __post_init__(self) -> None:
         if self.law not in LAWS:
-            raise ValueError(f"law must be one of {LAWS}, got {self.law!r}")
+            raise ValueError(f'law must be one of {LAWS}, got {self.law!r}')
         self.reset()
 
     def reset(self, z: ArrayLike | None = None) -> None:
         """Set the filter state to ``z`` (default zeros), e.g. after a respawn."""
-        self.z = np.zeros(self.shape) if z is None else np.array(z, dtype=float).reshape(self.shape)
+        self.z = (
+            np.zeros(self.shape) if z is None else np.array(z, dtype=float).reshape(self.shape)
+        )
 
-    def step(self, v: ArrayLike, grad: ArrayLike, v_ref: ArrayLike | None = None
-             ) -> ControlOutput:
+    def step(self, v: ArrayLike, grad: ArrayLike, v_ref: ArrayLike | None = None) -> ControlOutput:
         """Compute the command for velocities ``v`` and gradients ``grad`` (shape
         ``(..., m, 3)``); ``v_ref`` (shape ``(..., 3)``), the target velocity, enters the
         manifold as ``v - feedforward v_ref`` when ``feedforward`` is not 0."""
@@ -413,15 +512,21 @@ class SlidingModeController:
         z = self.z
         outside = _outside(grad, p.layer_bound)
         manifold = p.manifold
-        vs = v if p.feedforward is None or v_ref is None else \
-            v - p.feedforward * np.asarray(v_ref, dtype=float)[..., None, :]
+        vs = (
+            v
+            if p.feedforward is None or v_ref is None
+            else v - p.feedforward * np.asarray(v_ref, dtype=float)[..., None, :]
+        )
         if manifold == 0:
             s = _surface_proposed(vs, grad, z, outside, p.alpha, p.layer_gain)
         elif manifold == 1:
             s = _surface_filtered(vs, grad, z, p.alpha)
         else:
             s = _surface_continuous(vs, grad, p.alpha, p.beta, p.gamma)
-        force = _switching(s, v, p.neg_u0, p.drag) if p.inv_phi is None else \
-            _switching_layer(s, v, p.neg_u0, p.inv_phi, p.drag)
+        force = (
+            _switching(s, v, p.neg_u0, p.drag)
+            if p.inv_phi is None
+            else _switching_layer(s, v, p.neg_u0, p.inv_phi, p.drag)
+        )
         object.__setattr__(self, 'z', _filter(z, grad, p.decay, p.gain_in))  # not a gain
-        return ControlOutput(force, s, grad, z, outside)   # positional: cheaper per step
+        return ControlOutput(force, s, grad, z, outside)  # positional: cheaper per step

@@ -7,24 +7,53 @@ Arrays follow the trajectory schema: ``t (T,)``, ``x (T, n, 3)``, ``v (T, n, 3)`
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from functools import lru_cache
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['centroid_error', 'pair_distances', 'formation_error', 'potential_series',
-           'moving_average', 'hf_velocity_rms', 'heading_rate', 'steady_slice',
-           'time_to_converge', 'nearest_design', 'summarize', 'SUMMARY_KEYS', 'FLIGHT_CRITERIA',
-           'flight']
+if TYPE_CHECKING:
+    from .potential import PotentialParams
+
+__all__ = [
+    'FLIGHT_CRITERIA',
+    'SUMMARY_KEYS',
+    'centroid_error',
+    'flight',
+    'formation_error',
+    'heading_rate',
+    'hf_velocity_rms',
+    'moving_average',
+    'nearest_design',
+    'pair_distances',
+    'potential_series',
+    'steady_slice',
+    'summarize',
+    'time_to_converge',
+]
 
 #: top-level keys of summary.json, in order (a stable schema shared with the bag tools)
-SUMMARY_KEYS = ('law', 'n_trackers', 'dt', 'duration', 'seed', 'centroid_error', 'formation',
-                'chattering', 'potential', 'converged', 'time_to_converge', 'warnings')
+SUMMARY_KEYS = (
+    'law',
+    'n_trackers',
+    'dt',
+    'duration',
+    'seed',
+    'centroid_error',
+    'formation',
+    'chattering',
+    'potential',
+    'converged',
+    'time_to_converge',
+    'warnings',
+)
 
 
 def centroid_error(x: ArrayLike, target_x: ArrayLike) -> NDArray[np.float64]:
-    """Distance between the formation centroid and the target, ``||mean_i x_i - x_N||`` [m], (T,)."""
+    """Distance between the formation centroid and the target, ``||mean_i x_i - x_N||``
+    [m], (T,)."""
     x = np.asarray(x, dtype=float)
     return np.linalg.norm(x.mean(axis=-2) - np.asarray(target_x, dtype=float), axis=-1)
 
@@ -55,10 +84,12 @@ def formation_error(x: ArrayLike, expected_pairs: ArrayLike) -> NDArray[np.float
     return np.sqrt(np.mean((d - e) ** 2, axis=-1))
 
 
-def potential_series(x: ArrayLike, target_x: ArrayLike, params: Mapping[str, float]
-                     ) -> NDArray[np.float64]:
+def potential_series(
+    x: ArrayLike, target_x: ArrayLike, params: PotentialParams
+) -> NDArray[np.float64]:
     """J(t) of eq. 2 / 44 along a trajectory, (T,)."""
     from .potential import potential
+
     return potential(x, target_x, **params)
 
 
@@ -66,7 +97,7 @@ def moving_average(y: ArrayLike, width: int) -> NDArray[np.float64]:
     """Centred moving average over ``width`` samples along axis 0 (edges use shorter windows)."""
     y = np.asarray(y, dtype=float)
     width = max(1, int(width))
-    csum = np.cumsum(np.concatenate([np.zeros((1,) + y.shape[1:]), y]), axis=0)
+    csum = np.cumsum(np.concatenate([np.zeros((1, *y.shape[1:])), y]), axis=0)
     idx = np.arange(y.shape[0])
     lo = np.clip(idx - width // 2, 0, y.shape[0])
     hi = np.clip(idx - width // 2 + width, 0, y.shape[0])
@@ -84,7 +115,7 @@ def hf_velocity_rms(v: ArrayLike, dt: float, window: float = 0.1) -> float:
     """
     v = np.asarray(v, dtype=float)
     resid = v - moving_average(v, round(window / dt))
-    return float(np.sqrt(np.mean(np.sum(resid ** 2, axis=-1))))
+    return float(np.sqrt(np.mean(np.sum(resid**2, axis=-1))))
 
 
 def heading_rate(v: ArrayLike, dt: float, window: float = 0.1) -> float:
@@ -124,12 +155,20 @@ def time_to_converge(t: ArrayLike, ok: ArrayLike) -> float | None:
 #: pair at least ``closest`` of the design's closest, the centroid within
 #: ``centroid_tol`` m of the target and the formation error within ``formation_tol`` of the
 #: design's closest pair at every sample (``converged`` of :func:`summarize`)
-FLIGHT_CRITERIA = {'window': 0.4, 'formation_rms': 0.03, 'closest': 0.9, 'centroid_tol': 0.5,
-                   'formation_tol': 0.05}
+FLIGHT_CRITERIA = {
+    'window': 0.4,
+    'formation_rms': 0.03,
+    'closest': 0.9,
+    'centroid_tol': 0.5,
+    'formation_tol': 0.05,
+}
 
 
-def flight(traj: Mapping[str, Any], expected_pairs: ArrayLike | list[ArrayLike] | None,
-           criteria: Mapping[str, float] = FLIGHT_CRITERIA) -> dict[str, Any]:
+def flight(
+    traj: Mapping[str, Any],
+    expected_pairs: ArrayLike | list[ArrayLike] | None,
+    criteria: Mapping[str, float] = FLIGHT_CRITERIA,
+) -> dict[str, Any]:
     """Whether a run flies by :data:`FLIGHT_CRITERIA`, with the numbers it is judged by.
 
     Returns ``flies`` and, over the window, ``formation_error_rms`` (relative to the mean
@@ -144,27 +183,46 @@ def flight(traj: Mapping[str, Any], expected_pairs: ArrayLike | list[ArrayLike] 
         if not judged:
             return flight(traj, None, criteria)
         # the nearest design, whether or not the run flies against it
-        return min(judged, key=lambda f: f['formation_error_rms']
-                   if f['formation_error_rms'] is not None else math.inf)
+        return min(
+            judged,
+            key=lambda f: (
+                f['formation_error_rms'] if f['formation_error_rms'] is not None else math.inf
+            ),
+        )
     x = np.asarray(traj['x'], dtype=float)
     tx = np.asarray(traj['target_x'], dtype=float)
     st = steady_slice(x.shape[0], criteria['window'])
-    out: dict[str, Any] = {'window': criteria['window'], 'flies': False,
-                           'formation_error_rms': None, 'closest_pair': None,
-                           'centroid_error_rms': None, 'converged': False}
+    out: dict[str, Any] = {
+        'window': criteria['window'],
+        'flies': False,
+        'formation_error_rms': None,
+        'closest_pair': None,
+        'centroid_error_rms': None,
+        'converged': False,
+    }
     if expected_pairs is None or x.shape[0] == 0 or x.shape[1] < 2:
         return out
     exp = np.asarray(expected_pairs, dtype=float)
     fe = formation_error(x[st], exp)
     ce = centroid_error(x[st], tx[st])
-    rms = float(np.sqrt(np.mean(fe ** 2))) / float(exp.mean())
+    rms = float(np.sqrt(np.mean(fe**2))) / float(exp.mean())
     closest = float(pair_distances(x[st]).min()) / float(exp.min())
-    converged = bool(np.all(ce <= criteria['centroid_tol'])
-                     and np.all(fe <= criteria['formation_tol'] * float(exp.min())))
-    out.update(formation_error_rms=_f(rms), closest_pair=_f(closest),
-               centroid_error_rms=_f(float(np.sqrt(np.mean(ce ** 2)))), converged=converged)
-    out['flies'] = bool(math.isfinite(rms) and rms <= criteria['formation_rms']
-                        and closest >= criteria['closest'] and converged)
+    converged = bool(
+        np.all(ce <= criteria['centroid_tol'])
+        and np.all(fe <= criteria['formation_tol'] * float(exp.min()))
+    )
+    out.update(
+        formation_error_rms=_f(rms),
+        closest_pair=_f(closest),
+        centroid_error_rms=_f(float(np.sqrt(np.mean(ce**2)))),
+        converged=converged,
+    )
+    out['flies'] = bool(
+        math.isfinite(rms)
+        and rms <= criteria['formation_rms']
+        and closest >= criteria['closest']
+        and converged
+    )
     return out
 
 
@@ -184,12 +242,20 @@ def nearest_design(x: ArrayLike, designs: list[ArrayLike]) -> NDArray[np.float64
     return best
 
 
-def summarize(traj: Mapping[str, Any], *, law: str, dt: float, seed: int,
-              potential_params: Mapping[str, float],
-              expected_pairs: ArrayLike | list[ArrayLike] | None,
-              steady_fraction: float = 0.25, centroid_tol: float = 0.5,
-              formation_tol: float = 0.05, chatter_window: float = 0.1,
-              warnings: list[str] | None = None) -> dict[str, Any]:
+def summarize(
+    traj: Mapping[str, Any],
+    *,
+    law: str,
+    dt: float,
+    seed: int,
+    potential_params: PotentialParams,
+    expected_pairs: ArrayLike | list[ArrayLike] | None,
+    steady_fraction: float = 0.25,
+    centroid_tol: float = 0.5,
+    formation_tol: float = 0.05,
+    chatter_window: float = 0.1,
+    warnings: list[str] | None = None,
+) -> dict[str, Any]:
     """The summary.json document (schema :data:`SUMMARY_KEYS`) of a trajectory.
 
     ``converged`` is true when, over the steady window, the centroid error stays below
@@ -223,23 +289,34 @@ def summarize(traj: Mapping[str, Any], *, law: str, dt: float, seed: int,
     if expected_pairs is not None and pd.size:
         exp = np.asarray(expected_pairs, dtype=float)
         fe = formation_error(x, exp)
-        formation['pair_distance_expected'] = _f(float(exp.min())) if np.allclose(
-            exp, exp.min()) else [float(e) for e in np.sort(exp)]
+        formation['pair_distance_expected'] = (
+            _f(float(exp.min()))
+            if np.allclose(exp, exp.min())
+            else [float(e) for e in np.sort(exp)]
+        )
         formation['error_rms_steady'] = _f(float(np.sqrt(np.mean(fe[st] ** 2))))
         ok = ok & (fe <= formation_tol * float(exp.min()))
-    summary = {
+    summary: dict[str, Any] = {
         'law': law,
         'n_trackers': int(n),
         'dt': float(dt),
         'duration': round(float(t[-1] - t[0] + sample_dt), 9) if t.size else 0.0,
         'seed': int(seed),
-        'centroid_error': {'rms_steady': _f(float(np.sqrt(np.mean(ce[st] ** 2)))),
-                           'max_steady': _f(float(ce[st].max())), 'final': _f(float(ce[-1]))},
+        'centroid_error': {
+            'rms_steady': _f(float(np.sqrt(np.mean(ce[st] ** 2)))),
+            'max_steady': _f(float(ce[st].max())),
+            'final': _f(float(ce[-1])),
+        },
         'formation': formation,
-        'chattering': {'hf_velocity_rms': _f(hf_velocity_rms(v[st], sample_dt, chatter_window)),
-                       'heading_rate': _f(heading_rate(v[st], sample_dt, chatter_window))},
-        'potential': {'initial': _f(float(j[0])), 'final': _f(float(j[-1])),
-                      'decreasing_fraction': _f(float(np.mean(dj <= 0))) if dj.size else None},
+        'chattering': {
+            'hf_velocity_rms': _f(hf_velocity_rms(v[st], sample_dt, chatter_window)),
+            'heading_rate': _f(heading_rate(v[st], sample_dt, chatter_window)),
+        },
+        'potential': {
+            'initial': _f(float(j[0])),
+            'final': _f(float(j[-1])),
+            'decreasing_fraction': _f(float(np.mean(dj <= 0))) if dj.size else None,
+        },
         'converged': bool(ok[st].all()),
         'time_to_converge': time_to_converge(t, ok),
         'warnings': list(warnings or []),

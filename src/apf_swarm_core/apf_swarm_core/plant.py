@@ -24,15 +24,15 @@ without changing a single value.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .laws import _g, _known
 
-__all__ = ['NOISE_KINDS', 'uniform_ball', 'DisturbanceSource', 'plant_step']
+__all__ = ['NOISE_KINDS', 'DisturbanceSource', 'plant_step', 'uniform_ball']
 
 NOISE_KINDS = ('uniform_ball', 'none')
 
@@ -55,20 +55,20 @@ def uniform_ball(u: ArrayLike, radius: ArrayLike) -> NDArray[np.float64]:
     u = np.asarray(u, dtype=float)
     cos_t = 2.0 * u[..., 0]
     cos_t -= 1.0
-    sin_t = cos_t * cos_t                       # |cos_t| <= 1, so 1 - cos_t^2 >= 0 exactly
+    sin_t = cos_t * cos_t  # |cos_t| <= 1, so 1 - cos_t^2 >= 0 exactly
     np.subtract(1.0, sin_t, out=sin_t)
     np.sqrt(sin_t, out=sin_t)
     t = np.pi * u[..., 1]
     np.tan(t, out=t)
     q = t * t
     q += 1.0
-    np.divide(2.0, q, out=q)                    # 2 / (1 + t^2)
-    t *= q                                      # sin phi
-    q -= 1.0                                    # cos phi
+    np.divide(2.0, q, out=q)  # 2 / (1 + t^2)
+    t *= q  # sin phi
+    q -= 1.0  # cos phi
     r = np.cbrt(u[..., 2])
     r = r * np.asarray(radius, dtype=float)
-    sin_t = sin_t * r                           # r sin(theta)
-    out = np.empty(r.shape + (3,))
+    sin_t = sin_t * r  # r sin(theta)
+    out = np.empty((*r.shape, 3))
     np.multiply(sin_t, q, out=out[..., 0])
     np.multiply(sin_t, t, out=out[..., 1])
     np.multiply(r, cos_t, out=out[..., 2])
@@ -116,18 +116,22 @@ class DisturbanceSource:
 
     def __post_init__(self) -> None:
         if self.kind not in NOISE_KINDS:
-            raise ValueError(f"noise must be one of {NOISE_KINDS}, got {self.kind!r}")
+            raise ValueError(f'noise must be one of {NOISE_KINDS}, got {self.kind!r}')
         self._batched = not np.isscalar(self.seed)
-        seeds = list(self.seed) if self._batched else [self.seed]
+        seeds = [int(s) for s in np.atleast_1d(np.asarray(self.seed))]
         self._rngs = [np.random.default_rng([int(s), 2]) for s in seeds]
         self._radius = np.broadcast_to(np.asarray(self.f_bar, dtype=float), (len(seeds),))
         self._silent = self.kind == 'none' or not np.any(self._radius > 0)
         zeros = np.zeros((len(seeds), self.n, 3))
         self._zeros = zeros if self._batched else zeros[0]
         per_step = 3 * self.n
-        self._steps = max(1, min(int(self.block),
-                                 max(-(-_NOISE_MIN_DRAW // per_step),
-                                     _NOISE_BUFFER // (len(seeds) * per_step))))
+        self._steps = max(
+            1,
+            min(
+                int(self.block),
+                max(-(-_NOISE_MIN_DRAW // per_step), _NOISE_BUFFER // (len(seeds) * per_step)),
+            ),
+        )
         self._chunk = max(1, _NOISE_MAP_CHUNK // (self._steps * per_step))
         self._buf = np.empty((0, len(seeds), self.n, 3))
         self._pos = 0
@@ -145,7 +149,7 @@ class DisturbanceSource:
             for j in range(r1 - r0):
                 self._rngs[r0 + j].random(out=u[j])
             radius = self._radius[r0:r1, None, None]
-            buf[:, r0:r1] = uniform_ball(u[:r1 - r0], radius).swapaxes(0, 1)
+            buf[:, r0:r1] = uniform_ball(u[: r1 - r0], radius).swapaxes(0, 1)
         self._buf = buf if self._batched else buf[:, 0]
         self._pos = 0
 
@@ -164,9 +168,16 @@ class DisturbanceSource:
 _STEP_LENGTHS: dict[float, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
 
 
-def plant_step(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike, dt: float,
-               drag: ArrayLike = 0.0, disturbance: ArrayLike | float = 0.0
-               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def plant_step(
+    x: ArrayLike,
+    v: ArrayLike,
+    force: ArrayLike,
+    *,
+    mass: ArrayLike,
+    dt: float,
+    drag: ArrayLike = 0.0,
+    disturbance: ArrayLike | float = 0.0,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Advance eq. 19 by one step of length ``dt`` with the force held constant.
 
     Parameters
@@ -203,21 +214,24 @@ def plant_step(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike,
     h, half_h2 = steps
     acc = _known(v, drag if type(drag) is np.ndarray and not drag.ndim else _g(drag))
     shape = acc.shape
-    if not (x.shape == shape and (force.shape == shape or not force.ndim)
-            and (disturbance.shape == shape or not disturbance.ndim)
-            and (mass.shape == shape or not mass.ndim)):
+    if not (
+        x.shape == shape
+        and (force.shape == shape or not force.ndim)
+        and (disturbance.shape == shape or not disturbance.ndim)
+        and (mass.shape == shape or not mass.ndim)
+    ):
         # operands that broadcast beyond v: the same expressions, allocating
         acc = (force - acc - disturbance) / mass
         return x + v * h + half_h2 * acc, v + acc * h
     # the same expressions in the same order, in place on two temporaries (on the arrays of
     # a small swarm a numpy call that writes into an array it is given costs less than one
     # that allocates); a division by a unit mass (a 0-d 1.0) changes nothing and is skipped
-    np.subtract(force, acc, acc)                # u - f_known (laws.known_force)
-    np.subtract(acc, disturbance, acc)          # - f_unknown
+    np.subtract(force, acc, acc)  # u - f_known (laws.known_force)
+    np.subtract(acc, disturbance, acc)  # - f_unknown
     if mass.ndim or float(mass) != 1.0:
-        np.divide(acc, mass, acc)               # acc
+        np.divide(acc, mass, acc)  # acc
     x_next = v * h
-    np.add(x, x_next, x_next)                   # x + v dt
-    np.add(x_next, half_h2 * acc, x_next)       # ... + acc dt^2 / 2
+    np.add(x, x_next, x_next)  # x + v dt
+    np.add(x_next, half_h2 * acc, x_next)  # ... + acc dt^2 / 2
     np.multiply(acc, h, acc)
-    return x_next, np.add(v, acc, acc)          # v + acc dt
+    return x_next, np.add(v, acc, acc)  # v + acc dt

@@ -21,12 +21,39 @@ full gradient equals ``gradient(..., rows=[i])`` bit for bit) is described in it
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Any, TypeAlias, TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['pair_weight', 'potential', 'gradient', 'hessian', 'newton_basis', 'newton_direction',
-           'target_gradient', 'obstacle_gradient']
+__all__ = [
+    'PotentialParams',
+    'Rows',
+    'gradient',
+    'hessian',
+    'newton_basis',
+    'newton_direction',
+    'obstacle_gradient',
+    'pair_weight',
+    'potential',
+    'target_gradient',
+]
+
+
+class PotentialParams(TypedDict):
+    """The gains and shape of J (eq. 2 / 44): the keyword arguments of :func:`gradient`
+    (a batch passes arrays of per-run values in their place, see
+    :class:`~apf_swarm_core.simulator.BatchSimulator`)."""
+
+    k_n: float
+    k_f: float
+    a: float
+    b: float
+    c: float
+
+
+#: which trackers' rows a function computes: all (None), an index array, a list or a slice
+Rows: TypeAlias = 'NDArray[np.integer[Any]] | list[int] | slice | int | None'
 
 
 #: elements of the pair arrays (3, rows, n, runs) of one block of rows in :func:`gradient`
@@ -71,8 +98,9 @@ def pair_weight(r2: ArrayLike, a: ArrayLike, b: ArrayLike, c: ArrayLike) -> NDAr
     return _pair_weight_neg(np.negative(np.asarray(r2, dtype=float)), a, b, c)
 
 
-def _pair_weight_neg(neg_r2: NDArray[np.float64], a: ArrayLike, b: ArrayLike, c: ArrayLike
-                     ) -> NDArray[np.float64]:
+def _pair_weight_neg(
+    neg_r2: NDArray[np.float64], a: ArrayLike, b: ArrayLike, c: ArrayLike
+) -> NDArray[np.float64]:
     """:func:`pair_weight` from ``-r^2`` (the form in which :func:`gradient`'s strategy for
     three trackers obtains it from its reduction, a negation fewer): ``a - b exp(-r^2 / c)``.
 
@@ -84,15 +112,18 @@ def _pair_weight_neg(neg_r2: NDArray[np.float64], a: ArrayLike, b: ArrayLike, c:
     b = b if type(b) is np.ndarray and b.dtype is _F64 and not b.ndim else _gain(b, 2)
     c = c if type(c) is np.ndarray and c.dtype is _F64 and not c.ndim else _gain(c, 2)
     w = np.divide(neg_r2, c)
-    if type(w) is not np.ndarray or (a.ndim | b.ndim and w.shape != np.broadcast_shapes(
-            w.shape, a.shape, b.shape)):
+    if type(w) is not np.ndarray or (
+        a.ndim | b.ndim and w.shape != np.broadcast_shapes(w.shape, a.shape, b.shape)
+    ):
         return a - b * np.exp(w)
     np.exp(w, w)
     np.multiply(b, w, w)
     return np.subtract(a, w, w)
 
 
-def _pair_geometry(x: NDArray[np.float64], rows: ArrayLike | None):
+def _pair_geometry(
+    x: NDArray[np.float64], rows: Rows
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Differences ``x_i - x_j`` (..., m, n, 3) and squared distances (..., m, n)."""
     xi = x if rows is None else x[..., rows, :]
     diff = xi[..., :, None, :] - x[..., None, :, :]
@@ -108,9 +139,17 @@ def _off_diagonal(n: int) -> NDArray[np.bool_]:
     return out
 
 
-def potential(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0,
-              k_f: ArrayLike = 1.0, a: ArrayLike = 1.0, b: ArrayLike = 6.0,
-              c: ArrayLike = 1.7, mask: ArrayLike | None = None) -> NDArray[np.float64]:
+def potential(
+    x: ArrayLike,
+    x_target: ArrayLike,
+    *,
+    k_n: ArrayLike = 1.0,
+    k_f: ArrayLike = 1.0,
+    a: ArrayLike = 1.0,
+    b: ArrayLike = 6.0,
+    c: ArrayLike = 1.7,
+    mask: ArrayLike | None = None,
+) -> NDArray[np.float64]:
     """Potential J of the whole swarm, paper eq. 2 with eq. 44.
 
     Parameters
@@ -146,9 +185,18 @@ def potential(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0,
     return _gain(k_n, 0) * track + _gain(k_f, 0) * form
 
 
-def gradient(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: ArrayLike = 1.0,
-             a: ArrayLike = 1.0, b: ArrayLike = 6.0, c: ArrayLike = 1.7,
-             rows: ArrayLike | None = None, mask: ArrayLike | None = None) -> NDArray[np.float64]:
+def gradient(
+    x: ArrayLike,
+    x_target: ArrayLike,
+    *,
+    k_n: ArrayLike = 1.0,
+    k_f: ArrayLike = 1.0,
+    a: ArrayLike = 1.0,
+    b: ArrayLike = 6.0,
+    c: ArrayLike = 1.7,
+    rows: Rows = None,
+    mask: ArrayLike | None = None,
+) -> NDArray[np.float64]:
     """Analytic gradient of J with respect to the trackers (from eq. 2 / 44).
 
     .. math::
@@ -206,23 +254,44 @@ def gradient(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Ar
     x_target = np.asarray(x_target, dtype=float)
     lead, n = x.shape[:-2], x.shape[-2]
     # (0-d float64 arrays, the simulator's prepared gains, pass through unchanged)
-    kn = k_n if type(k_n) is np.ndarray and k_n.dtype is _F64 and not k_n.ndim else \
-        _gain(k_n, 0)
-    kf = k_f if type(k_f) is np.ndarray and k_f.dtype is _F64 and not k_f.ndim else \
-        _gain(k_f, 0)
+    kn = k_n if type(k_n) is np.ndarray and k_n.dtype is _F64 and not k_n.ndim else _gain(k_n, 0)
+    kf = k_f if type(k_f) is np.ndarray and k_f.dtype is _F64 and not k_f.ndim else _gain(k_f, 0)
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
-    if (x_target.shape[:-1] != lead or kn.ndim or kf.ndim or mask is not None and mask.ndim > 2
-            or not (type(a) is type(b) is type(c) is np.ndarray and not (a.ndim | b.ndim | c.ndim)
-                    or _is_scalar(a) and _is_scalar(b) and _is_scalar(c))):
-        full = np.broadcast_shapes(lead, x_target.shape[:-1], kn.shape, kf.shape, np.shape(a),
-                                   np.shape(b), np.shape(c),
-                                   () if mask is None else mask.shape[:-2])
-        if full != lead:            # more runs in the target, gains or mask than in x
-            return gradient(np.broadcast_to(x, full + (n, 3)), x_target, k_n=k_n, k_f=k_f,
-                            a=a, b=b, c=c, rows=rows, mask=mask)
-        x_target = np.broadcast_to(x_target, lead + (3,))
-    B = x.size // (3 * n) if n else 1                   # runs in the batch
+    if (
+        x_target.shape[:-1] != lead
+        or kn.ndim
+        or kf.ndim
+        or (mask is not None and mask.ndim > 2)
+        or not (
+            (type(a) is type(b) is type(c) is np.ndarray and not (a.ndim | b.ndim | c.ndim))
+            or (_is_scalar(a) and _is_scalar(b) and _is_scalar(c))
+        )
+    ):
+        full = np.broadcast_shapes(
+            lead,
+            x_target.shape[:-1],
+            kn.shape,
+            kf.shape,
+            np.shape(a),
+            np.shape(b),
+            np.shape(c),
+            () if mask is None else mask.shape[:-2],
+        )
+        if full != lead:  # more runs in the target, gains or mask than in x
+            return gradient(
+                np.broadcast_to(x, (*full, n, 3)),
+                x_target,
+                k_n=k_n,
+                k_f=k_f,
+                a=a,
+                b=b,
+                c=c,
+                rows=rows,
+                mask=mask,
+            )
+        x_target = np.broadcast_to(x_target, (*lead, 3))
+    B = x.size // (3 * n) if n else 1  # runs in the batch
     if n == 3 and rows is None and mask is None and B < _LOOP_MIN_RUNS:
         # the paper's swarm: the three pairs (i, i+1 mod 3) once each, every array of the
         # shape (..., 3, 3), so that each numpy call takes its fast path for equal shapes
@@ -232,16 +301,15 @@ def gradient(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Ar
         # the whole-array form adds (its self term is a signed zero, which adds nothing), and
         # with two terms the order of the sum is immaterial (addition commutes exactly). Same
         # bits as every other strategy, and as rows=[i].
-        d = x - x.take(_NEXT3, axis=-2)                 # x_i - x_{i+1}
+        d = x - x.take(_NEXT3, axis=-2)  # x_i - x_{i+1}
         # -r^2 = ((0 - d_x^2) - d_y^2) - d_z^2, exactly the negated sum of the other forms;
         # a unit last axis so that per-run gains (..., 1, 1) broadcast as in the others
-        w = _pair_weight_neg(np.subtract.reduce(d * d, -1, keepdims=True, initial=0.0),
-                             a, b, c)
-        np.multiply(d, w.take(_ZERO3, axis=-1), d)      # t_i
+        w = _pair_weight_neg(np.subtract.reduce(d * d, -1, keepdims=True, initial=0.0), a, b, c)
+        np.multiply(d, w.take(_ZERO3, axis=-1), d)  # t_i
         pair = d.take(_PREV3, axis=-2)
-        np.subtract(d, pair, pair)                      # t_i - t_{i-1}
-        rel = x - x_target[..., None, :].take(_ZERO3, axis=-2)      # x_i - x_N
-        if kn.ndim or float(kn) != 1.0:        # (a product by 1.0 changes nothing)
+        np.subtract(d, pair, pair)  # t_i - t_{i-1}
+        rel = x - x_target[..., None, :].take(_ZERO3, axis=-2)  # x_i - x_N
+        if kn.ndim or float(kn) != 1.0:  # (a product by 1.0 changes nothing)
             rel *= kn[..., None, None]
         if kf.ndim or float(kf) != 1.0:
             pair *= kf[..., None, None]
@@ -257,7 +325,7 @@ def gradient(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Ar
         d *= w[..., None]
         pair = np.add.reduce(d, axis=-2)
         rel = xi - x_target[..., None, :]
-        if kn.ndim or float(kn) != 1.0:        # (a product by 1.0 changes nothing)
+        if kn.ndim or float(kn) != 1.0:  # (a product by 1.0 changes nothing)
             rel *= kn[..., None, None]
         if kf.ndim or float(kf) != 1.0:
             pair *= kf[..., None, None]
@@ -266,36 +334,41 @@ def gradient(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Ar
     # component-major copy, logical shape (3, n, B): physically (3, n, B) when the runs go
     # innermost, (B, 3, n) otherwise; numpy keeps that memory order in every temporary
     xb = x.reshape((B, n, 3))
-    runs_inner = B > 1 and B >= n
+    runs_inner = B > 1 and n <= B
     if runs_inner:
         X = xb.transpose(2, 1, 0).copy()
     else:
         X = xb.transpose(0, 2, 1).copy().transpose(1, 2, 0)
-    Xi = X if rows is None else X[:, rows]             # (3, m, B)
+    Xi = X if rows is None else X[:, rows]  # (3, m, B)
     if n < _SMALL_N:
         pair = _pair_sums_by_pair(X, rows, lead, a, b, c)
     else:
         pair = _pair_sums_by_rows(X, Xi, lead, a, b, c, mask)
-    rel = Xi - x_target.reshape((B, 3)).T[:, None, :]   # x_i - x_N, (3, m, B)
+    rel = Xi - x_target.reshape((B, 3)).T[:, None, :]  # x_i - x_N, (3, m, B)
     if kn.ndim or float(kn) != 1.0:
         rel *= kn.reshape(B) if kn.ndim else kn
     if kf.ndim or float(kf) != 1.0:
         pair *= kf.reshape(B) if kf.ndim else kf
-    out = np.empty(lead + (Xi.shape[1], 3))
+    out = np.empty((*lead, Xi.shape[1], 3))
     np.add(rel, pair, out=out.reshape((B, -1, 3)).transpose(2, 1, 0))
     return out
 
 
 def _is_scalar(value: ArrayLike) -> bool:
-    kind = type(value)
-    if kind is np.ndarray:
+    if type(value) is np.ndarray:
         return not value.ndim
-    return kind is float or np.ndim(value) == 0
+    return type(value) is float or np.ndim(value) == 0
 
 
-def _pair_sums_by_rows(X: NDArray[np.float64], Xi: NDArray[np.float64], lead: tuple[int, ...],
-                       a: ArrayLike, b: ArrayLike, c: ArrayLike,
-                       mask: NDArray[np.bool_] | None) -> NDArray[np.float64]:
+def _pair_sums_by_rows(
+    X: NDArray[np.float64],
+    Xi: NDArray[np.float64],
+    lead: tuple[int, ...],
+    a: ArrayLike,
+    b: ArrayLike,
+    c: ArrayLike,
+    mask: NDArray[np.bool_] | None,
+) -> NDArray[np.float64]:
     """``sum_j (x_i - x_j) pair_weight_ij`` for the rows ``Xi`` (3, m, B) against ``X``
     (3, n, B), in blocks of rows, as whole (3, rows, n, B) arrays; returns (3, m, B)."""
     _, n, B = X.shape
@@ -303,23 +376,29 @@ def _pair_sums_by_rows(X: NDArray[np.float64], Xi: NDArray[np.float64], lead: tu
     step = max(1, _PAIR_BLOCK // (3 * n * B))
     parts = []
     for r0 in range(0, m, step):
-        d = (Xi if step >= m else Xi[:, r0:r0 + step])[:, :, None, :] - X[:, None, :, :]
+        d = (Xi if step >= m else Xi[:, r0 : r0 + step])[:, :, None, :] - X[:, None, :, :]
         sq = d * d
         r2 = sq[0] + sq[1]
-        r2 += sq[2]                                     # (mb, n, B), same sum as a reduce
+        r2 += sq[2]  # (mb, n, B), same sum as a reduce
         mb = r2.shape[0]
         # pair_weight sees the usual (..., mb, n) axes, for per-run gains of shape (...)
-        w = pair_weight(r2.transpose(2, 0, 1).reshape(lead + (mb, n)), a, b, c)
+        w = pair_weight(r2.transpose(2, 0, 1).reshape((*lead, mb, n)), a, b, c)
         if mask is not None:
-            w = np.where(mask[..., r0:r0 + mb, :], w, 0.0)
+            w = np.where(mask[..., r0 : r0 + mb, :], w, 0.0)
         # the self pair has d == 0, so it contributes nothing whatever its weight
         d *= w.reshape((B, mb, n)).transpose(1, 2, 0)
-        parts.append(np.add.reduce(d, axis=2))          # (3, mb, B)
+        parts.append(np.add.reduce(d, axis=2))  # (3, mb, B)
     return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
 
 
-def _pair_sums_by_pair(X: NDArray[np.float64], rows: ArrayLike | None, lead: tuple[int, ...],
-                       a: ArrayLike, b: ArrayLike, c: ArrayLike) -> NDArray[np.float64]:
+def _pair_sums_by_pair(
+    X: NDArray[np.float64],
+    rows: Rows,
+    lead: tuple[int, ...],
+    a: ArrayLike,
+    b: ArrayLike,
+    c: ArrayLike,
+) -> NDArray[np.float64]:
     """The same sums as :func:`_pair_sums_by_rows`, one pair at a time, vectorized over the
     runs of a batch (X of shape (3, n, B), runs innermost): for few trackers and many runs.
 
@@ -330,7 +409,7 @@ def _pair_sums_by_pair(X: NDArray[np.float64], rows: ArrayLike | None, lead: tup
     the same bits as the whole-array forms.
     """
     _, n, B = X.shape
-    wshape = lead + (1, 1)
+    wshape = (*lead, 1, 1)
 
     def term(i: int, j: int) -> NDArray[np.float64]:
         """(x_i - x_j) pair_weight_ij of every run, shape (3, B)."""
@@ -349,7 +428,7 @@ def _pair_sums_by_pair(X: NDArray[np.float64], rows: ArrayLike | None, lead: tup
                 acc[:, i] += t
                 acc[:, j] -= t
         return acc
-    index = np.arange(n)[rows].reshape(-1)             # any index form -> tracker numbers
+    index = np.arange(n)[rows].reshape(-1)  # any index form -> tracker numbers
     acc = np.zeros((3, len(index), B))
     for p, i in enumerate(index.tolist()):
         for j in range(n):
@@ -358,8 +437,9 @@ def _pair_sums_by_pair(X: NDArray[np.float64], rows: ArrayLike | None, lead: tup
     return acc
 
 
-def target_gradient(x: ArrayLike, x_target: ArrayLike, *,
-                    k_n: ArrayLike = 1.0) -> NDArray[np.float64]:
+def target_gradient(
+    x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0
+) -> NDArray[np.float64]:
     """Gradient of J with respect to the target, ``-k_N sum_i (x_i - x_N)`` (eq. 6, 17).
 
     Parameters
@@ -376,8 +456,16 @@ def target_gradient(x: ArrayLike, x_target: ArrayLike, *,
     return -_gain(k_n, 1) * np.sum(x - x_target[..., None, :], axis=-2)
 
 
-def hessian(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: ArrayLike = 1.0,
-            a: ArrayLike = 1.0, b: ArrayLike = 6.0, c: ArrayLike = 1.7) -> NDArray[np.float64]:
+def hessian(
+    x: ArrayLike,
+    x_target: ArrayLike,
+    *,
+    k_n: ArrayLike = 1.0,
+    k_f: ArrayLike = 1.0,
+    a: ArrayLike = 1.0,
+    b: ArrayLike = 6.0,
+    c: ArrayLike = 1.7,
+) -> NDArray[np.float64]:
     """Hessian of J (eq. 2 / 44) with respect to the tracker positions, shape (..., 3n, 3n).
 
     Differentiating the gradient once more, with ``d = x_i - x_j``, ``r^2 = |d|^2`` and
@@ -403,20 +491,29 @@ def hessian(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0, k_f: Arr
     lead, n = x.shape[:-2], x.shape[-2]
     kf, ga, gb, gc = (_gain(v, 4) for v in (k_f, a, b, c))
     kn = _gain(k_n, 3)
-    d = x[..., :, None, :] - x[..., None, :, :]                       # (..., n, n, 3)
+    d = x[..., :, None, :] - x[..., None, :, :]  # (..., n, n, 3)
     e = np.exp(-np.einsum('...ijk,...ijk->...ij', d, d)[..., None, None] / gc)
-    blocks = kf * ((ga - gb * e) * np.eye(3) + (2.0 * gb / gc) * e
-                   * d[..., :, :, :, None] * d[..., :, :, None, :])
+    blocks = kf * (
+        (ga - gb * e) * np.eye(3)
+        + (2.0 * gb / gc) * e * d[..., :, :, :, None] * d[..., :, :, None, :]
+    )
     idx = np.arange(n)
     blocks[..., idx, idx, :, :] = 0.0
     h = -blocks
     h[..., idx, idx, :, :] = blocks.sum(axis=-3) + kn * np.eye(3)
-    return np.swapaxes(h, -3, -2).reshape(lead + (3 * n, 3 * n))
+    return np.swapaxes(h, -3, -2).reshape((*lead, 3 * n, 3 * n))
 
 
-def newton_basis(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0,
-                 k_f: ArrayLike = 1.0, a: ArrayLike = 1.0, b: ArrayLike = 6.0,
-                 c: ArrayLike = 1.7) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def newton_basis(
+    x: ArrayLike,
+    x_target: ArrayLike,
+    *,
+    k_n: ArrayLike = 1.0,
+    k_f: ArrayLike = 1.0,
+    a: ArrayLike = 1.0,
+    b: ArrayLike = 6.0,
+    c: ArrayLike = 1.7,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The eigendecomposition ``H = V diag(lambda) V^T`` of the :func:`hessian` at x that
     :func:`newton_direction` preconditions with: ``(lambda (..., 3n), V (..., 3n, 3n))``.
 
@@ -429,8 +526,9 @@ def newton_basis(x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0,
     return w, v
 
 
-def _trust_floor(aw: NDArray[np.float64], coef: NDArray[np.float64], n: int, trust: float
-                 ) -> NDArray[np.float64]:
+def _trust_floor(
+    aw: NDArray[np.float64], coef: NDArray[np.float64], n: int, trust: float
+) -> NDArray[np.float64]:
     """The floor mu at which the step's RMS per tracker is exactly ``trust``, solved exactly.
 
     With ``|lambda|`` sorted, between two consecutive ones the squared step is
@@ -442,21 +540,27 @@ def _trust_floor(aw: NDArray[np.float64], coef: NDArray[np.float64], n: int, tru
     lam = np.take_along_axis(aw, order, axis=-1)
     c2 = np.take_along_axis(coef * coef, order, axis=-1)
     lead = lam.shape[:-1]
-    zero = np.zeros(lead + (1,))
-    soft = np.concatenate([zero, np.cumsum(c2, axis=-1)], axis=-1)          # B_j, j = 0..3n
+    zero = np.zeros((*lead, 1))
+    soft = np.concatenate([zero, np.cumsum(c2, axis=-1)], axis=-1)  # B_j, j = 0..3n
     with np.errstate(divide='ignore', invalid='ignore'):
         q = np.where(lam > 0.0, c2 / (lam * lam), np.inf)
         stiff = np.concatenate([np.cumsum(q[..., ::-1], axis=-1)[..., ::-1], zero], axis=-1)
         target = n * trust * trust
         mu = np.sqrt(soft / (target - stiff))
     lower = np.concatenate([zero, lam], axis=-1)
-    upper = np.concatenate([lam, np.full(lead + (1,), np.inf)], axis=-1)
+    upper = np.concatenate([lam, np.full((*lead, 1), np.inf)], axis=-1)
     ok = (stiff < target) & (mu >= lower * (1.0 - 1e-12)) & (mu <= upper * (1.0 + 1e-12))
     return np.max(np.where(ok, mu, 0.0), axis=-1)
 
 
-def newton_direction(basis: tuple[ArrayLike, ArrayLike], grad: ArrayLike, *, mu: float,
-                     trust: float = 0.0, ceiling: ArrayLike = np.inf) -> NDArray[np.float64]:
+def newton_direction(
+    basis: tuple[ArrayLike, ArrayLike],
+    grad: ArrayLike,
+    *,
+    mu: float,
+    trust: float = 0.0,
+    ceiling: ArrayLike = np.inf,
+) -> NDArray[np.float64]:
     r"""The saddle-free Newton direction of J (not in the paper), shape of ``grad``.
 
     .. math::
@@ -497,7 +601,7 @@ def newton_direction(basis: tuple[ArrayLike, ArrayLike], grad: ArrayLike, *, mu:
     w, v = (np.asarray(a, dtype=float) for a in basis)
     g = np.asarray(grad, dtype=float)
     n = g.shape[-2]
-    coef = np.einsum('...ij,...i->...j', v, g.reshape(g.shape[:-2] + (-1,)))
+    coef = np.einsum('...ij,...i->...j', v, g.reshape((*g.shape[:-2], -1)))
     aw = np.abs(w)
 
     def rms(floor: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -508,14 +612,19 @@ def newton_direction(basis: tuple[ArrayLike, ArrayLike], grad: ArrayLike, *, mu:
         too_long = rms(floor) > trust
         if too_long.any():
             top = np.maximum(np.asarray(ceiling, dtype=float), mu)
-            floor = np.where(too_long, np.clip(_trust_floor(aw, coef, n, trust), mu, top),
-                             floor)
+            floor = np.where(too_long, np.clip(_trust_floor(aw, coef, n, trust), mu, top), floor)
     step = coef / np.maximum(aw, floor[..., None])
     return np.einsum('...ij,...j->...i', v, step).reshape(g.shape)
 
 
-def obstacle_gradient(x: ArrayLike, obstacles: ArrayLike, *, k_f: ArrayLike = 1.0,
-                      b: ArrayLike = 6.0, c: ArrayLike = 1.7) -> NDArray[np.float64]:
+def obstacle_gradient(
+    x: ArrayLike,
+    obstacles: ArrayLike,
+    *,
+    k_f: ArrayLike = 1.0,
+    b: ArrayLike = 6.0,
+    c: ArrayLike = 1.7,
+) -> NDArray[np.float64]:
     """Gradient of the repulsive half of the pair term of eq. 44 with respect to ``x``,
     from bodies that repel but do not attract (not in the paper; used for a tracker whose
     controller is silent, see :mod:`apf_swarm_core.agents`).
@@ -544,15 +653,16 @@ def obstacle_gradient(x: ArrayLike, obstacles: ArrayLike, *, k_f: ArrayLike = 1.
     obstacles = np.asarray(obstacles, dtype=float).reshape(-1, 3)
     d = x[:, None, :] - obstacles[None, :, :]
     w = pair_weight(np.einsum('mok,mok->mo', d, d), 0.0, b, c)
-    return float(k_f) * np.einsum('mok,mo->mk', d, w)
+    return float(np.asarray(k_f)) * np.einsum('mok,mo->mk', d, w)
 
 
 #: how a tracker picks the trackers of its formation term (:func:`neighbour_mask`)
 NEIGHBOUR_RULES = ('all', 'nearest', 'radius')
 
 
-def neighbour_mask(x: ArrayLike, *, rule: str, count: int = 2, radius: float = 5.0,
-                   rows: ArrayLike | None = None) -> NDArray[np.bool_]:
+def neighbour_mask(
+    x: ArrayLike, *, rule: str, count: int = 2, radius: float = 5.0, rows: Rows = None
+) -> NDArray[np.bool_]:
     """Which trackers enter each selected tracker's formation term (not in the paper).
 
     ``rule = 'nearest'``: the ``count`` nearest other trackers (ties broken by the lower
@@ -584,7 +694,7 @@ def neighbour_mask(x: ArrayLike, *, rule: str, count: int = 2, radius: float = 5
     index = np.arange(n) if rows is None else np.arange(n)[rows].reshape(-1)
     xi = x[..., index, :]
     d = xi[..., :, None, :] - x[..., None, :, :]
-    r2 = np.einsum('...k,...k->...', d, d)                     # (..., m, n)
+    r2 = np.einsum('...k,...k->...', d, d)  # (..., m, n)
     own = index[:, None] == np.arange(n)[None, :]
     if rule == 'all':
         return np.broadcast_to(~own, r2.shape).copy()
@@ -592,7 +702,7 @@ def neighbour_mask(x: ArrayLike, *, rule: str, count: int = 2, radius: float = 5
         return (r2 < float(radius) ** 2) & ~own
     k = min(int(count), n - 1)
     r2 = np.where(own, np.inf, r2)
-    order = np.argsort(r2, axis=-1, kind='stable')[..., :k]   # stable: lower index on ties
+    order = np.argsort(r2, axis=-1, kind='stable')[..., :k]  # stable: lower index on ties
     mask = np.zeros(r2.shape, dtype=bool)
     np.put_along_axis(mask, order, True, axis=-1)
     return mask

@@ -22,8 +22,15 @@ from collections import deque
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['COMPENSATIONS', 'LATENCY_WINDOW', 'LatencyEstimate', 'Predictor',
-           'compensation_horizon', 'predict_positions', 'predict_velocity']
+__all__ = [
+    'COMPENSATIONS',
+    'LATENCY_WINDOW',
+    'LatencyEstimate',
+    'Predictor',
+    'compensation_horizon',
+    'predict_positions',
+    'predict_velocity',
+]
 
 #: values of the ``compensation`` configuration key
 COMPENSATIONS = ('none', 'predict')
@@ -61,8 +68,9 @@ def predict_positions(x: ArrayLike, v: ArrayLike, horizon: float) -> NDArray[np.
     return np.asarray(x, dtype=float) + horizon * np.asarray(v, dtype=float)
 
 
-def predict_velocity(v: ArrayLike, force: ArrayLike, horizon: float, mass: float
-                     ) -> NDArray[np.float64]:
+def predict_velocity(
+    v: ArrayLike, force: ArrayLike, horizon: float, mass: float
+) -> NDArray[np.float64]:
     """A tracker's velocity after ``horizon`` seconds under the force it holds:
     ``v + h u / M`` (eq. 19 without drag and disturbance, which the controller does not
     know).
@@ -93,18 +101,27 @@ class Predictor:
         self.horizon, self.mass = float(horizon), float(mass)
         self.held: NDArray[np.float64] | None = None
 
-    def state(self, x: ArrayLike, velocities: ArrayLike, v: ArrayLike, target_x: ArrayLike,
-              target_v: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64],
-                                            NDArray[np.float64]]:
+    def state(
+        self,
+        x: ArrayLike,
+        velocities: ArrayLike,
+        v: ArrayLike,
+        target_x: ArrayLike,
+        target_v: ArrayLike,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """(positions (..., n, 3), own velocities (..., m, 3), target position (..., 3))
         predicted by the horizon; ``velocities`` are those of every position in ``x``, ``v``
         those of the controlled trackers."""
         h = self.horizon
         v = np.asarray(v, dtype=float)
-        held = self.held if self.held is not None and self.held.shape == v.shape else \
-            np.zeros_like(v)
-        return (predict_positions(x, velocities, h), predict_velocity(v, held, h, self.mass),
-                predict_positions(target_x, target_v, h))
+        held = (
+            self.held if self.held is not None and self.held.shape == v.shape else np.zeros_like(v)
+        )
+        return (
+            predict_positions(x, velocities, h),
+            predict_velocity(v, held, h, self.mass),
+            predict_positions(target_x, target_v, h),
+        )
 
     def hold(self, force: ArrayLike) -> None:
         """The command the controlled trackers now hold."""

@@ -64,10 +64,25 @@ from .metrics import FLIGHT_CRITERIA
 from .potential import hessian
 from .prediction import compensation_horizon
 
-__all__ = ['RELAY_LIMIT', 'NEWTON_LIMIT', 'DESIGN_MARGIN', 'SOFT_SETTLE', 'LAYER_WIDTH',
-           'CASCADE', 'LAG_LIMIT', 'RIPPLE_FRACTION', 'SampledPrediction',
-           'design_hessian_spectrum', 'effective_spectrum', 'loop_limit', 'mode_matrix',
-           'mode_radius', 'predict', 'propose_gains', 'schedule_gains']
+__all__ = [
+    'CASCADE',
+    'DESIGN_MARGIN',
+    'LAG_LIMIT',
+    'LAYER_WIDTH',
+    'NEWTON_LIMIT',
+    'RELAY_LIMIT',
+    'RIPPLE_FRACTION',
+    'SOFT_SETTLE',
+    'SampledPrediction',
+    'design_hessian_spectrum',
+    'effective_spectrum',
+    'loop_limit',
+    'mode_matrix',
+    'mode_radius',
+    'predict',
+    'propose_gains',
+    'schedule_gains',
+]
 
 #: the loop holds while K lambda_max (T + tau) stays below this (the sampled relay)
 RELAY_LIMIT = 2.5
@@ -100,9 +115,16 @@ def _hold(h: float, mass: float) -> tuple[NDArray[np.float64], NDArray[np.float6
     return np.array([[1.0, h], [0.0, 1.0]]), np.array([h * h / (2.0 * mass), h / mass])
 
 
-def mode_matrix(lam: float, *, layer_gain: float, inner_rate: float, period: float,
-                latency: float, mass: float = 1.0, horizon: float = 0.0
-                ) -> NDArray[np.float64]:
+def mode_matrix(
+    lam: float,
+    *,
+    layer_gain: float,
+    inner_rate: float,
+    period: float,
+    latency: float,
+    mass: float = 1.0,
+    horizon: float = 0.0,
+) -> NDArray[np.float64]:
     """Transition matrix of one formation mode over one control period (step 3 above).
 
     State ``(e_k, e'_k, u_{k-1}, ..., u_{k-m-1})`` with ``latency = m T + r``; the command
@@ -136,7 +158,7 @@ def mode_matrix(lam: float, *, layer_gain: float, inner_rate: float, period: flo
     r = tau - m * T
     size = 3 + m
     A = np.zeros((size, size))
-    gain = -inner_rate * mass * np.array([layer_gain * lam, 1.0])   # u_k = gain . (e, e')
+    gain = -inner_rate * mass * np.array([layer_gain * lam, 1.0])  # u_k = gain . (e, e')
     h = float(horizon)
     # the predicted state (e + h e', e' + h u_{k-1} / M): u_k = gain . pred . (e, e') + held
     # u_{k-1} (slot 2)
@@ -146,16 +168,16 @@ def mode_matrix(lam: float, *, layer_gain: float, inner_rate: float, period: flo
     phi_rest, gam_rest = _hold(T - r, mass)
     _, gam_r = _hold(r, mass)
     # the command of sample k - m - 1 for r seconds, then that of k - m for T - r
-    early = phi_rest @ gam_r                  # effect of u_{k-m-1}
-    late = gam_rest                           # effect of u_{k-m}
+    early = phi_rest @ gam_r  # effect of u_{k-m-1}
+    late = gam_rest  # effect of u_{k-m}
     A[:2, :2] = phi_T
     # index of u_{k-j} in the state: 1 + j (j = 1 .. m + 1); u_k itself is a function of x_k
     if m == 0:
-        A[:2, :2] += np.outer(late, gain)     # u_k acts after r
+        A[:2, :2] += np.outer(late, gain)  # u_k acts after r
         A[:2, 2] += late * held
     else:
-        A[:2, 1 + m] += late                  # u_{k-m}
-    A[:2, 2 + m] += early                     # u_{k-m-1}
+        A[:2, 1 + m] += late  # u_{k-m}
+    A[:2, 2 + m] += early  # u_{k-m-1}
     # shift the history: new u_{k} enters slot 2 (u_{(k+1)-1}), u_{k-j} moves to slot 2 + j
     A[2, :2] = gain
     A[2, 2] += held
@@ -173,9 +195,10 @@ def design_hessian_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
     """Eigenvalues of the Hessian of J at the design equilibrium of ``cfg.n_trackers``
     trackers, ascending (the rotations' zeros included); shape (3n,)."""
     from .simulator import design_formation
+
     f = design_formation(cfg)
-    return np.linalg.eigvalsh(hessian(f.relative_positions, np.zeros(3),
-                                      **cfg.potential_params()))
+    h = hessian(f.relative_positions, np.zeros(3), **cfg.potential_params())
+    return np.linalg.eigvalsh(h).astype(np.float64, copy=False)
 
 
 def loop_limit(cfg: SwarmConfig) -> float:
@@ -225,8 +248,7 @@ class SampledPrediction:
         loop stable (:attr:`inner_stable`) and the lag within :data:`LAG_LIMIT`. A soft mode
         that settles slowly (:attr:`settle_time` above :attr:`settle_allowed`) is a warning,
         not a verdict: how far the start excites it decides (the emulation does)."""
-        return (self.spectral_radius < 1.0 and self.steady_lag <= LAG_LIMIT
-                and self.inner_stable)
+        return self.spectral_radius < 1.0 and self.steady_lag <= LAG_LIMIT and self.inner_stable
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values, for summary.json."""
@@ -240,9 +262,13 @@ def _inner_rate(cfg: SwarmConfig, period: float, mass: float) -> float:
     return cfg.u0 / (cfg.phi * mass) if cfg.switching == 'layer' else 1.0 / period
 
 
-def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
-            latency: float | None = None, spectrum: NDArray[np.float64] | None = None
-            ) -> SampledPrediction:
+def predict(
+    cfg: SwarmConfig,
+    *,
+    control_rate: float | None = None,
+    latency: float | None = None,
+    spectrum: NDArray[np.float64] | None = None,
+) -> SampledPrediction:
     """Predict the sampled loop of ``cfg`` at ``control_rate`` [Hz] (default its own, else
     1/dt) with ``latency`` [s] (default its own); ``spectrum``: a precomputed
     :func:`design_hessian_spectrum`."""
@@ -252,7 +278,7 @@ def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
     raw = design_hessian_spectrum(cfg) if spectrum is None else np.asarray(spectrum)
     eigs = effective_spectrum(cfg, raw)
     lam_max = float(eigs.max())
-    soft = float(eigs[raw > 1e-6 * raw.max()].min())      # the rotations' zeros left out
+    soft = float(eigs[raw > 1e-6 * raw.max()].min())  # the rotations' zeros left out
     mass = float(np.min(cfg.mass_matrix_diag()))
     K = cfg.alpha + cfg.beta / cfg.gamma
     g = _inner_rate(cfg, T, mass)
@@ -260,8 +286,9 @@ def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
     allowed = limit / (T + tau)
     # compensation = predict: the commands act on the state predicted by tau
     h = compensation_horizon(tau) if cfg.compensation == 'predict' else 0.0
-    linear = mode_radius(lam_max, layer_gain=K, inner_rate=g, period=T, latency=tau,
-                         mass=mass, horizon=h)
+    linear = mode_radius(
+        lam_max, layer_gain=K, inner_rate=g, period=T, latency=tau, mass=mass, horizon=h
+    )
     ripple = cfg.u0 * T / mass
     vn = cfg.target_speed_bound
     lag = (1.0 - cfg.feedforward) * vn / (cfg.k_n * K)
@@ -275,26 +302,31 @@ def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
             f'{settle:.3g} s, more than {settle_allowed:.3g} s ({1 / SOFT_SETTLE:g} of the '
             f'first {1 - FLIGHT_CRITERIA["window"]:g} of the {cfg.duration:g} s run): the '
             f'pair distances may not reach the design in time; fly longer, or raise K with '
-            f'a higher control rate')
+            f'a higher control rate'
+        )
     if K * lam_max > allowed:
         Kmax = DESIGN_MARGIN * allowed / lam_max
-        fix = (f'raise gamma to >= {cfg.beta / (Kmax - cfg.alpha):.3g} m (K = {Kmax:.3g} '
-               f'1/s, with feedforward = 1 against the lag)' if Kmax > cfg.alpha else
-               'lower the latency')
+        fix = (
+            f'raise gamma to >= {cfg.beta / (Kmax - cfg.alpha):.3g} m (K = {Kmax:.3g} '
+            f'1/s, with feedforward = 1 against the lag)'
+            if Kmax > cfg.alpha
+            else 'lower the latency'
+        )
         warnings.append(
             f'formation predicted to fail at {1.0 / T:g} Hz with {tau * 1e3:g} ms latency: '
             f'the stiffest mode of {cfg.n_trackers} trackers has the rate K lambda_max = '
             f'{K:.3g} x {lam_max:.3g} = {K * lam_max:.3g} 1/s, and a control period of '
             f'{T * 1e3:g} ms with that delay allows {limit:g} / (T + tau) = '
             f'{allowed:.3g} 1/s: {fix}, raise the control rate, or run `apf-swarm design '
-            f'--control-rate {1.0 / T:g} --latency {tau:g} --n-trackers {cfg.n_trackers}`')
+            f'--control-rate {1.0 / T:g} --latency {tau:g} --n-trackers {cfg.n_trackers}`'
+        )
     inner_stable = True
     if cfg.switching == 'layer' and g >= CASCADE * K * lam_max:
         # the linear regime: the layer's own loop must be stable at the latency, and should
         # be with it doubled plus half a period (the jitter of a real delay)
         centroid = float(effective_spectrum(cfg, np.array([cfg.k_n]))[0])
         jitter = 2.0 * tau + 0.5 * T
-        kw = dict(layer_gain=K, inner_rate=g, period=T, mass=mass, horizon=h)
+        kw = {'layer_gain': K, 'inner_rate': g, 'period': T, 'mass': mass, 'horizon': h}
         if mode_radius(centroid, latency=tau, **kw) >= 1.0:
             inner_stable = False
             warnings.append(
@@ -303,43 +335,63 @@ def predict(cfg: SwarmConfig, *, control_rate: float | None = None,
                 f'its linear loop (rate u0 / (phi M) = {g:.3g} 1/s) is unstable; use phi >= '
                 f'{LAYER_WIDTH * cfg.u0 * (T + tau) / mass:.3g} m/s and K <= '
                 f'{cfg.u0 / (LAYER_WIDTH * cfg.u0 * (T + tau)) / (CASCADE * lam_max):.3g} '
-                f'1/s, or run `apf-swarm design --control-rate {1.0 / T:g} --latency {tau:g}`')
+                f'1/s, or run `apf-swarm design --control-rate {1.0 / T:g} --latency {tau:g}`'
+            )
         elif mode_radius(centroid, latency=jitter, **kw) >= 1.0:
             warnings.append(
                 f'the boundary layer phi = {cfg.phi:g} m/s is too narrow for a period of '
                 f'{T * 1e3:g} ms with a latency jittering up to 2 tau + T/2 = '
                 f'{jitter * 1e3:g} ms: the inner loop (rate u0 / (phi M) = {g:.3g} 1/s) '
                 f'goes unstable and the switching chatters; use phi >= '
-                f'{LAYER_WIDTH * cfg.u0 * (T + tau) / mass:.3g} m/s')
+                f'{LAYER_WIDTH * cfg.u0 * (T + tau) / mass:.3g} m/s'
+            )
     if cfg.switching == 'sign' and ripple > RIPPLE_FRACTION * vn:
         warnings.append(
             f'large chattering: u0 = {cfg.u0:g} N held for the control period T = '
             f'{T * 1e3:g} ms gives a velocity ripple u0 T / M = {ripple:.3g} m/s, more than '
             f'{RIPPLE_FRACTION:g} x the target speed {vn:g} m/s: lower u0 to <= '
             f'{RIPPLE_FRACTION * vn * mass / T:.3g} N, raise the control rate, or use '
-            f'switching = layer (phi about {ripple:.2g} m/s)')
+            f'switching = layer (phi about {ripple:.2g} m/s)'
+        )
     if lag > LAG_LIMIT:
         warnings.append(
             f'steady lag (1 - w) v_N / (k_N K) = {lag:.3g} m behind a target at {vn:g} m/s '
             f'(K = {K:.3g} 1/s, w = {cfg.feedforward:g}): set feedforward = 1 or a smaller '
-            f'gamma')
+            f'gamma'
+        )
     return SampledPrediction(
-        n_trackers=cfg.n_trackers, control_period=T, latency=tau, switching=cfg.switching,
-        layer_gain=K, inner_rate=g, hessian_max=lam_max, hessian_soft=soft,
-        formation_rate=K * lam_max, rate_allowed=allowed,
-        spectral_radius=K * lam_max / allowed, linear_radius=linear, ripple=ripple,
-        steady_lag=lag, settle_time=settle, settle_allowed=settle_allowed,
-        inner_stable=inner_stable, warnings=warnings)
+        n_trackers=cfg.n_trackers,
+        control_period=T,
+        latency=tau,
+        switching=cfg.switching,
+        layer_gain=K,
+        inner_rate=g,
+        hessian_max=lam_max,
+        hessian_soft=soft,
+        formation_rate=K * lam_max,
+        rate_allowed=allowed,
+        spectral_radius=K * lam_max / allowed,
+        linear_radius=linear,
+        ripple=ripple,
+        steady_lag=lag,
+        settle_time=settle,
+        settle_allowed=settle_allowed,
+        inner_stable=inner_stable,
+        warnings=warnings,
+    )
 
 
-def _schedule(cfg: SwarmConfig, eigs: NDArray[np.float64], T: float, latency: float
-              ) -> dict[str, float | str] | None:
+def _schedule(
+    cfg: SwarmConfig, eigs: NDArray[np.float64], T: float, latency: float
+) -> dict[str, float | str] | None:
     """The gains of :func:`propose_gains` for the direction ``cfg.precondition``, or None."""
     lam_max = float(effective_spectrum(cfg, eigs).max())
     mass = float(np.min(cfg.mass_matrix_diag()))
-    K = min(cfg.alpha + cfg.beta / cfg.gamma,
-            DESIGN_MARGIN * loop_limit(cfg) / (lam_max * (T + latency)))
-    if K <= cfg.alpha:
+    K = min(
+        cfg.alpha + cfg.beta / cfg.gamma,
+        DESIGN_MARGIN * loop_limit(cfg) / (lam_max * (T + latency)),
+    )
+    if cfg.alpha >= K:
         return None
     wide = LAYER_WIDTH * cfg.u0 * (T + latency) / mass
     # a wide, linear layer whose inner loop is CASCADE times faster than the formation's
@@ -350,13 +402,22 @@ def _schedule(cfg: SwarmConfig, eigs: NDArray[np.float64], T: float, latency: fl
         K, phi = min(K, K_cascade), wide
     else:
         phi = cfg.u0 * T / mass
-    return {'switching': 'layer', 'phi': phi,
-            'gamma': cfg.beta / (K - cfg.alpha), 'feedforward': 1.0,
-            'precondition': cfg.precondition}
+    return {
+        'switching': 'layer',
+        'phi': phi,
+        'gamma': cfg.beta / (K - cfg.alpha),
+        'feedforward': 1.0,
+        'precondition': cfg.precondition,
+    }
 
 
-def propose_gains(cfg: SwarmConfig, *, control_rate: float, latency: float,
-                  spectrum: NDArray[np.float64] | None = None) -> dict[str, float | str]:
+def propose_gains(
+    cfg: SwarmConfig,
+    *,
+    control_rate: float,
+    latency: float,
+    spectrum: NDArray[np.float64] | None = None,
+) -> dict[str, float | str]:
     """Gains that :func:`predict` passes at this rate and delay, for ``cfg.n_trackers``.
 
     For a direction (the configuration's, then the Newton direction if that one's
@@ -385,14 +446,17 @@ def propose_gains(cfg: SwarmConfig, *, control_rate: float, latency: float,
         if pred.holds and pred.settle_time <= pred.settle_allowed:
             return gains
     if not tried:
-        raise ValueError(f'no layer gain holds {cfg.n_trackers} trackers at '
-                         f'{control_rate:g} Hz with {latency * 1e3:g} ms latency: even '
-                         f'K = alpha = {cfg.alpha:g} is too fast; lower the latency')
+        raise ValueError(
+            f'no layer gain holds {cfg.n_trackers} trackers at '
+            f'{control_rate:g} Hz with {latency * 1e3:g} ms latency: even '
+            f'K = alpha = {cfg.alpha:g} is too fast; lower the latency'
+        )
     return tried[-1]
 
 
-def schedule_gains(cfg: SwarmConfig, *, latency: float
-                   ) -> tuple[SwarmConfig, SampledPrediction, dict[str, Any] | None, list[str]]:
+def schedule_gains(
+    cfg: SwarmConfig, *, latency: float
+) -> tuple[SwarmConfig, SampledPrediction, dict[str, Any] | None, list[str]]:
     """The configuration a realtime run flies at ``cfg.control_rate`` (> 0) with ``latency``:
     the prediction of ``cfg``; when it does not hold, :func:`propose_gains` replaces gamma,
     phi (and what they need) if the proposal predicts a smaller spectral radius or a smaller
@@ -407,7 +471,9 @@ def schedule_gains(cfg: SwarmConfig, *, latency: float
         return cfg, pred, None, [*pred.warnings, str(exc)]
     tuned = cfg.replace(**gains)
     tuned_pred = predict(tuned, latency=latency)
-    if tuned_pred.spectral_radius < pred.spectral_radius or \
-            tuned_pred.steady_lag < pred.steady_lag:
+    if (
+        tuned_pred.spectral_radius < pred.spectral_radius
+        or tuned_pred.steady_lag < pred.steady_lag
+    ):
         return tuned, tuned_pred, dict(gains), list(tuned_pred.warnings)
     return cfg, pred, None, list(pred.warnings)

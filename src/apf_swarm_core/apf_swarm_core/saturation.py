@@ -5,12 +5,10 @@ Vectors are the last axis (length 3) of arrays of shape ``(..., 3)``.
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['SATURATIONS', 'sign', 'sat', 'sat_continuous', 'saturate', 'outside_layer']
+__all__ = ['SATURATIONS', 'outside_layer', 'sat', 'sat_continuous', 'saturate', 'sign']
 
 SATURATIONS = ('paper', 'continuous')
 
@@ -60,14 +58,14 @@ def _layer_bound(gamma: ArrayLike) -> NDArray[np.float64]:
     ``nextafter``, testing with ``np.sqrt`` itself.
     """
     g = np.asarray(gamma, dtype=float)
-    with np.errstate(invalid='ignore', over='ignore'):   # sqrt of a negative is NaN: fails
+    with np.errstate(invalid='ignore', over='ignore'):  # sqrt of a negative is NaN: fails
         q = np.where(g < 0, -np.inf, g * g)
-        while True:                             # up while sqrt(q) < gamma
+        while True:  # up while sqrt(q) < gamma
             low = np.sqrt(q) < g
             if not np.any(low):
                 break
             q = np.where(low, np.nextafter(q, np.inf), q)
-        while True:                             # down while the double below still passes
+        while True:  # down while the double below still passes
             below = np.nextafter(q, -np.inf)
             ok = (np.sqrt(below) >= g) & (g >= 0)
             if not np.any(ok):
@@ -131,7 +129,8 @@ def sat(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
 
 
 def sat_continuous(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
-    """Continuous saturation ``g / max(||g||, gamma)`` (not in the paper; docs/THEORY.md section 1).
+    """Continuous saturation ``g / max(||g||, gamma)`` (not in the paper;
+    docs/THEORY.md section 1).
 
     Equal to eq. 8 inside the layer; outside it is the unit vector ``g/||g||`` instead of the
     componentwise sign, so the function is continuous everywhere.
@@ -140,11 +139,11 @@ def sat_continuous(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
     return g / np.maximum(_norm(g)[..., None], _gamma(gamma))
 
 
-def saturate(g: ArrayLike, gamma: ArrayLike,
-             kind: Literal['paper', 'continuous'] = 'paper') -> NDArray[np.float64]:
-    """Dispatch to :func:`sat` (``'paper'``) or :func:`sat_continuous` (``'continuous'``)."""
+def saturate(g: ArrayLike, gamma: ArrayLike, kind: str = 'paper') -> NDArray[np.float64]:
+    """Dispatch to :func:`sat` (``'paper'``) or :func:`sat_continuous` (``'continuous'``);
+    any other ``kind`` is a ValueError."""
     if kind == 'paper':
         return sat(g, gamma)
     if kind == 'continuous':
         return sat_continuous(g, gamma)
-    raise ValueError(f"saturation must be one of {SATURATIONS}, got {kind!r}")
+    raise ValueError(f'saturation must be one of {SATURATIONS}, got {kind!r}')

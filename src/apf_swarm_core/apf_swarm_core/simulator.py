@@ -26,9 +26,10 @@ positions, ``default_rng([seed, 2])`` the disturbance (see :mod:`apf_swarm_core.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Any, Callable, Sequence
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -38,15 +39,36 @@ from .design import equilibrium_formations, triangle_spacing
 from .laws import ControlOutput, SlidingModeController
 from .metrics import summarize
 from .plant import DisturbanceSource, plant_step, uniform_ball
+from .potential import (
+    PotentialParams,
+    Rows,
+    gradient,
+    neighbour_mask,
+    newton_basis,
+    newton_direction,
+    obstacle_gradient,
+)
 from .prediction import Predictor, compensation_horizon
-from .potential import (gradient, neighbour_mask, newton_basis, newton_direction,
-                        obstacle_gradient)
 
-__all__ = ['initial_positions', 'expected_pairs', 'design_formation', 'design_formations',
-           'design_pair_sets', 'make_controller', 'make_predictor', 'control_step',
-           'integrate', 'Preconditioner', 'make_preconditioner', 'CommandHold',
-           'BatchSimulator', 'SimResult', 'simulate',
-           'simulate_batch', 'TRAJECTORY_KEYS']
+__all__ = [
+    'TRAJECTORY_KEYS',
+    'BatchSimulator',
+    'CommandHold',
+    'Preconditioner',
+    'SimResult',
+    'control_step',
+    'design_formation',
+    'design_formations',
+    'design_pair_sets',
+    'expected_pairs',
+    'initial_positions',
+    'integrate',
+    'make_controller',
+    'make_preconditioner',
+    'make_predictor',
+    'simulate',
+    'simulate_batch',
+]
 
 #: up to this many trackers expected_pairs minimizes J from 4 random shapes, above from one
 #: (32 trackers: 1.1 s; one start lands in a higher minimum, closest pair 0.669 m against
@@ -57,19 +79,50 @@ EXPECTED_PAIRS_MULTISTART = 40
 TRAJECTORY_KEYS = ('t', 'x', 'v', 'u', 's', 'target_x', 'target_v')
 
 #: configuration keys that may differ between the runs of one batch
-BATCHABLE = ('k_n', 'k_f', 'a', 'b', 'c', 'alpha', 'beta', 'gamma', 'lambda_filter', 'u0',
-             'drag', 'f_bar', 'mass', 'seed', 'init_spread', 'target_speed', 'target_radius',
-             'target_yaw_deg', 'target_pitch_deg', 'target_trajectory', 'target_start',
-             'target_waypoints', 'init_center', 'v_n', 'epsilon', 'mu', 'mass_lo', 'mass_hi',
-             'noise', 'uav_overrides', 'phi', 'feedforward', 'latency')
+BATCHABLE = (
+    'k_n',
+    'k_f',
+    'a',
+    'b',
+    'c',
+    'alpha',
+    'beta',
+    'gamma',
+    'lambda_filter',
+    'u0',
+    'drag',
+    'f_bar',
+    'mass',
+    'seed',
+    'init_spread',
+    'target_speed',
+    'target_radius',
+    'target_yaw_deg',
+    'target_pitch_deg',
+    'target_trajectory',
+    'target_start',
+    'target_waypoints',
+    'init_center',
+    'v_n',
+    'epsilon',
+    'mu',
+    'mass_lo',
+    'mass_hi',
+    'noise',
+    'uav_overrides',
+    'phi',
+    'feedforward',
+    'latency',
+)
 
 
 def initial_positions(cfg: SwarmConfig) -> NDArray[np.float64]:
     """Initial tracker positions, shape (n, 3) [m]: uniform in a ball of radius
     ``init_spread`` around ``init_center`` (stream ``[seed, 1]``), then per-UAV overrides."""
     rng = np.random.default_rng([cfg.seed, 1])
-    x = np.asarray(cfg.init_center) + uniform_ball(rng.random((cfg.n_trackers, 3)),
-                                                   cfg.init_spread)
+    x = np.asarray(cfg.init_center) + uniform_ball(
+        rng.random((cfg.n_trackers, 3)), cfg.init_spread
+    )
     for i, over in cfg.uav_overrides.items():
         if 'initial_position' in over:
             x[int(i) - 1] = np.asarray(over['initial_position'], dtype=float)
@@ -124,16 +177,25 @@ def design_pair_sets(cfg: SwarmConfig) -> list[NDArray[np.float64]]:
 @lru_cache(maxsize=32)
 def _design_formations(n: int, params: tuple[tuple[str, float], ...]) -> list[Any]:
     # a 150-dimensional minimization takes seconds per start at n = 50: one start past 40
-    found = equilibrium_formations(n, **dict(params),
-                                   starts=4 if n <= EXPECTED_PAIRS_MULTISTART else 1)
+    p = dict(params)
+    found = equilibrium_formations(
+        n,
+        k_n=p['k_n'],
+        k_f=p['k_f'],
+        a=p['a'],
+        b=p['b'],
+        c=p['c'],
+        starts=4 if n <= EXPECTED_PAIRS_MULTISTART else 1,
+    )
     for f in found:
         f.pair_distances.flags.writeable = False
         f.relative_positions.flags.writeable = False
     return found
 
 
-def make_controller(cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, ...]
-                    ) -> SlidingModeController:
+def make_controller(
+    cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, ...]
+) -> SlidingModeController:
     """A controller with the gains of one configuration, or per-run gains of a batch."""
     cfgs = [cfg] if isinstance(cfg, SwarmConfig) else list(cfg)
 
@@ -141,14 +203,23 @@ def make_controller(cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, 
         # one value for every run: a scalar (0-d once prepared), not an (R,) array, whose
         # (R, 1, 1) broadcast makes every numpy call on a small run about 3x dearer
         vals = np.array([getattr(c, name) for c in cfgs], dtype=float)
-        return float(vals[0]) if isinstance(cfg, SwarmConfig) or np.all(vals == vals[0]) \
-            else vals
+        return float(vals[0]) if isinstance(cfg, SwarmConfig) or np.all(vals == vals[0]) else vals
 
     return SlidingModeController(
-        law=cfgs[0].law, alpha=gain('alpha'), beta=gain('beta'), gamma=gain('gamma'),
-        lambda_filter=gain('lambda_filter'), u0=gain('u0'), drag=gain('drag'),
-        dt=cfgs[0].control_period, shape=shape, saturation=cfgs[0].saturation,
-        switching=cfgs[0].switching, phi=gain('phi'), feedforward=gain('feedforward'))
+        law=cfgs[0].law,
+        alpha=gain('alpha'),
+        beta=gain('beta'),
+        gamma=gain('gamma'),
+        lambda_filter=gain('lambda_filter'),
+        u0=gain('u0'),
+        drag=gain('drag'),
+        dt=cfgs[0].control_period,
+        shape=shape,
+        saturation=cfgs[0].saturation,
+        switching=cfgs[0].switching,
+        phi=gain('phi'),
+        feedforward=gain('feedforward'),
+    )
 
 
 class Preconditioner:
@@ -163,22 +234,26 @@ class Preconditioner:
     command).
     """
 
-    _last_basis: tuple[Any, Any] | None = None              # shared by the process
+    _last_basis: tuple[Any, Any] | None = None  # shared by the process
     _last_direction: tuple[Any, NDArray[np.float64], Any] | None = None
 
     def __init__(self, mu: float, every: int = 1, trust: float = 0.0) -> None:
         self.mu, self.every, self.trust, self.calls = float(mu), int(every), float(trust), 0
         self.basis: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
-    def direction(self, x: ArrayLike, target_x: ArrayLike, params: dict[str, Any]
-                  ) -> NDArray[np.float64]:
+    def direction(
+        self, x: ArrayLike, target_x: ArrayLike, params: PotentialParams
+    ) -> NDArray[np.float64]:
         """The Newton direction of every tracker, shape of ``x`` (..., n, 3)."""
         x = np.asarray(x, dtype=float)
         tx = np.asarray(target_x, dtype=float)
         gains = tuple(np.asarray(v, dtype=float).tobytes() for v in params.values())
         key = (x.tobytes(), x.shape, gains)
-        if self.basis is None or self.basis[0].shape[-1] != x.shape[-2] * 3 or \
-                self.calls % self.every == 0:
+        if (
+            self.basis is None
+            or self.basis[0].shape[-1] != x.shape[-2] * 3
+            or self.calls % self.every == 0
+        ):
             last = Preconditioner._last_basis
             if last is not None and last[0] == key:
                 self.basis = last[1]
@@ -190,26 +265,41 @@ class Preconditioner:
         last = Preconditioner._last_direction
         if last is not None and last[2] is self.basis and last[0] == dkey:
             return last[1]
-        out = newton_direction(self.basis, gradient(x, tx, **params), mu=self.mu,
-                               trust=self.trust, ceiling=params['k_n'])
+        out = newton_direction(
+            self.basis,
+            gradient(x, tx, **params),
+            mu=self.mu,
+            trust=self.trust,
+            ceiling=params['k_n'],
+        )
         Preconditioner._last_direction = (dkey, out, self.basis)
         return out
 
 
 def make_preconditioner(cfg: SwarmConfig) -> Preconditioner | None:
     """The :class:`Preconditioner` of a configuration, or None for the gradient (the paper)."""
-    return Preconditioner(cfg.newton_mu, cfg.newton_every, cfg.newton_trust) \
-        if cfg.precondition == 'newton' else None
+    return (
+        Preconditioner(cfg.newton_mu, cfg.newton_every, cfg.newton_trust)
+        if cfg.precondition == 'newton'
+        else None
+    )
 
 
-def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
-                 target_x: ArrayLike, potential_params: dict[str, Any], *,
-                 rows: ArrayLike | None = None, mask: ArrayLike | None = None,
-                 obstacles: ArrayLike | None = None,
-                 target_v: ArrayLike | None = None,
-                 precondition: Preconditioner | None = None,
-                 predictor: Predictor | None = None,
-                 velocities: ArrayLike | None = None) -> ControlOutput:
+def control_step(
+    controller: SlidingModeController,
+    x: ArrayLike,
+    v: ArrayLike,
+    target_x: ArrayLike,
+    potential_params: PotentialParams,
+    *,
+    rows: Rows = None,
+    mask: ArrayLike | None = None,
+    obstacles: ArrayLike | None = None,
+    target_v: ArrayLike | None = None,
+    precondition: Preconditioner | None = None,
+    predictor: Predictor | None = None,
+    velocities: ArrayLike | None = None,
+) -> ControlOutput:
     """Commands of the trackers in ``rows`` (default all) at one step.
 
     Parameters
@@ -241,18 +331,26 @@ def control_step(controller: SlidingModeController, x: ArrayLike, v: ArrayLike,
         then has to hold every row).
     """
     if predictor is not None:
-        x, v, target_x = predictor.state(x, v if velocities is None else velocities, v,
-                                         target_x, target_v)
+        if target_v is None:
+            raise ValueError('a predictor needs the target velocity (target_v)')
+        x, v, target_x = predictor.state(
+            x, v if velocities is None else velocities, v, target_x, target_v
+        )
     if precondition is None:
         grad = gradient(x, target_x, **potential_params, rows=rows, mask=mask)
     else:
         grad = precondition.direction(x, target_x, potential_params)
         grad = grad if rows is None else grad[..., rows, :]
-    if obstacles is not None and len(obstacles):
+    if obstacles is not None and np.size(obstacles):
         xi = np.asarray(x, dtype=float)
         xi = xi if rows is None else xi[..., rows, :]
-        grad = grad + obstacle_gradient(xi, obstacles, k_f=potential_params['k_f'],
-                                        b=potential_params['b'], c=potential_params['c'])
+        grad = grad + obstacle_gradient(
+            xi,
+            obstacles,
+            k_f=potential_params['k_f'],
+            b=potential_params['b'],
+            c=potential_params['c'],
+        )
     out = controller.step(v, grad, target_v)
     if predictor is not None:
         predictor.hold(out.force)
@@ -266,13 +364,19 @@ def make_predictor(cfg: SwarmConfig, latency: float | None = None) -> Predictor 
     if cfg.compensation != 'predict' or cfg.control_rate <= 0:
         return None
     tau = cfg.latency if latency is None else latency
-    return Predictor(compensation_horizon(tau),
-                     0.5 * (cfg.mass_lo + cfg.mass_hi))
+    return Predictor(compensation_horizon(tau), 0.5 * (cfg.mass_lo + cfg.mass_hi))
 
 
-def integrate(x: ArrayLike, v: ArrayLike, force: ArrayLike, *, mass: ArrayLike, dt: float,
-              drag: ArrayLike, disturbance: ArrayLike) -> tuple[NDArray[np.float64],
-                                                                NDArray[np.float64]]:
+def integrate(
+    x: ArrayLike,
+    v: ArrayLike,
+    force: ArrayLike,
+    *,
+    mass: ArrayLike,
+    dt: float,
+    drag: ArrayLike,
+    disturbance: ArrayLike,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Advance the plant one step (eq. 19-21); see :func:`apf_swarm_core.plant.plant_step`."""
     return plant_step(x, v, force, mass=mass, dt=dt, drag=drag, disturbance=disturbance)
 
@@ -293,18 +397,27 @@ class CommandHold:
     latency_samples : array (k,) [s], optional; rng : numpy Generator for them
     """
 
-    def __init__(self, shape: tuple[int, int], latency: ArrayLike, dt: float,
-                 latency_samples: ArrayLike | None = None,
-                 rng: np.random.Generator | None = None) -> None:
+    def __init__(
+        self,
+        shape: tuple[int, int],
+        latency: ArrayLike,
+        dt: float,
+        latency_samples: ArrayLike | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
         self.shape = shape
-        self.fixed = np.broadcast_to(np.rint(np.asarray(latency, dtype=float) / dt)
-                                     .astype(np.int64).reshape(-1, 1), shape)
-        self.samples = None if latency_samples is None else \
-            np.rint(np.asarray(latency_samples, dtype=float) / dt).astype(np.int64)
+        self.fixed = np.broadcast_to(
+            np.rint(np.asarray(latency, dtype=float) / dt).astype(np.int64).reshape(-1, 1), shape
+        )
+        self.samples = (
+            None
+            if latency_samples is None
+            else np.rint(np.asarray(latency_samples, dtype=float) / dt).astype(np.int64)
+        )
         if self.samples is not None and (self.samples.size == 0 or np.any(self.samples < 0)):
             raise ValueError('latency_samples must be a non-empty array of delays >= 0 s')
         self.rng = rng if rng is not None else np.random.default_rng()
-        self.force = np.zeros(shape + (3,))
+        self.force = np.zeros((*shape, 3))
         self.seq = np.full(shape, -1, dtype=np.int64)
         self.pending: list[tuple[int, NDArray[np.int64], NDArray[np.float64]]] = []
         self.count = 0
@@ -316,8 +429,9 @@ class CommandHold:
 
     def submit(self, k: int, force: NDArray[np.float64]) -> None:
         """The commands computed from the state of step k, shape (R, n, 3)."""
-        delay = self.fixed if self.samples is None else \
-            self.rng.choice(self.samples, size=self.shape)
+        delay = (
+            self.fixed if self.samples is None else self.rng.choice(self.samples, size=self.shape)
+        )
         self.pending.append((self.count, k + delay, np.array(force, dtype=float)))
         self.count += 1
 
@@ -354,16 +468,26 @@ class SimResult:
     config: SwarmConfig | list[SwarmConfig]
     final: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
-    def summary(self, *, warnings: list[str] | None = None, run: int | None = None
-                ) -> dict[str, Any]:
+    def summary(
+        self, *, warnings: list[str] | None = None, run: int | None = None
+    ) -> dict[str, Any]:
         """summary.json of the (single) run, or of run ``run`` of a batch."""
         cfg = self.config if isinstance(self.config, SwarmConfig) else self.config[run or 0]
-        traj = self.trajectory if run is None else {k: (v if k == 't' else v[run])
-                                                    for k, v in self.trajectory.items()}
-        return summarize(traj, law=cfg.law, dt=cfg.dt, seed=cfg.seed,
-                         potential_params=cfg.potential_params(),
-                         expected_pairs=design_pair_sets(cfg),
-                         steady_fraction=cfg.steady_fraction, warnings=warnings)
+        traj = (
+            self.trajectory
+            if run is None
+            else {k: (v if k == 't' else v[run]) for k, v in self.trajectory.items()}
+        )
+        return summarize(
+            traj,
+            law=cfg.law,
+            dt=cfg.dt,
+            seed=cfg.seed,
+            potential_params=cfg.potential_params(),
+            expected_pairs=design_pair_sets(cfg),
+            steady_fraction=cfg.steady_fraction,
+            warnings=warnings,
+        )
 
 
 class BatchSimulator:
@@ -379,47 +503,79 @@ class BatchSimulator:
         fixed ``latency``); needs ``control_rate`` > 0.
     """
 
-    def __init__(self, cfgs: Sequence[SwarmConfig],
-                 latency_samples: ArrayLike | None = None) -> None:
+    def __init__(
+        self, cfgs: Sequence[SwarmConfig], latency_samples: ArrayLike | None = None
+    ) -> None:
         if not cfgs:
             raise ValueError('a batch needs at least one configuration')
         self.cfgs = list(cfgs)
         first = self.cfgs[0]
         for c in self.cfgs[1:]:
-            for key in ('n_trackers', 'law', 'saturation', 'dt', 'duration', 'record_every',
-                        'neighbours', 'neighbour_count', 'sensing_radius', 'control_rate',
-                        'switching', 'precondition', 'newton_mu', 'newton_every',
-                        'newton_trust', 'compensation'):
+            for key in (
+                'n_trackers',
+                'law',
+                'saturation',
+                'dt',
+                'duration',
+                'record_every',
+                'neighbours',
+                'neighbour_count',
+                'sensing_radius',
+                'control_rate',
+                'switching',
+                'precondition',
+                'newton_mu',
+                'newton_every',
+                'newton_trust',
+                'compensation',
+            ):
                 if getattr(c, key) != getattr(first, key):
-                    raise ValueError(f'every run of a batch must share {key}; got '
-                                     f'{getattr(first, key)!r} and {getattr(c, key)!r}')
+                    raise ValueError(
+                        f'every run of a batch must share {key}; got '
+                        f'{getattr(first, key)!r} and {getattr(c, key)!r}'
+                    )
         self.R, self.n, self.dt = len(self.cfgs), first.n_trackers, first.dt
-        self.params = {k: _param_array(self.cfgs, k) for k in ('k_n', 'k_f', 'a', 'b', 'c')}
-        self.neighbour_rule = first.neighbour_rule()     # {} = all-to-all (eq. 2)
+        # per-run arrays where one run has floats: gradient() broadcasts either
+        self.params = cast(
+            PotentialParams,
+            {k: _param_array(self.cfgs, k) for k in ('k_n', 'k_f', 'a', 'b', 'c')},
+        )
+        self.neighbour_rule = first.neighbour_rule()  # {} = all-to-all (eq. 2)
         self.drag = _param_array(self.cfgs, 'drag')
-        mass = np.array([c.mass_matrix_diag() for c in self.cfgs])       # (R, n, 3)
+        mass = np.array([c.mass_matrix_diag() for c in self.cfgs])  # (R, n, 3)
         # one mass for every axis, tracker and run: a 0-d array (plant_step skips a unit one)
-        self.mass = np.array(mass.flat[0]) if mass.size and np.all(mass == mass.flat[0]) \
-            else mass
+        self.mass = np.array(mass.flat[0]) if mass.size and np.all(mass == mass.flat[0]) else mass
         self.controller = make_controller(self.cfgs, (self.R, self.n, 3))
         self.hold = first.hold_steps
         if latency_samples is not None and first.control_rate <= 0:
             raise ValueError('latency_samples emulate a realtime loop: set control_rate > 0')
-        act = CommandHold((self.R, self.n), [c.latency for c in self.cfgs], self.dt,
-                          latency_samples, np.random.default_rng([first.seed, 3]))
+        act = CommandHold(
+            (self.R, self.n),
+            [c.latency for c in self.cfgs],
+            self.dt,
+            latency_samples,
+            np.random.default_rng([first.seed, 3]),
+        )
         #: the delayed commands in flight, or None when each acts at its own sample
         self.actuator = act if act.delayed else None
         self.out: ControlOutput | None = None
         self.precondition = make_preconditioner(first)
         if first.compensation == 'predict' and len({c.latency for c in self.cfgs}) > 1:
-            raise ValueError('compensation = predict: every run of a batch must share the '
-                             'latency (the prediction horizon)')
-        self.predictor = make_predictor(first, None if latency_samples is None else
-                                        float(np.median(latency_samples)))
+            raise ValueError(
+                'compensation = predict: every run of a batch must share the '
+                'latency (the prediction horizon)'
+            )
+        self.predictor = make_predictor(
+            first,
+            None
+            if latency_samples is None
+            else float(np.median(np.asarray(latency_samples, dtype=float))),
+        )
         if len({c.noise for c in self.cfgs}) > 1:
             raise ValueError('every run of a batch must share the noise kind')
-        self.noise = DisturbanceSource([c.seed for c in self.cfgs], self.n,
-                                       [c.f_bar for c in self.cfgs], first.noise)
+        self.noise = DisturbanceSource(
+            [c.seed for c in self.cfgs], self.n, [c.f_bar for c in self.cfgs], first.noise
+        )
         self.x = np.array([initial_positions(c) for c in self.cfgs])
         self.v = np.zeros_like(self.x)
         # runs that share a trajectory share its evaluation
@@ -433,7 +589,7 @@ class BatchSimulator:
         # every run its own trajectory, in order: index the block directly (no gather)
         self._traj_identity = len(self._trajs) == self.R
         self.k = 0
-        self._tblock = (-1, None, None)
+        self._tblock = (-1, np.empty((0, 0, 3)), np.empty((0, 0, 3)))
 
     def target_state(self, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Target position and velocity of every run at step k, shapes (R, 3).
@@ -446,15 +602,16 @@ class BatchSimulator:
             base = k
             t = np.arange(k, k + 1024) * self.dt
             states = [tr.state(t) for tr in self._trajs]
-            pos = np.stack([s[0] for s in states], axis=1)      # (1024, trajectories, 3)
+            pos = np.stack([s[0] for s in states], axis=1)  # (1024, trajectories, 3)
             vel = np.stack([s[1] for s in states], axis=1)
             self._tblock = (base, pos, vel)
         if self._traj_identity:
             return pos[k - base], vel[k - base]
-        if len(self._trajs) == 1:       # one trajectory for every run: a read-only view
+        if len(self._trajs) == 1:  # one trajectory for every run: a read-only view
             shape = (self.R, 3)
-            return np.broadcast_to(pos[k - base, 0], shape), np.broadcast_to(vel[k - base, 0],
-                                                                             shape)
+            return np.broadcast_to(pos[k - base, 0], shape), np.broadcast_to(
+                vel[k - base, 0], shape
+            )
         return pos[k - base][self._traj_index], vel[k - base][self._traj_index]
 
     def _gather(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -469,24 +626,36 @@ class BatchSimulator:
         tx, tv = self.target_state(self.k)
         out = self.out
         if out is None or self.k % self.hold == 0:
-            mask = neighbour_mask(self.x, **self.neighbour_rule) if self.neighbour_rule \
-                else None
-            out = self.out = control_step(self.controller, self.x, self.v, tx, self.params,
-                                          mask=mask, target_v=tv,
-                                          precondition=self.precondition,
-                                          predictor=self.predictor)
+            mask = neighbour_mask(self.x, **self.neighbour_rule) if self.neighbour_rule else None
+            out = self.out = control_step(
+                self.controller,
+                self.x,
+                self.v,
+                tx,
+                self.params,
+                mask=mask,
+                target_v=tv,
+                precondition=self.precondition,
+                predictor=self.predictor,
+            )
             if self.actuator is not None:
                 self.actuator.submit(self.k, out.force)
         force = out.force if self.actuator is None else self.actuator.applied(self.k)
         dist = self.noise.next()
-        self.x, self.v = integrate(self.x, self.v, force, mass=self.mass, dt=self.dt,
-                                   drag=self.drag, disturbance=dist)
+        self.x, self.v = integrate(
+            self.x, self.v, force, mass=self.mass, dt=self.dt, drag=self.drag, disturbance=dist
+        )
         self.k += 1
         return out, tx, tv
 
-    def run(self, steps: int | None = None, *, record: bool = True,
-            progress: Callable[[int, int], None] | None = None,
-            progress_every: int = 1000) -> dict[str, NDArray[Any]]:
+    def run(
+        self,
+        steps: int | None = None,
+        *,
+        record: bool = True,
+        progress: Callable[[int, int], None] | None = None,
+        progress_every: int = 1000,
+    ) -> dict[str, NDArray[Any]]:
         """Run ``steps`` steps (default: the configured duration) and return the trajectory.
 
         Sample k holds the state at ``t_k`` and the command computed from it (applied over
@@ -497,33 +666,45 @@ class BatchSimulator:
         T = (steps + every - 1) // every if record else 0
         R, n, dt = self.R, self.n, self.dt
         shape = (R, T, n, 3)
-        rec = {'t': np.empty(T), 'x': np.empty(shape), 'v': np.empty(shape),
-               'u': np.empty(shape), 's': np.empty(shape), 'target_x': np.empty((R, T, 3)),
-               'target_v': np.empty((R, T, 3)), 'saturated': np.empty((R, T, n), dtype=bool)}
+        rec = {
+            't': np.empty(T),
+            'x': np.empty(shape),
+            'v': np.empty(shape),
+            'u': np.empty(shape),
+            's': np.empty(shape),
+            'target_x': np.empty((R, T, 3)),
+            'target_v': np.empty((R, T, 3)),
+            'saturated': np.empty((R, T, n), dtype=bool),
+        }
         # step-major views: sample j of every run is rec_*[j]. Per step, one copy each of
         # the state, the command and the mask; the times and the target's samples are
         # copied in slices: t_k = k dt afterwards, the target rows from each block of the
         # target's path when the block is replaced (and at the end)
-        rec_x, rec_v, rec_u, rec_s, rec_sat = (rec[key].swapaxes(0, 1)
-                                               for key in ('x', 'v', 'u', 's', 'saturated'))
+        rec_x, rec_v, rec_u, rec_s, rec_sat = (
+            rec[key].swapaxes(0, 1) for key in ('x', 'v', 'u', 's', 'saturated')
+        )
         rec_tx, rec_tv = (rec[key].swapaxes(0, 1) for key in ('target_x', 'target_v'))
         k0 = self.k
-        first = (-k0) % every                       # the first recorded step is k0 + first
-        held = [0, 0]                               # samples from the current block: j, count
+        first = (-k0) % every  # the first recorded step is k0 + first
+        held = [0, 0]  # samples from the current block: j, count
 
         def target_samples(block: tuple[int, Any, Any]) -> None:
             j, m = held
             if m:
                 base, pos, vel = block
-                k = k0 + first + j * every - base   # row of sample j in the block
+                k = k0 + first + j * every - base  # row of sample j in the block
                 rows = slice(k, k + (m - 1) * every + 1, every)
-                rec_tx[j:j + m] = self._gather(pos[rows])
-                rec_tv[j:j + m] = self._gather(vel[rows])
+                rec_tx[j : j + m] = self._gather(pos[rows])
+                rec_tv[j : j + m] = self._gather(vel[rows])
                 held[:] = [j + m, 0]
 
         # step() inlined (the same calls in the same order), the state in locals
-        controller, params, noise, target_state = (self.controller, self.params, self.noise,
-                                                   self.target_state)
+        controller, params, noise, target_state = (
+            self.controller,
+            self.params,
+            self.noise,
+            self.target_state,
+        )
         mass, drag, rule = self.mass, self.drag, self.neighbour_rule
         hold, act, out, pre = self.hold, self.actuator, self.out, self.precondition
         predictor = self.predictor
@@ -534,15 +715,25 @@ class BatchSimulator:
                 tx, tv = target_state(k)
                 if out is None or k % hold == 0:
                     mask = neighbour_mask(x, **rule) if rule else None
-                    out = control_step(controller, x, v, tx, params, mask=mask, target_v=tv,
-                                       precondition=pre, predictor=predictor)
+                    out = control_step(
+                        controller,
+                        x,
+                        v,
+                        tx,
+                        params,
+                        mask=mask,
+                        target_v=tv,
+                        precondition=pre,
+                        predictor=predictor,
+                    )
                     if act is not None:
                         act.submit(k, out.force)
                 force = out.force if act is None else act.applied(k)
-                x_next, v_next = integrate(x, v, force, mass=mass, dt=dt, drag=drag,
-                                           disturbance=noise.next())
+                x_next, v_next = integrate(
+                    x, v, force, mass=mass, dt=dt, drag=drag, disturbance=noise.next()
+                )
                 if record:
-                    if self._tblock is not block:       # a new block: the old one's samples
+                    if self._tblock is not block:  # a new block: the old one's samples
                         target_samples(block)
                     if k % every == 0:
                         j = i // every
@@ -561,26 +752,33 @@ class BatchSimulator:
         if record:
             target_samples(self._tblock)
             m = held[0]
-            rec['t'][:m] = (k0 + first + every * np.arange(m)) * dt      # k dt, as k * dt
+            rec['t'][:m] = (k0 + first + every * np.arange(m)) * dt  # k dt, as k * dt
         if progress is not None:
             progress(steps, steps)
         return rec
 
 
-def simulate_batch(cfgs: Sequence[SwarmConfig], *, record: bool = True,
-                   progress: Callable[[int, int], None] | None = None,
-                   latency_samples: ArrayLike | None = None) -> SimResult:
+def simulate_batch(
+    cfgs: Sequence[SwarmConfig],
+    *,
+    record: bool = True,
+    progress: Callable[[int, int], None] | None = None,
+    latency_samples: ArrayLike | None = None,
+) -> SimResult:
     """Run a batch; trajectory arrays carry a leading run axis (except ``t``)."""
     sim = BatchSimulator(cfgs, latency_samples)
     traj = sim.run(record=record, progress=progress)
     return SimResult(traj, list(cfgs), {'x': sim.x, 'v': sim.v, 'z': sim.controller.z})
 
 
-def simulate(cfg: SwarmConfig, *, record: bool = True,
-             progress: Callable[[int, int], None] | None = None,
-             latency_samples: ArrayLike | None = None) -> SimResult:
+def simulate(
+    cfg: SwarmConfig,
+    *,
+    record: bool = True,
+    progress: Callable[[int, int], None] | None = None,
+    latency_samples: ArrayLike | None = None,
+) -> SimResult:
     """Run one configuration: the batch of one, with the run axis removed."""
-    res = simulate_batch([cfg], record=record, progress=progress,
-                         latency_samples=latency_samples)
+    res = simulate_batch([cfg], record=record, progress=progress, latency_samples=latency_samples)
     traj = {k: (v if k == 't' else v[0]) for k, v in res.trajectory.items()}
     return SimResult(traj, cfg, {k: v[0] for k, v in res.final.items()})

@@ -9,14 +9,23 @@ time (no integration drift, identical in the simulator and in the ROS target nod
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['TRAJECTORIES', 'target_velocity', 'Trajectory', 'Straight', 'Circle', 'Helix',
-           'FigureEight', 'Waypoints', 'make_trajectory']
+__all__ = [
+    'TRAJECTORIES',
+    'Circle',
+    'FigureEight',
+    'Helix',
+    'Straight',
+    'Trajectory',
+    'Waypoints',
+    'make_trajectory',
+    'target_velocity',
+]
 
 TRAJECTORIES = ('straight', 'circle', 'helix', 'figure_eight', 'waypoints', 'hover')
 
@@ -37,9 +46,10 @@ def target_velocity(speed: ArrayLike, yaw: ArrayLike, pitch: ArrayLike) -> NDArr
     -------
     velocity : array, shape (..., 3) [m/s]
     """
-    speed, yaw, pitch = np.broadcast_arrays(*(np.asarray(a, dtype=float)
-                                              for a in (speed, yaw, pitch)))
-    out = np.empty(speed.shape + (3,))
+    speed, yaw, pitch = np.broadcast_arrays(
+        *(np.asarray(a, dtype=float) for a in (speed, yaw, pitch))
+    )
+    out = np.empty((*speed.shape, 3))
     cp = np.cos(pitch)
     out[..., 0] = speed * np.cos(yaw) * cp
     out[..., 1] = speed * np.sin(yaw) * cp
@@ -74,7 +84,8 @@ class Trajectory:
         t = np.asarray(t, dtype=float)
         v, yaw, pitch = self.heading(t)
         return np.asarray(self.start, dtype=float) + self.displacement(t), target_velocity(
-            v, yaw, pitch)
+            v, yaw, pitch
+        )
 
     @property
     def max_speed(self) -> float:
@@ -82,7 +93,7 @@ class Trajectory:
         return abs(self.speed)
 
 
-def _full(t: NDArray[np.float64], value: float) -> NDArray[np.float64]:
+def _full(t: Times, value: float) -> NDArray[np.float64]:
     return np.full(np.shape(t), float(value))
 
 
@@ -124,7 +135,7 @@ class Helix(Trajectory):
     def displacement(self, t: Times) -> NDArray[np.float64]:
         t = np.asarray(t, dtype=float)
         ang = self.yaw + self.yaw_rate * t
-        out = np.empty(t.shape + (3,))
+        out = np.empty((*t.shape, 3))
         out[..., 0] = self.radius * (np.sin(ang) - math.sin(self.yaw))
         out[..., 1] = -self.radius * (np.cos(ang) - math.cos(self.yaw))
         out[..., 2] = self.speed * math.sin(self.pitch) * t
@@ -166,7 +177,7 @@ class FigureEight(Trajectory):
         w = self.omega
         px, py = self.radius * np.sin(w * t), 0.5 * self.radius * np.sin(2.0 * w * t)
         cy, sy = math.cos(self.yaw), math.sin(self.yaw)
-        out = np.zeros(t.shape + (3,))
+        out = np.zeros((*t.shape, 3))
         out[..., 0] = cy * px - sy * py
         out[..., 1] = sy * px + cy * py
         return out
@@ -191,8 +202,11 @@ class Waypoints(Trajectory):
         pts = np.vstack([pts[:1], pts[1:][keep]])
         seg, length = seg[keep], length[keep]
         units = seg / length[:, None] if len(length) else np.zeros((0, 3))
-        times = np.concatenate([[0.0], np.cumsum(length / self.speed)]) if self.speed > 0 else \
-            np.zeros(len(length) + 1)
+        times = (
+            np.concatenate([[0.0], np.cumsum(length / self.speed)])
+            if self.speed > 0
+            else np.zeros(len(length) + 1)
+        )
         return pts, units, times
 
     def _leg_index(self, t: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
@@ -208,24 +222,40 @@ class Waypoints(Trajectory):
             return _full(t, 0.0), _full(t, 0.0), _full(t, 0.0)
         idx, moving = self._leg_index(t)
         u = units[idx]
-        return (np.where(moving, self.speed, 0.0), np.where(moving, np.arctan2(u[..., 1], u[..., 0]), 0.0),
-                np.where(moving, np.arcsin(np.clip(u[..., 2], -1.0, 1.0)), 0.0))
+        return (
+            np.where(moving, self.speed, 0.0),
+            np.where(moving, np.arctan2(u[..., 1], u[..., 0]), 0.0),
+            np.where(moving, np.arcsin(np.clip(u[..., 2], -1.0, 1.0)), 0.0),
+        )
 
     def displacement(self, t: Times) -> NDArray[np.float64]:
         t = np.asarray(t, dtype=float)
         pts, units, times = self._legs()
         if len(units) == 0:
-            return np.zeros(t.shape + (3,))
+            return np.zeros((*t.shape, 3))
         idx, moving = self._leg_index(t)
         along = pts[idx] + units[idx] * (self.speed * (t - times[idx]))[..., None]
         return np.where(moving[..., None], along, pts[-1])
 
 
-def make_trajectory(kind: str, *, start: Sequence[float] = (0.0, 0.0, 5.0), speed: float = 1.0,
-                    yaw: float = 0.0, pitch: float = 0.0, radius: float = 20.0,
-                    waypoints: Sequence[Sequence[float]] = ()) -> Trajectory:
+def _point(p: Sequence[float]) -> tuple[float, float, float]:
+    x, y, z = (float(c) for c in p)
+    return x, y, z
+
+
+def make_trajectory(
+    kind: str,
+    *,
+    start: Sequence[float] = (0.0, 0.0, 5.0),
+    speed: float = 1.0,
+    yaw: float = 0.0,
+    pitch: float = 0.0,
+    radius: float = 20.0,
+    waypoints: Sequence[Sequence[float]] = (),
+) -> Trajectory:
     """Build a trajectory by name (one of :data:`TRAJECTORIES`); angles in radians."""
-    start_t = tuple(float(s) for s in start)
+    sx, sy, sz = (float(s) for s in start)
+    start_t = (sx, sy, sz)
     if kind == 'straight':
         return Straight(start_t, speed, yaw=yaw, pitch=pitch)
     if kind == 'hover':
@@ -237,5 +267,5 @@ def make_trajectory(kind: str, *, start: Sequence[float] = (0.0, 0.0, 5.0), spee
     if kind == 'figure_eight':
         return FigureEight(start_t, speed, radius=radius, yaw=yaw)
     if kind == 'waypoints':
-        return Waypoints(start_t, speed, points=tuple(tuple(float(c) for c in p) for p in waypoints))
-    raise ValueError(f"target trajectory must be one of {TRAJECTORIES}, got {kind!r}")
+        return Waypoints(start_t, speed, points=tuple(_point(p) for p in waypoints))
+    raise ValueError(f'target trajectory must be one of {TRAJECTORIES}, got {kind!r}')

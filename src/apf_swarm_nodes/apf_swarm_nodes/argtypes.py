@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import Callable
+from collections.abc import Callable
 
-__all__ = ['positive_float', 'nonneg_float', 'positive_int', 'nonneg_int', 'domain_id']
+__all__ = ['domain_id', 'nonneg_float', 'nonneg_int', 'positive_float', 'positive_int']
 
 
 def _number(kind: type, lo: float, strict: bool, what: str) -> Callable[[str], float]:
@@ -20,6 +20,7 @@ def _number(kind: type, lo: float, strict: bool, what: str) -> Callable[[str], f
         if not (math.isfinite(val) and (val > lo if strict else val >= lo)):
             raise argparse.ArgumentTypeError(f'{text}: {what}')
         return val
+
     return convert
 
 

@@ -40,27 +40,49 @@ import re
 import shutil
 import time
 from collections import defaultdict
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping, Sequence, TextIO
+from typing import Any, TextIO
 
 import numpy as np
 import yaml
 
 from .errors import CliError
 
-__all__ = ['BAG_VERSION', 'CUSTOM_RECORDER', 'CUSTOM_CONFIG', 'CUSTOM_MODE', 'BagWriter',
-           'TopicInfo', 'FileInfo', 'BagInfo', 'qos_from_dict', 'qos_to_dict', 'typestore',
-           'type_definition', 'open_bag', 'format_info', 'info_dict', 'iter_raw',
-           'bag_config', 'swarm_state_accumulator', 'bag_trajectory', 'bag_metrics',
-           'flatten', 'export_csv', 'reindex', 'bag_files']
+__all__ = [
+    'BAG_VERSION',
+    'CUSTOM_CONFIG',
+    'CUSTOM_MODE',
+    'CUSTOM_RECORDER',
+    'BagInfo',
+    'BagWriter',
+    'FileInfo',
+    'TopicInfo',
+    'bag_config',
+    'bag_files',
+    'bag_metrics',
+    'bag_trajectory',
+    'export_csv',
+    'flatten',
+    'format_info',
+    'info_dict',
+    'iter_raw',
+    'open_bag',
+    'qos_from_dict',
+    'qos_to_dict',
+    'reindex',
+    'swarm_state_accumulator',
+    'type_definition',
+    'typestore',
+]
 
 BAG_VERSION = 9
 #: custom_data keys (metadata.yaml) and the MCAP metadata record the recorder writes first
-CUSTOM_RECORDER = 'apf_swarm.recorder'   # JSON: received / written / dropped counts
-CUSTOM_CONFIG = 'apf_swarm.config'       # the run's ROS 2 parameter file (YAML text)
-CUSTOM_MODE = 'apf_swarm.mode'           # lockstep | realtime
+CUSTOM_RECORDER = 'apf_swarm.recorder'  # JSON: received / written / dropped counts
+CUSTOM_CONFIG = 'apf_swarm.config'  # the run's ROS 2 parameter file (YAML text)
+CUSTOM_MODE = 'apf_swarm.mode'  # lockstep | realtime
 MCAP_METADATA_NAME = 'apf_swarm'
 DEFAULT_CHUNK_SIZE = 1 << 20
 SWARM_STATE_TOPIC = '/swarm/state'
@@ -72,6 +94,7 @@ _FILE_RE = re.compile(r'^(?P<stem>.*?)(?:_(?P<index>\d+))?\.mcap$')
 # types and QoS
 # --------------------------------------------------------------------------------------------
 
+
 def _msg_search_dirs() -> list[Path]:
     """``share/`` directories of the ament index, then the repository's ``src/`` (a fresh
     checkout before ``make``)."""
@@ -79,7 +102,7 @@ def _msg_search_dirs() -> list[Path]:
     for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
         if prefix:
             dirs.append(Path(prefix) / 'share')
-    dirs.append(Path(__file__).resolve().parents[2])   # src/ of the repository
+    dirs.append(Path(__file__).resolve().parents[2])  # src/ of the repository
     return dirs
 
 
@@ -98,6 +121,7 @@ def _find_msg_file(msgtype: str) -> Path | None:
 def typestore() -> Any:
     """The rosbags Jazzy type store with apf_swarm_msgs registered from their ``.msg`` files."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
     store = get_typestore(Stores.ROS2_JAZZY)
     types: dict[str, Any] = {}
     for name in ('ForceCommand', 'SwarmOdometry', 'SwarmState'):
@@ -111,6 +135,7 @@ def typestore() -> Any:
 def _register_from_index(store: Any, msgtype: str, seen: set[str] | None = None) -> bool:
     """Register ``msgtype`` (and its dependencies) from ``.msg`` files of the ament index."""
     from rosbags.typesys import get_types_from_msg
+
     seen = set() if seen is None else seen
     if msgtype in store.fielddefs or msgtype in seen:
         return True
@@ -123,7 +148,7 @@ def _register_from_index(store: Any, msgtype: str, seen: set[str] | None = None)
     return msgtype in store.fielddefs
 
 
-@lru_cache(maxsize=None)
+@cache
 def type_definition(msgtype: str) -> tuple[str, str]:
     """The full ``ros2msg`` definition text (dependencies included) and the RIHS01 hash.
 
@@ -137,21 +162,30 @@ def type_definition(msgtype: str) -> tuple[str, str]:
         msgdef, _ = store.generate_msgdef(msgtype, ros_version=2)
         return msgdef, store.hash_rihs01(msgtype)
     except Exception as exc:  # rosbags raises TypesysError / KeyError for missing dependencies
-        raise CliError(f'message type {msgtype} is unknown: it is not a ROS 2 Jazzy type and no '
-                       f'{msgtype}.msg is in the ament index ({_one_line(exc)}); build and '
-                       'source the package that defines it') from None
+        raise CliError(
+            f'message type {msgtype} is unknown: it is not a ROS 2 Jazzy type and no '
+            f'{msgtype}.msg is in the ament index ({_one_line(exc)}); build and '
+            'source the package that defines it'
+        ) from None
 
 
 def qos_to_dict(qos: Any) -> dict[str, Any]:
     """A rosbags ``Qos`` as the metadata.yaml v9 mapping."""
     from rosbags.rosbag2.metadata import dump_qos_v9
+
     return dump_qos_v9([qos])[0]
 
 
 def qos_from_dict(d: Mapping[str, Any]) -> Any:
     """A metadata.yaml v9 QoS mapping (names, ``{sec, nsec}`` times) as a rosbags ``Qos``."""
-    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
-                                    QosReliability, QosTime)
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
 
     def enum(cls: Any, value: Any) -> Any:
         if isinstance(value, int):
@@ -165,24 +199,30 @@ def qos_from_dict(d: Mapping[str, Any]) -> Any:
         value = value or {}
         return QosTime(int(value.get('sec', 0)), int(value.get('nsec', 0)))
 
-    return Qos(enum(QosHistory, d.get('history', 'unknown')), int(d.get('depth', 0)),
-               enum(QosReliability, d.get('reliability', 'unknown')),
-               enum(QosDurability, d.get('durability', 'unknown')),
-               tm(d.get('deadline')), tm(d.get('lifespan')),
-               enum(QosLiveliness, d.get('liveliness', 'unknown')),
-               tm(d.get('liveliness_lease_duration')),
-               bool(d.get('avoid_ros_namespace_conventions', False)))
+    return Qos(
+        enum(QosHistory, d.get('history', 'unknown')),
+        int(d.get('depth', 0)),
+        enum(QosReliability, d.get('reliability', 'unknown')),
+        enum(QosDurability, d.get('durability', 'unknown')),
+        tm(d.get('deadline')),
+        tm(d.get('lifespan')),
+        enum(QosLiveliness, d.get('liveliness', 'unknown')),
+        tm(d.get('liveliness_lease_duration')),
+        bool(d.get('avoid_ros_namespace_conventions', False)),
+    )
 
 
 def _qos_text(qos: Sequence[Any]) -> str:
     """offered_qos_profiles as the YAML string stored in an MCAP channel (as rosbags does)."""
     from rosbags.rosbag2.metadata import dump_qos_v9
+
     return yaml.safe_dump(dump_qos_v9(list(qos)), default_flow_style=False).strip()
 
 
 # --------------------------------------------------------------------------------------------
 # writing
 # --------------------------------------------------------------------------------------------
+
 
 def _storage_class() -> type:
     """rosbags' MCAP storage with an explicit file name, a chunk size and :meth:`flush`.
@@ -196,14 +236,22 @@ def _storage_class() -> type:
     from importlib.metadata import version as _version
 
     from rosbags.rosbag2.enums import CompressionMode
-    from rosbags.rosbag2.storage_mcap import (McapWriter, PendingChunk, write_record,
-                                              write_string, write_uint16, write_uint32,
-                                              write_uint64)
+    from rosbags.rosbag2.storage_mcap import (
+        McapWriter,
+        PendingChunk,
+        write_record,
+        write_string,
+        write_uint16,
+        write_uint32,
+        write_uint64,
+    )
 
     class ChunkedMcapStorage(McapWriter):
-        def __init__(self, file: Path, compression: Any, chunk_size: int = DEFAULT_CHUNK_SIZE
-                     ) -> None:  # noqa: D107 -- as McapWriter.__init__, with a file name
+        def __init__(
+            self, file: Path, compression: Any, chunk_size: int = DEFAULT_CHUNK_SIZE
+        ) -> None:
             from rosbags.rosbag2.storage_mcap import zstd
+
             self.path = file
             self.bio = self.path.open('xb')
             self.bio.write(b'\x89MCAP\x30\r\n')
@@ -283,14 +331,21 @@ class _FileStats:
 
     def as_dict(self) -> dict[str, Any]:
         start = self.start if self.count else 0
-        return {'path': self.path, 'starting_time': {'nanoseconds_since_epoch': start},
-                'duration': {'nanoseconds': max(0, self.end - start) if self.count else 0},
-                'message_count': self.count}
+        return {
+            'path': self.path,
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'duration': {'nanoseconds': max(0, self.end - start) if self.count else 0},
+            'message_count': self.count,
+        }
 
 
-def build_metadata(*, files: Sequence[Mapping[str, Any]], topics: Sequence[Mapping[str, Any]],
-                   custom_data: Mapping[str, str] | None = None,
-                   ros_distro: str = 'rosbags') -> dict[str, Any]:
+def build_metadata(
+    *,
+    files: Sequence[Mapping[str, Any]],
+    topics: Sequence[Mapping[str, Any]],
+    custom_data: Mapping[str, str] | None = None,
+    ros_distro: str = 'rosbags',
+) -> dict[str, Any]:
     """The ``rosbag2_bagfile_information`` document (version 9) of a bag.
 
     ``files``: ``{path, starting_time, duration, message_count}`` per MCAP file (as
@@ -299,27 +354,41 @@ def build_metadata(*, files: Sequence[Mapping[str, Any]], topics: Sequence[Mappi
     """
     counted = [f for f in files if f['message_count']]
     start = min((f['starting_time']['nanoseconds_since_epoch'] for f in counted), default=0)
-    end = max((f['starting_time']['nanoseconds_since_epoch'] + f['duration']['nanoseconds']
-               for f in counted), default=0)
-    return {'rosbag2_bagfile_information': {
-        'version': BAG_VERSION,
-        'storage_identifier': 'mcap',
-        'relative_file_paths': [f['path'] for f in files],
-        'duration': {'nanoseconds': max(0, end - start)},
-        'starting_time': {'nanoseconds_since_epoch': start},
-        'message_count': sum(int(f['message_count']) for f in files),
-        'topics_with_message_count': [
-            {'topic_metadata': {'name': t['name'], 'type': t['type'],
-                                'serialization_format': t.get('serialization_format', 'cdr'),
-                                'offered_qos_profiles': list(t.get('offered_qos_profiles', [])),
-                                'type_description_hash': t.get('type_description_hash', '')},
-             'message_count': int(t['message_count'])} for t in topics],
-        'compression_format': '',
-        'compression_mode': '',
-        'files': [dict(f) for f in files],
-        'custom_data': dict(custom_data) if custom_data else None,
-        'ros_distro': ros_distro,
-    }}
+    end = max(
+        (
+            f['starting_time']['nanoseconds_since_epoch'] + f['duration']['nanoseconds']
+            for f in counted
+        ),
+        default=0,
+    )
+    return {
+        'rosbag2_bagfile_information': {
+            'version': BAG_VERSION,
+            'storage_identifier': 'mcap',
+            'relative_file_paths': [f['path'] for f in files],
+            'duration': {'nanoseconds': max(0, end - start)},
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'message_count': sum(int(f['message_count']) for f in files),
+            'topics_with_message_count': [
+                {
+                    'topic_metadata': {
+                        'name': t['name'],
+                        'type': t['type'],
+                        'serialization_format': t.get('serialization_format', 'cdr'),
+                        'offered_qos_profiles': list(t.get('offered_qos_profiles', [])),
+                        'type_description_hash': t.get('type_description_hash', ''),
+                    },
+                    'message_count': int(t['message_count']),
+                }
+                for t in topics
+            ],
+            'compression_format': '',
+            'compression_mode': '',
+            'files': [dict(f) for f in files],
+            'custom_data': dict(custom_data) if custom_data else None,
+            'ros_distro': ros_distro,
+        }
+    }
 
 
 def _write_metadata(path: Path, doc: Mapping[str, Any]) -> None:
@@ -353,16 +422,24 @@ class BagWriter:
     metadata.yaml.
     """
 
-    def __init__(self, path: Path | str, *, compress: bool = False,
-                 chunk_size: int = DEFAULT_CHUNK_SIZE, split_size: int = 0,
-                 split_duration: float = 0.0) -> None:
+    def __init__(
+        self,
+        path: Path | str,
+        *,
+        compress: bool = False,
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        split_size: int = 0,
+        split_duration: float = 0.0,
+    ) -> None:
         from rosbags.rosbag2 import Writer
         from rosbags.rosbag2.enums import CompressionMode
 
         self.path = Path(path)
         if self.path.exists():
-            raise CliError(f'{self.path} exists already; a bag is never overwritten: choose a new '
-                           'output directory')
+            raise CliError(
+                f'{self.path} exists already; a bag is never overwritten: choose a new '
+                'output directory'
+            )
         self.compression = CompressionMode.STORAGE if compress else CompressionMode.NONE
         self.chunk_size = max(1024, int(chunk_size))
         self.split_size = int(split_size)
@@ -378,12 +455,12 @@ class BagWriter:
         self._mcap_metadata: dict[str, str] = {}
 
     # --- set-up ---------------------------------------------------------------------------
-    def open(self) -> 'BagWriter':
+    def open(self) -> BagWriter:
         self.path.mkdir(mode=0o755, parents=True)
         self._rw.storage = self._new_storage()
         return self
 
-    def __enter__(self) -> 'BagWriter':
+    def __enter__(self) -> BagWriter:
         return self.open()
 
     def __exit__(self, *exc: Any) -> None:
@@ -409,8 +486,15 @@ class BagWriter:
             if self.storage is not None:
                 self.storage.add_metadata(MCAP_METADATA_NAME, {key: str(value)})
 
-    def add_topic(self, topic: str, msgtype: str, *, msgdef: str | None = None,
-                  rihs01: str | None = None, offered_qos: Sequence[Any] = ()) -> Any:
+    def add_topic(
+        self,
+        topic: str,
+        msgtype: str,
+        *,
+        msgdef: str | None = None,
+        rihs01: str | None = None,
+        offered_qos: Sequence[Any] = (),
+    ) -> Any:
         """Register a topic; returns the connection to pass to :meth:`write`.
 
         Without ``msgdef`` / ``rihs01`` they come from :func:`type_definition` (CliError for a
@@ -419,8 +503,9 @@ class BagWriter:
         if msgdef is None or rihs01 is None:
             d, h = type_definition(msgtype)
             msgdef, rihs01 = msgdef or d, rihs01 or h
-        conn = self._rw.add_connection(topic, msgtype, msgdef=msgdef, rihs01=rihs01,
-                                       offered_qos_profiles=list(offered_qos))
+        conn = self._rw.add_connection(
+            topic, msgtype, msgdef=msgdef, rihs01=rihs01, offered_qos_profiles=list(offered_qos)
+        )
         self._qos[conn.id] = _qos_text(offered_qos)
         return conn
 
@@ -429,17 +514,16 @@ class BagWriter:
         """One serialized message at ``timestamp`` (ns since the epoch)."""
         if self._file_start is None:
             self._file_start = timestamp
-        elif (self.split_size and self.storage.file_bytes() >= self.split_size) or \
-                (self.split_ns and timestamp - self._file_start >= self.split_ns):
+        elif (self.split_size and self.storage.file_bytes() >= self.split_size) or (
+            self.split_ns and timestamp - self._file_start >= self.split_ns
+        ):
             self.split()
             self._file_start = timestamp
         self._rw.write(conn, timestamp, data)
         f = self.files[-1]
         f.count += 1
-        if timestamp < f.start:
-            f.start = timestamp
-        if timestamp > f.end:
-            f.end = timestamp
+        f.start = min(f.start, timestamp)
+        f.end = max(f.end, timestamp)
 
     def flush(self, fsync: bool = False) -> None:
         """Close the pending chunk and hand it to the OS (``fsync``: also to the disk)."""
@@ -474,13 +558,21 @@ class BagWriter:
 
     def metadata(self) -> dict[str, Any]:
         from rosbags.rosbag2.metadata import dump_qos_v9
-        topics = [{'name': c.topic, 'type': c.msgtype,
-                   'serialization_format': c.ext.serialization_format,
-                   'offered_qos_profiles': dump_qos_v9(c.ext.offered_qos_profiles),
-                   'type_description_hash': c.digest, 'message_count': self._rw.counts[c.id]}
-                  for c in self._rw.connections]
-        return build_metadata(files=[f.as_dict() for f in self.files], topics=topics,
-                              custom_data=self.custom_data)
+
+        topics = [
+            {
+                'name': c.topic,
+                'type': c.msgtype,
+                'serialization_format': c.ext.serialization_format,
+                'offered_qos_profiles': dump_qos_v9(c.ext.offered_qos_profiles),
+                'type_description_hash': c.digest,
+                'message_count': self._rw.counts[c.id],
+            }
+            for c in self._rw.connections
+        ]
+        return build_metadata(
+            files=[f.as_dict() for f in self.files], topics=topics, custom_data=self.custom_data
+        )
 
     def close(self) -> None:
         """Write the MCAP summary and metadata.yaml."""
@@ -494,6 +586,7 @@ class BagWriter:
 # --------------------------------------------------------------------------------------------
 # reading: info
 # --------------------------------------------------------------------------------------------
+
 
 @dataclass
 class TopicInfo:
@@ -545,15 +638,18 @@ class BagInfo:
             if t.name == name:
                 return t
         known = ', '.join(t.name for t in self.topics) or 'none'
-        raise CliError(f'topic {name} is not in {self.path} (its topics: {known}); '
-                       'see `apf-swarm bag info`')
+        raise CliError(
+            f'topic {name} is not in {self.path} (its topics: {known}); see `apf-swarm bag info`'
+        )
 
 
 def bag_files(path: Path) -> list[Path]:
     """The MCAP files of a bag directory, in split order."""
+
     def key(p: Path) -> tuple[str, int]:
         m = _FILE_RE.match(p.name)
         return (m.group('stem'), int(m.group('index') or -1)) if m else (p.name, -1)
+
     return sorted((p for p in path.glob('*.mcap') if p.is_file()), key=key)
 
 
@@ -567,8 +663,10 @@ def _one_line(exc: BaseException) -> str:
 
 def _read_error(path: Path, exc: BaseException, what: str = 'the messages') -> CliError:
     """A failure while reading messages of an opened bag: a damaged file."""
-    return CliError(f'{path}: cannot read {what}, the file is damaged ({_one_line(exc)}); '
-                    f'{_reindex_hint(path)}')
+    return CliError(
+        f'{path}: cannot read {what}, the file is damaged ({_one_line(exc)}); '
+        f'{_reindex_hint(path)}'
+    )
 
 
 def _reindex_hint(path: Path) -> str:
@@ -578,18 +676,23 @@ def _reindex_hint(path: Path) -> str:
 def _check_bag_dir(path: Path) -> Path:
     path = Path(path)
     if not path.exists():
-        raise CliError(f'{path}: no such file or directory; pass a bag directory (one with '
-                       'metadata.yaml)')
+        raise CliError(
+            f'{path}: no such file or directory; pass a bag directory (one with metadata.yaml)'
+        )
     if path.is_file():
         if path.suffix == '.mcap' and (path.parent / 'metadata.yaml').is_file():
             return path.parent
-        raise CliError(f'{path} is a file, not a bag; pass the bag directory (the one with '
-                       'metadata.yaml and the .mcap files)')
+        raise CliError(
+            f'{path} is a file, not a bag; pass the bag directory (the one with '
+            'metadata.yaml and the .mcap files)'
+        )
     meta = path / 'metadata.yaml'
     if not meta.is_file():
         if bag_files(path):
-            raise CliError(f'{path}: metadata.yaml is missing (the recorder did not close the '
-                           f'bag?); {_reindex_hint(path)}')
+            raise CliError(
+                f'{path}: metadata.yaml is missing (the recorder did not close the '
+                f'bag?); {_reindex_hint(path)}'
+            )
         raise CliError(f'{path} is not a bag: no metadata.yaml and no .mcap file in it')
     return path
 
@@ -602,24 +705,29 @@ def _read_metadata(path: Path) -> dict[str, Any]:
         if not isinstance(info, dict) or 'relative_file_paths' not in info:
             raise KeyError('relative_file_paths')
     except (yaml.YAMLError, KeyError, TypeError, UnicodeDecodeError) as exc:
-        raise CliError(f'{meta} is not rosbag2 metadata ({_one_line(exc)}); '
-                       f'{_reindex_hint(path)}') from None
+        raise CliError(
+            f'{meta} is not rosbag2 metadata ({_one_line(exc)}); {_reindex_hint(path)}'
+        ) from None
     return info
 
 
 def _mcap_summary(file: Path) -> Any:
     """The summary section of an MCAP file; CliError when it is missing or unreadable."""
     from mcap.reader import make_reader
+
     bag = file.parent
     try:
         with open(file, 'rb') as f:
             summary = make_reader(f).get_summary()
     except Exception as exc:  # mcap raises McapError, EndOfFile, struct.error, ValueError...
-        raise CliError(f'{file}: truncated or corrupt MCAP file ({_one_line(exc)}); '
-                       f'{_reindex_hint(bag)} (it keeps every complete chunk)') from None
+        raise CliError(
+            f'{file}: truncated or corrupt MCAP file ({_one_line(exc)}); '
+            f'{_reindex_hint(bag)} (it keeps every complete chunk)'
+        ) from None
     if summary is None or summary.statistics is None:
-        raise CliError(f'{file}: the MCAP file has no summary section (not closed?); '
-                       f'{_reindex_hint(bag)}')
+        raise CliError(
+            f'{file}: the MCAP file has no summary section (not closed?); {_reindex_hint(bag)}'
+        )
     return summary
 
 
@@ -633,21 +741,32 @@ def open_bag(path: Path | str) -> BagInfo:
     meta = _read_metadata(path)
     storage = str(meta.get('storage_identifier', ''))
     if storage != 'mcap':
-        raise CliError(f'{path}: storage {storage!r} is not supported here (only mcap); convert '
-                       'it with `rosbags-convert` or `ros2 bag convert`')
+        raise CliError(
+            f'{path}: storage {storage!r} is not supported here (only mcap); convert '
+            'it with `rosbags-convert` or `ros2 bag convert`'
+        )
     files: list[FileInfo] = []
     counts: dict[str, int] = defaultdict(int)
     for rel in meta.get('relative_file_paths') or []:
         file = path / rel
         if not file.is_file():
-            raise CliError(f'{path}: {rel} is listed in metadata.yaml but missing; '
-                           f'{_reindex_hint(path)}')
+            raise CliError(
+                f'{path}: {rel} is listed in metadata.yaml but missing; {_reindex_hint(path)}'
+            )
         s = _mcap_summary(file)
         st = s.statistics
         compressions = {ci.compression for ci in s.chunk_indexes} - {''}
-        files.append(FileInfo(file, file.stat().st_size, int(st.message_count),
-                              int(st.message_start_time), int(st.message_end_time),
-                              int(st.chunk_count), ','.join(sorted(compressions)) or 'none'))
+        files.append(
+            FileInfo(
+                file,
+                file.stat().st_size,
+                int(st.message_count),
+                int(st.message_start_time),
+                int(st.message_end_time),
+                int(st.chunk_count),
+                ','.join(sorted(compressions)) or 'none',
+            )
+        )
         for cid, n in st.channel_message_counts.items():
             ch = s.channels.get(cid)
             if ch is not None:
@@ -656,19 +775,36 @@ def open_bag(path: Path | str) -> BagInfo:
     for entry in meta.get('topics_with_message_count') or []:
         tm = entry.get('topic_metadata', {})
         qos = tm.get('offered_qos_profiles') or []
-        if isinstance(qos, str):   # version <= 8 stores a YAML string
+        if isinstance(qos, str):  # version <= 8 stores a YAML string
             qos = yaml.safe_load(qos) or []
         name = tm.get('name', '')
-        topics.append(TopicInfo(name, tm.get('type', ''), counts.get(name, 0),
-                                tm.get('serialization_format', 'cdr'), list(qos),
-                                tm.get('type_description_hash', '')))
+        topics.append(
+            TopicInfo(
+                name,
+                tm.get('type', ''),
+                counts.get(name, 0),
+                tm.get('serialization_format', 'cdr'),
+                list(qos),
+                tm.get('type_description_hash', ''),
+            )
+        )
     used = [f for f in files if f.count]
     start = min((f.start_ns for f in used), default=0)
     end = max((f.end_ns for f in used), default=0)
     custom = meta.get('custom_data') or {}
-    return BagInfo(path, storage, int(meta.get('version', 0)), files, topics, start, end,
-                   sum(f.count for f in files), sum(f.size for f in files),
-                   {str(k): str(v) for k, v in custom.items()}, str(meta.get('ros_distro', '')))
+    return BagInfo(
+        path,
+        storage,
+        int(meta.get('version', 0)),
+        files,
+        topics,
+        start,
+        end,
+        sum(f.count for f in files),
+        sum(f.size for f in files),
+        {str(k): str(v) for k, v in custom.items()},
+        str(meta.get('ros_distro', '')),
+    )
 
 
 def _human_size(n: float) -> str:
@@ -680,8 +816,10 @@ def _human_size(n: float) -> str:
 
 
 def _stamp(ns: int) -> str:
-    return (time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime(ns // 1_000_000_000))
-            + f'.{ns % 1_000_000_000:09d} UTC ({ns // 1_000_000_000}.{ns % 1_000_000_000:09d})')
+    return (
+        time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime(ns // 1_000_000_000))
+        + f'.{ns % 1_000_000_000:09d} UTC ({ns // 1_000_000_000}.{ns % 1_000_000_000:09d})'
+    )
 
 
 def _qos_short(qos: Sequence[Mapping[str, Any]]) -> str:
@@ -692,7 +830,7 @@ def _qos_short(qos: Sequence[Mapping[str, Any]]) -> str:
         depth = q.get('depth', 0)
         hist = q.get('history', 'unknown')
         h = f'{hist} {depth}' if hist not in ('unknown', 'system_default') or depth else hist
-        out.append(f"{q.get('reliability', '?')}/{q.get('durability', '?')}/{h}")
+        out.append(f'{q.get("reliability", "?")}/{q.get("durability", "?")}/{h}')
     uniq = sorted(set(out))
     return ', '.join(uniq) + (f' ({len(out)} publishers)' if len(out) > 1 else '')
 
@@ -701,16 +839,35 @@ def info_dict(info: BagInfo) -> dict[str, Any]:
     """``info`` as a JSON-able mapping (``apf-swarm bag info --json``)."""
     dur = info.duration
     return {
-        'path': str(info.path), 'storage': info.storage, 'version': info.version,
-        'files': [{'path': f.path.name, 'size': f.size, 'messages': f.count, 'chunks': f.chunks,
-                   'compression': f.compression} for f in info.files],
-        'size': info.size, 'duration': dur, 'start_ns': info.start_ns, 'end_ns': info.end_ns,
+        'path': str(info.path),
+        'storage': info.storage,
+        'version': info.version,
+        'files': [
+            {
+                'path': f.path.name,
+                'size': f.size,
+                'messages': f.count,
+                'chunks': f.chunks,
+                'compression': f.compression,
+            }
+            for f in info.files
+        ],
+        'size': info.size,
+        'duration': dur,
+        'start_ns': info.start_ns,
+        'end_ns': info.end_ns,
         'messages': info.count,
-        'topics': {t.name: {'type': t.type, 'count': t.count,
-                            'frequency': (t.count / dur) if dur > 0 else None,
-                            'serialization_format': t.serialization_format,
-                            'offered_qos_profiles': t.offered_qos,
-                            'type_description_hash': t.type_hash} for t in info.topics},
+        'topics': {
+            t.name: {
+                'type': t.type,
+                'count': t.count,
+                'frequency': (t.count / dur) if dur > 0 else None,
+                'serialization_format': t.serialization_format,
+                'offered_qos_profiles': t.offered_qos,
+                'type_description_hash': t.type_hash,
+            }
+            for t in info.topics
+        },
         'custom_data': info.custom_data,
     }
 
@@ -719,31 +876,43 @@ def format_info(info: BagInfo) -> str:
     """The text of ``apf-swarm bag info``."""
     dur = info.duration
     comp = sorted({f.compression for f in info.files})
-    lines = [f'Bag:          {info.path}',
-             f'Storage:      {info.storage} (rosbag2 metadata version {info.version}), '
-             f'chunk compression: {", ".join(comp) or "none"}',
-             f'Files:        ' + ', '.join(f'{f.path.name} ({_human_size(f.size)}, {f.count} '
-                                           f'messages, {f.chunks} chunks)' for f in info.files),
-             f'Size:         {_human_size(info.size)} ({info.size} bytes)',
-             f'Duration:     {dur:.3f} s',
-             f'Start:        {_stamp(info.start_ns) if info.count else "-"}',
-             f'End:          {_stamp(info.end_ns) if info.count else "-"}',
-             f'Messages:     {info.count}',
-             f'Topics:       {len(info.topics)}']
+    lines = [
+        f'Bag:          {info.path}',
+        (
+            f'Storage:      {info.storage} (rosbag2 metadata version {info.version}), '
+            f'chunk compression: {", ".join(comp) or "none"}'
+        ),
+        'Files:        '
+        + ', '.join(
+            f'{f.path.name} ({_human_size(f.size)}, {f.count} messages, {f.chunks} chunks)'
+            for f in info.files
+        ),
+        f'Size:         {_human_size(info.size)} ({info.size} bytes)',
+        f'Duration:     {dur:.3f} s',
+        f'Start:        {_stamp(info.start_ns) if info.count else "-"}',
+        f'End:          {_stamp(info.end_ns) if info.count else "-"}',
+        f'Messages:     {info.count}',
+        f'Topics:       {len(info.topics)}',
+    ]
     w = max((len(t.name) for t in info.topics), default=5)
     wt = max((len(t.type) for t in info.topics), default=4)
-    lines.append(f'  {"topic":{w}s}  {"type":{wt}s}  {"count":>9s}  {"freq [Hz]":>9s}  QoS '
-                 '(reliability/durability/history depth)')
+    lines.append(
+        f'  {"topic":{w}s}  {"type":{wt}s}  {"count":>9s}  {"freq [Hz]":>9s}  QoS '
+        '(reliability/durability/history depth)'
+    )
     for t in info.topics:
         freq = f'{t.count / dur:9.1f}' if dur > 0 else f'{"-":>9s}'
-        lines.append(f'  {t.name:{w}s}  {t.type:{wt}s}  {t.count:9d}  {freq}  '
-                     f'{_qos_short(t.offered_qos)}')
+        lines.append(
+            f'  {t.name:{w}s}  {t.type:{wt}s}  {t.count:9d}  {freq}  {_qos_short(t.offered_qos)}'
+        )
     rec = info.custom_data.get(CUSTOM_RECORDER)
     if rec:
         try:
             r = json.loads(rec)
-            lines.append(f"Recorder:     received {r.get('received')}, written "
-                         f"{r.get('written')}, dropped {r.get('dropped')}")
+            lines.append(
+                f'Recorder:     received {r.get("received")}, written '
+                f'{r.get("written")}, dropped {r.get("dropped")}'
+            )
         except ValueError:
             pass
     return '\n'.join(lines)
@@ -753,22 +922,27 @@ def format_info(info: BagInfo) -> str:
 # reading: messages
 # --------------------------------------------------------------------------------------------
 
+
 def _any_reader(path: Path) -> Any:
     """An opened rosbags AnyReader (types from the bag's own definitions); opening parses
     every stored definition, so a failure here is a broken definition, not a damaged file."""
     from rosbags.highlevel import AnyReader
+
     reader = AnyReader([path], default_typestore=typestore())
     try:
         reader.open()
     except Exception as exc:
-        raise CliError(f'{path}: cannot load the type definitions stored in the bag '
-                       f'({_one_line(exc)}); it was not written with full, valid ros2msg '
-                       'definitions') from None
+        raise CliError(
+            f'{path}: cannot load the type definitions stored in the bag '
+            f'({_one_line(exc)}); it was not written with full, valid ros2msg '
+            'definitions'
+        ) from None
     return reader
 
 
-def iter_raw(path: Path | str, topics: Iterable[str] | None = None, *,
-             info: BagInfo | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+def iter_raw(
+    path: Path | str, topics: Iterable[str] | None = None, *, info: BagInfo | None = None
+) -> Iterator[tuple[str, str, int, bytes]]:
     """``(topic, type, timestamp_ns, cdr bytes)`` of every message, in time order.
 
     ``topics``: only these (CliError for a topic that is not in the bag).
@@ -796,13 +970,16 @@ def bag_config(info: BagInfo, config: Path | None = None) -> tuple[Any, str]:
     import tempfile
 
     from apf_swarm_core.config import load_config
+
     mode = info.custom_data.get(CUSTOM_MODE, 'lockstep')
     if config is not None:
         return load_config(config), mode
     text = info.custom_data.get(CUSTOM_CONFIG)
     if not text:
-        raise CliError(f'{info.path} has no apf_swarm configuration in its custom_data (not '
-                       'recorded by `apf-swarm up --record`?); pass --config FILE')
+        raise CliError(
+            f'{info.path} has no apf_swarm configuration in its custom_data (not '
+            'recorded by `apf-swarm up --record`?); pass --config FILE'
+        )
     with tempfile.TemporaryDirectory() as tmp:
         p = Path(tmp) / 'config.yaml'
         p.write_text(text)
@@ -813,6 +990,7 @@ def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str) -> Any:
     """Every ``/swarm/state`` message of the bag through the bring-up's StateAccumulator
     (the same raw-bytes path and deserialization as the live run)."""
     from .bringup import StateAccumulator
+
     info.topic(SWARM_STATE_TOPIC)
     acc = StateAccumulator(mode, cfg.steps, cfg.record_every)
     for _topic, _type, _ts, raw in iter_raw(info.path, [SWARM_STATE_TOPIC], info=info):
@@ -820,8 +998,9 @@ def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str) -> Any:
     return acc
 
 
-def bag_trajectory(path: Path | str, config: Path | None = None
-                   ) -> tuple[dict[str, Any], Any, str, Any]:
+def bag_trajectory(
+    path: Path | str, config: Path | None = None
+) -> tuple[dict[str, Any], Any, str, Any]:
     """``(trajectory, cfg, mode, accumulator)`` of a bag's ``/swarm/state``."""
     info = open_bag(path)
     cfg, mode = bag_config(info, config)
@@ -836,10 +1015,12 @@ def bag_metrics(path: Path | str, config: Path | None = None) -> dict[str, Any]:
     """summary.json of the run from the bag's ``/swarm/state`` (:func:`runio.run_summary`, the
     function the bring-up uses), plus ``messages`` and ``mode``."""
     from .runio import run_summary
+
     traj, cfg, mode, acc = bag_trajectory(path, config)
     status = 'completed' if mode == 'realtime' or acc.complete else 'incomplete'
-    summary = run_summary(traj, cfg, status=status, n_samples=len(acc.samples),
-                          dropped=acc.dropped)
+    summary = run_summary(
+        traj, cfg, status=status, n_samples=len(acc.samples), dropped=acc.dropped
+    )
     summary['mode'] = mode
     summary['messages'] = acc.messages()
     return summary
@@ -848,6 +1029,7 @@ def bag_metrics(path: Path | str, config: Path | None = None) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------------
 # export
 # --------------------------------------------------------------------------------------------
+
 
 def flatten(msg: Any, prefix: str = '') -> dict[str, Any]:
     """Dotted field names and scalar values of a (rosbags-deserialized) message.
@@ -859,7 +1041,7 @@ def flatten(msg: Any, prefix: str = '') -> dict[str, Any]:
     def add(value: Any, name: str) -> None:
         if dataclasses.is_dataclass(value):
             for f in dataclasses.fields(value):
-                if not f.name.startswith('__'):    # rosbags' __msgtype__
+                if not f.name.startswith('__'):  # rosbags' __msgtype__
                     add(getattr(value, f.name), f'{name}.{f.name}' if name else f.name)
         elif isinstance(value, np.ndarray):
             for i, v in enumerate(value.ravel().tolist()):
@@ -893,9 +1075,11 @@ def export_csv(path: Path | str, topic: str, out: TextIO) -> int:
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
                 except Exception as exc:
-                    raise CliError(f'{topic}: cannot decode type {t.type} '
-                                   f'({_one_line(exc)}); the bag\'s definition of it is '
-                                   'missing or wrong') from None
+                    raise CliError(
+                        f'{topic}: cannot decode type {t.type} '
+                        f"({_one_line(exc)}); the bag's definition of it is "
+                        'missing or wrong'
+                    ) from None
                 row = {'timestamp_ns': int(ts), **flatten(msg)}
                 for k in row:
                     if k not in columns:
@@ -915,6 +1099,7 @@ def export_csv(path: Path | str, topic: str, out: TextIO) -> int:
 # reindex
 # --------------------------------------------------------------------------------------------
 
+
 @dataclass
 class _Recovered:
     schemas: dict[int, Any]
@@ -930,6 +1115,7 @@ def _scan_mcap(file: Path) -> _Recovered:
     """Every schema, channel, message and metadata record up to the first unreadable one."""
     from mcap.records import Channel, Chunk, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader, breakup_chunk
+
     schemas: dict[int, Any] = {}
     channels: dict[int, Any] = {}
     messages: list[Any] = []
@@ -964,18 +1150,22 @@ def _scan_mcap(file: Path) -> _Recovered:
 def _rewrite_mcap(rec: _Recovered, dst: Path, chunk_size: int = DEFAULT_CHUNK_SIZE) -> None:
     """A complete MCAP file (summary, indexes, statistics) with mcap's writer."""
     from mcap.writer import CompressionType, Writer
+
     comp = CompressionType.ZSTD if rec.compression == 'zstd' else CompressionType.NONE
     with open(dst, 'xb') as f:
         w = Writer(f, chunk_size=chunk_size, compression=comp)
         w.start(profile='ros2', library='apf_swarm reindex (mcap)')
-        sid = {old: w.register_schema(s.name, s.encoding, s.data)
-               for old, s in sorted(rec.schemas.items())}
+        sid = {
+            old: w.register_schema(s.name, s.encoding, s.data)
+            for old, s in sorted(rec.schemas.items())
+        }
         cid = {}
         for old, c in sorted(rec.channels.items()):
             if c.schema_id and c.schema_id not in sid:
-                continue   # its schema was in the lost part (cannot happen with rosbags)
-            cid[old] = w.register_channel(c.topic, c.message_encoding, sid.get(c.schema_id, 0),
-                                          dict(c.metadata))
+                continue  # its schema was in the lost part (cannot happen with rosbags)
+            cid[old] = w.register_channel(
+                c.topic, c.message_encoding, sid.get(c.schema_id, 0), dict(c.metadata)
+            )
         for m in sorted(rec.messages, key=lambda m: m.log_time):
             if m.channel_id in cid:
                 w.add_message(cid[m.channel_id], m.log_time, m.data, m.publish_time, m.sequence)
@@ -990,6 +1180,7 @@ def _hash_of(schema: Any, fallback: str = '') -> str:
     try:
         from rosbags.typesys import get_types_from_msg
         from rosbags.typesys.stores import Stores, get_typestore
+
         store = get_typestore(Stores.EMPTY)
         text = schema.data.decode()
         store.register(get_types_from_msg(text, schema.name))
@@ -1022,8 +1213,10 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
             old_meta = _read_metadata(path)
         except CliError:
             old_meta = {}
-    old_topics = {e.get('topic_metadata', {}).get('name'): e.get('topic_metadata', {})
-                  for e in (old_meta.get('topics_with_message_count') or [])}
+    old_topics = {
+        e.get('topic_metadata', {}).get('name'): e.get('topic_metadata', {})
+        for e in (old_meta.get('topics_with_message_count') or [])
+    }
     backup = path / f'reindex-backup-{time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())}'
     report: dict[str, Any] = {'path': str(path), 'files': [], 'backup': None}
 
@@ -1034,23 +1227,28 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
 
     file_stats: list[dict[str, Any]] = []
     topics: dict[str, dict[str, Any]] = {}
-    custom: dict[str, str] = {str(k): str(v) for k, v in
-                              (old_meta.get('custom_data') or {}).items()}
+    custom: dict[str, str] = {
+        str(k): str(v) for k, v in (old_meta.get('custom_data') or {}).items()
+    }
     for file in files:
         rec = _scan_mcap(file)
         if not rec.complete:
             if not rec.schemas and not rec.messages:
-                raise CliError(f'{file}: no complete MCAP record could be read ({rec.error}); '
-                               'nothing to recover (the recorder died before its first chunk?)')
+                raise CliError(
+                    f'{file}: no complete MCAP record could be read ({rec.error}); '
+                    'nothing to recover (the recorder died before its first chunk?)'
+                )
             tmp = file.with_name(file.name + '.reindex.tmp')
             if tmp.exists():
                 tmp.unlink()
             _rewrite_mcap(rec, tmp)
             shutil.move(str(file), str(backup_dir() / file.name))
             tmp.replace(file)
-            say(f'{file.name}: truncated ({rec.error}); recovered {len(rec.messages)} messages '
+            say(
+                f'{file.name}: truncated ({rec.error}); recovered {len(rec.messages)} messages '
                 f'of {len(rec.channels)} topics from its complete chunks, rewrote it '
-                f'(original in {backup.name}/)')
+                f'(original in {backup.name}/)'
+            )
             action = 'rewritten'
         else:
             say(f'{file.name}: complete, {len(rec.messages)} messages')
@@ -1058,34 +1256,55 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
         for k, v in rec.metadata.items():
             custom.setdefault(k, v)
         ts = [m.log_time for m in rec.messages]
-        file_stats.append({'path': file.name,
-                           'starting_time': {'nanoseconds_since_epoch': min(ts) if ts else 0},
-                           'duration': {'nanoseconds': (max(ts) - min(ts)) if ts else 0},
-                           'message_count': len(ts)})
-        report['files'].append({'path': file.name, 'action': action, 'messages': len(ts),
-                                'error': rec.error})
+        file_stats.append(
+            {
+                'path': file.name,
+                'starting_time': {'nanoseconds_since_epoch': min(ts) if ts else 0},
+                'duration': {'nanoseconds': (max(ts) - min(ts)) if ts else 0},
+                'message_count': len(ts),
+            }
+        )
+        report['files'].append(
+            {'path': file.name, 'action': action, 'messages': len(ts), 'error': rec.error}
+        )
         per_channel: dict[int, int] = defaultdict(int)
         for m in rec.messages:
             per_channel[m.channel_id] += 1
         for cid_, ch in sorted(rec.channels.items()):
             schema = rec.schemas.get(ch.schema_id)
-            t = topics.setdefault(ch.topic, {
-                'name': ch.topic, 'type': schema.name if schema else '',
-                'serialization_format': ch.message_encoding,
-                'offered_qos_profiles': yaml.safe_load(
-                    ch.metadata.get('offered_qos_profiles', '') or '[]') or [],
-                'type_description_hash': _hash_of(schema, old_topics.get(ch.topic, {}).get(
-                    'type_description_hash', '')) if schema else '',
-                'message_count': 0})
+            t = topics.setdefault(
+                ch.topic,
+                {
+                    'name': ch.topic,
+                    'type': schema.name if schema else '',
+                    'serialization_format': ch.message_encoding,
+                    'offered_qos_profiles': yaml.safe_load(
+                        ch.metadata.get('offered_qos_profiles', '') or '[]'
+                    )
+                    or [],
+                    'type_description_hash': _hash_of(
+                        schema, old_topics.get(ch.topic, {}).get('type_description_hash', '')
+                    )
+                    if schema
+                    else '',
+                    'message_count': 0,
+                },
+            )
             t['message_count'] += per_channel.get(cid_, 0)
     custom['apf_swarm.reindexed'] = time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())
-    doc = build_metadata(files=file_stats, topics=list(topics.values()), custom_data=custom,
-                         ros_distro=str(old_meta.get('ros_distro', 'rosbags')))
+    doc = build_metadata(
+        files=file_stats,
+        topics=list(topics.values()),
+        custom_data=custom,
+        ros_distro=str(old_meta.get('ros_distro', 'rosbags')),
+    )
     if (path / 'metadata.yaml').is_file():
         shutil.copy2(path / 'metadata.yaml', backup_dir() / 'metadata.yaml')
     _write_metadata(path / 'metadata.yaml', doc)
     report['messages'] = doc['rosbag2_bagfile_information']['message_count']
     report['topics'] = {t['name']: t['message_count'] for t in topics.values()}
-    say(f'wrote {path / "metadata.yaml"}: {report["messages"]} messages on {len(topics)} topics'
-        + (f'; backup of what was replaced in {backup}' if report['backup'] else ''))
+    say(
+        f'wrote {path / "metadata.yaml"}: {report["messages"]} messages on {len(topics)} topics'
+        + (f'; backup of what was replaced in {backup}' if report['backup'] else '')
+    )
     return report

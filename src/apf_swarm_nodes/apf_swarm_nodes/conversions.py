@@ -7,8 +7,9 @@ step in integer nanoseconds), so the step of a message is ``stamp_ns // dt_ns`` 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -19,13 +20,32 @@ from rosgraph_msgs.msg import Clock
 
 from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 
-if TYPE_CHECKING:       # imported where markers are built: most processes never do
+if TYPE_CHECKING:  # imported where markers are built: most processes never do
     from visualization_msgs.msg import MarkerArray
 
-__all__ = ['WORLD', 'dt_to_ns', 'step_stamp', 'stamp_ns', 'step_of', 'odom_msg', 'odom_arrays',
-           'force_msg', 'ForceArrays', 'force_arrays', 'clock_msg', 'swarm_state_msg',
-           'SwarmSample', 'swarm_state_arrays', 'is_finite', 'LAW_CODES', 'swarm_odom_msg',
-           'swarm_odom_arrays', 'SwarmOdom', 'markers_msg', 'swarm_state_step']
+__all__ = [
+    'LAW_CODES',
+    'WORLD',
+    'ForceArrays',
+    'SwarmOdom',
+    'SwarmSample',
+    'clock_msg',
+    'dt_to_ns',
+    'force_arrays',
+    'force_msg',
+    'is_finite',
+    'markers_msg',
+    'odom_arrays',
+    'odom_msg',
+    'stamp_ns',
+    'step_of',
+    'step_stamp',
+    'swarm_odom_arrays',
+    'swarm_odom_msg',
+    'swarm_state_arrays',
+    'swarm_state_msg',
+    'swarm_state_step',
+]
 
 WORLD = 'world'
 LAW_CODES = {'proposed': ForceCommand.LAW_PROPOSED, 'traditional': ForceCommand.LAW_TRADITIONAL}
@@ -61,8 +81,13 @@ def _set_vec(msg: Any, v: NDArray[np.float64]) -> Any:
     return msg
 
 
-def odom_msg(position: NDArray[np.float64], velocity: NDArray[np.float64], stamp: Time,
-             child_frame_id: str, out: Odometry | None = None) -> Odometry:
+def odom_msg(
+    position: NDArray[np.float64],
+    velocity: NDArray[np.float64],
+    stamp: Time,
+    child_frame_id: str,
+    out: Odometry | None = None,
+) -> Odometry:
     """``nav_msgs/Odometry`` in ``world`` with identity orientation and zero covariance.
 
     ``out``: a message made by this function before, updated in place (building a new
@@ -90,11 +115,22 @@ def is_finite(*arrays: NDArray[np.float64]) -> bool:
     return all(bool(np.all(np.isfinite(a))) for a in arrays)
 
 
-def force_msg(*, uav_id: int, step: int, law: str, stamp: Time, force: NDArray[np.float64],
-              sliding_surface: NDArray[np.float64], gradient: NDArray[np.float64],
-              filter_state: NDArray[np.float64], saturated: bool,
-              stale: bool = False, rejected_inputs: int = 0, instance: int = 0,
-              out: ForceCommand | None = None) -> ForceCommand:
+def force_msg(
+    *,
+    uav_id: int,
+    step: int,
+    law: str,
+    stamp: Time,
+    force: NDArray[np.float64],
+    sliding_surface: NDArray[np.float64],
+    gradient: NDArray[np.float64],
+    filter_state: NDArray[np.float64],
+    saturated: bool,
+    stale: bool = False,
+    rejected_inputs: int = 0,
+    instance: int = 0,
+    out: ForceCommand | None = None,
+) -> ForceCommand:
     """``apf_swarm_msgs/ForceCommand`` from one tracker's controller output (vectors (3,));
     ``out``: a previous message to update in place."""
     msg = out if out is not None else ForceCommand()
@@ -130,9 +166,16 @@ class ForceArrays:
 
 def force_arrays(msg: ForceCommand) -> ForceArrays:
     """Numbers of a ``ForceCommand``."""
-    return ForceArrays(int(msg.uav_id), int(msg.step), _vec(msg.force),
-                       _vec(msg.sliding_surface), bool(msg.stale), int(msg.rejected_inputs),
-                       stamp_ns(msg.header.stamp), int(msg.instance))
+    return ForceArrays(
+        int(msg.uav_id),
+        int(msg.step),
+        _vec(msg.force),
+        _vec(msg.sliding_surface),
+        bool(msg.stale),
+        int(msg.rejected_inputs),
+        stamp_ns(msg.header.stamp),
+        int(msg.instance),
+    )
 
 
 def clock_msg(stamp: Time) -> Clock:
@@ -140,14 +183,29 @@ def clock_msg(stamp: Time) -> Clock:
     return Clock(clock=stamp)
 
 
-def swarm_state_msg(*, step: int, sim_time: float, stamp: Time, uav_ids: Sequence[int],
-                    x: NDArray[np.float64], v: NDArray[np.float64], u: NDArray[np.float64],
-                    s: NDArray[np.float64], target_x: NDArray[np.float64],
-                    target_v: NDArray[np.float64], potential: float, centroid_error: float,
-                    formation_error: float, missed_deadlines: int, stale_inputs: int,
-                    rejected_inputs: int, active: Sequence[bool] | None = None,
-                    target_age: float = 0.0, command_latency: Sequence[float] | None = None,
-                    out: SwarmState | None = None) -> SwarmState:
+def swarm_state_msg(
+    *,
+    step: int,
+    sim_time: float,
+    stamp: Time,
+    uav_ids: Sequence[int],
+    x: NDArray[np.float64],
+    v: NDArray[np.float64],
+    u: NDArray[np.float64],
+    s: NDArray[np.float64],
+    target_x: NDArray[np.float64],
+    target_v: NDArray[np.float64],
+    potential: float,
+    centroid_error: float,
+    formation_error: float,
+    missed_deadlines: int,
+    stale_inputs: int,
+    rejected_inputs: int,
+    active: Sequence[bool] | None = None,
+    target_age: float = 0.0,
+    command_latency: Sequence[float] | None = None,
+    out: SwarmState | None = None,
+) -> SwarmState:
     """``apf_swarm_msgs/SwarmState`` from arrays of shape (n, 3) and (3,).
 
     ``out``: a message made by this function before for the same trackers, updated in place
@@ -165,9 +223,13 @@ def swarm_state_msg(*, step: int, sim_time: float, stamp: Time, uav_ids: Sequenc
     msg.header.stamp = stamp
     msg.step = int(step)
     msg.sim_time = float(sim_time)
-    for objs, arr in ((msg.positions, x), (msg.velocities, v), (msg.forces, u),
-                      (msg.sliding_surfaces, s)):
-        for o, row in zip(objs, np.asarray(arr, dtype=float).tolist()):
+    for objs, arr in (
+        (msg.positions, x),
+        (msg.velocities, v),
+        (msg.forces, u),
+        (msg.sliding_surfaces, s),
+    ):
+        for o, row in zip(objs, np.asarray(arr, dtype=float).tolist(), strict=False):
             o.x, o.y, o.z = row
     _set_vec(msg.target_position, target_x)
     _set_vec(msg.target_velocity, target_v)
@@ -179,8 +241,9 @@ def swarm_state_msg(*, step: int, sim_time: float, stamp: Time, uav_ids: Sequenc
     msg.rejected_inputs = int(rejected_inputs)
     msg.active = [True] * len(x) if active is None else [bool(a) for a in active]
     msg.target_age = float(target_age)
-    msg.command_latency = [0.0] * len(x) if command_latency is None else \
-        [float(a) for a in command_latency]
+    msg.command_latency = (
+        [0.0] * len(x) if command_latency is None else [float(a) for a in command_latency]
+    )
     return msg
 
 
@@ -215,21 +278,40 @@ def _rows(seq: Sequence[Any]) -> NDArray[np.float64]:
 def swarm_state_arrays(msg: SwarmState) -> SwarmSample:
     """Arrays of a ``SwarmState`` message (works for rclpy and rosbags-deserialized objects)."""
     return SwarmSample(
-        int(msg.step), float(msg.sim_time), tuple(int(i) for i in msg.uav_ids),
-        _rows(msg.positions), _rows(msg.velocities), _rows(msg.forces),
-        _rows(msg.sliding_surfaces), _vec(msg.target_position), _vec(msg.target_velocity),
-        float(msg.potential), float(msg.centroid_error), float(msg.formation_error),
-        int(msg.missed_deadlines), int(msg.stale_inputs), int(msg.rejected_inputs),
-        tuple(bool(a) for a in getattr(msg, 'active', ())),   # absent in older bags
+        int(msg.step),
+        float(msg.sim_time),
+        tuple(int(i) for i in msg.uav_ids),
+        _rows(msg.positions),
+        _rows(msg.velocities),
+        _rows(msg.forces),
+        _rows(msg.sliding_surfaces),
+        _vec(msg.target_position),
+        _vec(msg.target_velocity),
+        float(msg.potential),
+        float(msg.centroid_error),
+        float(msg.formation_error),
+        int(msg.missed_deadlines),
+        int(msg.stale_inputs),
+        int(msg.rejected_inputs),
+        tuple(bool(a) for a in getattr(msg, 'active', ())),  # absent in older bags
         float(getattr(msg, 'target_age', 0.0)),
-        tuple(float(a) for a in getattr(msg, 'command_latency', ())))
+        tuple(float(a) for a in getattr(msg, 'command_latency', ())),
+    )
 
 
-def swarm_odom_msg(*, step: int, stamp: Time, uav_ids: Sequence[int], x: NDArray[np.float64],
-                   v: NDArray[np.float64], target_x: NDArray[np.float64],
-                   target_v: NDArray[np.float64], active: Sequence[bool] | None = None,
-                   target_age: float = 0.0,
-                   command_latency: NDArray[np.float64] | None = None) -> SwarmOdometry:
+def swarm_odom_msg(
+    *,
+    step: int,
+    stamp: Time,
+    uav_ids: Sequence[int],
+    x: NDArray[np.float64],
+    v: NDArray[np.float64],
+    target_x: NDArray[np.float64],
+    target_v: NDArray[np.float64],
+    active: Sequence[bool] | None = None,
+    target_age: float = 0.0,
+    command_latency: NDArray[np.float64] | None = None,
+) -> SwarmOdometry:
     """``apf_swarm_msgs/SwarmOdometry`` from arrays x, v (n, 3) and the target (3,);
     ``active`` defaults to every tracker active, ``command_latency`` (n,) [s] to none."""
     msg = SwarmOdometry()
@@ -274,8 +356,10 @@ def swarm_odom_arrays(msg: SwarmOdometry) -> SwarmOdom:
     x = np.asarray(msg.positions, dtype=float)
     v = np.asarray(msg.velocities, dtype=float)
     if x.size != 3 * len(ids) or v.size != 3 * len(ids):
-        raise ValueError(f'SwarmOdometry with {len(ids)} ids has {x.size} position and '
-                         f'{v.size} velocity values; expected {3 * len(ids)} each')
+        raise ValueError(
+            f'SwarmOdometry with {len(ids)} ids has {x.size} position and '
+            f'{v.size} velocity values; expected {3 * len(ids)} each'
+        )
     if len(set(ids)) != len(ids):
         raise ValueError(f'SwarmOdometry lists a uav_id twice: {ids}')
     active = [bool(a) for a in msg.active] or [True] * len(ids)
@@ -283,19 +367,30 @@ def swarm_odom_arrays(msg: SwarmOdometry) -> SwarmOdom:
         raise ValueError(f'SwarmOdometry with {len(ids)} ids has {len(active)} active flags')
     latency = np.asarray(getattr(msg, 'command_latency', ()), dtype=float)
     if latency.size not in (0, len(ids)):
-        raise ValueError(f'SwarmOdometry with {len(ids)} ids has {latency.size} command '
-                         'latencies; expected none or one per id')
-    return SwarmOdom(int(msg.step), stamp_ns(msg.header.stamp), ids, x.reshape(-1, 3),
-                     v.reshape(-1, 3), np.asarray(msg.target_position, dtype=float),
-                     np.asarray(msg.target_velocity, dtype=float), active,
-                     float(msg.target_age), latency)
+        raise ValueError(
+            f'SwarmOdometry with {len(ids)} ids has {latency.size} command '
+            'latencies; expected none or one per id'
+        )
+    return SwarmOdom(
+        int(msg.step),
+        stamp_ns(msg.header.stamp),
+        ids,
+        x.reshape(-1, 3),
+        v.reshape(-1, 3),
+        np.asarray(msg.target_position, dtype=float),
+        np.asarray(msg.target_velocity, dtype=float),
+        active,
+        float(msg.target_age),
+        latency,
+    )
 
 
-def markers_msg(x: NDArray[np.float64], target_x: NDArray[np.float64], stamp: Time,
-                uav_ids: Sequence[int]) -> MarkerArray:
+def markers_msg(
+    x: NDArray[np.float64], target_x: NDArray[np.float64], stamp: Time, uav_ids: Sequence[int]
+) -> MarkerArray:
     """``visualization_msgs/MarkerArray`` for RViz / Foxglove: a sphere per tracker (blue),
     the target (red) and the formation outline (a closed line through the trackers)."""
-    from geometry_msgs.msg import Point as P
+    from geometry_msgs.msg import Point
     from visualization_msgs.msg import Marker, MarkerArray
 
     def marker(mid: int, kind: int, rgb: tuple[float, float, float], scale: float) -> Marker:
@@ -313,7 +408,7 @@ def markers_msg(x: NDArray[np.float64], target_x: NDArray[np.float64], stamp: Ti
         return m
 
     out = MarkerArray()
-    for j, (uid, p) in enumerate(zip(uav_ids, x)):
+    for _j, (uid, p) in enumerate(zip(uav_ids, x, strict=False)):
         m = marker(int(uid), Marker.SPHERE, (0.2, 0.4, 1.0), 0.3)
         _set_vec(m.pose.position, p)
         out.markers.append(m)
@@ -322,7 +417,7 @@ def markers_msg(x: NDArray[np.float64], target_x: NDArray[np.float64], stamp: Ti
     out.markers.append(t)
     if len(x) > 1:
         line = marker(10_000, Marker.LINE_STRIP, (0.6, 0.6, 0.6), 0.05)
-        line.points = [_set_vec(P(), p) for p in list(x) + [x[0]]]
+        line.points = [_set_vec(Point(), p) for p in [*list(x), x[0]]]
         out.markers.append(line)
     return out
 
@@ -336,6 +431,7 @@ def swarm_state_step(raw: bytes) -> int:
     Raises ValueError for bytes that are too short to hold it.
     """
     import struct
+
     if len(raw) < 16:
         raise ValueError(f'{len(raw)} bytes cannot hold a SwarmState')
     order = '<' if raw[1] & 1 else '>'

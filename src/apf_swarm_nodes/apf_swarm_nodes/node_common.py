@@ -38,28 +38,52 @@ recorders and ``use_sim_time`` nodes).
 
 from __future__ import annotations
 
-import re
 import faulthandler
+import re
 import signal
 import sys
 import threading
 import time
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import rclpy
-from rclpy.exceptions import ParameterException
-from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
-                             SingleThreadedExecutor)
-from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
-from rclpy.signals import SignalHandlerOptions
-
 from apf_swarm_core.config import REALTIME_RATE
 from apf_swarm_core.errors import ApfSwarmError
+from rclpy.exceptions import ParameterException
+from rclpy.executors import (
+    ExternalShutdownException,
+    MultiThreadedExecutor,
+    SingleThreadedExecutor,
+)
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 
-__all__ = ['EXECUTORS', 'spin', 'control_qos', 'STATE_QOS', 'START_QOS', 'CLOCK_QOS', 'odom_topic',
-           'force_topic', 'RejectionLog', 'TARGET_ODOM', 'SWARM_STATE', 'SWARM_ODOM', 'SWARM_MARKERS', 'INPUTS', 'SWARM_START', 'CLOCK', 'TARGET_REQUEST', 'REQUEST_QOS',
-           'TARGET_LOOKAHEAD', 'run_node', 'run_nodes', 'running', 'REALTIME_RATE']
+__all__ = [
+    'CLOCK',
+    'CLOCK_QOS',
+    'EXECUTORS',
+    'INPUTS',
+    'REALTIME_RATE',
+    'REQUEST_QOS',
+    'START_QOS',
+    'STATE_QOS',
+    'SWARM_MARKERS',
+    'SWARM_ODOM',
+    'SWARM_START',
+    'SWARM_STATE',
+    'TARGET_LOOKAHEAD',
+    'TARGET_ODOM',
+    'TARGET_REQUEST',
+    'RejectionLog',
+    'control_qos',
+    'force_topic',
+    'odom_topic',
+    'run_node',
+    'run_nodes',
+    'running',
+    'spin',
+]
 
 TARGET_ODOM = '/target/odom'
 SWARM_STATE = '/swarm/state'
@@ -74,10 +98,18 @@ TARGET_LOOKAHEAD = 64
 
 #: deep enough that a reader paused for seconds loses nothing in lockstep (5000 steps, about
 #: 1.5 MB for 3 trackers); measured: depth 100 lost 358 of 3000 samples over a 3 s pause
-STATE_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                       depth=5000, durability=DurabilityPolicy.VOLATILE)
-START_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                       depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATE_QOS = QoSProfile(
+    reliability=ReliabilityPolicy.RELIABLE,
+    history=HistoryPolicy.KEEP_LAST,
+    depth=5000,
+    durability=DurabilityPolicy.VOLATILE,
+)
+START_QOS = QoSProfile(
+    reliability=ReliabilityPolicy.RELIABLE,
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 #: only the latest request matters; a (re)started target gets it on joining
 REQUEST_QOS = START_QOS
 #: lockstep control topics and /clock: a reliable keep-last writer drops what a reader has not
@@ -87,18 +119,25 @@ REQUEST_QOS = START_QOS
 #: live loop (at most a step or two is ever in flight) and let a recorder, or a tracker fed
 #: from a bag, fall behind by over a second.
 LOCKSTEP_DEPTH = 1000
-CLOCK_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                       depth=LOCKSTEP_DEPTH)
+CLOCK_QOS = QoSProfile(
+    reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=LOCKSTEP_DEPTH
+)
 
 
 def control_qos(mode: str, depth: int = 1) -> QoSProfile:
     """QoS of odometry and force commands for a timing mode; ``depth``: realtime keep-last
     depth (the nodes' ``qos_depth``; 1, the newest sample, is the default and measured best)."""
     if mode == 'lockstep':
-        return QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
-                          history=HistoryPolicy.KEEP_LAST, depth=LOCKSTEP_DEPTH)
-    return QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT,
-                      history=HistoryPolicy.KEEP_LAST, depth=int(depth))
+        return QoSProfile(
+            reliability=ReliabilityPolicy.RELIABLE,
+            history=HistoryPolicy.KEEP_LAST,
+            depth=LOCKSTEP_DEPTH,
+        )
+    return QoSProfile(
+        reliability=ReliabilityPolicy.BEST_EFFORT,
+        history=HistoryPolicy.KEEP_LAST,
+        depth=int(depth),
+    )
 
 
 class RejectionLog:
@@ -147,6 +186,7 @@ def spin(node: Node | Sequence[Node], kind: str = 'single') -> None:
     nodes = [node] if isinstance(node, Node) else list(node)
     if kind == 'events':
         from rclpy.experimental import EventsExecutor
+
         executor = EventsExecutor()
     else:
         executor = MultiThreadedExecutor() if kind == 'multi' else SingleThreadedExecutor()
@@ -177,9 +217,12 @@ def _stop_between_callbacks(signum: int, _frame) -> None:
     signal.signal(signum, signal.SIG_DFL)
 
 
-def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
-              args: list[str] | None = None,
-              run: Callable[[Node], None] | None = None) -> int:
+def run_nodes(
+    name: str,
+    factories: Sequence[Callable[[], Node]],
+    args: list[str] | None = None,
+    run: Callable[[Node], None] | None = None,
+) -> int:
     """The Jazzy ``main()`` for one or several nodes in one process: init, build the nodes,
     spin them together on one executor (the ``executor`` parameter of the first decides),
     and always destroy them and shut down.
@@ -195,7 +238,7 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, _stop_between_callbacks)
     signal.signal(signal.SIGTERM, _stop_between_callbacks)
-    faulthandler.register(signal.SIGUSR1, all_threads=True)   # a hung process says where
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # a hung process says where
     nodes: list[Node] = []
     code = 0
     try:
@@ -205,8 +248,11 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
         if run is not None:
             run(first)
         else:
-            kind = first.get_parameter('executor').value if first.has_parameter('executor') \
+            kind = (
+                first.get_parameter('executor').value
+                if first.has_parameter('executor')
                 else 'single'
+            )
             spin(nodes, kind)
     except (ApfSwarmError, ParameterException, ValueError) as exc:
         print(f'{name}: error: {exc}', file=sys.stderr)
@@ -220,7 +266,11 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]],
     return code
 
 
-def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = None,
-             run: Callable[[Node], None] | None = None) -> int:
+def run_node(
+    name: str,
+    factory: Callable[[], Node],
+    args: list[str] | None = None,
+    run: Callable[[Node], None] | None = None,
+) -> int:
     """:func:`run_nodes` for one node (every node's ``main()``)."""
     return run_nodes(name, [factory], args, run)

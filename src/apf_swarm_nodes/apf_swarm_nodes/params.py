@@ -9,43 +9,67 @@ the validated :class:`~apf_swarm_core.config.SwarmConfig` from the node's parame
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
 
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
+from apf_swarm_core.config import SwarmConfig, config_from_mapping
+from apf_swarm_core.errors import ConfigError
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from apf_swarm_core.config import SwarmConfig, config_from_mapping
-from apf_swarm_core.errors import ConfigError
-
-__all__ = ['NodeParam', 'declare_config', 'declare_node_params', 'read_config',
-           'install_validator', 'MODES', 'EXECUTOR_PARAM', 'QOS_DEPTH_PARAM']
+__all__ = [
+    'EXECUTOR_PARAM',
+    'MODES',
+    'QOS_DEPTH_PARAM',
+    'NodeParam',
+    'declare_config',
+    'declare_node_params',
+    'install_validator',
+    'read_config',
+]
 
 MODES = ('lockstep', 'realtime')
 _FIELDS = {f.name: f for f in dataclasses.fields(SwarmConfig) if not f.metadata.get('internal')}
 _DEFAULTS = SwarmConfig()
 
 
-def _descriptor(name: str, ptype: int, meta: Mapping[str, Any], read_only: bool,
-                dynamic: bool = False) -> ParameterDescriptor:
+def _descriptor(
+    name: str, ptype: int, meta: Mapping[str, Any], read_only: bool, dynamic: bool = False
+) -> ParameterDescriptor:
     text = meta.get('help', '')
     if meta.get('unit'):
-        text += f" [{meta['unit']}]"
+        text += f' [{meta["unit"]}]'
     if meta.get('choices'):
         text += ' (one of: ' + ', '.join(meta['choices']) + ')'
-    d = ParameterDescriptor(name=name, type=ptype, description=text, read_only=read_only,
-                            dynamic_typing=dynamic)
+    d = ParameterDescriptor(
+        name=name, type=ptype, description=text, read_only=read_only, dynamic_typing=dynamic
+    )
     lo, hi = meta.get('lo'), meta.get('hi')
     if ptype == ParameterType.PARAMETER_DOUBLE and (lo is not None or hi is not None):
-        d.floating_point_range = [FloatingPointRange(
-            from_value=float(lo if lo is not None else -1e300),
-            to_value=float(hi if hi is not None else 1e300), step=0.0)]
+        d.floating_point_range = [
+            FloatingPointRange(
+                from_value=float(lo if lo is not None else -1e300),
+                to_value=float(hi if hi is not None else 1e300),
+                step=0.0,
+            )
+        ]
     if ptype == ParameterType.PARAMETER_INTEGER and (lo is not None or hi is not None):
-        d.integer_range = [IntegerRange(from_value=int(lo if lo is not None else -2**62),
-                                        to_value=int(hi if hi is not None else 2**62), step=0)]
+        d.integer_range = [
+            IntegerRange(
+                from_value=int(lo if lo is not None else -(2**62)),
+                to_value=int(hi if hi is not None else 2**62),
+                step=0,
+            )
+        ]
     return d
 
 
@@ -62,16 +86,20 @@ def declare_config(node: Node, *, writable: tuple[str, ...] = ()) -> None:
         ro = name not in writable or bool(f.metadata.get('read_only'))
         if isinstance(default, tuple):
             if default:
-                desc = _descriptor(name, ParameterType.PARAMETER_DOUBLE_ARRAY, f.metadata, ro,
-                                   True)
+                desc = _descriptor(
+                    name, ParameterType.PARAMETER_DOUBLE_ARRAY, f.metadata, ro, True
+                )
                 node.declare_parameter(name, [float(v) for v in default], desc)
             else:
                 desc = _descriptor(name, ParameterType.PARAMETER_DOUBLE_ARRAY, f.metadata, ro)
                 node.declare_parameter(name, Parameter.Type.DOUBLE_ARRAY, desc)
         else:
-            ptype = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-                     float: ParameterType.PARAMETER_DOUBLE,
-                     str: ParameterType.PARAMETER_STRING}[type(default)]
+            ptype = {
+                bool: ParameterType.PARAMETER_BOOL,
+                int: ParameterType.PARAMETER_INTEGER,
+                float: ParameterType.PARAMETER_DOUBLE,
+                str: ParameterType.PARAMETER_STRING,
+            }[type(default)]
             node.declare_parameter(name, default, _descriptor(name, ptype, f.metadata, ro))
 
 
@@ -90,30 +118,42 @@ class NodeParam:
 
 #: the executor the node spins with (see :func:`apf_swarm_nodes.node_common.spin`)
 #: events is the default: measured here about 1.5x the lockstep steps/s of single
-EXECUTOR_PARAM = NodeParam('executor', 'events', 'executor: events (rclpy.experimental, '
-                           'driven by spin_once), single or multi',
-                           choices=('events', 'single', 'multi'))
-QOS_DEPTH_PARAM = NodeParam('qos_depth', 1, 'realtime: keep-last depth of the best-effort '
-                            'control topics (odometry, /swarm/odom, force commands; 1: the '
-                            'newest sample only); lockstep always uses reliable, keep last '
-                            '1000', lo=1, hi=1000)
+EXECUTOR_PARAM = NodeParam(
+    'executor',
+    'events',
+    'executor: events (rclpy.experimental, driven by spin_once), single or multi',
+    choices=('events', 'single', 'multi'),
+)
+QOS_DEPTH_PARAM = NodeParam(
+    'qos_depth',
+    1,
+    'realtime: keep-last depth of the best-effort '
+    'control topics (odometry, /swarm/odom, force commands; 1: the '
+    'newest sample only); lockstep always uses reliable, keep last '
+    '1000',
+    lo=1,
+    hi=1000,
+)
 
 
 def declare_node_params(node: Node, params: tuple[NodeParam, ...]) -> dict[str, Any]:
     """Declare node-only parameters and return their values, validated (ConfigError if bad)."""
     out = {}
     for p in params:
-        ptype = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-                 float: ParameterType.PARAMETER_DOUBLE,
-                 str: ParameterType.PARAMETER_STRING}[type(p.default)]
+        ptype = {
+            bool: ParameterType.PARAMETER_BOOL,
+            int: ParameterType.PARAMETER_INTEGER,
+            float: ParameterType.PARAMETER_DOUBLE,
+            str: ParameterType.PARAMETER_STRING,
+        }[type(p.default)]
         meta = {'help': p.help, 'lo': p.lo, 'hi': p.hi, 'choices': p.choices}
         node.declare_parameter(p.name, p.default, _descriptor(p.name, ptype, meta, p.read_only))
         val = node.get_parameter(p.name).value
         if p.choices and val not in p.choices:
             raise ConfigError(f'{p.name} = {val!r}: must be one of {", ".join(p.choices)}')
-        if isinstance(val, (int, float)) and not isinstance(val, bool):
-            if p.lo is not None and val < p.lo or p.hi is not None and val > p.hi:
-                raise ConfigError(f'{p.name} = {val!r}: must be within [{p.lo}, {p.hi}]')
+        numeric = isinstance(val, (int, float)) and not isinstance(val, bool)
+        if numeric and ((p.lo is not None and val < p.lo) or (p.hi is not None and val > p.hi)):
+            raise ConfigError(f'{p.name} = {val!r}: must be within [{p.lo}, {p.hi}]')
         out[p.name] = val
     return out
 
@@ -129,14 +169,17 @@ def _values(node: Node, changed: Mapping[str, Any] | None = None) -> dict[str, A
             continue
         vals[name] = p.value
     vals.update(changed or {})
-    return {k: (tuple(v) if isinstance(v, (list, tuple)) or hasattr(v, 'tolist') else v)
-            for k, v in vals.items()}
+    return {
+        k: (tuple(v) if isinstance(v, (list, tuple)) or hasattr(v, 'tolist') else v)
+        for k, v in vals.items()
+    }
 
 
 def read_config(node: Node) -> SwarmConfig:
     """The validated configuration from the node's parameters (raises ConfigError)."""
-    return config_from_mapping(_values(node), source=f'parameters of {node.get_fully_qualified_name()}',
-                               require_all=False)
+    return config_from_mapping(
+        _values(node), source=f'parameters of {node.get_fully_qualified_name()}', require_all=False
+    )
 
 
 def install_validator(node: Node, apply: Callable[[SwarmConfig], None]) -> None:
@@ -152,8 +195,9 @@ def install_validator(node: Node, apply: Callable[[SwarmConfig], None]) -> None:
         if not changed:
             return SetParametersResult(successful=True)
         try:
-            config_from_mapping(_values(node, changed), require_all=False,
-                                source='parameter update')
+            config_from_mapping(
+                _values(node, changed), require_all=False, source='parameter update'
+            )
         except ConfigError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)

@@ -1,7 +1,8 @@
 """Plant node: integrates every tracker's dynamics (eq. 19-21) with bounded noise.
 
 Publishes ``/uav_<i>/odom`` for every tracker, ``/swarm/odom`` (all of them and the target
-state, one message), ``/swarm/state``, ``/swarm/markers`` (RViz / Foxglove) and, in lockstep, ``/clock``;
+state, one message), ``/swarm/state``, ``/swarm/markers`` (RViz / Foxglove) and, in
+lockstep, ``/clock``;
 subscribes ``/uav_<i>/force_cmd`` and ``/target/odom``.
 
 Lockstep barrier, step k: wait for the target's state of step k (the target's states are
@@ -19,7 +20,8 @@ state is held and its age grows in ``/swarm/odom`` (trackers brake once it excee
 
 Realtime: a physics timer integrates the steps of dt that wall time has advanced (held
 commands; a tracker whose latest command is older than ``stale_after`` gets zero force, older
-than ``command_timeout`` it becomes inactive, counted in ``missed_deadlines``); a publish timer publishes odometry and
+than ``command_timeout`` it becomes inactive, counted in ``missed_deadlines``); a publish
+timer publishes odometry and
 ``/swarm/state`` at ``publish_rate``; commands and target states whose stamp is older than
 ``command_timeout``, or older than the one held, are refused.
 
@@ -38,23 +40,58 @@ import sys
 import time
 
 import numpy as np
+from apf_swarm_core.agents import PlantModel, input_problem
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Empty, UInt64
 from visualization_msgs.msg import MarkerArray
 
-from apf_swarm_core.agents import PlantModel, input_problem
 from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 
-from .conversions import (clock_msg, dt_to_ns, force_arrays, odom_arrays, odom_msg,
-                          markers_msg, stamp_ns, step_of, step_stamp, swarm_odom_msg,
-                          swarm_state_msg)
-from .node_common import (CLOCK, CLOCK_QOS, INPUTS, REALTIME_RATE, REQUEST_QOS, RejectionLog, START_QOS,
-                          STATE_QOS, SWARM_MARKERS, SWARM_ODOM, SWARM_START, SWARM_STATE,
-                          TARGET_LOOKAHEAD, TARGET_ODOM, TARGET_REQUEST, control_qos,
-                          force_topic, odom_topic, run_node)
-from .params import EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
+from .conversions import (
+    clock_msg,
+    dt_to_ns,
+    force_arrays,
+    markers_msg,
+    odom_arrays,
+    odom_msg,
+    stamp_ns,
+    step_of,
+    step_stamp,
+    swarm_odom_msg,
+    swarm_state_msg,
+)
+from .node_common import (
+    CLOCK,
+    CLOCK_QOS,
+    INPUTS,
+    REALTIME_RATE,
+    REQUEST_QOS,
+    START_QOS,
+    STATE_QOS,
+    SWARM_MARKERS,
+    SWARM_ODOM,
+    SWARM_START,
+    SWARM_STATE,
+    TARGET_LOOKAHEAD,
+    TARGET_ODOM,
+    TARGET_REQUEST,
+    RejectionLog,
+    control_qos,
+    force_topic,
+    odom_topic,
+    run_node,
+)
+from .params import (
+    EXECUTOR_PARAM,
+    MODES,
+    QOS_DEPTH_PARAM,
+    NodeParam,
+    declare_config,
+    declare_node_params,
+    read_config,
+)
 
 __all__ = ['PlantNode', 'main']
 
@@ -63,25 +100,58 @@ NODE_PARAMS = (
     QOS_DEPTH_PARAM,
     NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
     NodeParam('wait_for_start', False, 'wait for /swarm/start before step 0'),
-    NodeParam('inputs', 'aggregate', 'what the trackers read (as their inputs parameter): '
-              'lockstep step 0 waits until those subscriptions are matched', choices=INPUTS),
-    NodeParam('command_timeout', 1.0, 'lockstep: a command later than this is sent for '
-              'again, then missed; realtime: a tracker silent for this long is inactive, and '
-              'a command or target state stamped longer ago is refused [s of wall time]',
-              lo=0.001, hi=600.0),
-    NodeParam('stale_after', 0.1, 'realtime: a tracker whose latest command arrived longer '
-              'ago than this gets zero force instead of its held bang-bang command (25 N held '
-              'for 1 s would fling a 1 kg UAV 12 m) [s of wall time]', lo=0.001, hi=60.0),
+    NodeParam(
+        'inputs',
+        'aggregate',
+        'what the trackers read (as their inputs parameter): '
+        'lockstep step 0 waits until those subscriptions are matched',
+        choices=INPUTS,
+    ),
+    NodeParam(
+        'command_timeout',
+        1.0,
+        'lockstep: a command later than this is sent for '
+        'again, then missed; realtime: a tracker silent for this long is inactive, and '
+        'a command or target state stamped longer ago is refused [s of wall time]',
+        lo=0.001,
+        hi=600.0,
+    ),
+    NodeParam(
+        'stale_after',
+        0.1,
+        'realtime: a tracker whose latest command arrived longer '
+        'ago than this gets zero force instead of its held bang-bang command (25 N held '
+        'for 1 s would fling a 1 kg UAV 12 m) [s of wall time]',
+        lo=0.001,
+        hi=60.0,
+    ),
     NodeParam('physics_rate', 200.0, 'realtime: physics timer rate [Hz]', lo=1.0, hi=5000.0),
-    NodeParam('arm_timeout', 10.0, 'realtime: after the start the clock waits until every '
-              'tracker has commanded from its inputs (odometry goes out, the UAVs hold '
-              'still), at most this long; then it starts without the silent ones (warned) '
-              '[s of wall time]', lo=0.0, hi=600.0),
-    NodeParam('markers_rate', 10.0, '/swarm/markers (visualization_msgs/MarkerArray) per second '
-              'of simulated (lockstep) or wall (realtime) time; 0 turns them off', lo=0.0,
-              hi=1000.0),
-    NodeParam('publish_rate', 0.0, 'realtime: odometry and state rate [Hz]; 0: the '
-              'configuration\'s control_rate, or 100 Hz when that is 0', lo=0.0, hi=2000.0),
+    NodeParam(
+        'arm_timeout',
+        10.0,
+        'realtime: after the start the clock waits until every '
+        'tracker has commanded from its inputs (odometry goes out, the UAVs hold '
+        'still), at most this long; then it starts without the silent ones (warned) '
+        '[s of wall time]',
+        lo=0.0,
+        hi=600.0,
+    ),
+    NodeParam(
+        'markers_rate',
+        10.0,
+        '/swarm/markers (visualization_msgs/MarkerArray) per second '
+        'of simulated (lockstep) or wall (realtime) time; 0 turns them off',
+        lo=0.0,
+        hi=1000.0,
+    ),
+    NodeParam(
+        'publish_rate',
+        0.0,
+        'realtime: odometry and state rate [Hz]; 0: the '
+        "configuration's control_rate, or 100 Hz when that is 0",
+        lo=0.0,
+        hi=2000.0,
+    ),
 )
 
 
@@ -104,8 +174,9 @@ class PlantNode(Node):
         self.steps = self.cfg.steps
         self.dt_ns = dt_to_ns(self.cfg.dt)
         qos = control_qos(self.mode, p['qos_depth'])
-        self.odom_pubs = [self.create_publisher(Odometry, odom_topic(i), qos)
-                          for i in self.model.ids]
+        self.odom_pubs = [
+            self.create_publisher(Odometry, odom_topic(i), qos) for i in self.model.ids
+        ]
         self.state_pub = self.create_publisher(SwarmState, SWARM_STATE, STATE_QOS)
         self.swarm_odom_pub = self.create_publisher(SwarmOdometry, SWARM_ODOM, qos)
         rate = float(p['markers_rate'])
@@ -115,21 +186,23 @@ class PlantNode(Node):
         self.state_count = 0
         self._state_msg = None
         self._odom_msgs: dict[int, Odometry] = {}
-        self.markers_pub = self.create_publisher(MarkerArray, SWARM_MARKERS, 1) \
-            if self.markers_every else None
+        self.markers_pub = (
+            self.create_publisher(MarkerArray, SWARM_MARKERS, 1) if self.markers_every else None
+        )
         self.odom_sent = False
         for i in self.model.ids:
-            self.create_subscription(ForceCommand, force_topic(i),
-                                     lambda m, i=i: self._on_force(i, m), qos)
+            self.create_subscription(
+                ForceCommand, force_topic(i), lambda m, i=i: self._on_force(i, m), qos
+            )
         self.tracker_rejected: dict[int, int] = {}
         self._log_rejection = RejectionLog(self)
-        self.target_absent = False      # lockstep: the target missed a deadline
+        self.target_absent = False  # lockstep: the target missed a deadline
         self.create_timer(1.0, self._check_duplicates)
         self.create_subscription(Odometry, TARGET_ODOM, self._on_target, qos)
-        self.target = (-1, np.zeros(3), np.zeros(3), 0.0)   # step, x, v, received
-        self.targets: dict[int, tuple] = {}   # lockstep: target states by step, k..requested
+        self.target = (-1, np.zeros(3), np.zeros(3), 0.0)  # step, x, v, received
+        self.targets: dict[int, tuple] = {}  # lockstep: target states by step, k..requested
         self.running = False
-        self.clock_started = False      # realtime: the physics clock runs (see _arm)
+        self.clock_started = False  # realtime: the physics clock runs (see _arm)
         self.arm_deadline = 0.0
         self.done = False
         self.published_final = False
@@ -138,7 +211,7 @@ class PlantNode(Node):
             self.clock_pub = self.create_publisher(Clock, CLOCK, CLOCK_QOS)
             self.request_pub = self.create_publisher(UInt64, TARGET_REQUEST, REQUEST_QOS)
             self._request = UInt64()
-            self.requested = -1         # the last step whose target state was asked for
+            self.requested = -1  # the last step whose target state was asked for
             self.create_timer(0.01, self._check_deadline)
         else:
             self.create_timer(1.0 / float(p['physics_rate']), self._on_physics)
@@ -149,14 +222,18 @@ class PlantNode(Node):
             self.get_logger().info('waiting for /swarm/start')
         else:
             self._start_timer = self.create_timer(0.5, self._autostart)
-        self.get_logger().info(f'plant: {self.cfg.n_trackers} trackers, {self.mode}, '
-                               f'dt {self.cfg.dt:g} s, {self.steps} steps')
+        self.get_logger().info(
+            f'plant: {self.cfg.n_trackers} trackers, {self.mode}, '
+            f'dt {self.cfg.dt:g} s, {self.steps} steps'
+        )
 
     # --- start -------------------------------------------------------------------------
     def _autostart(self) -> None:
         """Without a start signal: start once every force_cmd topic has its publisher."""
-        if all(self.count_publishers(force_topic(i)) > 0 for i in self.model.ids) and \
-                self.count_publishers(TARGET_ODOM) > 0:
+        if (
+            all(self.count_publishers(force_topic(i)) > 0 for i in self.model.ids)
+            and self.count_publishers(TARGET_ODOM) > 0
+        ):
             self._start_timer.cancel()
             self._start()
 
@@ -190,7 +267,8 @@ class PlantNode(Node):
         if waiting:
             self.get_logger().warn(
                 f'clock started after arm_timeout = {self.arm_timeout:g} s without a command '
-                f'from {[f"uav_{i}" for i in waiting]}')
+                f'from {[f"uav_{i}" for i in waiting]}'
+            )
         else:
             self.get_logger().info('clock started: every tracker commands')
         return True
@@ -198,8 +276,7 @@ class PlantNode(Node):
     def _matched(self) -> bool:
         """Lockstep: every tracker's command has a publisher and every step-k reader a match."""
         n = self.cfg.n_trackers
-        if self.request_pub.get_subscription_count() < 1 or \
-                self.count_publishers(TARGET_ODOM) < 1:
+        if self.request_pub.get_subscription_count() < 1 or self.count_publishers(TARGET_ODOM) < 1:
             return False
         if any(self.count_publishers(force_topic(i)) < 1 for i in self.model.ids):
             return False
@@ -244,8 +321,12 @@ class PlantNode(Node):
     def _maybe_publish_swarm_odom(self) -> None:
         """Lockstep: ``/swarm/odom`` of step k once the target state of step k is held."""
         k = self.model.k
-        if self.running and not self.done and not self.odom_sent and (
-                self.target[0] == k or self.target_absent):
+        if (
+            self.running
+            and not self.done
+            and not self.odom_sent
+            and (self.target[0] == k or self.target_absent)
+        ):
             self._publish_swarm_odom(k, step_stamp(k, self.dt_ns))
             self.odom_sent = True
 
@@ -256,11 +337,20 @@ class PlantNode(Node):
         return max(0.0, time.monotonic() - self.target[3])
 
     def _publish_swarm_odom(self, k: int, stamp) -> None:
-        self.swarm_odom_pub.publish(swarm_odom_msg(
-            step=k, stamp=stamp, uav_ids=self.model.ids, x=self.model.x, v=self.model.v,
-            target_x=self.target[1], target_v=self.target[2], active=self.model.active,
-            target_age=self._target_age(),
-            command_latency=self.model.latency if self.mode == 'realtime' else None))
+        self.swarm_odom_pub.publish(
+            swarm_odom_msg(
+                step=k,
+                stamp=stamp,
+                uav_ids=self.model.ids,
+                x=self.model.x,
+                v=self.model.v,
+                target_x=self.target[1],
+                target_v=self.target[2],
+                active=self.model.active,
+                target_age=self._target_age(),
+                command_latency=self.model.latency if self.mode == 'realtime' else None,
+            )
+        )
 
     def _refuse(self, why: str) -> None:
         self.model.refuse(why)
@@ -280,8 +370,10 @@ class PlantNode(Node):
             return
         age = self._stale_stamp(msg.header.stamp)
         if age is not None:
-            self._refuse(f'command of uav_{f.uav_id} is stale: stamped {age:.3f} s ago '
-                         f'(command_timeout {self.timeout:g} s)')
+            self._refuse(
+                f'command of uav_{f.uav_id} is stale: stamped {age:.3f} s ago '
+                f'(command_timeout {self.timeout:g} s)'
+            )
             return
         was_active = bool(self.model.active[f.uav_id - 1])
         now = time.monotonic()
@@ -290,15 +382,23 @@ class PlantNode(Node):
             # the held commands act up to this instant, the new one from here on
             self.model.advance_to(now - self.wall0)
             latency = (self.get_clock().now().nanoseconds - stamp_ns(msg.header.stamp)) * 1e-9
-        if not self.model.offer_command(f.uav_id, f.step, f.force, f.sliding_surface,
-                                        f.stale, now=now,
-                                        instance=f.instance, latency=latency):
+        if not self.model.offer_command(
+            f.uav_id,
+            f.step,
+            f.force,
+            f.sliding_surface,
+            f.stale,
+            now=now,
+            instance=f.instance,
+            latency=latency,
+        ):
             self._log_rejection(self.model.last_rejection, self.model.rejected)
             return
         self.tracker_rejected[f.uav_id] = f.rejected_inputs
         if not was_active and self.running:
-            self.get_logger().info(f'uav_{f.uav_id} commands again: active, back in the '
-                                   f'neighbour sets')
+            self.get_logger().info(
+                f'uav_{f.uav_id} commands again: active, back in the neighbour sets'
+            )
         if self.mode == 'lockstep':
             self._maybe_finish()
 
@@ -311,7 +411,7 @@ class PlantNode(Node):
         if self.mode == 'lockstep':
             step = step_of(msg.header.stamp, self.dt_ns)
             if not self.model.k <= step <= max(self.requested, self.model.k):
-                return      # a step already integrated, or one never asked for: not kept
+                return  # a step already integrated, or one never asked for: not kept
             self.targets[step] = (step, x, v, time.monotonic())
             if self.target[0] != self.model.k and self.model.k in self.targets:
                 self.target = self.targets.pop(self.model.k)
@@ -326,7 +426,9 @@ class PlantNode(Node):
             if age is not None:
                 self._refuse(f'target state is stale: stamped {age:.3f} s ago')
             elif seq < self._target_seq:
-                self._refuse(f'target state out of order (stamp {seq} ns after {self._target_seq})')
+                self._refuse(
+                    f'target state out of order (stamp {seq} ns after {self._target_seq})'
+                )
             else:
                 self._target_seq = seq
                 self.target = (-1, x, v, time.monotonic())
@@ -338,7 +440,8 @@ class PlantNode(Node):
             if count > 1:
                 self.get_logger().error(
                     f'duplicate uav_id {i}: {count} publishers on {force_topic(i)}; '
-                    'following the first tracker process that commanded, refusing the others')
+                    'following the first tracker process that commanded, refusing the others'
+                )
 
     def _maybe_finish(self, force: bool = False) -> None:
         if not self.running or self.done:
@@ -356,7 +459,8 @@ class PlantNode(Node):
             self.get_logger().warn(
                 f'step {k}: no target state within 2 x {self.timeout:g} s ({self.model.missed} '
                 f'missed so far); holding the last one (its age grows in /swarm/odom) and '
-                f'not waiting for the target any more')
+                f'not waiting for the target any more'
+            )
             self.step_started = time.monotonic()
             self.republished = False
             self._maybe_publish_swarm_odom()
@@ -367,7 +471,8 @@ class PlantNode(Node):
             self.get_logger().warn(
                 f'step {k}: no command from {[f"uav_{i}" for i in missing]} within 2 x '
                 f'{self.timeout:g} s ({self.model.missed} missed so far): zero force, left '
-                f'out of the neighbour sets, not waited for until they command again')
+                f'out of the neighbour sets, not waited for until they command again'
+            )
         # the state of step k goes out after step k + 1 (below): the trackers, which wait
         # for /swarm/odom of k + 1, start while this process computes the metrics of k
         state = self._state_of(k)
@@ -394,12 +499,13 @@ class PlantNode(Node):
         if self.waiting_for_match:
             self._start_when_matched()
             return
-        if self.running and not self.done and \
-                time.monotonic() - self.step_started > self.timeout:
+        if self.running and not self.done and time.monotonic() - self.step_started > self.timeout:
             if not self.republished:
                 self.republished = True
-                self.get_logger().warn(f'step {self.model.k}: inputs {self._late()} late after '
-                                       f'{self.timeout:g} s; publishing the step again')
+                self.get_logger().warn(
+                    f'step {self.model.k}: inputs {self._late()} late after '
+                    f'{self.timeout:g} s; publishing the step again'
+                )
                 self._publish_step(again=True)
             else:
                 self._maybe_finish(force=True)
@@ -410,7 +516,8 @@ class PlantNode(Node):
 
     def _late(self) -> list[str]:
         return [f'uav_{i}' for i in self.model.missing(self.model.k)] + (
-            ['target'] if self._target_late() else [])
+            ['target'] if self._target_late() else []
+        )
 
     # --- realtime ------------------------------------------------------------------------
     def _on_physics(self) -> None:
@@ -423,13 +530,16 @@ class PlantNode(Node):
             self.get_logger().warn(
                 f'no command from {[f"uav_{i}" for i in newly]} for {self.timeout:g} s: '
                 f'inactive, left out of the neighbour sets (zero force since '
-                f'{self.stale_after:g} s; {self.model.missed} missed so far)')
+                f'{self.stale_after:g} s; {self.model.missed} missed so far)'
+            )
         self.model.advance_to(now - self.wall0)
         if self.model.k >= self.steps:
             self.done = True
-            self.get_logger().info(f'done: {self.steps} steps of {self.cfg.dt:g} s; '
-                                   f'{self.model.zeroed} held commands zeroed (tracker later '
-                                   f'than stale_after = {self.stale_after:g} s)')
+            self.get_logger().info(
+                f'done: {self.steps} steps of {self.cfg.dt:g} s; '
+                f'{self.model.zeroed} held commands zeroed (tracker later '
+                f'than stale_after = {self.stale_after:g} s)'
+            )
 
     def _on_publish(self) -> None:
         if not self.running or self.published_final or self.target[3] == 0.0:
@@ -439,8 +549,8 @@ class PlantNode(Node):
         self._publish_odoms(stamp)
         self._publish_swarm_odom(self.model.k, stamp)
         if not armed:
-            return      # the trackers' first inputs went out; no state before the clock runs
-        self.published_final = self.done   # the state at the end of the run goes out once
+            return  # the trackers' first inputs went out; no state before the clock runs
+        self.published_final = self.done  # the state at the end of the run goes out once
         self.model.published(time.monotonic())
         self._publish_state(self._state_of(self.model.k), stamp)
 
@@ -448,22 +558,37 @@ class PlantNode(Node):
     def _publish_odoms(self, stamp) -> None:
         """``/uav_<i>/odom`` of every tracker that has a reader (building an Odometry costs
         about 0.1 ms in Python, a third of a lockstep step when nobody listens)."""
-        for i, pub in zip(self.model.ids, self.odom_pubs):
+        for i, pub in zip(self.model.ids, self.odom_pubs, strict=False):
             if pub.get_subscription_count():
-                self._odom_msgs[i] = odom_msg(self.model.x[i - 1], self.model.v[i - 1], stamp,
-                                              f'uav_{i}', out=self._odom_msgs.get(i))
+                self._odom_msgs[i] = odom_msg(
+                    self.model.x[i - 1],
+                    self.model.v[i - 1],
+                    stamp,
+                    f'uav_{i}',
+                    out=self._odom_msgs.get(i),
+                )
                 pub.publish(self._odom_msgs[i])
 
     def _state_of(self, k: int) -> dict:
         """The fields of the ``/swarm/state`` sample of step k, taken now (the model's arrays
         are replaced by :meth:`PlantModel.advance`, the commands are copied)."""
         m = self.model
-        return dict(step=k, sim_time=k * self.cfg.dt, x=m.x, v=m.v, u=m.u.copy(),
-                    s=m.s.copy(), target_x=self.target[1], target_v=self.target[2],
-                    missed_deadlines=m.missed, stale_inputs=m.stale,
-                    rejected_inputs=m.rejected + sum(self.tracker_rejected.values()),
-                    active=m.active.copy(), target_age=self._target_age(),
-                    command_latency=m.latency.copy())
+        return {
+            'step': k,
+            'sim_time': k * self.cfg.dt,
+            'x': m.x,
+            'v': m.v,
+            'u': m.u.copy(),
+            's': m.s.copy(),
+            'target_x': self.target[1],
+            'target_v': self.target[2],
+            'missed_deadlines': m.missed,
+            'stale_inputs': m.stale,
+            'rejected_inputs': m.rejected + sum(self.tracker_rejected.values()),
+            'active': m.active.copy(),
+            'target_age': self._target_age(),
+            'command_latency': m.latency.copy(),
+        }
 
     def _publish_state(self, state: dict, stamp) -> None:
         """``/swarm/state`` (and every ``markers_every``-th time the markers) of a state
@@ -474,8 +599,14 @@ class PlantNode(Node):
         self.state_count += 1
         j, ce, fe = self.model.metrics(tx, x)
         self._state_msg = swarm_state_msg(
-            out=self._state_msg, stamp=stamp, uav_ids=self.model.ids, potential=j,
-            centroid_error=ce, formation_error=fe, **state)
+            out=self._state_msg,
+            stamp=stamp,
+            uav_ids=self.model.ids,
+            potential=j,
+            centroid_error=ce,
+            formation_error=fe,
+            **state,
+        )
         self.state_pub.publish(self._state_msg)
 
 

@@ -20,8 +20,9 @@ import gc
 import importlib
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from rclpy.duration import Duration
@@ -34,7 +35,7 @@ from .errors import CliError
 from .node_common import CLOCK, CLOCK_QOS, run_node, running
 from .params import EXECUTOR_PARAM, NodeParam, declare_node_params
 
-__all__ = ['PlayerNode', 'msg_class', 'main', 'PRELOAD_BYTES']
+__all__ = ['PRELOAD_BYTES', 'PlayerNode', 'main', 'msg_class']
 
 #: bags up to this size are read into memory before the start (no reading on the schedule)
 PRELOAD_BYTES = 256 << 20
@@ -44,15 +45,25 @@ NODE_PARAMS = (
     NodeParam('bag', '', 'the bag directory to play'),
     NodeParam('rate', 1.0, 'playback speed factor', lo=1e-3, hi=1e3),
     NodeParam('loop', False, 'play the bag again and again'),
-    NodeParam('start_offset', 0.0, 'skip this many seconds from the start of the bag [s]',
-              lo=0.0, hi=1e9),
+    NodeParam(
+        'start_offset', 0.0, 'skip this many seconds from the start of the bag [s]', lo=0.0, hi=1e9
+    ),
     NodeParam('clock', 0.0, 'publish /clock at this rate [Hz] (0: no clock)', lo=0.0, hi=10000.0),
-    NodeParam('queue_depth', 100, 'minimum keep-last depth of every publisher', lo=1,
-              hi=100000),
-    NodeParam('wait_timeout', 30.0, 'how long to wait for the wait_for subscribers [s]', lo=0.0,
-              hi=3600.0),
-    NodeParam('ack_timeout', 5.0, 'at the end, how long to wait for reliable acknowledgements '
-              '[s]', lo=0.0, hi=600.0),
+    NodeParam('queue_depth', 100, 'minimum keep-last depth of every publisher', lo=1, hi=100000),
+    NodeParam(
+        'wait_timeout',
+        30.0,
+        'how long to wait for the wait_for subscribers [s]',
+        lo=0.0,
+        hi=3600.0,
+    ),
+    NodeParam(
+        'ack_timeout',
+        5.0,
+        'at the end, how long to wait for reliable acknowledgements [s]',
+        lo=0.0,
+        hi=600.0,
+    ),
     NodeParam('exit_when_done', True, 'exit after the last message (false: stay up)'),
 )
 
@@ -63,26 +74,43 @@ def msg_class(msgtype: str) -> Any:
     try:
         return getattr(importlib.import_module(f'{pkg}.msg'), name)
     except (ImportError, AttributeError, ValueError):
-        raise CliError(f'message type {msgtype} is not installed here (no Python module '
-                       f'{pkg}.msg with {name or "?"}); source the workspace that defines it, '
-                       'or leave its topic out with --topics') from None
+        raise CliError(
+            f'message type {msgtype} is not installed here (no Python module '
+            f'{pkg}.msg with {name or "?"}); source the workspace that defines it, '
+            'or leave its topic out with --topics'
+        ) from None
 
 
 def _qos(offered: Sequence[dict[str, Any]], depth: int) -> QoSProfile:
     q = offered[0] if offered else {}
-    rel = ReliabilityPolicy.BEST_EFFORT if q.get('reliability') == 'best_effort' \
+    rel = (
+        ReliabilityPolicy.BEST_EFFORT
+        if q.get('reliability') == 'best_effort'
         else ReliabilityPolicy.RELIABLE
-    dur = DurabilityPolicy.TRANSIENT_LOCAL if q.get('durability') == 'transient_local' \
+    )
+    dur = (
+        DurabilityPolicy.TRANSIENT_LOCAL
+        if q.get('durability') == 'transient_local'
         else DurabilityPolicy.VOLATILE
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST,
-                      depth=max(int(depth), int(q.get('depth', 0) or 0)),
-                      reliability=rel, durability=dur)
+    )
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=max(int(depth), int(q.get('depth', 0) or 0)),
+        reliability=rel,
+        durability=dur,
+    )
 
 
 def _str_array(node: Node, name: str, text: str) -> list[str]:
     from rcl_interfaces.msg import ParameterDescriptor, ParameterType
-    node.declare_parameter(name, [''], ParameterDescriptor(
-        name=name, type=ParameterType.PARAMETER_STRING_ARRAY, description=text, read_only=True))
+
+    node.declare_parameter(
+        name,
+        [''],
+        ParameterDescriptor(
+            name=name, type=ParameterType.PARAMETER_STRING_ARRAY, description=text, read_only=True
+        ),
+    )
     return [t for t in node.get_parameter(name).value if t]
 
 
@@ -94,11 +122,14 @@ class PlayerNode(Node):
         p = declare_node_params(self, NODE_PARAMS)
         self.p = p
         self.topic_filter = _str_array(self, 'topics', 'play only these topics (empty: all)')
-        self.wait_for = _str_array(self, 'wait_for', 'before the start, wait until each of these '
-                                   'topics (as published, after remapping) has a subscriber')
+        self.wait_for = _str_array(
+            self,
+            'wait_for',
+            'before the start, wait until each of these '
+            'topics (as published, after remapping) has a subscriber',
+        )
         if not p['bag']:
-            raise CliError('parameter bag: the bag directory to play is required '
-                           '(-p bag:=DIR)')
+            raise CliError('parameter bag: the bag directory to play is required (-p bag:=DIR)')
         self.info: BagInfo = open_bag(Path(p['bag']))
         for t in self.topic_filter:
             self.info.topic(t)
@@ -110,15 +141,19 @@ class PlayerNode(Node):
         self.pubs: dict[str, Any] = {}
         for name in names:
             t = self.info.topic(name)
-            self.pubs[name] = self.create_publisher(msg_class(t.type), name,
-                                                    _qos(t.offered_qos, p['queue_depth']))
-        self.clock_pub = self.create_publisher(Clock, CLOCK, CLOCK_QOS) if self.clock_hz > 0 \
-            else None
+            self.pubs[name] = self.create_publisher(
+                msg_class(t.type), name, _qos(t.offered_qos, p['queue_depth'])
+            )
+        self.clock_pub = (
+            self.create_publisher(Clock, CLOCK, CLOCK_QOS) if self.clock_hz > 0 else None
+        )
         self.lateness_ns: list[int] = []
         self.published = 0
-        self.get_logger().info(f'playing {self.info.path}: {len(self.pubs)} topics, '
-                               f'{self.info.duration:.2f} s at rate {self.rate:g}'
-                               + (f', /clock at {self.clock_hz:g} Hz' if self.clock_pub else ''))
+        self.get_logger().info(
+            f'playing {self.info.path}: {len(self.pubs)} topics, '
+            f'{self.info.duration:.2f} s at rate {self.rate:g}'
+            + (f', /clock at {self.clock_hz:g} Hz' if self.clock_pub else '')
+        )
 
     # --- the messages ---------------------------------------------------------------------
     def messages(self) -> Any:
@@ -134,15 +169,19 @@ class PlayerNode(Node):
         by_name = {pub.topic_name: pub for pub in self.pubs.values()}
         missing = [t for t in topics if t not in by_name]
         if missing:
-            raise CliError(f'wait_for {missing}: not topics this player publishes '
-                           f'({", ".join(sorted(by_name))})')
+            raise CliError(
+                f'wait_for {missing}: not topics this player publishes '
+                f'({", ".join(sorted(by_name))})'
+            )
         while running():
             left = [t for t in topics if by_name[t].get_subscription_count() < 1]
             if not left:
                 return
             if time.monotonic() > end:
-                raise CliError(f'no subscriber on {", ".join(left)} after '
-                               f'{self.p["wait_timeout"]:g} s (wait_timeout)')
+                raise CliError(
+                    f'no subscriber on {", ".join(left)} after '
+                    f'{self.p["wait_timeout"]:g} s (wait_timeout)'
+                )
             time.sleep(0.01)
 
     # --- the schedule ---------------------------------------------------------------------
@@ -218,24 +257,28 @@ class PlayerNode(Node):
                 last_due = due
             if not self.p['loop'] or first is None:
                 break
-            t0 = last_due + int(1e9 / max(self.clock_hz, 100.0))   # next pass right after
+            t0 = last_due + int(1e9 / max(self.clock_hz, 100.0))  # next pass right after
         self._wait_acked()
         return self.published
 
     def _wait_acked(self) -> None:
         timeout = Duration(seconds=float(self.p['ack_timeout']))
         for pub in self.pubs.values():
-            if pub.qos_profile.reliability == ReliabilityPolicy.RELIABLE and \
-                    pub.get_subscription_count():
+            if (
+                pub.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+                and pub.get_subscription_count()
+            ):
                 pub.wait_for_all_acked(timeout)
 
     def report(self) -> str:
         if not self.lateness_ns:
             return 'published nothing'
         late = np.asarray(self.lateness_ns) / 1e6
-        return (f'published {self.published} messages; lateness against the schedule p50 '
-                f'{np.percentile(late, 50):.3f} ms, p99 {np.percentile(late, 99):.3f} ms, max '
-                f'{late.max():.3f} ms')
+        return (
+            f'published {self.published} messages; lateness against the schedule p50 '
+            f'{np.percentile(late, 50):.3f} ms, p99 {np.percentile(late, 99):.3f} ms, max '
+            f'{late.max():.3f} ms'
+        )
 
 
 def _run(node: PlayerNode) -> None:

@@ -6,20 +6,26 @@ so the same functions draw a simulator run and a recorded bag.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import matplotlib
 
 matplotlib.use('Agg')
-import matplotlib.ticker  # noqa: E402
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import matplotlib.ticker
+import numpy as np
+from apf_swarm_core.metrics import centroid_error
 
-from apf_swarm_core.metrics import centroid_error  # noqa: E402
-
-__all__ = ['plot_trajectories_3d', 'plot_xy_time', 'plot_centroid', 'plot_centroid_error',
-           'paper_figures', 'plot_tradeoff']
+__all__ = [
+    'paper_figures',
+    'plot_centroid',
+    'plot_centroid_error',
+    'plot_tradeoff',
+    'plot_trajectories_3d',
+    'plot_xy_time',
+]
 
 Traj = Mapping[str, Any]
 _LAW_TITLE = {'traditional': 'traditional (sign) law', 'proposed': 'proposed (saturated) law'}
@@ -89,8 +95,12 @@ def plot_centroid_error(trajs: Mapping[str, Traj], title: str, path: Path) -> Pa
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for label, traj in trajs.items():
         err = centroid_error(traj['x'], traj['target_x'])
-        ax.semilogy(np.asarray(traj['t']), np.maximum(err, 1e-6), lw=0.9,
-                    label=_LAW_TITLE.get(label, label))
+        ax.semilogy(
+            np.asarray(traj['t']),
+            np.maximum(err, 1e-6),
+            lw=0.9,
+            label=_LAW_TITLE.get(label, label),
+        )
     ax.set_xlabel('t [s]')
     ax.set_ylabel('|centroid - target| [m]')
     ax.grid(alpha=0.3, which='both')
@@ -107,14 +117,30 @@ def paper_figures(trajs: Mapping[str, Traj], out: Path, prefix: str = '') -> lis
     for law, traj in trajs.items():
         f3d, fxy, fc = numbers.get(law, (0, 0, 0))
         name = _LAW_TITLE.get(law, law)
-        paths.append(plot_trajectories_3d(traj, f'Fig. {f3d}: trajectories, {name}',
-                                          out / f'{prefix}fig{f3d}_trajectories_{law}.png'))
-        paths.append(plot_xy_time(traj, f'Fig. {fxy}: x and y, {name}',
-                                  out / f'{prefix}fig{fxy}_xy_{law}.png'))
-        paths.append(plot_centroid(traj, f'Fig. {fc}: formation centre, {name}',
-                                   out / f'{prefix}fig{fc}_centroid_{law}.png'))
-    paths.append(plot_centroid_error(trajs, 'Fig. 7: centroid error',
-                                     out / f'{prefix}fig7_centroid_error.png'))
+        paths.append(
+            plot_trajectories_3d(
+                traj,
+                f'Fig. {f3d}: trajectories, {name}',
+                out / f'{prefix}fig{f3d}_trajectories_{law}.png',
+            )
+        )
+        paths.append(
+            plot_xy_time(
+                traj, f'Fig. {fxy}: x and y, {name}', out / f'{prefix}fig{fxy}_xy_{law}.png'
+            )
+        )
+        paths.append(
+            plot_centroid(
+                traj,
+                f'Fig. {fc}: formation centre, {name}',
+                out / f'{prefix}fig{fc}_centroid_{law}.png',
+            )
+        )
+    paths.append(
+        plot_centroid_error(
+            trajs, 'Fig. 7: centroid error', out / f'{prefix}fig7_centroid_error.png'
+        )
+    )
     return paths
 
 
@@ -128,16 +154,23 @@ def plot_tradeoff(rows: Sequence[Mapping[str, Any]], param: str, path: Path) -> 
     for law, marker in (('proposed', 'o'), ('traditional', 's')):
         sel = [r for r in rows if r['law'] == law]
         values = sorted({r['value'] for r in sel}, key=lambda v: (isinstance(v, str), v))
-        for ax, key, label in ((axes[0], 'hf_velocity_rms', 'HF velocity RMS [m/s]'),
-                               (axes[1], 'heading_rate', 'heading rate [rad/s]')):
+        for ax, key, label in (
+            (axes[0], 'hf_velocity_rms', 'HF velocity RMS [m/s]'),
+            (axes[1], 'heading_rate', 'heading rate [rad/s]'),
+        ):
             xs = [np.mean([r['centroid_rms'] for r in sel if r['value'] == v]) for v in values]
             ys = [np.mean([r[key] for r in sel if r['value'] == v]) for v in values]
             ax.plot(xs, ys, marker=marker, lw=1.0, label=_LAW_TITLE[law])
-            if len({(round(a, 12), round(b, 12)) for a, b in zip(xs, ys)}) == 1:
+            if len({(round(a, 12), round(b, 12)) for a, b in zip(xs, ys, strict=False)}) == 1:
                 continue  # the parameter does not change this law: one point, no labels
-            for xv, yv, v in zip(xs, ys, values):
-                ax.annotate(f'{param}={v:g}' if isinstance(v, float) else f'{param}={v}',
-                            (xv, yv), fontsize=6, textcoords='offset points', xytext=(3, 3))
+            for xv, yv, v in zip(xs, ys, values, strict=False):
+                ax.annotate(
+                    f'{param}={v:g}' if isinstance(v, float) else f'{param}={v}',
+                    (xv, yv),
+                    fontsize=6,
+                    textcoords='offset points',
+                    xytext=(3, 3),
+                )
             ax.set_xlabel('steady centroid error RMS [m]')
             ax.set_ylabel(label)
             ax.set_xscale('log')

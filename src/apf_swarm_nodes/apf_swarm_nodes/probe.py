@@ -35,14 +35,27 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import psutil
 
-__all__ = ['CPU_BUDGET', 'MEMORY_BUDGET', 'RATES', 'cache_path', 'machine', 'measure', 'load',
-           'ensure', 'derive', 'process_limit', 'add_arguments', 'run']
+__all__ = [
+    'CPU_BUDGET',
+    'MEMORY_BUDGET',
+    'RATES',
+    'add_arguments',
+    'cache_path',
+    'derive',
+    'ensure',
+    'load',
+    'machine',
+    'measure',
+    'process_limit',
+    'run',
+]
 
 #: the share of the machine's cores the swarm's messages and commands may take
 CPU_BUDGET = 0.5
@@ -88,6 +101,7 @@ def command_cost(n: int, repeats: int = 200) -> float:
     """Median seconds of one :meth:`TrackerAgent.command` of the realtime preset, n trackers."""
     from apf_swarm_core.agents import TrackerAgent
     from apf_swarm_core.config import load_preset
+
     cfg = load_preset('realtime').replace(n_trackers=n)
     agent = TrackerAgent(cfg, 1)
     rng = np.random.default_rng(0)
@@ -95,8 +109,18 @@ def command_cost(n: int, repeats: int = 200) -> float:
     ids = list(range(1, n + 1))
     times = []
     for k in range(repeats):
-        agent.offer_swarm(-1, ids, x + 1e-3 * k, np.zeros((n, 3)), [True] * n, np.zeros(3),
-                          np.zeros(3), 0.0, 0.0, seq=k)
+        agent.offer_swarm(
+            -1,
+            ids,
+            x + 1e-3 * k,
+            np.zeros((n, 3)),
+            [True] * n,
+            np.zeros(3),
+            np.zeros(3),
+            0.0,
+            0.0,
+            seq=k,
+        )
         t0 = time.perf_counter()
         agent.command(-1)
         times.append(time.perf_counter() - t0)
@@ -112,11 +136,11 @@ def _echo() -> int:
     from rclpy.qos import qos_profile_sensor_data
 
     from apf_swarm_msgs.msg import SwarmOdometry
+
     rclpy.init()
     node = rclpy.create_node('apf_probe_echo')
     pub = node.create_publisher(SwarmOdometry, PONG, qos_profile_sensor_data)
-    node.create_subscription(SwarmOdometry, PING, pub.publish, qos_profile_sensor_data,
-                             raw=True)
+    node.create_subscription(SwarmOdometry, PING, pub.publish, qos_profile_sensor_data, raw=True)
     executor = EventsExecutor()
     executor.add_node(node)
     try:
@@ -137,11 +161,15 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
 
     from apf_swarm_msgs.msg import SwarmOdometry
 
-    from .conversions import swarm_odom_msg
     from .bringup import stop_process
-    echo = subprocess.Popen([sys.executable, '-m', 'apf_swarm_nodes.probe', '--echo'],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            start_new_session=True)
+    from .conversions import swarm_odom_msg
+
+    echo = subprocess.Popen(
+        [sys.executable, '-m', 'apf_swarm_nodes.probe', '--echo'],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
     node = rclpy.create_node('apf_probe')
     sent: dict[int, float] = {}
     rtt: list[float] = []
@@ -154,15 +182,24 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
                 rtt.append(time.monotonic() - t0)
 
         node.create_subscription(SwarmOdometry, PONG, pong, qos_profile_sensor_data)
-        msg = swarm_odom_msg(step=0, stamp=node.get_clock().now().to_msg(),
-                             uav_ids=list(range(1, n + 1)), x=np.zeros((n, 3)),
-                             v=np.zeros((n, 3)), target_x=np.zeros(3), target_v=np.zeros(3))
+        msg = swarm_odom_msg(
+            step=0,
+            stamp=node.get_clock().now().to_msg(),
+            uav_ids=list(range(1, n + 1)),
+            x=np.zeros((n, 3)),
+            v=np.zeros((n, 3)),
+            target_x=np.zeros(3),
+            target_v=np.zeros(3),
+        )
         deadline = time.monotonic() + 30.0
-        while (pub.get_subscription_count() < 1 or node.count_publishers(PONG) < 1) and \
-                time.monotonic() < deadline:
+        while (
+            pub.get_subscription_count() < 1 or node.count_publishers(PONG) < 1
+        ) and time.monotonic() < deadline:
             if echo.poll() is not None:
-                raise RuntimeError(f'the probe\'s echo process exited {echo.returncode}: '
-                                   f'{echo.stderr.read().decode(errors="replace")[-500:]}')
+                raise RuntimeError(
+                    f"the probe's echo process exited {echo.returncode}: "
+                    f'{echo.stderr.read().decode(errors="replace")[-500:]}'
+                )
             rclpy.spin_once(node, timeout_sec=0.05)
         step, period = 0, 1.0 / rate
 
@@ -196,25 +233,36 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
     if len(rtt) < 10:
         raise RuntimeError(f'the probe got {len(rtt)} round trips back in {seconds:g} s')
     arr = np.asarray(rtt)
-    return {'rate': rate, 'messages': count, 'round_trips': int(arr.size),
-            'rtt': {q: round(float(np.quantile(arr, v)), 6)
-                    for q, v in (('p50', 0.5), ('p90', 0.9), ('p99', 0.99))},
-            'cpu_per_message': round(cpu / max(1, 2 * count), 7), 'process_rss': int(rss)}
+    return {
+        'rate': rate,
+        'messages': count,
+        'round_trips': int(arr.size),
+        'rtt': {
+            q: round(float(np.quantile(arr, v)), 6)
+            for q, v in (('p50', 0.5), ('p90', 0.9), ('p99', 0.99))
+        },
+        'cpu_per_message': round(cpu / max(1, 2 * count), 7),
+        'process_rss': int(rss),
+    }
 
 
 def measure(seconds: float = 4.0, rate: float = 100.0, n: int = 16) -> dict[str, Any]:
     """Run the probe in this process (``python -m apf_swarm_nodes.probe --measure`` does it
     in a process of its own, on a free domain, localhost only: :func:`ensure`)."""
     import rclpy
+
     costs = {str(k): round(command_cost(k), 7) for k in COMMAND_SIZES}
     rclpy.init()
     try:
         pp = _ping_pong(seconds, rate, n)
     finally:
         rclpy.try_shutdown()
-    return {'machine': machine(), 'measured_at': time.strftime('%Y-%m-%dT%H:%M:%SZ',
-                                                               time.gmtime()),
-            **pp, 'command_cost': costs}
+    return {
+        'machine': machine(),
+        'measured_at': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
+        **pp,
+        'command_cost': costs,
+    }
 
 
 def load() -> dict[str, Any] | None:
@@ -228,23 +276,32 @@ def load() -> dict[str, Any] | None:
     return probe if probe['machine'] == machine() else None
 
 
-def ensure(refresh: bool = False, say: Callable[[str], None] | None = None
-           ) -> dict[str, Any]:
+def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The cached probe, measured (and cached) first when missing or ``refresh``."""
     probe = None if refresh else load()
     if probe is None:
         from .bringup import pick_domain_id
+
         if say is not None:
-            say(f'measuring this machine (capacity probe, about 6 s; cached in '
-                f'{cache_path()})')
-        env = {**os.environ, 'ROS_DOMAIN_ID': str(pick_domain_id()),
-               'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+            say(f'measuring this machine (capacity probe, about 6 s; cached in {cache_path()})')
+        env = {
+            **os.environ,
+            'ROS_DOMAIN_ID': str(pick_domain_id()),
+            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+        }
         env.pop('ROS_STATIC_PEERS', None)
-        done = subprocess.run([sys.executable, '-m', 'apf_swarm_nodes.probe', '--measure'],
-                              env=env, capture_output=True, text=True, timeout=120)
+        done = subprocess.run(
+            [sys.executable, '-m', 'apf_swarm_nodes.probe', '--measure'],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
         if done.returncode != 0:
-            raise RuntimeError(f'the capacity probe failed (exit {done.returncode}): '
-                               f'{done.stderr.strip()[-800:]}')
+            raise RuntimeError(
+                f'the capacity probe failed (exit {done.returncode}): {done.stderr.strip()[-800:]}'
+            )
         probe = json.loads(done.stdout)
         path = cache_path()
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -271,14 +328,19 @@ def derive(probe: dict[str, Any], n: int, rate: float | None = None) -> dict[str
     cores = int(probe['machine']['cores'])
     msg = float(probe['cpu_per_message'])
     cmd = _command_cost_at(probe, n)
-    per_tracker = 3.0 * msg + cmd            # its state in, its command out, the plant's in
+    per_tracker = 3.0 * msg + cmd  # its state in, its command out, the plant's in
     capacity = {f'{r:g}': int(CPU_BUDGET * cores / (r * per_tracker)) for r in RATES}
     if rate is None:
         rate = next((r for r in RATES if capacity[f'{r:g}'] >= n), RATES[-1])
     use = min(0.9, n * rate * per_tracker / cores)
     latency = (float(probe['rtt']['p90']) + cmd) / (1.0 - use)
-    return {'latency': round(latency, 6), 'capacity': capacity, 'rate': float(rate),
-            'utilization': round(use, 3), 'per_tracker_cpu': round(per_tracker, 7)}
+    return {
+        'latency': round(latency, 6),
+        'capacity': capacity,
+        'rate': float(rate),
+        'utilization': round(use, 3),
+        'per_tracker_cpu': round(per_tracker, 7),
+    }
 
 
 def process_limit(probe: dict[str, Any], available: int | None = None) -> dict[str, int]:
@@ -298,8 +360,13 @@ def process_limit(probe: dict[str, Any], available: int | None = None) -> dict[s
 def add_arguments(p: Any) -> None:
     """The options of ``apf-swarm probe``."""
     p.add_argument('--refresh', action='store_true', help='measure again')
-    p.add_argument('--n-trackers', type=int, default=16, metavar='N',
-                   help='the swarm size to derive the latency and default rate for')
+    p.add_argument(
+        '--n-trackers',
+        type=int,
+        default=16,
+        metavar='N',
+        help='the swarm size to derive the latency and default rate for',
+    )
     p.add_argument('--json', action='store_true')
 
 
@@ -308,24 +375,40 @@ def run(args: Any) -> int:
     probe = ensure(args.refresh, say=lambda s: print(f'apf-swarm probe: {s}', file=sys.stderr))
     d = derive(probe, args.n_trackers)
     if args.json:
-        print(json.dumps({'probe': probe, 'derived': d, 'n_trackers': args.n_trackers,
-                          'process_limit': process_limit(probe)},
-                         indent=2))
+        print(
+            json.dumps(
+                {
+                    'probe': probe,
+                    'derived': d,
+                    'n_trackers': args.n_trackers,
+                    'process_limit': process_limit(probe),
+                },
+                indent=2,
+            )
+        )
         return 0
     m, r = probe['machine'], probe['rtt']
-    print(f"{m['cpu']}, {m['cores']} cores ({probe['measured_at']}, {cache_path()})")
-    print(f"  round trip at {probe['rate']:g} Hz: p50 {1e3 * r['p50']:.2f} ms, p90 "
-          f"{1e3 * r['p90']:.2f} ms, p99 {1e3 * r['p99']:.2f} ms; CPU per message "
-          f"{1e6 * probe['cpu_per_message']:.0f} us")
-    print('  tracker command: ' + ', '.join(f'{1e6 * v:.0f} us for {k}' for k, v in
-                                            probe['command_cost'].items()))
+    print(f'{m["cpu"]}, {m["cores"]} cores ({probe["measured_at"]}, {cache_path()})')
+    print(
+        f'  round trip at {probe["rate"]:g} Hz: p50 {1e3 * r["p50"]:.2f} ms, p90 '
+        f'{1e3 * r["p90"]:.2f} ms, p99 {1e3 * r["p99"]:.2f} ms; CPU per message '
+        f'{1e6 * probe["cpu_per_message"]:.0f} us'
+    )
+    print(
+        '  tracker command: '
+        + ', '.join(f'{1e6 * v:.0f} us for {k}' for k, v in probe['command_cost'].items())
+    )
     lim = process_limit(probe)
-    print(f"  memory per node process {probe['process_rss'] / 2**20:.0f} MiB; the bring-up "
-          f"starts up to {lim['processes']} tracker processes (CPU at {RATES[-1]:g} Hz: "
-          f"{lim['cpu']}, memory: {lim['memory']})")
-    print(f"  {args.n_trackers} trackers: latency {1e3 * d['latency']:.2f} ms, default rate "
-          f"{d['rate']:g} Hz; trackers that fit in {CPU_BUDGET:.0%} of the cores: "
-          + ', '.join(f'{v} at {k} Hz' for k, v in d['capacity'].items()))
+    print(
+        f'  memory per node process {probe["process_rss"] / 2**20:.0f} MiB; the bring-up '
+        f'starts up to {lim["processes"]} tracker processes (CPU at {RATES[-1]:g} Hz: '
+        f'{lim["cpu"]}, memory: {lim["memory"]})'
+    )
+    print(
+        f'  {args.n_trackers} trackers: latency {1e3 * d["latency"]:.2f} ms, default rate '
+        f'{d["rate"]:g} Hz; trackers that fit in {CPU_BUDGET:.0%} of the cores: '
+        + ', '.join(f'{v} at {k} Hz' for k, v in d['capacity'].items())
+    )
     return 0
 
 

@@ -24,8 +24,10 @@ class Progress:
         elapsed = time.monotonic() - self.t0
         rate = done / elapsed if elapsed > 0 else 0.0
         eta = (total - done) / rate if rate > 0 else 0.0
-        line = (f'{self.label}: {100 * frac:5.1f}% ({done}/{total} {self.unit}, '
-                f'{rate:,.0f} {self.unit}/s, ETA {eta:4.1f} s)')
+        line = (
+            f'{self.label}: {100 * frac:5.1f}% ({done}/{total} {self.unit}, '
+            f'{rate:,.0f} {self.unit}/s, ETA {eta:4.1f} s)'
+        )
         if self.tty:
             self.stream.write('\r' + line + ('\n' if done >= total else ''))
             self.stream.flush()

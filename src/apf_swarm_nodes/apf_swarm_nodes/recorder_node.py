@@ -51,29 +51,58 @@ from .errors import CliError
 from .node_common import START_QOS
 from .params import MODES, NodeParam, declare_node_params
 
-__all__ = ['RecorderNode', 'qos_to_bag', 'spin', 'main']
+__all__ = ['RecorderNode', 'main', 'qos_to_bag', 'spin']
 
 NODE_PARAMS = (
-    NodeParam('output', '', 'bag directory to create (must not exist); empty: '
-              'rosbag2_<date>-<time> in the working directory'),
+    NodeParam(
+        'output',
+        '',
+        'bag directory to create (must not exist); empty: '
+        'rosbag2_<date>-<time> in the working directory',
+    ),
     NodeParam('regex', '', 'record only topics matching this regular expression (empty: all)'),
     NodeParam('exclude', '', 'never record topics matching this regular expression'),
     NodeParam('compress', False, 'zstd-compress the MCAP chunks'),
     NodeParam('chunk_size', 1 << 20, 'uncompressed chunk size [bytes]', lo=1024, hi=1 << 30),
-    NodeParam('flush_period', 1.0, 'close and flush the pending chunk this often [s]: what '
-              'a SIGKILL can lose', lo=0.01, hi=3600.0),
-    NodeParam('split_size', 0, 'start a new MCAP file after this many bytes (0: never)', lo=0,
-              hi=1 << 50),
-    NodeParam('split_duration', 0.0, 'start a new MCAP file after this many seconds (0: never)',
-              lo=0.0, hi=1e9),
+    NodeParam(
+        'flush_period',
+        1.0,
+        'close and flush the pending chunk this often [s]: what a SIGKILL can lose',
+        lo=0.01,
+        hi=3600.0,
+    ),
+    NodeParam(
+        'split_size', 0, 'start a new MCAP file after this many bytes (0: never)', lo=0, hi=1 << 50
+    ),
+    NodeParam(
+        'split_duration',
+        0.0,
+        'start a new MCAP file after this many seconds (0: never)',
+        lo=0.0,
+        hi=1e9,
+    ),
     NodeParam('queue_depth', 1000, 'depth of every subscription (keep last)', lo=1, hi=100000),
-    NodeParam('discovery_period', 0.1, 'how often the graph is polled for new topics [s]',
-              lo=0.01, hi=60.0),
-    NodeParam('drain_timeout', 2.0, 'at shutdown, take queued messages for at most this long '
-              '[s]', lo=0.0, hi=60.0),
+    NodeParam(
+        'discovery_period',
+        0.1,
+        'how often the graph is polled for new topics [s]',
+        lo=0.01,
+        hi=60.0,
+    ),
+    NodeParam(
+        'drain_timeout',
+        2.0,
+        'at shutdown, take queued messages for at most this long [s]',
+        lo=0.0,
+        hi=60.0,
+    ),
     NodeParam('mode', 'lockstep', 'timing mode of the run (stored in the bag)', choices=MODES),
-    NodeParam('config_file', '', 'the run\'s parameter file, stored in the bag (custom_data) so '
-              'that `apf-swarm bag metrics` needs nothing else'),
+    NodeParam(
+        'config_file',
+        '',
+        "the run's parameter file, stored in the bag (custom_data) so "
+        'that `apf-swarm bag metrics` needs nothing else',
+    ),
 )
 
 
@@ -83,18 +112,26 @@ def _enum_name(value: Any) -> str:
 
 def qos_to_bag(q: QoSProfile) -> Any:
     """An rclpy QoSProfile (as offered by a publisher) as a rosbags ``Qos``."""
+
     def dur(d: Any) -> dict[str, int]:
         ns = int(d.nanoseconds) if d is not None else 0
-        if ns >= 0x7FFFFFFFFFFFFFFF or ns < 0:   # infinite
+        if ns >= 0x7FFFFFFFFFFFFFFF or ns < 0:  # infinite
             return {'sec': 0x7FFFFFFF, 'nsec': 0xFFFFFFFF}
         return {'sec': ns // 1_000_000_000, 'nsec': ns % 1_000_000_000}
-    return qos_from_dict({
-        'history': _enum_name(q.history), 'depth': int(q.depth),
-        'reliability': _enum_name(q.reliability), 'durability': _enum_name(q.durability),
-        'deadline': dur(q.deadline), 'lifespan': dur(q.lifespan),
-        'liveliness': _enum_name(q.liveliness),
-        'liveliness_lease_duration': dur(q.liveliness_lease_duration),
-        'avoid_ros_namespace_conventions': bool(q.avoid_ros_namespace_conventions)})
+
+    return qos_from_dict(
+        {
+            'history': _enum_name(q.history),
+            'depth': int(q.depth),
+            'reliability': _enum_name(q.reliability),
+            'durability': _enum_name(q.durability),
+            'deadline': dur(q.deadline),
+            'lifespan': dur(q.lifespan),
+            'liveliness': _enum_name(q.liveliness),
+            'liveliness_lease_duration': dur(q.liveliness_lease_duration),
+            'avoid_ros_namespace_conventions': bool(q.avoid_ros_namespace_conventions),
+        }
+    )
 
 
 def _msg_class(msgtype: str) -> Any:
@@ -106,8 +143,17 @@ def _msg_class(msgtype: str) -> Any:
 
 
 class _Topic:
-    __slots__ = ('name', 'type', 'conn', 'sub', 'received', 'written', 'lost', 'last_seq',
-                 'single_pub')
+    __slots__ = (
+        'conn',
+        'last_seq',
+        'lost',
+        'name',
+        'received',
+        'single_pub',
+        'sub',
+        'type',
+        'written',
+    )
 
     def __init__(self, name: str, msgtype: str, conn: Any) -> None:
         self.name, self.type, self.conn = name, msgtype, conn
@@ -122,9 +168,14 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('recorder', **kwargs)
-        self.declare_parameter('topics', [''], descriptor=_str_array_descriptor(
-            'topics', 'record exactly these topics (empty list: all, subject to regex and '
-            'exclude)'))
+        self.declare_parameter(
+            'topics',
+            [''],
+            descriptor=_str_array_descriptor(
+                'topics',
+                'record exactly these topics (empty list: all, subject to regex and exclude)',
+            ),
+        )
         p = declare_node_params(self, NODE_PARAMS)
         self.p = p
         self.wanted = [t for t in self.get_parameter('topics').value if t]
@@ -135,9 +186,13 @@ class RecorderNode(Node):
             raise CliError(f'regex / exclude: not a regular expression ({exc})') from None
         out = p['output'] or time.strftime('rosbag2_%Y_%m_%d-%H_%M_%S')
         self.output = Path(out).expanduser().resolve()
-        self.writer = BagWriter(self.output, compress=p['compress'],
-                                chunk_size=p['chunk_size'], split_size=p['split_size'],
-                                split_duration=p['split_duration'])
+        self.writer = BagWriter(
+            self.output,
+            compress=p['compress'],
+            chunk_size=p['chunk_size'],
+            split_size=p['split_size'],
+            split_duration=p['split_duration'],
+        )
         self.writer.open()
         self.writer.set_custom_data(CUSTOM_MODE, p['mode'], early=True)
         if p['config_file']:
@@ -154,14 +209,19 @@ class RecorderNode(Node):
         self._last_status = ''
         #: [period, next due (monotonic), what]: run by :meth:`spin` between waits
         now = time.monotonic()
-        self.periodic = [[float(p['discovery_period']), now, self._discover],
-                         [float(p['flush_period']), now + float(p['flush_period']), self._flush],
-                         [0.5, now + 0.5, self._publish_status]]
-        self.get_logger().info(f'recording into {self.output} ('
-                               + ('topics ' + ', '.join(self.wanted) if self.wanted else
-                                  'all topics') + (f', regex {p["regex"]!r}' if self.regex else '')
-                               + (f', exclude {p["exclude"]!r}' if self.exclude else '')
-                               + (', zstd' if p['compress'] else '') + ')')
+        self.periodic = [
+            [float(p['discovery_period']), now, self._discover],
+            [float(p['flush_period']), now + float(p['flush_period']), self._flush],
+            [0.5, now + 0.5, self._publish_status],
+        ]
+        self.get_logger().info(
+            f'recording into {self.output} ('
+            + ('topics ' + ', '.join(self.wanted) if self.wanted else 'all topics')
+            + (f', regex {p["regex"]!r}' if self.regex else '')
+            + (f', exclude {p["exclude"]!r}' if self.exclude else '')
+            + (', zstd' if p['compress'] else '')
+            + ')'
+        )
         self._discover()
 
     # --- selection and subscriptions ------------------------------------------------------
@@ -186,42 +246,54 @@ class RecorderNode(Node):
         for topic, types in self.get_topic_names_and_types():
             if topic in self.topics or not self.selected(topic):
                 continue
-            pubs = [i for i in self.get_publishers_info_by_topic(topic)
-                    if not (i.node_name == self.get_name()
-                            and i.node_namespace == self.get_namespace())]
+            pubs = [
+                i
+                for i in self.get_publishers_info_by_topic(topic)
+                if not (
+                    i.node_name == self.get_name() and i.node_namespace == self.get_namespace()
+                )
+            ]
             if not pubs:
-                continue   # QoS and type come from a publisher: wait for one
+                continue  # QoS and type come from a publisher: wait for one
             if len(types) != 1:
                 self._skip(topic, f'several types {types}')
                 continue
             msgtype = types[0]
             cls = _msg_class(msgtype)
             if cls is None:
-                self._skip(topic, f'type {msgtype} is not installed (no Python module); build '
-                           'and source the package that defines it')
+                self._skip(
+                    topic,
+                    f'type {msgtype} is not installed (no Python module); build '
+                    'and source the package that defines it',
+                )
                 continue
             try:
-                conn = self.writer.add_topic(topic, msgtype,
-                                             offered_qos=[qos_to_bag(i.qos_profile) for i in pubs])
+                conn = self.writer.add_topic(
+                    topic, msgtype, offered_qos=[qos_to_bag(i.qos_profile) for i in pubs]
+                )
             except CliError as exc:
                 self._skip(topic, str(exc))
                 continue
             rel = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in pubs)
             tl = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in pubs)
             qos = QoSProfile(
-                history=HistoryPolicy.KEEP_LAST, depth=int(self.p['queue_depth']),
+                history=HistoryPolicy.KEEP_LAST,
+                depth=int(self.p['queue_depth']),
                 reliability=ReliabilityPolicy.RELIABLE if rel else ReliabilityPolicy.BEST_EFFORT,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL if tl else DurabilityPolicy.VOLATILE)
+                durability=DurabilityPolicy.TRANSIENT_LOCAL if tl else DurabilityPolicy.VOLATILE,
+            )
             t = _Topic(topic, msgtype, conn)
             t.single_pub = len(pubs) == 1
             # taken by spin(), never by an executor
             t.sub = self.create_subscription(cls, topic, _never_called, qos, raw=True)
             self.topics[topic] = t
             changed = True
-            self.get_logger().info(f'recording {topic} [{msgtype}] '
-                                   f'({"reliable" if rel else "best effort"}'
-                                   f'{", transient local" if tl else ""}, {len(pubs)} '
-                                   f'publisher{"s" if len(pubs) > 1 else ""})')
+            self.get_logger().info(
+                f'recording {topic} [{msgtype}] '
+                f'({"reliable" if rel else "best effort"}'
+                f'{", transient local" if tl else ""}, {len(pubs)} '
+                f'publisher{"s" if len(pubs) > 1 else ""})'
+            )
         for t in self.topics.values():
             t.single_pub = self.count_publishers(t.name) <= 1
         if changed:
@@ -249,20 +321,35 @@ class RecorderNode(Node):
         rec = sum(t.received for t in self.topics.values())
         wr = sum(t.written for t in self.topics.values())
         lost = sum(t.lost for t in self.topics.values())
-        return {'received': rec, 'written': wr, 'lost': lost, 'dropped': rec - wr + lost,
-                'topics': {t.name: {'received': t.received, 'written': t.written,
-                                    'lost': t.lost} for t in self.topics.values()},
-                'skipped': dict(self.skipped)}
+        return {
+            'received': rec,
+            'written': wr,
+            'lost': lost,
+            'dropped': rec - wr + lost,
+            'topics': {
+                t.name: {'received': t.received, 'written': t.written, 'lost': t.lost}
+                for t in self.topics.values()
+            },
+            'skipped': dict(self.skipped),
+        }
 
     def status(self) -> dict[str, Any]:
         topics = {}
         for t in self.topics.values():
-            topics[t.name] = {'matched': t.sub.get_publisher_count(),
-                              'publishers': self.count_publishers(t.name)}
+            topics[t.name] = {
+                'matched': t.sub.get_publisher_count(),
+                'publishers': self.count_publishers(t.name),
+            }
         ready = all(v['matched'] >= v['publishers'] for v in topics.values())
         c = self.counts()
-        return {'bag': str(self.output), 'ready': ready, 'topics': topics,
-                'received': c['received'], 'written': c['written'], 'dropped': c['dropped']}
+        return {
+            'bag': str(self.output),
+            'ready': ready,
+            'topics': topics,
+            'received': c['received'],
+            'written': c['written'],
+            'dropped': c['dropped'],
+        }
 
     def _publish_status(self) -> None:
         if self.closed:
@@ -285,15 +372,17 @@ class RecorderNode(Node):
 
 def _str_array_descriptor(name: str, text: str) -> Any:
     from rcl_interfaces.msg import ParameterDescriptor, ParameterType
-    return ParameterDescriptor(name=name, type=ParameterType.PARAMETER_STRING_ARRAY,
-                               description=text, read_only=True)
+
+    return ParameterDescriptor(
+        name=name, type=ParameterType.PARAMETER_STRING_ARRAY, description=text, read_only=True
+    )
 
 
 def _never_called(_msg: Any) -> None:  # pragma: no cover -- no executor spins the recorder
     raise AssertionError('the recorder takes its messages in RecorderNode.spin')
 
 
-def _take_all(node: 'RecorderNode', t: _Topic) -> int:
+def _take_all(node: RecorderNode, t: _Topic) -> int:
     """Take every message queued on ``t`` (with its MessageInfo); returns how many."""
     n = 0
     handle = t.sub.handle
@@ -306,11 +395,12 @@ def _take_all(node: 'RecorderNode', t: _Topic) -> int:
             n += 1
 
 
-def spin(node: 'RecorderNode', stop: list[int], drain: float) -> None:
+def spin(node: RecorderNode, stop: list[int], drain: float) -> None:
     """Wait on the subscriptions, take what is ready, run the periodic work; after a signal
     (``stop`` not empty) take what is still queued until 0.2 s pass without a message (at
     most ``drain`` seconds)."""
     from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
     ws, ws_topics = None, -1
     by_ptr: dict[int, _Topic] = {}
     while not stop and node.context.ok():
@@ -322,8 +412,7 @@ def spin(node: 'RecorderNode', stop: list[int], drain: float) -> None:
         topics = list(node.topics.values())
         if len(topics) != ws_topics:
             ws_topics = len(topics)
-            ws = _rclpy.WaitSet(ws_topics, 0, 0, 0, 0, 0, node.context.handle) if topics \
-                else None
+            ws = _rclpy.WaitSet(ws_topics, 0, 0, 0, 0, 0, node.context.handle) if topics else None
             by_ptr = {t.sub.handle.pointer: t for t in topics}
         timeout = min(0.05, max(0.0, min(job[1] for job in node.periodic) - time.monotonic()))
         if ws is None:
@@ -346,10 +435,9 @@ def spin(node: 'RecorderNode', stop: list[int], drain: float) -> None:
 
 def main(args: list[str] | None = None) -> None:
     """Jazzy main: own SIGINT / SIGTERM handling so that the bag is closed after a drain."""
+    from apf_swarm_core.errors import ApfSwarmError
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
-
-    from apf_swarm_core.errors import ApfSwarmError
 
     stop: list[int] = []
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
@@ -363,6 +451,7 @@ def main(args: list[str] | None = None) -> None:
         # reach, so that a full collection does not stall the take loop (the player measured
         # ~0.3 s stalls from it)
         import gc
+
         gc.collect()
         gc.freeze()
         spin(node, stop, float(node.p['drain_timeout']))
@@ -376,12 +465,17 @@ def main(args: list[str] | None = None) -> None:
             try:
                 c = node.close()
                 lost = c['lost']
-                msg = (f'closed {node.output}: received {c["received"]}, written {c["written"]}, '
-                       f'lost in transport {lost}, dropped {c["dropped"]} on '
-                       f'{len(c["topics"])} topics')
-                print(f'recorder: {msg}' if not c['dropped'] else f'recorder: warning: {msg}',
-                      file=sys.stderr, flush=True)
-            except Exception as exc:  # noqa: BLE001 -- report, never lose the exit path
+                msg = (
+                    f'closed {node.output}: received {c["received"]}, written {c["written"]}, '
+                    f'lost in transport {lost}, dropped {c["dropped"]} on '
+                    f'{len(c["topics"])} topics'
+                )
+                print(
+                    f'recorder: {msg}' if not c['dropped'] else f'recorder: warning: {msg}',
+                    file=sys.stderr,
+                    flush=True,
+                )
+            except Exception as exc:
                 print(f'recorder: error: closing {node.output}: {exc}', file=sys.stderr)
                 code = code or 1
         if node is not None:

@@ -3,19 +3,26 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import yaml
-
 from apf_swarm_core.config import SwarmConfig, to_ros_params
 from apf_swarm_core.simulator import TRAJECTORY_KEYS
 
 from .errors import CliError
 
-__all__ = ['write_run', 'read_trajectory', 'format_summary', 'run_summary', 'fault_report',
-           'TARGET_SILENT_AGE', 'RUN_ARRAYS']
+__all__ = [
+    'RUN_ARRAYS',
+    'TARGET_SILENT_AGE',
+    'fault_report',
+    'format_summary',
+    'read_trajectory',
+    'run_summary',
+    'write_run',
+]
 
 #: per-sample arrays of a ROS run written to trajectory.npz besides the simulator's: active
 #: flags (T, n), target age (T,) [s], each tracker's latest command latency (T, n) [s], the
@@ -40,8 +47,12 @@ def _intervals(t: np.ndarray, flag: np.ndarray) -> list[list[float]]:
     return out
 
 
-def fault_report(t: np.ndarray, active: np.ndarray | None, target_age: np.ndarray | None,
-                 stale_inputs: np.ndarray | None = None) -> tuple[dict[str, Any], list[str]]:
+def fault_report(
+    t: np.ndarray,
+    active: np.ndarray | None,
+    target_age: np.ndarray | None,
+    stale_inputs: np.ndarray | None = None,
+) -> tuple[dict[str, Any], list[str]]:
     """The ``faults`` field of summary.json and its warning lines, from the ``active``
     flags (T, n), the ``target_age`` (T,) and the cumulative ``stale_inputs`` count (T,) of
     ``/swarm/state``: when each tracker was inactive (silent past the deadline, zero force,
@@ -49,8 +60,12 @@ def fault_report(t: np.ndarray, active: np.ndarray | None, target_age: np.ndarra
     :data:`TARGET_SILENT_AGE`) and when trackers sent the safe brake on inputs that went
     stale (``stale``: the samples at which the count grew; the plant does not count the
     brakes a tracker sends before its first inputs)."""
-    faults: dict[str, Any] = {'inactive': {}, 'target_silent': [], 'target_age_max': 0.0,
-                              'stale': []}
+    faults: dict[str, Any] = {
+        'inactive': {},
+        'target_silent': [],
+        'target_age_max': 0.0,
+        'stale': [],
+    }
     warnings: list[str] = []
     t = np.asarray(t, dtype=float)
     if active is not None and len(active):
@@ -60,33 +75,39 @@ def fault_report(t: np.ndarray, active: np.ndarray | None, target_age: np.ndarra
             if spans:
                 faults['inactive'][f'uav_{j + 1}'] = spans
                 total = sum(b - a for a, b in spans)
-                warnings.append(f'uav_{j + 1} was inactive (no command) {len(spans)} time(s), '
-                                f'{total:.3g} s in all, first at t = {spans[0][0]:g} s: zero '
-                                f'force, out of the formation term of the others')
+                warnings.append(
+                    f'uav_{j + 1} was inactive (no command) {len(spans)} time(s), '
+                    f'{total:.3g} s in all, first at t = {spans[0][0]:g} s: zero '
+                    f'force, out of the formation term of the others'
+                )
     if target_age is not None and len(target_age):
         age = np.asarray(target_age, dtype=float)
         faults['target_age_max'] = round(float(age.max()), 6)
         spans = _intervals(t, age > TARGET_SILENT_AGE)
         faults['target_silent'] = spans
         if spans:
-            warnings.append(f'the target was silent {len(spans)} time(s) (state up to '
-                            f'{age.max():.3g} s old), first at t = {spans[0][0]:g} s: its '
-                            f'last state was held, trackers brake past their input_timeout')
+            warnings.append(
+                f'the target was silent {len(spans)} time(s) (state up to '
+                f'{age.max():.3g} s old), first at t = {spans[0][0]:g} s: its '
+                f'last state was held, trackers brake past their input_timeout'
+            )
     if stale_inputs is not None and len(stale_inputs):
         count = np.asarray(stale_inputs, dtype=float)
         grew = np.diff(count, prepend=0.0) > 0
         spans = _intervals(t, grew)
         faults['stale'] = spans
         if spans:
-            warnings.append(f'trackers braked on stale inputs {len(spans)} time(s) during the '
-                            f'run, first at t = {spans[0][0]:g} s ({int(count[-1])} stale '
-                            f'commands in all)')
+            warnings.append(
+                f'trackers braked on stale inputs {len(spans)} time(s) during the '
+                f'run, first at t = {spans[0][0]:g} s ({int(count[-1])} stale '
+                f'commands in all)'
+            )
     return faults, warnings
 
 
-
-def write_run(out: Path, traj: Mapping[str, Any], summary: Mapping[str, Any],
-              cfg: SwarmConfig | None = None) -> dict[str, Path]:
+def write_run(
+    out: Path, traj: Mapping[str, Any], summary: Mapping[str, Any], cfg: SwarmConfig | None = None
+) -> dict[str, Path]:
     """Write ``trajectory.npz``, ``summary.json`` and (with ``cfg``) ``config.yaml`` into out.
 
     ``trajectory.npz`` holds the arrays of the simulator's schema and, from a ROS run, the
@@ -103,9 +124,15 @@ def write_run(out: Path, traj: Mapping[str, Any], summary: Mapping[str, Any],
     return paths
 
 
-def run_summary(traj: Mapping[str, Any], cfg: SwarmConfig, *, status: str = 'completed',
-                n_samples: int | None = None, dropped: int = 0,
-                respawned: Sequence[str] = ()) -> dict[str, Any]:
+def run_summary(
+    traj: Mapping[str, Any],
+    cfg: SwarmConfig,
+    *,
+    status: str = 'completed',
+    n_samples: int | None = None,
+    dropped: int = 0,
+    respawned: Sequence[str] = (),
+) -> dict[str, Any]:
     """summary.json (the simulator's schema) of a ROS run from its ``/swarm/state`` trajectory
     (the ``trajectory.npz`` arrays, plus ``active`` (T, n) and ``target_age`` (T,) when the
     samples carry them: they give the ``faults`` field, see :func:`fault_report`).
@@ -125,15 +152,23 @@ def run_summary(traj: Mapping[str, Any], cfg: SwarmConfig, *, status: str = 'com
     if dropped:
         warnings.append(f'{dropped} /swarm/state steps were not received')
     if respawned:
-        warnings.append(f'respawned during the run: {", ".join(respawned)} (a restarted '
-                        'node starts from its initial state)')
-    faults, fault_warnings = fault_report(traj['t'], traj.get('active'),
-                                          traj.get('target_age'), traj.get('stale_inputs'))
-    summary = summarize({k: traj[k] for k in TRAJECTORY_KEYS}, law=cfg.law, dt=cfg.dt,
-                        seed=cfg.seed, potential_params=cfg.potential_params(),
-                        expected_pairs=design_pair_sets(cfg),
-                        steady_fraction=cfg.steady_fraction,
-                        warnings=warnings + fault_warnings)
+        warnings.append(
+            f'respawned during the run: {", ".join(respawned)} (a restarted '
+            'node starts from its initial state)'
+        )
+    faults, fault_warnings = fault_report(
+        traj['t'], traj.get('active'), traj.get('target_age'), traj.get('stale_inputs')
+    )
+    summary = summarize(
+        {k: traj[k] for k in TRAJECTORY_KEYS},
+        law=cfg.law,
+        dt=cfg.dt,
+        seed=cfg.seed,
+        potential_params=cfg.potential_params(),
+        expected_pairs=design_pair_sets(cfg),
+        steady_fraction=cfg.steady_fraction,
+        warnings=warnings + fault_warnings,
+    )
     summary['faults'] = faults
     return summary
 
@@ -157,27 +192,39 @@ def _fmt(v: Any) -> str:
     if isinstance(v, float):
         return f'{v:.4g}'
     if isinstance(v, (list, tuple)) and v and all(isinstance(e, float) for e in v):
-        return f'{len(v)} distances in [{min(v):.4g}, {max(v):.4g}]'   # n > 3 designs
+        return f'{len(v)} distances in [{min(v):.4g}, {max(v):.4g}]'  # n > 3 designs
     return str(v)
 
 
 def format_summary(summary: Mapping[str, Any]) -> str:
     """Human-readable lines of a summary.json document."""
     s = summary
-    lines = [f"law {s['law']}, {s['n_trackers']} trackers, dt {s['dt']:g} s, "
-             f"duration {s['duration']:g} s, seed {s['seed']}"]
+    lines = [
+        (
+            f'law {s["law"]}, {s["n_trackers"]} trackers, dt {s["dt"]:g} s, '
+            f'duration {s["duration"]:g} s, seed {s["seed"]}'
+        )
+    ]
     ce, fo, ch, po = s['centroid_error'], s['formation'], s['chattering'], s['potential']
-    lines.append(f"  centroid error   rms_steady {_fmt(ce['rms_steady'])} m, max_steady "
-                 f"{_fmt(ce['max_steady'])} m, final {_fmt(ce['final'])} m")
-    lines.append(f"  pair distance    min {_fmt(fo['pair_distance_min'])} m, max "
-                 f"{_fmt(fo['pair_distance_max'])} m, mean {_fmt(fo['pair_distance_mean'])} m, "
-                 f"expected {_fmt(fo['pair_distance_expected'])} m")
-    lines.append(f"  formation error  rms_steady {_fmt(fo['error_rms_steady'])} m")
-    lines.append(f"  chattering       hf_velocity_rms {_fmt(ch['hf_velocity_rms'])} m/s, "
-                 f"heading_rate {_fmt(ch['heading_rate'])} rad/s")
-    lines.append(f"  potential J      initial {_fmt(po['initial'])}, final {_fmt(po['final'])}, "
-                 f"decreasing {_fmt(po['decreasing_fraction'])}")
-    lines.append(f"  converged        {s['converged']} (after {_fmt(s['time_to_converge'])} s)")
+    lines.append(
+        f'  centroid error   rms_steady {_fmt(ce["rms_steady"])} m, max_steady '
+        f'{_fmt(ce["max_steady"])} m, final {_fmt(ce["final"])} m'
+    )
+    lines.append(
+        f'  pair distance    min {_fmt(fo["pair_distance_min"])} m, max '
+        f'{_fmt(fo["pair_distance_max"])} m, mean {_fmt(fo["pair_distance_mean"])} m, '
+        f'expected {_fmt(fo["pair_distance_expected"])} m'
+    )
+    lines.append(f'  formation error  rms_steady {_fmt(fo["error_rms_steady"])} m')
+    lines.append(
+        f'  chattering       hf_velocity_rms {_fmt(ch["hf_velocity_rms"])} m/s, '
+        f'heading_rate {_fmt(ch["heading_rate"])} rad/s'
+    )
+    lines.append(
+        f'  potential J      initial {_fmt(po["initial"])}, final {_fmt(po["final"])}, '
+        f'decreasing {_fmt(po["decreasing_fraction"])}'
+    )
+    lines.append(f'  converged        {s["converged"]} (after {_fmt(s["time_to_converge"])} s)')
     for w in s.get('warnings', []):
         lines.append(f'  warning: {w}')
     return '\n'.join(lines)

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 from apf_swarm_core.checks import check_config
 from apf_swarm_core.config import SwarmConfig, apply_overrides
@@ -15,17 +16,33 @@ from .errors import CliError
 from .plots import paper_figures, plot_tradeoff
 from .runio import write_run
 
-__all__ = ['LAWS', 'sweep', 'write_sweep', 'reproduce', 'GAMMA_VALUES']
+__all__ = ['GAMMA_VALUES', 'LAWS', 'reproduce', 'sweep', 'write_sweep']
 
 LAWS = ('proposed', 'traditional')
 GAMMA_VALUES = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0)
-SWEEP_FIELDS = ('law', 'param', 'value', 'seed', 'centroid_rms', 'centroid_max',
-                'formation_error_rms', 'pair_distance_mean', 'hf_velocity_rms', 'heading_rate',
-                'time_to_converge', 'converged')
+SWEEP_FIELDS = (
+    'law',
+    'param',
+    'value',
+    'seed',
+    'centroid_rms',
+    'centroid_max',
+    'formation_error_rms',
+    'pair_distance_mean',
+    'hf_velocity_rms',
+    'heading_rate',
+    'time_to_converge',
+    'converged',
+)
 
 
-def sweep(base: SwarmConfig, param: str, values: Sequence[Any], seeds: int = 1,
-          progress: Callable[[int, int], None] | None = None) -> list[dict[str, Any]]:
+def sweep(
+    base: SwarmConfig,
+    param: str,
+    values: Sequence[Any],
+    seeds: int = 1,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[dict[str, Any]]:
     """Both laws over ``values`` of ``param`` with ``seeds`` seeds each.
 
     Runs that may share a batch (:data:`apf_swarm_core.simulator.BATCHABLE` keys) run as one
@@ -37,8 +54,9 @@ def sweep(base: SwarmConfig, param: str, values: Sequence[Any], seeds: int = 1,
         for v in values:
             for k in range(seeds):
                 try:
-                    cfgs.append(apply_overrides(base, {param: v, 'law': law,
-                                                       'seed': base.seed + k}))
+                    cfgs.append(
+                        apply_overrides(base, {param: v, 'law': law, 'seed': base.seed + k})
+                    )
                 except Exception as exc:  # ConfigError names the key and the value
                     raise CliError(f'--values {v!r} for {param}: {exc}') from None
         groups: list[list[int]] = []
@@ -52,15 +70,22 @@ def sweep(base: SwarmConfig, param: str, values: Sequence[Any], seeds: int = 1,
             for j, i in enumerate(g):
                 s = res.summary(run=j)
                 v = values[i // seeds]
-                rows.append({
-                    'law': law, 'param': param, 'value': v, 'seed': cfgs[i].seed,
-                    'centroid_rms': s['centroid_error']['rms_steady'],
-                    'centroid_max': s['centroid_error']['max_steady'],
-                    'formation_error_rms': s['formation']['error_rms_steady'],
-                    'pair_distance_mean': s['formation']['pair_distance_mean'],
-                    'hf_velocity_rms': s['chattering']['hf_velocity_rms'],
-                    'heading_rate': s['chattering']['heading_rate'],
-                    'time_to_converge': s['time_to_converge'], 'converged': s['converged']})
+                rows.append(
+                    {
+                        'law': law,
+                        'param': param,
+                        'value': v,
+                        'seed': cfgs[i].seed,
+                        'centroid_rms': s['centroid_error']['rms_steady'],
+                        'centroid_max': s['centroid_error']['max_steady'],
+                        'formation_error_rms': s['formation']['error_rms_steady'],
+                        'pair_distance_mean': s['formation']['pair_distance_mean'],
+                        'hf_velocity_rms': s['chattering']['hf_velocity_rms'],
+                        'heading_rate': s['chattering']['heading_rate'],
+                        'time_to_converge': s['time_to_converge'],
+                        'converged': s['converged'],
+                    }
+                )
     return rows
 
 
@@ -87,19 +112,24 @@ def _fmt(v: Any, digits: int = 3) -> str:
 
 
 def _table(summaries: dict[str, dict[str, Any]]) -> list[str]:
-    lines = ['| law | centroid error RMS (steady) [m] | centroid error max [m] | '
-             'formation error RMS [m] | mean pair distance [m] | HF velocity RMS [m/s] | '
-             'heading rate [rad/s] | time to converge [s] | converged |',
-             '|---|---|---|---|---|---|---|---|---|']
+    lines = [
+        (
+            '| law | centroid error RMS (steady) [m] | centroid error max [m] | '
+            'formation error RMS [m] | mean pair distance [m] | HF velocity RMS [m/s] | '
+            'heading rate [rad/s] | time to converge [s] | converged |'
+        ),
+        '|---|---|---|---|---|---|---|---|---|',
+    ]
     for law, s in summaries.items():
         lines.append(
-            f"| {law} | {_fmt(s['centroid_error']['rms_steady'])} | "
-            f"{_fmt(s['centroid_error']['max_steady'])} | "
-            f"{_fmt(s['formation']['error_rms_steady'])} | "
-            f"{_fmt(s['formation']['pair_distance_mean'])} | "
-            f"{_fmt(s['chattering']['hf_velocity_rms'])} | "
-            f"{_fmt(s['chattering']['heading_rate'])} | {_fmt(s['time_to_converge'])} | "
-            f"{_fmt(s['converged'])} |")
+            f'| {law} | {_fmt(s["centroid_error"]["rms_steady"])} | '
+            f'{_fmt(s["centroid_error"]["max_steady"])} | '
+            f'{_fmt(s["formation"]["error_rms_steady"])} | '
+            f'{_fmt(s["formation"]["pair_distance_mean"])} | '
+            f'{_fmt(s["chattering"]["hf_velocity_rms"])} | '
+            f'{_fmt(s["chattering"]["heading_rate"])} | {_fmt(s["time_to_converge"])} | '
+            f'{_fmt(s["converged"])} |'
+        )
     return lines
 
 
@@ -108,31 +138,47 @@ def _gamma_conclusion(rows: list[dict[str, Any]]) -> tuple[list[str], list[float
     t_err = sum(r['centroid_rms'] for r in trad) / len(trad)
     t_hf = sum(r['hf_velocity_rms'] for r in trad) / len(trad)
     t_hr = sum(r['heading_rate'] for r in trad) / len(trad)
-    lines = ['| gamma [m] | proposed centroid RMS [m] | proposed HF vel. RMS [m/s] | '
-             'proposed heading rate [rad/s] | more accurate than traditional | '
-             'less chattering than traditional |', '|---|---|---|---|---|---|']
+    lines = [
+        (
+            '| gamma [m] | proposed centroid RMS [m] | proposed HF vel. RMS [m/s] | '
+            'proposed heading rate [rad/s] | more accurate than traditional | '
+            'less chattering than traditional |'
+        ),
+        '|---|---|---|---|---|---|',
+    ]
     both = []
     for r in sorted((r for r in rows if r['law'] == 'proposed'), key=lambda r: r['value']):
         acc = r['centroid_rms'] < t_err
         calm = r['hf_velocity_rms'] < t_hf and r['heading_rate'] < t_hr
         if acc and calm:
             both.append(r['value'])
-        lines.append(f"| {r['value']:g} | {_fmt(r['centroid_rms'])} | "
-                     f"{_fmt(r['hf_velocity_rms'])} | {_fmt(r['heading_rate'])} | "
-                     f"{_fmt(acc)} | {_fmt(calm)} |")
+        lines.append(
+            f'| {r["value"]:g} | {_fmt(r["centroid_rms"])} | '
+            f'{_fmt(r["hf_velocity_rms"])} | {_fmt(r["heading_rate"])} | '
+            f'{_fmt(acc)} | {_fmt(calm)} |'
+        )
     lines.append(f'| traditional (any gamma) | {_fmt(t_err)} | {_fmt(t_hf)} | {_fmt(t_hr)} | | |')
     return lines, both
 
 
-def reproduce(out: Path, presets: dict[str, SwarmConfig],
-              progress_factory: Callable[[str], Callable[[int, int], None]] | None = None,
-              gamma_values: Sequence[float] = GAMMA_VALUES) -> Path:
+def reproduce(
+    out: Path,
+    presets: dict[str, SwarmConfig],
+    progress_factory: Callable[[str], Callable[[int, int], None]] | None = None,
+    gamma_values: Sequence[float] = GAMMA_VALUES,
+) -> Path:
     """Run both laws on each preset, draw Figures 1-7 per preset, write ``report.md``."""
     out.mkdir(parents=True, exist_ok=True)
-    report = ['# apf_swarm: reproduction of the paper\'s section 3', '',
-              'Both laws on the paper\'s scenario: `triangle` is the consistent preset (the '
-              'default), `paper` the literal numbers of section 3. Figures 1-7 follow the '
-              'paper\'s numbering; each preset\'s files carry its name as a prefix.', '']
+    report = [
+        "# apf_swarm: reproduction of the paper's section 3",
+        '',
+        (
+            "Both laws on the paper's scenario: `triangle` is the consistent preset (the "
+            'default), `paper` the literal numbers of section 3. Figures 1-7 follow the '
+            "paper's numbering; each preset's files carry its name as a prefix."
+        ),
+        '',
+    ]
     everything: dict[str, Any] = {}
     for name, cfg in presets.items():
         summaries, trajs = {}, {}
@@ -147,15 +193,23 @@ def reproduce(out: Path, presets: dict[str, SwarmConfig],
         figs = paper_figures(trajs, out, prefix=f'{name}_')
         check = check_config(cfg, trajs['proposed'])
         everything[name] = {'summaries': summaries, 'check': check.as_dict()}
-        report += [f'## Preset `{name}`', '',
-                   f"{cfg.n_trackers} trackers, target `{cfg.target_trajectory}` at "
-                   f"{cfg.target_speed:g} m/s (v_N = {cfg.target_speed_bound:g}), a = {cfg.a:g}, "
-                   f"b = {cfg.b:g}, c = {cfg.c:g}, alpha = {cfg.alpha:g}, beta = {cfg.beta:g}, "
-                   f"gamma = {cfg.gamma:g}, lambda = {cfg.lambda_filter:g}, u0 = {cfg.u0:g}, "
-                   f"dt = {cfg.dt:g} s, {cfg.duration:g} s, seed {cfg.seed}.", '']
-        report += _table(summaries) + ['']
-        report += ['Checks (`apf-swarm check`, with the gain bounds measured on the proposed-law '
-                   'run):', '']
+        report += [
+            f'## Preset `{name}`',
+            '',
+            (
+                f'{cfg.n_trackers} trackers, target `{cfg.target_trajectory}` at '
+                f'{cfg.target_speed:g} m/s (v_N = {cfg.target_speed_bound:g}), a = {cfg.a:g}, '
+                f'b = {cfg.b:g}, c = {cfg.c:g}, alpha = {cfg.alpha:g}, beta = {cfg.beta:g}, '
+                f'gamma = {cfg.gamma:g}, lambda = {cfg.lambda_filter:g}, u0 = {cfg.u0:g}, '
+                f'dt = {cfg.dt:g} s, {cfg.duration:g} s, seed {cfg.seed}.'
+            ),
+            '',
+        ]
+        report += [*_table(summaries), '']
+        report += [
+            ('Checks (`apf-swarm check`, with the gain bounds measured on the proposed-law run):'),
+            '',
+        ]
         report += [f'- **{f.level}** {f.message}' for f in check.findings] + ['']
         report += ['Figures: ' + ', '.join(f'[{p.name}]({p.name})' for p in figs), '']
     # the gamma trade-off on the consistent preset
@@ -165,44 +219,58 @@ def reproduce(out: Path, presets: dict[str, SwarmConfig],
     write_sweep(rows, 'gamma', out / 'gamma_sweep')
     lines, both = _gamma_conclusion(rows)
     everything['gamma_sweep'] = rows
-    report += ['## The boundary layer gamma: chattering against tracking error', '',
-               'Inside the layer the proposed law is linear with gain alpha + beta/gamma, so a '
-               'moving target leaves a steady lag of about v / (k_n (alpha + beta/gamma)) '
-               '(docs/THEORY.md section 2). Same scenario as `triangle`, one seed per value:', '']
-    report += lines + ['', '![trade-off](gamma_sweep/sweep_tradeoff.png)', '']
+    report += [
+        '## The boundary layer gamma: chattering against tracking error',
+        '',
+        (
+            'Inside the layer the proposed law is linear with gain alpha + beta/gamma, so a '
+            'moving target leaves a steady lag of about v / (k_n (alpha + beta/gamma)) '
+            '(docs/THEORY.md section 2). Same scenario as `triangle`, one seed per value:'
+        ),
+        '',
+    ]
+    report += [*lines, '', '![trade-off](gamma_sweep/sweep_tradeoff.png)', '']
     # conclusion
     tri_s = everything.get('triangle', {}).get('summaries', {})
     report += ['## Conclusion', '']
     if tri_s:
         p, t = tri_s['proposed'], tri_s['traditional']
-        calmer = (p['chattering']['hf_velocity_rms'] < t['chattering']['hf_velocity_rms']
-                  and p['chattering']['heading_rate'] < t['chattering']['heading_rate'])
+        calmer = (
+            p['chattering']['hf_velocity_rms'] < t['chattering']['hf_velocity_rms']
+            and p['chattering']['heading_rate'] < t['chattering']['heading_rate']
+        )
         closer = p['centroid_error']['rms_steady'] < t['centroid_error']['rms_steady']
         report.append(
             f"- **Less chattering** (the paper's claim about rotation buffeting): "
-            f"{'holds' if calmer else 'does not hold'} with the `triangle` preset "
-            f"(gamma = {tri.gamma:g}): HF velocity RMS {_fmt(p['chattering']['hf_velocity_rms'])} "
-            f"vs {_fmt(t['chattering']['hf_velocity_rms'])} m/s, heading rate "
-            f"{_fmt(p['chattering']['heading_rate'])} vs {_fmt(t['chattering']['heading_rate'])} "
-            'rad/s (proposed vs traditional).')
+            f'{"holds" if calmer else "does not hold"} with the `triangle` preset '
+            f'(gamma = {tri.gamma:g}): HF velocity RMS {_fmt(p["chattering"]["hf_velocity_rms"])} '
+            f'vs {_fmt(t["chattering"]["hf_velocity_rms"])} m/s, heading rate '
+            f'{_fmt(p["chattering"]["heading_rate"])} vs {_fmt(t["chattering"]["heading_rate"])} '
+            'rad/s (proposed vs traditional).'
+        )
         report.append(
             f"- **Higher tracking accuracy** (Figure 7's claim): "
-            f"{'holds' if closer else 'does not hold'} at gamma = {tri.gamma:g}: steady centroid "
-            f"error {_fmt(p['centroid_error']['rms_steady'])} vs "
-            f"{_fmt(t['centroid_error']['rms_steady'])} m. "
-            + (f'Both claims hold together for gamma in {{{", ".join(f"{g:g}" for g in both)}}} '
-               'of the values swept.' if both else
-               'No swept gamma gives both less chattering and a smaller centroid error: '
-               'the boundary layer trades one for the other.'))
+            f'{"holds" if closer else "does not hold"} at gamma = {tri.gamma:g}: steady centroid '
+            f'error {_fmt(p["centroid_error"]["rms_steady"])} vs '
+            f'{_fmt(t["centroid_error"]["rms_steady"])} m. '
+            + (
+                f'Both claims hold together for gamma in {{{", ".join(f"{g:g}" for g in both)}}} '
+                'of the values swept.'
+                if both
+                else 'No swept gamma gives both less chattering and a smaller centroid error: '
+                'the boundary layer trades one for the other.'
+            )
+        )
     pap = everything.get('paper', {}).get('summaries', {})
     if pap:
         p = pap['proposed']
         report.append(
             f"- **The paper's literal numbers** (b = 0.6 < a = 1, beta = 2 < v_N = 10): no "
-            f"formation forms (mean pair distance {_fmt(p['formation']['pair_distance_mean'])} m, "
+            f'formation forms (mean pair distance {_fmt(p["formation"]["pair_distance_mean"])} m, '
             'the trackers collapse onto each other) and the target outruns them (steady centroid '
-            f"error {_fmt(p['centroid_error']['rms_steady'])} m). With the target outside reach, "
-            'the gradient never enters the boundary layer, so both laws coincide.')
+            f'error {_fmt(p["centroid_error"]["rms_steady"])} m). With the target outside reach, '
+            'the gradient never enters the boundary layer, so both laws coincide.'
+        )
     report.append('')
     (out / 'report.json').write_text(json.dumps(everything, indent=2, default=str) + '\n')
     path = out / 'report.md'

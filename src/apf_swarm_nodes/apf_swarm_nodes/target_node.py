@@ -21,9 +21,23 @@ from rclpy.node import Node
 from std_msgs.msg import Empty, UInt64
 
 from .conversions import dt_to_ns, odom_msg, step_stamp
-from .node_common import (REQUEST_QOS, START_QOS, SWARM_START, TARGET_LOOKAHEAD, control_qos,
-                          run_node)
-from .params import EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODES, NodeParam, declare_config, declare_node_params, read_config
+from .node_common import (
+    REQUEST_QOS,
+    START_QOS,
+    SWARM_START,
+    TARGET_LOOKAHEAD,
+    control_qos,
+    run_node,
+)
+from .params import (
+    EXECUTOR_PARAM,
+    MODES,
+    QOS_DEPTH_PARAM,
+    NodeParam,
+    declare_config,
+    declare_node_params,
+    read_config,
+)
 
 __all__ = ['TargetNode', 'main']
 
@@ -59,8 +73,9 @@ class TargetNode(Node):
             else:
                 self.t0 = time.monotonic()
             self.create_timer(1.0 / float(p['publish_rate']), self._on_timer)
-        self.get_logger().info(f'target: {self.cfg.target_trajectory} at '
-                               f'{self.cfg.target_speed:g} m/s, {self.mode}')
+        self.get_logger().info(
+            f'target: {self.cfg.target_trajectory} at {self.cfg.target_speed:g} m/s, {self.mode}'
+        )
 
     def _publish(self, t: float, stamp) -> None:
         x, v = self.traj.state(t)

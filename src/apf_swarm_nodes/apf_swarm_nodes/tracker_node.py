@@ -1,14 +1,17 @@
 """Tracker node: one tracking UAV's sliding-mode controller.
 
-Inputs (``inputs`` parameter): ``aggregate`` (default) reads ``/swarm/odom`` (SwarmOdometry), one message per
+Inputs (``inputs`` parameter): ``aggregate`` (default) reads ``/swarm/odom``
+(SwarmOdometry), one message per
 step with every tracker's odometry and the target's state; ``odom`` subscribes its own
 odometry (relative ``odom``), its neighbours' (``/uav_<j>/odom``) and the target's
 (``/target/odom``). Publishes ``force_cmd`` (relative). Lockstep: answers step k as soon
 as every input of step k has arrived. Realtime: with ``trigger:=odom`` (default)
-it commands on every new own odometry, with ``trigger:=timer`` at the configuration's ``control_rate`` on the
+it commands on every new own odometry, with ``trigger:=timer`` at the configuration's
+``control_rate`` on the
 latest inputs; an input older than ``input_timeout`` is stale and the safe command
 (:func:`apf_swarm_core.agents.brake_force`, hover in place) is sent with ``stale = true``
-(a watchdog timer at the control rate, at most 20 Hz with ``trigger:=odom``, keeps sending it). In lockstep only the
+(a watchdog timer at the control rate, at most 20 Hz with ``trigger:=odom``, keeps sending
+it). In lockstep only the
 target can be stale: the plant holds a silent target's last state and publishes its age in
 simulated time, and past ``input_timeout`` the tracker answers each step with the brake.
 
@@ -25,34 +28,65 @@ import random
 import sys
 import time
 
+from apf_swarm_core.agents import TrackerAgent
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
-from apf_swarm_core.agents import TrackerAgent
 from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry
 
-from .conversions import (dt_to_ns, force_msg, odom_arrays, stamp_ns, step_of,
-                          swarm_odom_arrays)
-from .node_common import (INPUTS, REALTIME_RATE, RejectionLog, SWARM_ODOM, TARGET_ODOM, control_qos, odom_topic,
-                          run_node, run_nodes)
-from .params import EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODES, NodeParam, declare_config, declare_node_params, install_validator, \
-    read_config
+from .conversions import dt_to_ns, force_msg, odom_arrays, stamp_ns, step_of, swarm_odom_arrays
+from .node_common import (
+    INPUTS,
+    REALTIME_RATE,
+    SWARM_ODOM,
+    TARGET_ODOM,
+    RejectionLog,
+    control_qos,
+    odom_topic,
+    run_node,
+    run_nodes,
+)
+from .params import (
+    EXECUTOR_PARAM,
+    MODES,
+    QOS_DEPTH_PARAM,
+    NodeParam,
+    declare_config,
+    declare_node_params,
+    install_validator,
+    read_config,
+)
 
-__all__ = ['TrackerNode', 'main', 'group_main', 'parse_uav_ids']
+__all__ = ['TrackerNode', 'group_main', 'main', 'parse_uav_ids']
 
 NODE_PARAMS = (
     EXECUTOR_PARAM,
     QOS_DEPTH_PARAM,
-    NodeParam('inputs', 'aggregate', 'aggregate: one /swarm/odom message per step; odom: '
-              'the n odometry topics and /target/odom', choices=INPUTS),
+    NodeParam(
+        'inputs',
+        'aggregate',
+        'aggregate: one /swarm/odom message per step; odom: '
+        'the n odometry topics and /target/odom',
+        choices=INPUTS,
+    ),
     NodeParam('uav_id', 1, 'id i of this tracker (namespace /uav_<i>)', lo=1, hi=10000),
     NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
-    NodeParam('trigger', 'odom', 'realtime: odom computes on every new own odometry (lowest '
-              'latency); timer computes at control_rate on the latest inputs',
-              choices=('odom', 'timer')),
-    NodeParam('input_timeout', 0.5, 'an input older than this is stale and the safe brake '
-              'is sent [s; lockstep: of simulated time, which only the target\'s state can '
-              'exceed when the target is silent]', lo=0.001, hi=60.0),
+    NodeParam(
+        'trigger',
+        'odom',
+        'realtime: odom computes on every new own odometry (lowest '
+        'latency); timer computes at control_rate on the latest inputs',
+        choices=('odom', 'timer'),
+    ),
+    NodeParam(
+        'input_timeout',
+        0.5,
+        'an input older than this is stale and the safe brake '
+        "is sent [s; lockstep: of simulated time, which only the target's state can "
+        'exceed when the target is silent]',
+        lo=0.001,
+        hi=60.0,
+    ),
 )
 
 
@@ -89,12 +123,14 @@ class TrackerNode(Node):
         qos = control_qos(self.mode, p['qos_depth'])
         self.pub = self.create_publisher(ForceCommand, 'force_cmd', qos)
         if p['inputs'] == 'odom':
-            self.create_subscription(Odometry, 'odom', lambda m: self._on_odom(self.uav_id, m),
-                                     qos)
+            self.create_subscription(
+                Odometry, 'odom', lambda m: self._on_odom(self.uav_id, m), qos
+            )
             for j in self.agent.ids:
                 if j != self.uav_id:
-                    self.create_subscription(Odometry, odom_topic(j),
-                                             lambda m, j=j: self._on_odom(j, m), qos)
+                    self.create_subscription(
+                        Odometry, odom_topic(j), lambda m, j=j: self._on_odom(j, m), qos
+                    )
             self.create_subscription(Odometry, TARGET_ODOM, lambda m: self._on_odom(0, m), qos)
         elif swarm_odom:
             self.create_subscription(SwarmOdometry, SWARM_ODOM, self._on_swarm_odom, qos)
@@ -105,22 +141,23 @@ class TrackerNode(Node):
         self._stale_reported = False
         self._neighbours = -1
         self._log_rejection = RejectionLog(self)
-        self.instance = random.getrandbits(63)   # tells this process apart at the plant
+        self.instance = random.getrandbits(63)  # tells this process apart at the plant
         if self.mode == 'realtime':
-            rate = self.control_rate if not self.on_odom else min(self.control_rate,
-                                                                    WATCHDOG_RATE)
+            rate = self.control_rate if not self.on_odom else min(self.control_rate, WATCHDOG_RATE)
             self.create_timer(1.0 / rate, self._on_timer)
         self.get_logger().info(
             f'uav_{self.uav_id}: {self.cfg.law} law, {self.mode}, neighbours '
-            f'{[j for j in self.agent.ids if j != self.uav_id]}, dt {self.cfg.dt:g} s')
+            f'{[j for j in self.agent.ids if j != self.uav_id]}, dt {self.cfg.dt:g} s'
+        )
 
     def _retune(self, cfg) -> None:
         """An accepted parameter change: the controller and potential use it from now on."""
         changed = self.agent.retune(cfg)
         self.cfg = cfg
         if changed:
-            self.get_logger().info('retuned: ' + ', '.join(
-                f'{k} = {getattr(cfg, k)!r}' for k in changed))
+            self.get_logger().info(
+                'retuned: ' + ', '.join(f'{k} = {getattr(cfg, k)!r}' for k in changed)
+            )
 
     def _now_and_age(self, stamp) -> tuple[float, float]:
         """(now, age of a message with this stamp) [s]: lockstep on the simulated clock
@@ -138,8 +175,9 @@ class TrackerNode(Node):
         x, v = odom_arrays(msg)
         step = step_of(msg.header.stamp, self.dt_ns) if self.mode == 'lockstep' else -1
         now, age = self._now_and_age(msg.header.stamp)
-        if not self.agent.offer(source, step, x, v, now - age,
-                                seq=step if step >= 0 else stamp_ns(msg.header.stamp)):
+        if not self.agent.offer(
+            source, step, x, v, now - age, seq=step if step >= 0 else stamp_ns(msg.header.stamp)
+        ):
             self._warn_rejected()
             return
         if self.mode == 'lockstep' and self.agent.ready(step):
@@ -163,9 +201,18 @@ class TrackerNode(Node):
         step = m.step if self.mode == 'lockstep' else -1
         seq = step if step >= 0 else m.stamp_ns
         now, age = self._now_and_age(msg.header.stamp)
-        if not self.agent.offer_swarm(step, m.uav_ids, m.x, m.v, m.active, m.target_x,
-                                      m.target_v, now - age, now - age - m.target_age,
-                                      seq=seq):
+        if not self.agent.offer_swarm(
+            step,
+            m.uav_ids,
+            m.x,
+            m.v,
+            m.active,
+            m.target_x,
+            m.target_v,
+            now - age,
+            now - age - m.target_age,
+            seq=seq,
+        ):
             self._warn_rejected()
             return
         if m.command_latency.size:
@@ -185,11 +232,19 @@ class TrackerNode(Node):
             return
         out = self.agent.command(step)
         self._msg = force_msg(
-            out=self._msg, uav_id=self.uav_id, step=step, law=self.cfg.law, stamp=stamp,
-            force=out.force[0], sliding_surface=out.sliding_surface[0],
-            gradient=out.gradient[0], filter_state=out.filter_state[0],
-            saturated=bool(out.saturated[0]), rejected_inputs=self.agent.rejected,
-            instance=self.instance)
+            out=self._msg,
+            uav_id=self.uav_id,
+            step=step,
+            law=self.cfg.law,
+            stamp=stamp,
+            force=out.force[0],
+            sliding_surface=out.sliding_surface[0],
+            gradient=out.gradient[0],
+            filter_state=out.filter_state[0],
+            saturated=bool(out.saturated[0]),
+            rejected_inputs=self.agent.rejected,
+            instance=self.instance,
+        )
         self.pub.publish(self._msg)
         self._stale_reported = False
         if self.agent.active_neighbours != self._neighbours:
@@ -197,15 +252,17 @@ class TrackerNode(Node):
                 self.get_logger().warn(
                     f'potential over {self.agent.active_neighbours} neighbours (was '
                     f'{self._neighbours}): the plant reports '
-                    + ('a tracker silent' if self.agent.active_neighbours < self._neighbours
-                       else 'a tracker back'))
+                    + (
+                        'a tracker silent'
+                        if self.agent.active_neighbours < self._neighbours
+                        else 'a tracker back'
+                    )
+                )
             self._neighbours = self.agent.active_neighbours
 
     def _on_timer(self) -> None:
         """trigger timer: command on the latest inputs; trigger odom: watchdog only."""
-        if not self.on_odom:
-            self._realtime_command(self.get_clock().now().to_msg())
-        elif self.agent.stale_sources(time.monotonic(), self.timeout):
+        if not self.on_odom or self.agent.stale_sources(time.monotonic(), self.timeout):
             self._realtime_command(self.get_clock().now().to_msg())
 
     def _realtime_command(self, stamp) -> None:
@@ -217,8 +274,11 @@ class TrackerNode(Node):
         self._tick += 1
         now = time.monotonic()
         # the filter of eq. 26 advances by the time actually elapsed between commands
-        self.agent.controller.dt = min(0.1, max(1e-4, now - self._last_command)) if \
-            self._last_command else 1.0 / self.control_rate
+        self.agent.controller.dt = (
+            min(0.1, max(1e-4, now - self._last_command))
+            if self._last_command
+            else 1.0 / self.control_rate
+        )
         self._last_command = now
         stale = self.agent.stale_sources(now, self.timeout)
         if not stale:
@@ -232,16 +292,29 @@ class TrackerNode(Node):
         if not self._stale_reported:
             names = ['target' if s == 0 else f'uav_{s}' for s in stale]
             unit = 's of simulated time' if self.mode == 'lockstep' else 's'
-            self.get_logger().warn(f'stale inputs {names} (older than {self.timeout:g} '
-                                   f'{unit}): commanding the safe brake')
+            self.get_logger().warn(
+                f'stale inputs {names} (older than {self.timeout:g} '
+                f'{unit}): commanding the safe brake'
+            )
             self._stale_reported = True
         u = self.agent.safe_command()
         zero = u * 0.0
-        self.pub.publish(force_msg(uav_id=self.uav_id, step=step, law=self.cfg.law,
-                                   stamp=stamp, force=u, sliding_surface=zero, gradient=zero,
-                                   filter_state=zero, saturated=False, stale=True,
-                                   rejected_inputs=self.agent.rejected,
-                                   instance=self.instance))
+        self.pub.publish(
+            force_msg(
+                uav_id=self.uav_id,
+                step=step,
+                law=self.cfg.law,
+                stamp=stamp,
+                force=u,
+                sliding_surface=zero,
+                gradient=zero,
+                filter_state=zero,
+                saturated=False,
+                stale=True,
+                rejected_inputs=self.agent.rejected,
+                instance=self.instance,
+            )
+        )
 
 
 def main(args: list[str] | None = None) -> None:
@@ -274,6 +347,7 @@ def group_main(args: list[str] | None = None) -> None:
     """
     from rclpy.parameter import Parameter
     from rclpy.utilities import remove_ros_args
+
     argv = sys.argv if args is None else args
     own = remove_ros_args(argv)[1:]
     usage = 'usage: trackers --uav-ids IDS [--ros-args ...]'
@@ -288,11 +362,14 @@ def group_main(args: list[str] | None = None) -> None:
     # realtime with the aggregated inputs: one /swarm/odom subscription for the process, whose
     # node hands each message to the others (one delivery and one conversion per state
     # instead of one per tracker); lockstep keeps one per node, the readers the plant counts
-    lead: list[TrackerNode] = []      # the node that subscribes for the process, if any
+    lead: list[TrackerNode] = []  # the node that subscribes for the process, if any
 
     def make(i: int) -> TrackerNode:
-        node = TrackerNode(namespace=f'/uav_{i}', parameter_overrides=[
-            Parameter('uav_id', value=i)], swarm_odom=not lead)
+        node = TrackerNode(
+            namespace=f'/uav_{i}',
+            parameter_overrides=[Parameter('uav_id', value=i)],
+            swarm_odom=not lead,
+        )
         if lead:
             lead[0].fanout.append(node)
         elif node.mode == 'realtime' and node.inputs == 'aggregate':
