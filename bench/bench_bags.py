@@ -45,9 +45,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from apf_swarm_nodes.machine import process_cpu_seconds
+from apf_swarm_nodes.qos import qos_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
-CLK_TCK = os.sysconf('SC_CLK_TCK')
 T0 = 1_700_000_000_000_000_000
 
 
@@ -56,9 +57,10 @@ def log(msg: str) -> None:
 
 
 def cpu_seconds(pid: int) -> float:
-    with open(f'/proc/{pid}/stat') as f:
-        fields = f.read().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
+    t = process_cpu_seconds(pid)
+    if t is None:
+        raise RuntimeError(f'process {pid} exited while it was measured')
+    return t
 
 
 def odom_bytes() -> bytes:
@@ -74,9 +76,8 @@ def odom_bytes() -> bytes:
 
 
 def qos_reliable():
-    from apf_swarm_nodes import bags
 
-    return bags.qos_from_dict(
+    return qos_from_dict(
         {
             'history': 'keep_last',
             'depth': 1000,

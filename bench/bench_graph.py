@@ -56,11 +56,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from apf_swarm_nodes.machine import (
+    cpu_model,
+    machine_busy_seconds,
+    process_cpu_seconds,
+    process_rss,
+)
+
 FLOOR_N3 = 500.0  # steps/s, lockstep, 3 trackers, dt 1 ms
 GOAL_N3 = 1000.0
 GOAL_LATENCY_RATIO = 1.3  # control-loop p99 / raw ping-pong p99
 DOMAIN_LO, DOMAIN_HI = 202, 230
-CLK_TCK = os.sysconf('SC_CLK_TCK')
 
 
 def log(msg: str) -> None:
@@ -68,55 +74,21 @@ def log(msg: str) -> None:
 
 
 # --------------------------------------------------------------------------------------------
-# /proc
+# processes and machine (apf_swarm_nodes.machine)
 # --------------------------------------------------------------------------------------------
 
 
-def cpu_ticks(pid: int) -> int | None:
-    """utime + stime of a process in clock ticks (None when it is gone)."""
-    try:
-        with open(f'/proc/{pid}/stat', encoding='ascii', errors='replace') as f:
-            fields = f.read().rsplit(')', 1)[-1].split()
-    except OSError:
-        return None
-    return int(fields[11]) + int(fields[12])
-
-
 def rss_mb(pid: int) -> float | None:
-    try:
-        with open(f'/proc/{pid}/status', encoding='ascii', errors='replace') as f:
-            for line in f:
-                if line.startswith('VmRSS:'):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
-
-
-def machine_busy_ticks() -> int:
-    """Busy clock ticks of the whole machine (all CPUs) from /proc/stat: total - idle - iowait."""
-    try:
-        with open('/proc/stat', encoding='ascii') as f:
-            vals = [int(v) for v in f.readline().split()[1:]]
-    except OSError:
-        return 0
-    return sum(vals[:8]) - vals[3] - vals[4]  # user nice system idle iowait irq softirq steal
+    """Resident set of a process [MiB] (None when it is gone)."""
+    rss = process_rss(pid)
+    return None if rss is None else rss / 2**20
 
 
 def machine() -> dict[str, str]:
-    model = '?'
-    try:
-        with open('/proc/cpuinfo', encoding='ascii', errors='replace') as f:
-            for line in f:
-                if line.startswith('model name'):
-                    model = line.split(':', 1)[1].strip()
-                    break
-    except OSError:
-        pass
     load = os.getloadavg()
     return {
         'nproc': str(os.cpu_count()),
-        'cpu': model,
+        'cpu': cpu_model(),
         'load': f'{load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}',
         'python': platform.python_version(),
         'rmw': os.environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp (default)'),
@@ -130,15 +102,15 @@ class ProcStats:
     def __init__(self, pids: dict[str, int]) -> None:
         self.pids = dict(pids)
         self.t0: float | None = None
-        self.ticks0: dict[str, int] = {}
+        self.cpu0: dict[str, float] = {}
         self.cpu: dict[str, float] = {}
         self.rss: dict[str, float] = dict.fromkeys(self.pids, 0.0)
         self._last_rss = 0.0
 
     def begin(self) -> None:
         self.t0 = time.monotonic()
-        self.busy0 = machine_busy_ticks()
-        self.ticks0 = {n: cpu_ticks(p) or 0 for n, p in self.pids.items()}
+        self.busy0 = machine_busy_seconds()
+        self.cpu0 = {n: process_cpu_seconds(p) or 0.0 for n, p in self.pids.items()}
         self.sample_rss(force=True)
 
     def sample_rss(self, force: bool = False) -> None:
@@ -155,12 +127,12 @@ class ProcStats:
         if self.t0 is None:
             return
         wall = time.monotonic() - self.t0
-        self.machine_cpu = 100.0 * (machine_busy_ticks() - self.busy0) / CLK_TCK / wall
+        self.machine_cpu = 100.0 * (machine_busy_seconds() - self.busy0) / wall
         self.sample_rss(force=True)
         for n, p in self.pids.items():
-            t = cpu_ticks(p)
+            t = process_cpu_seconds(p)
             if t is not None and wall > 0:
-                self.cpu[n] = 100.0 * (t - self.ticks0.get(n, 0)) / CLK_TCK / wall
+                self.cpu[n] = 100.0 * (t - self.cpu0.get(n, 0.0)) / wall
 
     def by_role(self) -> dict[str, tuple[float, float, float, int]]:
         """role -> (mean CPU %, max CPU %, mean RSS MB, count); roles: plant, target, tracker,

@@ -69,7 +69,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_graph  # noqa: E402
 from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
-from bench_graph import CLK_TCK, Case, cpu_ticks, machine, machine_busy_ticks, rss_mb, run_pingpong  # noqa: E402
+from apf_swarm_nodes.machine import machine_busy_seconds, process_cpu_seconds  # noqa: E402
+from bench_graph import Case, machine, rss_mb, run_pingpong  # noqa: E402
 from soak import node_pids  # noqa: E402  (the same /proc lookup)
 
 DOMAIN_LO, DOMAIN_HI = 202, 230
@@ -175,13 +176,13 @@ def case_timeout(case: UpCase) -> float:
 @dataclass
 class Snapshot:
     t: float
-    busy: int  # machine busy ticks
-    ticks: dict[int, int]  # pid -> utime + stime
-    alive: set[int]  # node pids with a VmRSS (not gone, not a zombie)
+    busy: float  # machine busy CPU time [s]
+    ticks: dict[int, float]  # pid -> user + system CPU time [s]
+    alive: set[int]  # node pids with a resident set (not gone)
 
 
 class CaseSampler:
-    """/proc figures of one case: its node processes, the harness (bring-up, this process)."""
+    """CPU and memory of one case: its node processes, the harness (bring-up, this process)."""
 
     def __init__(self, config: str, bringup_pid: int, expected: int) -> None:
         self.config, self.expected = config, expected
@@ -195,10 +196,10 @@ class CaseSampler:
     def snapshot(self) -> Snapshot:
         if len(self.names) < self.expected:
             self.names.update(node_pids(self.config))
-        ticks: dict[int, int] = {}
+        ticks: dict[int, float] = {}
         alive: set[int] = set()
         for pid in [*self.names, *self.harness]:
-            t = cpu_ticks(pid)
+            t = process_cpu_seconds(pid)
             if t is not None:
                 ticks[pid] = t
             if pid in self.names:
@@ -206,7 +207,7 @@ class CaseSampler:
                 if r is not None:
                     alive.add(pid)
                     self.rss[pid] = max(self.rss.get(pid, 0.0), r)
-        return Snapshot(time.monotonic(), machine_busy_ticks(), ticks, alive)
+        return Snapshot(time.monotonic(), machine_busy_seconds(), ticks, alive)
 
     def sample(self, ready_seen: bool, flight_limit: float | None) -> None:
         """One sample; ``ready_seen``: the bring-up has published /swarm/start; a sample counts
@@ -229,7 +230,7 @@ class CaseSampler:
         dt = b.t - a.t
 
         def pct(ticks: float) -> float:
-            return 100.0 * ticks / CLK_TCK / dt
+            return 100.0 * ticks / dt
 
         nodes = [p for p in self.names if p in b.ticks]
         node = pct(sum(b.ticks[p] - a.ticks.get(p, 0) for p in nodes))

@@ -44,6 +44,7 @@ except ImportError:  # run from the workspace root without PYTHONPATH
 from apf_swarm_core.config import SwarmConfig, load_preset
 from apf_swarm_core.plant import DisturbanceSource
 from apf_swarm_core.simulator import BatchSimulator, initial_positions
+from apf_swarm_nodes.machine import cpu_model
 
 #: floors of the issue
 FLOOR_N3 = 3.0  # simulator vs loop, single run, 3 trackers
@@ -203,21 +204,11 @@ def batch_case(R: int, steps: int, repeats: int, noise: str) -> tuple[float, flo
 
 
 def load_average() -> str:
-    try:
-        return ' '.join(Path('/proc/loadavg').read_text().split()[:3])
-    except OSError:
-        return 'unknown'
+    return ' '.join(f'{v:.2f}' for v in os.getloadavg())
 
 
 def machine() -> str:
-    cpu = 'unknown CPU'
-    try:
-        for line in Path('/proc/cpuinfo').read_text().splitlines():
-            if line.startswith('model name'):
-                cpu = line.split(':', 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     return (
         f'nproc {os.cpu_count()}, CPU {cpu}, Python {platform.python_version()}, '
         f'numpy {np.__version__}'

@@ -36,10 +36,10 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
-from bench_graph import cpu_ticks, machine, rss_mb  # noqa: E402  (the same /proc readers)
+from apf_swarm_nodes.machine import process_cpu_seconds  # noqa: E402
+from bench_graph import machine, rss_mb  # noqa: E402
 
 GROWTH_LIMIT = 5.0  # percent
-TICKS = os.sysconf('SC_CLK_TCK')
 
 
 def log(msg: str) -> None:
@@ -190,15 +190,15 @@ def main(argv: list[str] | None = None) -> int:
             if t_start is not None and now >= next_sample:
                 next_sample += args.every
                 for pid, name in node_pids(config).items():
-                    rss, ticks = rss_mb(pid), cpu_ticks(pid)
-                    if rss is not None and ticks is not None:
+                    rss, cpu_s = rss_mb(pid), process_cpu_seconds(pid)
+                    if rss is not None and cpu_s is not None:
                         samples.append(
                             {
                                 't': round(now - t_start, 3),
                                 'node': name,
                                 'pid': pid,
                                 'rss_mb': round(rss, 3),
-                                'cpu_s': ticks / TICKS,
+                                'cpu_s': cpu_s,
                             }
                         )
             if t_start is not None and now >= next_report:

@@ -38,7 +38,6 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-TICKS = os.sysconf('SC_CLK_TCK')
 SERVER_PORT = 11811
 
 
@@ -153,11 +152,13 @@ class HostCpu:
     def __init__(self, lab: Lab, needle: str) -> None:
         self.by_inode = {lab.inode(ns): ns for ns in lab.hosts}
         self.needle = needle
-        self.last: dict[int, int] = {}
-        self.used = dict.fromkeys(lab.hosts, 0)
+        self.last: dict[int, float] = {}
+        self.used = dict.fromkeys(lab.hosts, 0.0)
         self.procs: dict[str, set[int]] = {ns: set() for ns in lab.hosts}
 
     def sample(self) -> None:
+        from apf_swarm_nodes.machine import process_cpu_seconds
+
         for entry in os.listdir('/proc'):
             if not entry.isdigit():
                 continue
@@ -167,15 +168,13 @@ class HostCpu:
                     if self.needle.encode() not in f.read():
                         continue
                 ns = self.by_inode.get(os.stat(f'/proc/{pid}/ns/net').st_ino)
-                with open(f'/proc/{pid}/stat', encoding='ascii', errors='replace') as f:
-                    fields = f.read().rsplit(')', 1)[-1].split()
             except OSError:
                 continue
-            if ns is None:
+            used = process_cpu_seconds(pid)
+            if ns is None or used is None:
                 continue
-            ticks = int(fields[11]) + int(fields[12])
-            self.used[ns] += ticks - self.last.get(pid, ticks)
-            self.last[pid] = ticks
+            self.used[ns] += used - self.last.get(pid, used)
+            self.last[pid] = used
             self.procs[ns].add(pid)
 
 
@@ -329,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
                     'address': lab.addr[ns],
                     'runs': role,
                     'processes': len(cpu.procs[ns]),
-                    'cpu_pct': round(100.0 * cpu.used[ns] / TICKS / wall, 1),
+                    'cpu_pct': round(100.0 * cpu.used[ns] / wall, 1),
                 }
             )
         result = {

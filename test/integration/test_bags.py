@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from apf_swarm_nodes.bringup import pick_domain_id, stop_process
+from apf_swarm_nodes.qos import qos_from_dict
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
@@ -307,7 +308,7 @@ def _timing_bag(path: Path, n: int, hz: float) -> list[int]:
 
     stamps = []
     with bags.BagWriter(path) as w:
-        q = bags.qos_from_dict(
+        q = qos_from_dict(
             {
                 'history': 'keep_last',
                 'depth': 10,

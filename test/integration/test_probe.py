@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 from apf_swarm_nodes.bringup import pick_domain_id
+from apf_swarm_nodes.machine import identity
 
 from apf_swarm_nodes import probe
 
@@ -50,7 +51,7 @@ def test_probe_measures_caches_and_rereads(tmp_path: Path) -> None:
     lim = doc['process_limit']
     assert lim['processes'] == max(1, min(lim['cpu'], lim['memory'])) >= 1
     cached = json.loads((tmp_path / 'probe.json').read_text())
-    assert cached['machine'] == probe.machine() and cached['rtt'] == p['rtt']
+    assert cached['machine'] == identity() and cached['rtt'] == p['rtt']
     again = subprocess.run(
         [APF, 'probe', '--json'], env=env, capture_output=True, text=True, timeout=60
     )
@@ -98,7 +99,7 @@ def test_a_probe_of_another_machine_is_not_used(tmp_path: Path, monkeypatch) -> 
     (tmp_path / 'probe.json').write_text('{not json')
     assert probe.load() is None
     # a probe of this machine without a field of this version is measured again
-    mine = {**_probe(50e-6, 200e-6), 'machine': probe.machine()}
+    mine = {**_probe(50e-6, 200e-6), 'machine': identity()}
     (tmp_path / 'probe.json').write_text(json.dumps(mine))
     assert probe.load() == mine
     del mine['process_rss']

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from apf_swarm_nodes.qos import qos_from_dict
 
 from apf_swarm_nodes import bags
 
@@ -59,7 +60,7 @@ def write_bag(
     from apf_swarm_msgs.msg import ForceCommand
 
     with bags.BagWriter(path, compress=compress, chunk_size=chunk_size, **kw) as w:
-        q = bags.qos_from_dict(QOS)
+        q = qos_from_dict(QOS)
         c1 = w.add_topic('/counter', 'std_msgs/msg/Int64', offered_qos=[q])
         c2 = w.add_topic('/uav', 'apf_swarm_msgs/msg/ForceCommand', offered_qos=[q])
         for i in range(n):
@@ -252,7 +253,7 @@ def test_a_type_nobody_knows(tmp_path: Path) -> None:
             'nobody_msgs/msg/Thing',
             msgdef=msgdef,
             rihs01=store.hash_rihs01('nobody_msgs/msg/Thing'),
-            offered_qos=[bags.qos_from_dict(QOS)],
+            offered_qos=[qos_from_dict(QOS)],
         )
         w.write(c, T0, b'\x00\x01\x00\x00\x07\x00\x00\x00')
     # the bag carries the definition: inspection works

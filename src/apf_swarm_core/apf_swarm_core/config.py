@@ -22,7 +22,7 @@ import difflib
 import math
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -51,6 +51,7 @@ __all__ = [
     'preset_dirs',
     'preset_names',
     'preset_path',
+    'resolve',
     'to_ros_params',
 ]
 
@@ -747,3 +748,19 @@ def to_ros_params(cfg: SwarmConfig) -> dict[str, Any]:
             'ros__parameters': {k: list(v) if isinstance(v, tuple) else v for k, v in vals.items()}
         }
     return doc
+
+
+def resolve(
+    config: str | os.PathLike[str] | None,
+    preset: str | None,
+    sets: Sequence[str] | None = (),
+    **overrides: Any,
+) -> SwarmConfig:
+    """The configuration of a command: a parameter file (``config``) or a named preset, then
+    the ``KEY=VALUE`` overrides of ``sets`` (``--set``), then the keyword ``overrides``
+    that are not None (a command's own options, e.g. ``n_trackers``). The one loader of
+    ``apf-swarm`` and the bring-up."""
+    cfg = load_config(config) if config is not None else load_preset(preset or '')
+    values = parse_set(list(sets or []))
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    return apply_overrides(cfg, values) if values else cfg

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,8 +25,11 @@ from .errors import ConfigError
 from .potential import PotentialParams, gradient, potential
 
 __all__ = [
+    'MULTISTART_MAX',
     'Formation',
     'b_for_spacing',
+    'design_formations',
+    'design_pairs',
     'equilibrium_formation',
     'equilibrium_formations',
     'expected_spacing',
@@ -182,24 +186,62 @@ def equilibrium_formations(
     return out
 
 
+#: the design search's random starts: 4 up to this many trackers (one start may land in a
+#: higher minimum that a flown swarm does not keep), one above (each start of a
+#: 3n-dimensional minimization grows with n^2)
+MULTISTART_MAX = 40
+
+
+@lru_cache(maxsize=32)
+def _designs(
+    n: int, k_n: float, k_f: float, a: float, b: float, c: float
+) -> tuple[Formation, ...]:
+    found = equilibrium_formations(
+        n, k_n=k_n, k_f=k_f, a=a, b=b, c=c, starts=4 if n <= MULTISTART_MAX else 1
+    )
+    for f in found:
+        f.pair_distances.flags.writeable = False
+        f.relative_positions.flags.writeable = False
+    return tuple(found)
+
+
+def design_formations(
+    n: int, *, k_n: float, k_f: float, a: float, b: float, c: float
+) -> list[Formation]:
+    """The minima of J that a swarm of ``n`` settles in (:func:`equilibrium_formations` from
+    4 random shapes up to :data:`MULTISTART_MAX` trackers, one above), lowest first;
+    computed once per size and potential, its arrays read-only."""
+    return list(_designs(n, k_n, k_f, a, b, c))
+
+
+def design_pairs(
+    n: int, *, k_n: float, k_f: float, a: float, b: float, c: float
+) -> NDArray[np.float64] | None:
+    """The design pair distances the formation metrics compare against (the one rule):
+    n = 2: the two trackers on opposite sides of the target, ``sqrt(c ln(b/(a + k_N/(2
+    k_f))))`` apart; n = 3: three copies of the closed-form side of
+    :func:`triangle_spacing`; more: the pair distances of the lowest of
+    :func:`design_formations`. ``None`` when J has no formation (n < 2, or it collapses
+    below 1e-6 m)."""
+    if n < 2:
+        return None
+    if n == 2:
+        thr = a + k_n / (2.0 * k_f)
+        return np.array([math.sqrt(c * math.log(b / thr))]) if b > thr else None
+    if n == 3:
+        d = triangle_spacing(a, b, c, k_n, k_f)
+        return None if d is None else np.full(3, d)
+    f = _designs(n, k_n, k_f, a, b, c)[0]
+    return f.pair_distances if f.spacing > 1e-6 else None
+
+
 def expected_spacing(
     n: int, *, k_n: float, k_f: float, a: float, b: float, c: float
 ) -> float | None:
-    """Design spacing the formation metrics compare against.
-
-    n = 3: the closed form of :func:`triangle_spacing`; n = 2: the two trackers sit on opposite
-    sides of the target at ``sqrt(c ln(b/(a + k_N/(2 k_f))))``; other n: the smallest pair
-    distance of :func:`equilibrium_formation`, or ``None`` when it collapses (< 1e-6 m).
-    """
-    if n == 3:
-        return triangle_spacing(a, b, c, k_n, k_f)
-    if n == 2:
-        thr = a + k_n / (2.0 * k_f)
-        return math.sqrt(c * math.log(b / thr)) if b > thr else None
-    if n < 2:
-        return None
-    f = equilibrium_formation(n, k_n=k_n, k_f=k_f, a=a, b=b, c=c, starts=4)
-    return f.spacing if f.spacing > 1e-6 else None
+    """The design's nearest-neighbour spacing: the smallest of :func:`design_pairs`, or
+    ``None`` without a formation."""
+    pairs = design_pairs(n, k_n=k_n, k_f=k_f, a=a, b=b, c=c)
+    return None if pairs is None else float(pairs.min())
 
 
 def b_for_spacing(

@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .gains import shaped
 from .saturation import (
     SATURATIONS,
-    _gamma,
     _layer_bound,
     _outside,
     outside_layer,
@@ -57,13 +57,6 @@ LAWS = ('proposed', 'traditional')
 
 #: switching force of eq. 24: the paper's sign, or a continuous boundary layer on s
 SWITCHINGS = ('sign', 'layer')
-
-
-def _g(value: ArrayLike, extra: int = 2) -> NDArray[np.float64]:
-    """A gain as a float64 array broadcastable against ``(..., m, 3)``: 0-d for one value,
-    ``(..., 1, 1)`` for per-run values of shape ``(...)``."""
-    arr = np.asarray(value, dtype=float)
-    return arr if arr.ndim == 0 else arr.reshape(arr.shape + (1,) * extra)
 
 
 def _check_saturation(kind: str) -> None:
@@ -193,7 +186,9 @@ def kinematic_velocity(
     velocity : array, shape (..., m, 3) [m/s]
     """
     grad = np.asarray(grad, dtype=float)
-    out: NDArray[np.float64] = -_g(alpha) * grad - _g(beta) * saturate(grad, gamma, saturation)
+    out: NDArray[np.float64] = -shaped(alpha) * grad - shaped(beta) * saturate(
+        grad, gamma, saturation
+    )
     return out
 
 
@@ -218,9 +213,12 @@ def filter_step(
     -------
     z_next : array, shape (..., m, 3)
     """
-    decay = _decay(_g(lambda_filter), dt)
+    decay = _decay(shaped(lambda_filter), dt)
     return _filter(
-        np.asarray(z, dtype=float), np.asarray(grad, dtype=float), decay, (1.0 - decay) * _g(beta)
+        np.asarray(z, dtype=float),
+        np.asarray(grad, dtype=float),
+        decay,
+        (1.0 - decay) * shaped(beta),
     )
 
 
@@ -265,12 +263,12 @@ def sliding_surface_proposed(
             grad,
             np.asarray(z, dtype=float),
             outside,
-            _g(alpha),
-            _g(alpha) + _g(beta) / _g(gamma),
+            shaped(alpha),
+            shaped(alpha) + shaped(beta) / shaped(gamma),
         )
     else:
         _check_saturation(saturation)
-        s = _surface_continuous(v, grad, _g(alpha), _g(beta), gamma)
+        s = _surface_continuous(v, grad, shaped(alpha), shaped(beta), gamma)
     return s, outside
 
 
@@ -289,7 +287,7 @@ def sliding_surface_traditional(
         np.asarray(v, dtype=float),
         np.asarray(grad, dtype=float),
         np.asarray(z, dtype=float),
-        _g(alpha),
+        shaped(alpha),
     )
 
 
@@ -298,7 +296,7 @@ def known_force(v: ArrayLike, drag: ArrayLike) -> NDArray[np.float64]:
 
     A linear drag is the model this project uses for the known term; ``drag = 0`` removes it.
     """
-    return _known(np.asarray(v, dtype=float), _g(drag))
+    return _known(np.asarray(v, dtype=float), shaped(drag))
 
 
 def switching_force(
@@ -309,7 +307,9 @@ def switching_force(
     The printed ``J_i^known`` is the known disturbance ``f_i^known`` of eq. 20
     (docs/THEORY.md section 1).
     """
-    return _switching(np.asarray(s, dtype=float), np.asarray(v, dtype=float), -_g(u0), _g(drag))
+    return _switching(
+        np.asarray(s, dtype=float), np.asarray(v, dtype=float), -shaped(u0), shaped(drag)
+    )
 
 
 def layer_switching_force(
@@ -333,7 +333,11 @@ def layer_switching_force(
     u0 : float [N]; phi : float [m/s], > 0; drag : float [N s/m]
     """
     return _switching_layer(
-        np.asarray(s, dtype=float), np.asarray(v, dtype=float), -_g(u0), 1.0 / _g(phi), _g(drag)
+        np.asarray(s, dtype=float),
+        np.asarray(v, dtype=float),
+        -shaped(u0),
+        1.0 / shaped(phi),
+        shaped(drag),
     )
 
 
@@ -454,8 +458,8 @@ class SlidingModeController:
             object.__setattr__(self, '_gains', None)
 
     def _prepare(self) -> _ControllerGains:
-        alpha, beta, gamma = _g(self.alpha), _g(self.beta), _g(self.gamma)
-        decay = _decay(_g(self.lambda_filter), self.dt)
+        alpha, beta, gamma = shaped(self.alpha), shaped(self.beta), shaped(self.gamma)
+        decay = _decay(shaped(self.lambda_filter), self.dt)
         if self.law == 'traditional':
             manifold = 1
         else:
@@ -463,14 +467,14 @@ class SlidingModeController:
             manifold = 0 if self.saturation == 'paper' else 2
         if self.switching not in SWITCHINGS:
             raise ValueError(f'switching must be one of {SWITCHINGS}, got {self.switching!r}')
-        ff = _g(self.feedforward)
+        ff = shaped(self.feedforward)
         # the layer bound depends on gamma only: kept while gamma is the same object (a
         # realtime tracker re-prepares for every command, with a new dt)
         cached = self.__dict__.get('_bound_of')
         if cached is not None and cached[0] is self.gamma:
             bound = cached[1]
         else:
-            bound = _layer_bound(_gamma(self.gamma, 1))
+            bound = _layer_bound(shaped(self.gamma, 1))
             object.__setattr__(self, '_bound_of', (self.gamma, bound))
         # np.asarray: arithmetic on 0-d arrays gives numpy scalars, which numpy treats like
         # Python floats, the slower operand (see the module docstring)
@@ -480,12 +484,12 @@ class SlidingModeController:
             gamma=self.gamma,
             layer_bound=bound,
             layer_gain=np.asarray(alpha + beta / gamma),
-            neg_u0=np.asarray(-_g(self.u0)),
-            drag=_g(self.drag),
+            neg_u0=np.asarray(-shaped(self.u0)),
+            drag=shaped(self.drag),
             decay=np.asarray(decay),
             gain_in=np.asarray((1.0 - decay) * beta),
             manifold=manifold,
-            inv_phi=np.asarray(1.0 / _g(self.phi)) if self.switching == 'layer' else None,
+            inv_phi=np.asarray(1.0 / shaped(self.phi)) if self.switching == 'layer' else None,
             feedforward=ff if np.any(ff != 0.0) else None,
         )
         object.__setattr__(self, '_gains', gains)

@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .laws import _g, _known
+from .gains import shaped
+from .laws import _known
 
 __all__ = ['NOISE_KINDS', 'DisturbanceSource', 'plant_step', 'uniform_ball']
 
@@ -212,7 +213,7 @@ def plant_step(
                 _STEP_LENGTHS.clear()
             _STEP_LENGTHS[dt] = steps
     h, half_h2 = steps
-    acc = _known(v, drag if type(drag) is np.ndarray and not drag.ndim else _g(drag))
+    acc = _known(v, drag if type(drag) is np.ndarray and not drag.ndim else shaped(drag))
     shape = acc.shape
     if not (
         x.shape == shape

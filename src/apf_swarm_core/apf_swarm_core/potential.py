@@ -26,6 +26,8 @@ from typing import Any, TypeAlias, TypedDict
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .gains import shaped
+
 __all__ = [
     'PotentialParams',
     'Rows',
@@ -71,16 +73,6 @@ _PREV3 = np.array([2, 0, 1])
 _ZERO3 = np.zeros(3, dtype=np.intp)
 
 
-def _gain(value: ArrayLike, extra_dims: int) -> NDArray[np.float64]:
-    """Reshape a scalar or per-run gain of shape ``(...)`` to broadcast over ``extra_dims``.
-
-    A scalar becomes a 0-d float64 array, not a Python float: numpy's arithmetic on small
-    arrays is about twice as fast with a 0-d array operand.
-    """
-    arr = np.asarray(value, dtype=float)
-    return arr if arr.ndim == 0 else arr.reshape(arr.shape + (1,) * extra_dims)
-
-
 def pair_weight(r2: ArrayLike, a: ArrayLike, b: ArrayLike, c: ArrayLike) -> NDArray[np.float64]:
     """Attraction/repulsion weight of a pair, ``a - b exp(-r^2/c)`` (derivative of eq. 44).
 
@@ -108,9 +100,9 @@ def _pair_weight_neg(
     the weight has the same bits whichever way the sign enters. Works in place on one
     temporary when the shapes allow (``out`` given positionally: cheaper on small arrays).
     """
-    a = a if type(a) is np.ndarray and a.dtype is _F64 and not a.ndim else _gain(a, 2)
-    b = b if type(b) is np.ndarray and b.dtype is _F64 and not b.ndim else _gain(b, 2)
-    c = c if type(c) is np.ndarray and c.dtype is _F64 and not c.ndim else _gain(c, 2)
+    a = a if type(a) is np.ndarray and a.dtype is _F64 and not a.ndim else shaped(a, 2)
+    b = b if type(b) is np.ndarray and b.dtype is _F64 and not b.ndim else shaped(b, 2)
+    c = c if type(c) is np.ndarray and c.dtype is _F64 and not c.ndim else shaped(c, 2)
     w = np.divide(neg_r2, c)
     if type(w) is not np.ndarray or (
         a.ndim | b.ndim and w.shape != np.broadcast_shapes(w.shape, a.shape, b.shape)
@@ -176,13 +168,13 @@ def potential(
     rel = x - x_target[..., None, :]
     track = 0.5 * np.einsum('...ik,...ik->...', rel, rel)
     _, r2 = _pair_geometry(x, None)
-    pair = 0.5 * _gain(a, 2) * r2 + 0.5 * _gain(b, 2) * _gain(c, 2) * np.exp(-r2 / _gain(c, 2))
+    pair = 0.5 * shaped(a, 2) * r2 + 0.5 * shaped(b, 2) * shaped(c, 2) * np.exp(-r2 / shaped(c, 2))
     offdiag = _off_diagonal(x.shape[-2])
     if mask is not None:
         offdiag = offdiag & np.asarray(mask, dtype=bool)
     # each unordered pair appears twice in the full (n, n) matrix
     form = 0.5 * np.sum(np.where(offdiag, pair, 0.0), axis=(-2, -1))
-    return _gain(k_n, 0) * track + _gain(k_f, 0) * form
+    return shaped(k_n, 0) * track + shaped(k_f, 0) * form
 
 
 def gradient(
@@ -254,8 +246,8 @@ def gradient(
     x_target = np.asarray(x_target, dtype=float)
     lead, n = x.shape[:-2], x.shape[-2]
     # (0-d float64 arrays, the simulator's prepared gains, pass through unchanged)
-    kn = k_n if type(k_n) is np.ndarray and k_n.dtype is _F64 and not k_n.ndim else _gain(k_n, 0)
-    kf = k_f if type(k_f) is np.ndarray and k_f.dtype is _F64 and not k_f.ndim else _gain(k_f, 0)
+    kn = k_n if type(k_n) is np.ndarray and k_n.dtype is _F64 and not k_n.ndim else shaped(k_n, 0)
+    kf = k_f if type(k_f) is np.ndarray and k_f.dtype is _F64 and not k_f.ndim else shaped(k_f, 0)
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
     if (
@@ -453,7 +445,7 @@ def target_gradient(
     """
     x = np.asarray(x, dtype=float)
     x_target = np.asarray(x_target, dtype=float)
-    return -_gain(k_n, 1) * np.sum(x - x_target[..., None, :], axis=-2)
+    return -shaped(k_n, 1) * np.sum(x - x_target[..., None, :], axis=-2)
 
 
 def hessian(
@@ -489,8 +481,8 @@ def hessian(
     """
     x = np.asarray(x, dtype=float)
     lead, n = x.shape[:-2], x.shape[-2]
-    kf, ga, gb, gc = (_gain(v, 4) for v in (k_f, a, b, c))
-    kn = _gain(k_n, 3)
+    kf, ga, gb, gc = (shaped(v, 4) for v in (k_f, a, b, c))
+    kn = shaped(k_n, 3)
     d = x[..., :, None, :] - x[..., None, :, :]  # (..., n, n, 3)
     e = np.exp(-np.einsum('...ijk,...ijk->...ij', d, d)[..., None, None] / gc)
     blocks = kf * (

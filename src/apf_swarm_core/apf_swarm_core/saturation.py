@@ -8,20 +8,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .gains import shaped
+
 __all__ = ['SATURATIONS', 'outside_layer', 'sat', 'sat_continuous', 'saturate', 'sign']
 
 SATURATIONS = ('paper', 'continuous')
-
-
-def _gamma(gamma: ArrayLike, extra: int = 2) -> NDArray[np.float64]:
-    """``gamma`` as a float64 array broadcastable against ``(..., m, 3)`` (``extra=2``) or
-    ``(..., m)`` (``extra=1``): 0-d for one value, ``(..., 1, 1)`` for per-run values.
-
-    Scalars become 0-d arrays rather than Python floats: on arrays of a few elements numpy's
-    arithmetic with a 0-d array is about twice as fast as with a Python float.
-    """
-    g = np.asarray(gamma, dtype=float)
-    return g if g.ndim == 0 else g.reshape(g.shape + (1,) * extra)
 
 
 def _sq_norm(g: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -76,7 +67,7 @@ def _layer_bound(gamma: ArrayLike) -> NDArray[np.float64]:
 
 def _outside(g: NDArray[np.float64], bound: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Boundary-layer test of eq. 8, ``||g|| >= gamma``, with ``bound`` =
-    ``_layer_bound(_gamma(gamma, 1))``: the same answer for every g as comparing the norm."""
+    ``_layer_bound(shaped(gamma, 1))``: the same answer for every g as comparing the norm."""
     return _sq_norm(g) >= bound
 
 
@@ -97,7 +88,7 @@ def outside_layer(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.bool_]:
     -------
     array of bool, shape (..., m)
     """
-    return _outside(np.asarray(g, dtype=float), _layer_bound(_gamma(gamma, 1)))
+    return _outside(np.asarray(g, dtype=float), _layer_bound(shaped(gamma, 1)))
 
 
 def sat(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
@@ -125,7 +116,7 @@ def sat(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
     """
     g = np.asarray(g, dtype=float)
     out = outside_layer(g, gamma)[..., None]
-    return np.where(out, np.sign(g), g / _gamma(gamma))
+    return np.where(out, np.sign(g), g / shaped(gamma))
 
 
 def sat_continuous(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
@@ -136,7 +127,7 @@ def sat_continuous(g: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
     componentwise sign, so the function is continuous everywhere.
     """
     g = np.asarray(g, dtype=float)
-    return g / np.maximum(_norm(g)[..., None], _gamma(gamma))
+    return g / np.maximum(_norm(g)[..., None], shaped(gamma))
 
 
 def saturate(g: ArrayLike, gamma: ArrayLike, kind: str = 'paper') -> NDArray[np.float64]:

@@ -28,14 +28,15 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
 from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .config import SwarmConfig
-from .design import equilibrium_formations, triangle_spacing
+from .design import Formation, design_pairs
+from .design import design_formations as _design_formations
+from .gains import per_run
 from .laws import ControlOutput, SlidingModeController
 from .metrics import summarize
 from .plant import DisturbanceSource, plant_step, uniform_ball
@@ -69,11 +70,6 @@ __all__ = [
     'simulate',
     'simulate_batch',
 ]
-
-#: up to this many trackers expected_pairs minimizes J from 4 random shapes, above from one
-#: (32 trackers: 1.1 s; one start lands in a higher minimum, closest pair 0.669 m against
-#: 0.708 m, which a flown swarm does not keep)
-EXPECTED_PAIRS_MULTISTART = 40
 
 #: arrays of trajectory.npz
 TRAJECTORY_KEYS = ('t', 'x', 'v', 'u', 's', 'target_x', 'target_v')
@@ -130,37 +126,22 @@ def initial_positions(cfg: SwarmConfig) -> NDArray[np.float64]:
 
 
 def expected_pairs(cfg: SwarmConfig) -> NDArray[np.float64] | None:
-    """Design pair distances for the formation metrics, or ``None`` when J has no formation.
-
-    3 trackers: three copies of the closed-form triangle side; 2: the closed form of
-    :func:`apf_swarm_core.design.expected_spacing`; more: the pair distances of the numerical
-    equilibrium (``None`` if it collapses).
-    """
-    n = cfg.n_trackers
-    p = cfg.potential_params()
-    if n < 2:
-        return None
-    if n == 3:
-        d = triangle_spacing(p['a'], p['b'], p['c'], p['k_n'], p['k_f'])
-        return None if d is None else np.full(3, d)
-    f = design_formation(cfg)
-    return f.pair_distances if f.spacing > 1e-6 else None
+    """Design pair distances of ``cfg``'s size and potential for the formation metrics
+    (:func:`~apf_swarm_core.design.design_pairs`), or ``None`` when J has no formation."""
+    return design_pairs(cfg.n_trackers, **cfg.potential_params())
 
 
-def design_formation(cfg: SwarmConfig) -> Any:
-    """The equilibrium formation of ``cfg``'s size and potential
-    (:func:`~apf_swarm_core.design.equilibrium_formation` from 4 random shapes up to
-    :data:`EXPECTED_PAIRS_MULTISTART` trackers, one above), computed once per size and
-    potential: a run's summary, its flight judgement, its emulation and the sampled-data
-    prediction all ask for it. Its arrays are read-only."""
+def design_formation(cfg: SwarmConfig) -> Formation:
+    """The lowest equilibrium formation of ``cfg``'s size and potential
+    (:func:`~apf_swarm_core.design.design_formations`): a run's summary, its flight
+    judgement, its emulation and the sampled-data prediction all ask for it."""
     return design_formations(cfg)[0]
 
 
-def design_formations(cfg: SwarmConfig) -> list[Any]:
-    """Every minimum of J the design search found within a relative 1e-6 of the lowest
-    (:func:`~apf_swarm_core.design.equilibrium_formations`), lowest first: a larger swarm
-    settles in any of them. Computed once per size and potential; arrays read-only."""
-    return _design_formations(cfg.n_trackers, tuple(sorted(cfg.potential_params().items())))
+def design_formations(cfg: SwarmConfig) -> list[Formation]:
+    """Every minimum of J of ``cfg``'s size and potential that a swarm settles in, lowest
+    first (:func:`~apf_swarm_core.design.design_formations`)."""
+    return _design_formations(cfg.n_trackers, **cfg.potential_params())
 
 
 def design_pair_sets(cfg: SwarmConfig) -> list[NDArray[np.float64]]:
@@ -174,36 +155,14 @@ def design_pair_sets(cfg: SwarmConfig) -> list[NDArray[np.float64]]:
     return [f.pair_distances for f in design_formations(cfg) if f.spacing > 1e-6]
 
 
-@lru_cache(maxsize=32)
-def _design_formations(n: int, params: tuple[tuple[str, float], ...]) -> list[Any]:
-    # a 150-dimensional minimization takes seconds per start at n = 50: one start past 40
-    p = dict(params)
-    found = equilibrium_formations(
-        n,
-        k_n=p['k_n'],
-        k_f=p['k_f'],
-        a=p['a'],
-        b=p['b'],
-        c=p['c'],
-        starts=4 if n <= EXPECTED_PAIRS_MULTISTART else 1,
-    )
-    for f in found:
-        f.pair_distances.flags.writeable = False
-        f.relative_positions.flags.writeable = False
-    return found
-
-
 def make_controller(
     cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, ...]
 ) -> SlidingModeController:
     """A controller with the gains of one configuration, or per-run gains of a batch."""
     cfgs = [cfg] if isinstance(cfg, SwarmConfig) else list(cfg)
 
-    def gain(name: str) -> float | NDArray[np.float64]:
-        # one value for every run: a scalar (0-d once prepared), not an (R,) array, whose
-        # (R, 1, 1) broadcast makes every numpy call on a small run about 3x dearer
-        vals = np.array([getattr(c, name) for c in cfgs], dtype=float)
-        return float(vals[0]) if isinstance(cfg, SwarmConfig) or np.all(vals == vals[0]) else vals
+    def gain(name: str) -> NDArray[np.float64]:
+        return per_run(getattr(c, name) for c in cfgs)
 
     return SlidingModeController(
         law=cfgs[0].law,
@@ -450,16 +409,6 @@ class CommandHold:
         return self.force
 
 
-def _param_array(cfgs: Sequence[SwarmConfig], name: str) -> NDArray[np.float64]:
-    """One parameter of every run: a 0-d array if all runs share it, else shape (R,).
-
-    0-d rather than a Python float: numpy's arithmetic on the small arrays of a single run is
-    about twice as fast with a 0-d array operand.
-    """
-    vals = np.array([getattr(c, name) for c in cfgs], dtype=float)
-    return np.array(vals[0]) if np.all(vals == vals[0]) else vals
-
-
 @dataclass
 class SimResult:
     """Trajectory arrays (R leading axis removed for a single run) and the configuration(s)."""
@@ -538,10 +487,10 @@ class BatchSimulator:
         # per-run arrays where one run has floats: gradient() broadcasts either
         self.params = cast(
             PotentialParams,
-            {k: _param_array(self.cfgs, k) for k in ('k_n', 'k_f', 'a', 'b', 'c')},
+            {k: per_run(getattr(c, k) for c in self.cfgs) for k in ('k_n', 'k_f', 'a', 'b', 'c')},
         )
         self.neighbour_rule = first.neighbour_rule()  # {} = all-to-all (eq. 2)
-        self.drag = _param_array(self.cfgs, 'drag')
+        self.drag = per_run(c.drag for c in self.cfgs)
         mass = np.array([c.mass_matrix_diag() for c in self.cfgs])  # (R, n, 3)
         # one mass for every axis, tracker and run: a 0-d array (plant_step skips a unit one)
         self.mass = np.array(mass.flat[0]) if mass.size and np.all(mass == mass.flat[0]) else mass

@@ -70,8 +70,6 @@ __all__ = [
     'info_dict',
     'iter_raw',
     'open_bag',
-    'qos_from_dict',
-    'qos_to_dict',
     'reindex',
     'swarm_state_accumulator',
     'type_definition',
@@ -167,49 +165,6 @@ def type_definition(msgtype: str) -> tuple[str, str]:
             f'{msgtype}.msg is in the ament index ({_one_line(exc)}); build and '
             'source the package that defines it'
         ) from None
-
-
-def qos_to_dict(qos: Any) -> dict[str, Any]:
-    """A rosbags ``Qos`` as the metadata.yaml v9 mapping."""
-    from rosbags.rosbag2.metadata import dump_qos_v9
-
-    return dump_qos_v9([qos])[0]
-
-
-def qos_from_dict(d: Mapping[str, Any]) -> Any:
-    """A metadata.yaml v9 QoS mapping (names, ``{sec, nsec}`` times) as a rosbags ``Qos``."""
-    from rosbags.interfaces import (
-        Qos,
-        QosDurability,
-        QosHistory,
-        QosLiveliness,
-        QosReliability,
-        QosTime,
-    )
-
-    def enum(cls: Any, value: Any) -> Any:
-        if isinstance(value, int):
-            return cls(value)
-        try:
-            return cls[str(value).upper()]
-        except KeyError:
-            return cls.UNKNOWN
-
-    def tm(value: Any) -> Any:
-        value = value or {}
-        return QosTime(int(value.get('sec', 0)), int(value.get('nsec', 0)))
-
-    return Qos(
-        enum(QosHistory, d.get('history', 'unknown')),
-        int(d.get('depth', 0)),
-        enum(QosReliability, d.get('reliability', 'unknown')),
-        enum(QosDurability, d.get('durability', 'unknown')),
-        tm(d.get('deadline')),
-        tm(d.get('lifespan')),
-        enum(QosLiveliness, d.get('liveliness', 'unknown')),
-        tm(d.get('liveliness_lease_duration')),
-        bool(d.get('avoid_ros_namespace_conventions', False)),
-    )
 
 
 def _qos_text(qos: Sequence[Any]) -> str:

@@ -60,21 +60,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+import psutil
 from apf_swarm_core.config import (
     DEFAULT_LATENCY,
     REALTIME_RATE,
     SwarmConfig,
-    apply_overrides,
-    load_config,
-    load_preset,
-    parse_set,
     preset_names,
+    resolve,
     to_ros_params,
 )
 from apf_swarm_core.errors import ApfSwarmError
 
 from .argtypes import domain_id, nonneg_int, positive_float, positive_int
 from .errors import CliError
+from .machine import group_members
 
 __all__ = [
     'EXIT_BAD_INPUT',
@@ -125,27 +124,6 @@ def _describe_rc(rc: int) -> str:
         except ValueError:
             return f'killed by signal {-rc}'
     return f'exit code {rc}'
-
-
-def group_members(pgid: int) -> list[int]:
-    """Live (non-zombie) processes of process group ``pgid``, from /proc."""
-    out = []
-    try:
-        entries = os.listdir('/proc')
-    except OSError:
-        return out
-    for entry in entries:
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f'/proc/{entry}/stat', encoding='ascii', errors='replace') as f:
-                fields = f.read().rsplit(')', 1)[-1].split()
-        except OSError:
-            continue
-        # fields: state ppid pgrp ...
-        if len(fields) > 2 and int(fields[2]) == pgid and fields[0] != 'Z':
-            out.append(int(entry))
-    return out
 
 
 def stop_process(
@@ -689,16 +667,14 @@ def check_capacity(
 
 def resolve_config(args: argparse.Namespace) -> SwarmConfig:
     """Preset or file, then ``--set``, then ``--n-trackers`` / ``--seed`` / ``--duration``."""
-    cfg = load_config(args.config) if args.config is not None else load_preset(args.preset)
-    values = parse_set(args.sets)
-    for key, val in (
-        ('n_trackers', args.n_trackers),
-        ('seed', args.seed),
-        ('duration', args.duration),
-    ):
-        if val is not None:
-            values[key] = val
-    return apply_overrides(cfg, values) if values else cfg
+    return resolve(
+        args.config,
+        args.preset,
+        args.sets,
+        n_trackers=args.n_trackers,
+        seed=args.seed,
+        duration=args.duration,
+    )
 
 
 _FASTDDS_PORT_BASE, _FASTDDS_DOMAIN_GAIN = 7400, 250
@@ -706,16 +682,8 @@ _FASTDDS_PORT_BASE, _FASTDDS_DOMAIN_GAIN = 7400, 250
 
 def _bound_udp_ports() -> set[int]:
     ports: set[int] = set()
-    for name in ('/proc/net/udp', '/proc/net/udp6'):
-        try:
-            with open(name, encoding='ascii') as f:
-                next(f, None)
-                for line in f:
-                    parts = line.split()
-                    if len(parts) > 1 and ':' in parts[1]:
-                        ports.add(int(parts[1].rsplit(':', 1)[1], 16))
-        except OSError:
-            continue
+    with contextlib.suppress(psutil.Error, OSError):
+        ports.update(c.laddr.port for c in psutil.net_connections('udp') if c.laddr)
     try:
         for entry in os.listdir('/dev/shm'):
             m = re.match(r'fastrtps_port(\d+)$', entry)

@@ -20,11 +20,9 @@ from apf_swarm_core.config import (
     DEFAULT_LATENCY,
     REALTIME_RATE,
     SwarmConfig,
-    apply_overrides,
-    load_config,
     load_preset,
-    parse_set,
     preset_names,
+    resolve,
 )
 from apf_swarm_core.design import b_for_spacing, equilibrium_formation, triangle_c_for_spacing
 from apf_swarm_core.errors import ApfSwarmError
@@ -61,10 +59,7 @@ def _add_config_args(
 
 
 def _load(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> SwarmConfig:
-    cfg = load_config(args.config) if args.config is not None else load_preset(args.preset)
-    values = parse_set(args.sets)
-    values.update({k: v for k, v in (extra or {}).items() if v is not None})
-    return apply_overrides(cfg, values) if values else cfg
+    return resolve(args.config, args.preset, args.sets, **(extra or {}))
 
 
 def _progress(args: argparse.Namespace, label: str):

@@ -20,20 +20,20 @@ import gc
 import importlib
 import sys
 import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from .bags import BagInfo, iter_raw, open_bag
 from .errors import CliError
 from .node_common import CLOCK, CLOCK_QOS, run_node, running
 from .params import EXECUTOR_PARAM, NodeParam, declare_node_params
+from .qos import replay_profile
 
 __all__ = ['PRELOAD_BYTES', 'PlayerNode', 'main', 'msg_class']
 
@@ -81,26 +81,6 @@ def msg_class(msgtype: str) -> Any:
         ) from None
 
 
-def _qos(offered: Sequence[dict[str, Any]], depth: int) -> QoSProfile:
-    q = offered[0] if offered else {}
-    rel = (
-        ReliabilityPolicy.BEST_EFFORT
-        if q.get('reliability') == 'best_effort'
-        else ReliabilityPolicy.RELIABLE
-    )
-    dur = (
-        DurabilityPolicy.TRANSIENT_LOCAL
-        if q.get('durability') == 'transient_local'
-        else DurabilityPolicy.VOLATILE
-    )
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=max(int(depth), int(q.get('depth', 0) or 0)),
-        reliability=rel,
-        durability=dur,
-    )
-
-
 def _str_array(node: Node, name: str, text: str) -> list[str]:
     from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 
@@ -142,7 +122,7 @@ class PlayerNode(Node):
         for name in names:
             t = self.info.topic(name)
             self.pubs[name] = self.create_publisher(
-                msg_class(t.type), name, _qos(t.offered_qos, p['queue_depth'])
+                msg_class(t.type), name, replay_profile(t.offered_qos, p['queue_depth'])
             )
         self.clock_pub = (
             self.create_publisher(Clock, CLOCK, CLOCK_QOS) if self.clock_hz > 0 else None

@@ -7,7 +7,7 @@ of the machine in use, not from constants measured elsewhere:
 * **round trip**: a raw rclpy ping-pong between this process and an echo process (the echo
   takes the CDR bytes and publishes them back, as little work as a message can cost) with a
   ``SwarmOdometry`` of 16 trackers at the realtime rate: p50 / p90 / p99 [s];
-* **CPU per message**: the echo process's CPU time (``/proc/<pid>/stat``) over the messages
+* **CPU per message**: the echo process's CPU time (:mod:`.machine`) over the messages
   it took and sent [s];
 * **command cost**: the core's :class:`~apf_swarm_core.agents.TrackerAgent` command of the
   ``realtime`` preset for 3, 16 and 32 trackers, in this process [s];
@@ -30,8 +30,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
-import socket
 import subprocess
 import sys
 import time
@@ -42,6 +40,8 @@ from typing import Any
 import numpy as np
 import psutil
 
+from .machine import identity, process_cpu_seconds, process_rss
+
 __all__ = [
     'CPU_BUDGET',
     'MEMORY_BUDGET',
@@ -51,7 +51,6 @@ __all__ = [
     'derive',
     'ensure',
     'load',
-    'machine',
     'measure',
     'process_limit',
     'run',
@@ -77,24 +76,6 @@ def cache_path() -> Path:
         return Path(base) / 'probe.json'
     xdg = os.environ.get('XDG_CACHE_HOME') or str(Path.home() / '.cache')
     return Path(xdg) / 'apf_swarm' / 'probe.json'
-
-
-def machine() -> dict[str, Any]:
-    """What identifies this machine for the cache: CPU model, cores, host name."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path('/proc/cpuinfo').read_text().splitlines():
-            if line.startswith('model name'):
-                model = line.split(':', 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {'cpu': model, 'cores': os.cpu_count() or 1, 'host': socket.gethostname()}
-
-
-def _cpu_seconds(pid: int) -> float:
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 def command_cost(n: int, repeats: int = 200) -> float:
@@ -215,7 +196,7 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
             ping()
             rclpy.spin_once(node, timeout_sec=period)
         rtt.clear()
-        cpu0, count0 = _cpu_seconds(echo.pid), step
+        cpu0, count0 = process_cpu_seconds(echo.pid), step
         end = time.monotonic() + seconds
         nxt = time.monotonic()
         while time.monotonic() < end:
@@ -225,11 +206,13 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
                 nxt += period
             rclpy.spin_once(node, timeout_sec=max(0.0, min(nxt - time.monotonic(), 0.05)))
         count = step - count0
-        cpu = _cpu_seconds(echo.pid) - cpu0
-        rss = psutil.Process(echo.pid).memory_info().rss
+        cpu1, rss = process_cpu_seconds(echo.pid), process_rss(echo.pid)
     finally:
         node.destroy_node()
         stop_process(echo)
+    if cpu0 is None or cpu1 is None or rss is None:
+        raise RuntimeError("the probe's echo process exited during the measurement")
+    cpu = cpu1 - cpu0
     if len(rtt) < 10:
         raise RuntimeError(f'the probe got {len(rtt)} round trips back in {seconds:g} s')
     arr = np.asarray(rtt)
@@ -258,7 +241,7 @@ def measure(seconds: float = 4.0, rate: float = 100.0, n: int = 16) -> dict[str,
     finally:
         rclpy.try_shutdown()
     return {
-        'machine': machine(),
+        'machine': identity(),
         'measured_at': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
         **pp,
         'command_cost': costs,
@@ -273,7 +256,7 @@ def load() -> dict[str, Any] | None:
         return None
     if not isinstance(probe, dict) or any(k not in probe for k in FIELDS):
         return None
-    return probe if probe['machine'] == machine() else None
+    return probe if probe['machine'] == identity() else None
 
 
 def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> dict[str, Any]:

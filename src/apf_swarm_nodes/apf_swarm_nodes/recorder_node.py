@@ -43,15 +43,16 @@ from typing import Any
 
 import rclpy
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from std_msgs.msg import String
 
-from .bags import CUSTOM_CONFIG, CUSTOM_MODE, CUSTOM_RECORDER, BagWriter, qos_from_dict
+from .bags import CUSTOM_CONFIG, CUSTOM_MODE, CUSTOM_RECORDER, BagWriter
 from .errors import CliError
 from .node_common import START_QOS
 from .params import MODES, NodeParam, declare_node_params
+from .qos import profile_to_dict, qos_from_dict, recording_profile
 
-__all__ = ['RecorderNode', 'main', 'qos_to_bag', 'spin']
+__all__ = ['RecorderNode', 'main', 'spin']
 
 NODE_PARAMS = (
     NodeParam(
@@ -104,34 +105,6 @@ NODE_PARAMS = (
         'that `apf-swarm bag metrics` needs nothing else',
     ),
 )
-
-
-def _enum_name(value: Any) -> str:
-    return getattr(value, 'name', str(value)).lower()
-
-
-def qos_to_bag(q: QoSProfile) -> Any:
-    """An rclpy QoSProfile (as offered by a publisher) as a rosbags ``Qos``."""
-
-    def dur(d: Any) -> dict[str, int]:
-        ns = int(d.nanoseconds) if d is not None else 0
-        if ns >= 0x7FFFFFFFFFFFFFFF or ns < 0:  # infinite
-            return {'sec': 0x7FFFFFFF, 'nsec': 0xFFFFFFFF}
-        return {'sec': ns // 1_000_000_000, 'nsec': ns % 1_000_000_000}
-
-    return qos_from_dict(
-        {
-            'history': _enum_name(q.history),
-            'depth': int(q.depth),
-            'reliability': _enum_name(q.reliability),
-            'durability': _enum_name(q.durability),
-            'deadline': dur(q.deadline),
-            'lifespan': dur(q.lifespan),
-            'liveliness': _enum_name(q.liveliness),
-            'liveliness_lease_duration': dur(q.liveliness_lease_duration),
-            'avoid_ros_namespace_conventions': bool(q.avoid_ros_namespace_conventions),
-        }
-    )
 
 
 def _msg_class(msgtype: str) -> Any:
@@ -267,21 +240,17 @@ class RecorderNode(Node):
                     'and source the package that defines it',
                 )
                 continue
+            offered = [profile_to_dict(i.qos_profile) for i in pubs]
             try:
                 conn = self.writer.add_topic(
-                    topic, msgtype, offered_qos=[qos_to_bag(i.qos_profile) for i in pubs]
+                    topic, msgtype, offered_qos=[qos_from_dict(o) for o in offered]
                 )
             except CliError as exc:
                 self._skip(topic, str(exc))
                 continue
-            rel = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in pubs)
-            tl = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in pubs)
-            qos = QoSProfile(
-                history=HistoryPolicy.KEEP_LAST,
-                depth=int(self.p['queue_depth']),
-                reliability=ReliabilityPolicy.RELIABLE if rel else ReliabilityPolicy.BEST_EFFORT,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL if tl else DurabilityPolicy.VOLATILE,
-            )
+            qos = recording_profile(offered, int(self.p['queue_depth']))
+            rel = qos.reliability == ReliabilityPolicy.RELIABLE
+            tl = qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
             t = _Topic(topic, msgtype, conn)
             t.single_pub = len(pubs) == 1
             # taken by spin(), never by an executor
