@@ -147,7 +147,7 @@ def test_waypoints_with_zero_speed_is_rejected_or_well_defined():
         assert 'target_speed' in str(exc)
         return
     # a target of speed 0 never moves: it stays at target_start with zero velocity (its
-    # position must be the integral of its velocity, SPEC eq. 1)
+    # position must be the integral of its velocity, docs/THEORY.md, eq. 1)
     traj = cfg.target_trajectory_obj
     for t in (0.0, 1.0, 100.0):
         pos, vel = traj.state(t)

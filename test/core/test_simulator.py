@@ -1,4 +1,5 @@
-"""Tests of apf_swarm_core.simulator: determinism, batching, and the paper's claims (SPEC 2)."""
+"""Tests of apf_swarm_core.simulator: determinism, batching, and the paper's claims
+(docs/THEORY.md section 2)."""
 
 import numpy as np
 import pytest

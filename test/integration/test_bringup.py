@@ -494,7 +494,9 @@ def respawn_and_recover(
     bringup, name: str, *args: str, kill_at: float, duration: float, recover_from: float
 ) -> dict:
     """Kill tracker 2 once the run passed ``kill_at``; the bring-up restarts it within 2 s,
-    the run completes, and from ``recover_from`` on the triangle is back within 5 %."""
+    the run completes, and from ``recover_from`` on the triangle is back within 5 %
+    (realtime: from RECOVERY s after the last fault the run reports, if that is later: the
+    new tracker's rejoin, or a stall of a loaded machine)."""
     cfg = load_config(ROOT / 'config' / f'{args[1]}.yaml')
     d = triangle_side(cfg)
     run = bringup(name, *args, '--duration', str(duration), '--respawn')
@@ -518,9 +520,19 @@ def respawn_and_recover(
     summary = run.summary()
     assert summary['respawns'] == 1 and summary['respawned'] == {'tracker_2': 1}
     assert summary['status'] == 'completed'
-    pairs = steady_pairs(run.out, recover_from)
+    realtime = 'realtime' in args
+    judged = recover_from
+    if realtime:
+        judged = max(
+            recover_from, last_fault(summary, after=summary_extra['killed_after']) + RECOVERY
+        )
+        assert judged <= duration - 1.0, (
+            f'a fault at {judged - RECOVERY:.2f} s left no second to judge the recovery',
+            summary['faults'],
+        )
+    pairs = steady_pairs(run.out, judged)
     assert pairs.shape[1] > 10
-    assert within(pairs, d, 0.05, realtime='realtime' in args), (pairs.min(), pairs.max(), d)
+    assert within(pairs, d, 0.05, realtime=realtime), (pairs.min(), pairs.max(), d, judged)
     assert run.left_behind() == [], run.left_behind()
     return summary | summary_extra
 
@@ -552,13 +564,14 @@ def test_a_respawned_tracker_rejoins_and_the_triangle_recovers_realtime(bringup)
     )
     # while it was dead its command went stale at the plant: zero force, then inactive
     # (counted in missed_deadlines; a span shorter than a publish period leaves no sample).
-    # The span starts after the kill, and ends when the new process commands: its start-up
-    # (imports, discovery) takes 1-3 s on a loaded 2-core machine, and it must end before
-    # the recovery window, a second at least before it (the within() check above judges
-    # the formation there)
-    spans = summary['faults']['inactive'].get('uav_2', [])
-    assert len(spans) <= summary['missed_deadlines'] <= 1
-    assert all(summary['killed_after'] <= a <= b <= 15.5 - 1.0 for a, b in spans), (
+    # The span starts after the kill and ends when the new process commands (its start-up,
+    # imports and discovery, takes 1-3 s on a loaded 2-core machine). Any further missed
+    # deadline is another tracker's, reported as its own span (a stall of a loaded machine)
+    inactive = summary['faults']['inactive']
+    spans = inactive.get('uav_2', [])
+    others = sum(len(v) for k, v in inactive.items() if k != 'uav_2')
+    assert len(spans) <= 1 and summary['missed_deadlines'] <= 1 + others, inactive
+    assert all(summary['killed_after'] <= a <= b for a, b in spans), (
         spans,
         summary['killed_after'],
     )

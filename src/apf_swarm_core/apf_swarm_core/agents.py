@@ -33,6 +33,7 @@ from __future__ import annotations
 import bisect
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -591,6 +592,28 @@ class PlantModel:
                 disturbance=self.noise.next(),
             )
             self.k += 1
+
+    def snapshot(self, k: int, target: Sample, target_age: float) -> dict[str, Any]:
+        """The fields of the ``/swarm/state`` sample of step ``k`` with the target state
+        ``target`` of age ``target_age`` [s], taken now (:meth:`advance` replaces the state
+        arrays, the commands are copied); ``rejected_inputs`` counts the plant's refusals
+        only (the node adds what the trackers report)."""
+        return {
+            'step': k,
+            'sim_time': k * self.cfg.dt,
+            'x': self.x,
+            'v': self.v,
+            'u': self.u.copy(),
+            's': self.s.copy(),
+            'target_x': target.x,
+            'target_v': target.v,
+            'missed_deadlines': self.missed,
+            'stale_inputs': self.stale,
+            'rejected_inputs': self.rejected,
+            'active': self.active.copy(),
+            'target_age': target_age,
+            'command_latency': self.latency.copy(),
+        }
 
     def metrics(
         self, target_x: NDArray[np.float64], x: NDArray[np.float64] | None = None

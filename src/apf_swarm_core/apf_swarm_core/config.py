@@ -59,8 +59,8 @@ __all__ = [
 #: ``control_rate`` is 0
 REALTIME_RATE = 100.0
 #: control-loop latency [s] that ``apf-swarm check --mode realtime`` and ``design`` assume
-#: when neither the configuration nor ``--latency`` gives one: the p50 of the 100 Hz loop on
-#: the slower of the 2-core machines measured (docs/PERFORMANCE.md)
+#: when neither the configuration, ``--latency`` nor this machine's probe (``apf-swarm
+#: probe``) gives one
 DEFAULT_LATENCY = 0.005
 
 #: keys a ``/uav_<i>/...`` section may override for one tracker

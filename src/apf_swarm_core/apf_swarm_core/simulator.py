@@ -508,6 +508,8 @@ class BatchSimulator:
         #: the delayed commands in flight, or None when each acts at its own sample
         self.actuator = act if act.delayed else None
         self.out: ControlOutput | None = None
+        #: the force applied over the latest step, (R, n, 3) [N]
+        self.force: NDArray[np.float64] = np.zeros((self.R, self.n, 3))
         self.precondition = make_preconditioner(first)
         if first.compensation == 'predict' and len({c.latency for c in self.cfgs}) > 1:
             raise ValueError(
@@ -571,7 +573,9 @@ class BatchSimulator:
         return rows[:, self._traj_index]
 
     def step(self) -> tuple[ControlOutput, NDArray[np.float64], NDArray[np.float64]]:
-        """Advance every run by one step; returns the command and the target state used."""
+        """Advance every run by one step; returns the command and the target state used (the
+        force applied over the step, which an actuator delay may make an older command's, is
+        :attr:`force`). :meth:`run` is this step in a loop."""
         tx, tv = self.target_state(self.k)
         out = self.out
         if out is None or self.k % self.hold == 0:
@@ -589,7 +593,7 @@ class BatchSimulator:
             )
             if self.actuator is not None:
                 self.actuator.submit(self.k, out.force)
-        force = out.force if self.actuator is None else self.actuator.applied(self.k)
+        force = self.force = out.force if self.actuator is None else self.actuator.applied(self.k)
         dist = self.noise.next()
         self.x, self.v = integrate(
             self.x, self.v, force, mass=self.mass, dt=self.dt, drag=self.drag, disturbance=dist
@@ -647,57 +651,23 @@ class BatchSimulator:
                 rec_tv[j : j + m] = self._gather(vel[rows])
                 held[:] = [j + m, 0]
 
-        # step() inlined (the same calls in the same order), the state in locals
-        controller, params, noise, target_state = (
-            self.controller,
-            self.params,
-            self.noise,
-            self.target_state,
-        )
-        mass, drag, rule = self.mass, self.drag, self.neighbour_rule
-        hold, act, out, pre = self.hold, self.actuator, self.out, self.precondition
-        predictor = self.predictor
-        x, v, k = self.x, self.v, k0
-        try:
-            for i in range(steps):
-                block = self._tblock
-                tx, tv = target_state(k)
-                if out is None or k % hold == 0:
-                    mask = neighbour_mask(x, **rule) if rule else None
-                    out = control_step(
-                        controller,
-                        x,
-                        v,
-                        tx,
-                        params,
-                        mask=mask,
-                        target_v=tv,
-                        precondition=pre,
-                        predictor=predictor,
-                    )
-                    if act is not None:
-                        act.submit(k, out.force)
-                force = out.force if act is None else act.applied(k)
-                x_next, v_next = integrate(
-                    x, v, force, mass=mass, dt=dt, drag=drag, disturbance=noise.next()
-                )
-                if record:
-                    if self._tblock is not block:  # a new block: the old one's samples
-                        target_samples(block)
-                    if k % every == 0:
-                        j = i // every
-                        rec_x[j] = x
-                        rec_v[j] = v
-                        rec_u[j] = force
-                        rec_s[j] = out.sliding_surface
-                        rec_sat[j] = out.saturated
-                        held[1] += 1
-                x, v, k = x_next, v_next, k + 1
-                if progress is not None and (i + 1) % progress_every == 0:
-                    self.x, self.v, self.k = x, v, k
-                    progress(i + 1, steps)
-        finally:
-            self.x, self.v, self.k, self.out = x, v, k, out
+        for i in range(steps):
+            block = self._tblock
+            x, v, k = self.x, self.v, self.k
+            out, _, _ = self.step()
+            if record:
+                if self._tblock is not block:  # a new block: the old one's samples
+                    target_samples(block)
+                if k % every == 0:
+                    j = i // every
+                    rec_x[j] = x
+                    rec_v[j] = v
+                    rec_u[j] = self.force
+                    rec_s[j] = out.sliding_surface
+                    rec_sat[j] = out.saturated
+                    held[1] += 1
+            if progress is not None and (i + 1) % progress_every == 0:
+                progress(i + 1, steps)
         if record:
             target_samples(self._tblock)
             m = held[0]

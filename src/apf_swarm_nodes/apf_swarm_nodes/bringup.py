@@ -1297,8 +1297,8 @@ class Bringup:
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('swarm_up')
         # the events executor costs less CPU per /swarm/state sample than the single-
-        # threaded one, and the bring-up shares the cores with the swarm (measured in
-        # lockstep, 3 trackers: 1144-1218 against 1000-1090 steps/s)
+        # threaded one, and the bring-up shares the cores with the swarm
+        # (bench/bench_graph.py compares the executors)
         self.executor = EventsExecutor()
         self.executor.add_node(self.node)
         self.state_sub = self.node.create_subscription(

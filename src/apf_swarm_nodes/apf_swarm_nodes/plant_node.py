@@ -5,18 +5,12 @@ state, one message), ``/swarm/state``, ``/swarm/markers`` (RViz / Foxglove) and,
 lockstep, ``/clock``;
 subscribes ``/uav_<i>/force_cmd`` and ``/target/odom``.
 
-Lockstep barrier, step k: wait for the target's state of step k (the target's states are
-asked for ahead on ``/target/request``, see :mod:`.node_common`), then publish ``/swarm/odom``
-of step k, ``/clock`` (k dt) and the per-UAV odometry; wait until the command of step k of
-every active tracker has arrived; integrate to k + 1, publish step k + 1 and only
-then the ``/swarm/state`` sample of step k (its metrics are computed while the trackers
-work). Past ``command_timeout``
-seconds of wall time the step is published once more; still missing after another
-``command_timeout``, the input is counted in ``missed_deadlines`` and logged, and its
-source is no longer waited for: a silent tracker becomes inactive (zero force, left out of
-the other trackers' potential, see :mod:`apf_swarm_core.agents`), a silent target's last
-state is held and its age grows in ``/swarm/odom`` (trackers brake once it exceeds their
-``input_timeout``). A command or target state that arrives again ends that.
+Lockstep: the core's :class:`~apf_swarm_core.lockstep.LockstepBarrier` runs the barrier
+(the target's states asked for ahead on ``/target/request``, step k published once its
+target state is held, integrated once every active tracker's command of step k arrived,
+re-sent past ``command_timeout``, then its late inputs missed: a silent tracker inactive, a
+silent target's last state held, its age growing in ``/swarm/odom``); this node carries out
+the actions it returns.
 
 Realtime: a physics timer integrates the steps of dt that wall time has advanced (held
 commands; a tracker whose latest command is older than ``stale_after`` gets zero force, older
@@ -39,8 +33,8 @@ from __future__ import annotations
 import sys
 import time
 
-import numpy as np
-from apf_swarm_core.agents import PlantModel, input_problem
+from apf_swarm_core.agents import PlantModel, Sample, input_problem
+from apf_swarm_core.lockstep import Action, LockstepBarrier
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -74,7 +68,6 @@ from .node_common import (
     SWARM_ODOM,
     SWARM_START,
     SWARM_STATE,
-    TARGET_LOOKAHEAD,
     TARGET_ODOM,
     TARGET_REQUEST,
     RejectionLog,
@@ -169,7 +162,6 @@ class PlantNode(Node):
         self.arm_timeout = float(p['arm_timeout'])
         self.inputs = p['inputs']
         self.waiting_for_match = False
-        self.republished = False
         self.model = PlantModel(self.cfg)
         self.steps = self.cfg.steps
         self.dt_ns = dt_to_ns(self.cfg.dt)
@@ -189,29 +181,26 @@ class PlantNode(Node):
         self.markers_pub = (
             self.create_publisher(MarkerArray, SWARM_MARKERS, 1) if self.markers_every else None
         )
-        self.odom_sent = False
         for i in self.model.ids:
             self.create_subscription(
                 ForceCommand, force_topic(i), lambda m, i=i: self._on_force(i, m), qos
             )
         self.tracker_rejected: dict[int, int] = {}
         self._log_rejection = RejectionLog(self)
-        self.target_absent = False  # lockstep: the target missed a deadline
         self.create_timer(1.0, self._check_duplicates)
         self.create_subscription(Odometry, TARGET_ODOM, self._on_target, qos)
-        self.target = (-1, np.zeros(3), np.zeros(3), 0.0)  # step, x, v, received
-        self.targets: dict[int, tuple] = {}  # lockstep: target states by step, k..requested
+        # realtime: the latest target state (lockstep: the barrier holds it)
+        self.rt_target: Sample | None = None
+        self.barrier = LockstepBarrier(self.model, self.timeout)
         self.running = False
         self.clock_started = False  # realtime: the physics clock runs (see _arm)
         self.arm_deadline = 0.0
         self.done = False
         self.published_final = False
-        self.step_started = 0.0
         if self.mode == 'lockstep':
             self.clock_pub = self.create_publisher(Clock, CLOCK, CLOCK_QOS)
             self.request_pub = self.create_publisher(UInt64, TARGET_REQUEST, REQUEST_QOS)
             self._request = UInt64()
-            self.requested = -1  # the last step whose target state was asked for
             self.create_timer(0.01, self._check_deadline)
         else:
             self.create_timer(1.0 / float(p['physics_rate']), self._on_physics)
@@ -287,54 +276,40 @@ class PlantNode(Node):
     def _start_when_matched(self) -> None:
         if self.waiting_for_match and self._matched():
             self.waiting_for_match = False
-            self._publish_step()
+            self._carry_out(self.barrier.start(time.monotonic()))
 
-    # --- lockstep ------------------------------------------------------------------------
-    def _publish_step(self, again: bool = False) -> None:
-        if not again:
-            self.republished = False
-        k = self.model.k
-        stamp = step_stamp(k, self.dt_ns)
-        self.step_started = time.monotonic()
-        # what the trackers wait for goes out first
-        self.odom_sent = False
-        self._maybe_publish_swarm_odom()
-        self._request_target(again)
-        self.clock_pub.publish(clock_msg(stamp))
-        self._publish_odoms(stamp)
+    # --- lockstep: the core's barrier decides, the node publishes -------------------------
+    def _carry_out(self, actions: list[Action]) -> None:
+        for a in actions:
+            if a.kind == 'request':
+                self._request.data = a.step
+                self.request_pub.publish(self._request)
+            elif a.kind == 'swarm_odom':
+                self._publish_swarm_odom(a.step, step_stamp(a.step, self.dt_ns))
+            elif a.kind == 'step':
+                stamp = step_stamp(a.step, self.dt_ns)
+                self.clock_pub.publish(clock_msg(stamp))
+                self._publish_odoms(stamp)
+            elif a.kind == 'state':
+                self._publish_state(a.data, step_stamp(a.step, self.dt_ns))
+            elif a.kind == 'warn':
+                self.get_logger().warn(a.text)
+            else:
+                self.get_logger().info(a.text)
+        self.done = self.barrier.done
 
-    def _request_target(self, again: bool = False) -> None:
-        """Lockstep: ask the target for its states up to ``TARGET_LOOKAHEAD - 1`` steps
-        ahead once fewer than half of that are asked for. ``again`` (step k is late): repeat
-        the last request, which the target answers by sending that window once more (step k
-        is in it), e.g. when its states went out before a reader had matched."""
-        k = self.model.k
-        want = min(k + TARGET_LOOKAHEAD - 1, self.steps)
-        if again and self.requested >= k:
-            want = self.requested
-        elif want <= self.requested or self.requested - k >= TARGET_LOOKAHEAD // 2:
-            return
-        self.requested = want
-        self._request.data = want
-        self.request_pub.publish(self._request)
-
-    def _maybe_publish_swarm_odom(self) -> None:
-        """Lockstep: ``/swarm/odom`` of step k once the target state of step k is held."""
-        k = self.model.k
-        if (
-            self.running
-            and not self.done
-            and not self.odom_sent
-            and (self.target[0] == k or self.target_absent)
-        ):
-            self._publish_swarm_odom(k, step_stamp(k, self.dt_ns))
-            self.odom_sent = True
+    def _target(self) -> Sample:
+        if self.mode == 'lockstep':
+            return self.barrier.target
+        assert self.rt_target is not None
+        return self.rt_target
 
     def _target_age(self) -> float:
         """Age of the held target state [s]: simulated (lockstep) or wall time (realtime)."""
         if self.mode == 'lockstep':
-            return max(0, self.model.k - self.target[0]) * self.cfg.dt
-        return max(0.0, time.monotonic() - self.target[3])
+            return self.barrier.target_age()
+        assert self.rt_target is not None
+        return max(0.0, time.monotonic() - self.rt_target.received)
 
     def _publish_swarm_odom(self, k: int, stamp) -> None:
         self.swarm_odom_pub.publish(
@@ -344,8 +319,8 @@ class PlantNode(Node):
                 uav_ids=self.model.ids,
                 x=self.model.x,
                 v=self.model.v,
-                target_x=self.target[1],
-                target_v=self.target[2],
+                target_x=self._target().x,
+                target_v=self._target().v,
                 active=self.model.active,
                 target_age=self._target_age(),
                 command_latency=self.model.latency if self.mode == 'realtime' else None,
@@ -400,7 +375,7 @@ class PlantNode(Node):
                 f'uav_{f.uav_id} commands again: active, back in the neighbour sets'
             )
         if self.mode == 'lockstep':
-            self._maybe_finish()
+            self._carry_out(self.barrier.on_command(now))
 
     def _on_target(self, msg: Odometry) -> None:
         x, v = odom_arrays(msg)
@@ -410,16 +385,7 @@ class PlantNode(Node):
             return
         if self.mode == 'lockstep':
             step = step_of(msg.header.stamp, self.dt_ns)
-            if not self.model.k <= step <= max(self.requested, self.model.k):
-                return  # a step already integrated, or one never asked for: not kept
-            self.targets[step] = (step, x, v, time.monotonic())
-            if self.target[0] != self.model.k and self.model.k in self.targets:
-                self.target = self.targets.pop(self.model.k)
-                if self.target_absent:
-                    self.target_absent = False
-                    self.get_logger().info(f'step {self.model.k}: the target publishes again')
-            self._maybe_publish_swarm_odom()
-            self._maybe_finish()
+            self._carry_out(self.barrier.on_target(step, x, v, time.monotonic()))
         else:
             age = self._stale_stamp(msg.header.stamp)
             seq = stamp_ns(msg.header.stamp)
@@ -431,7 +397,7 @@ class PlantNode(Node):
                 )
             else:
                 self._target_seq = seq
-                self.target = (-1, x, v, time.monotonic())
+                self.rt_target = Sample(-1, x, v, time.monotonic())
 
     def _check_duplicates(self) -> None:
         """1 Hz: a force topic with more than one publisher means two trackers share an id."""
@@ -443,81 +409,12 @@ class PlantNode(Node):
                     'following the first tracker process that commanded, refusing the others'
                 )
 
-    def _maybe_finish(self, force: bool = False) -> None:
-        if not self.running or self.done:
-            return
-        k = self.model.k
-        missing = self.model.missing(k)
-        target_late = self._target_late()
-        if (missing or target_late) and not force:
-            return
-        if target_late:
-            # /swarm/odom of step k waits for the target, so no tracker has seen step k yet:
-            # only the target missed it. Hold its last state and let the trackers answer.
-            self.model.missed += 1
-            self.target_absent = True
-            self.get_logger().warn(
-                f'step {k}: no target state within 2 x {self.timeout:g} s ({self.model.missed} '
-                f'missed so far); holding the last one (its age grows in /swarm/odom) and '
-                f'not waiting for the target any more'
-            )
-            self.step_started = time.monotonic()
-            self.republished = False
-            self._maybe_publish_swarm_odom()
-            return
-        if missing:
-            self.model.missed += len(missing)
-            self.model.deactivate(missing)
-            self.get_logger().warn(
-                f'step {k}: no command from {[f"uav_{i}" for i in missing]} within 2 x '
-                f'{self.timeout:g} s ({self.model.missed} missed so far): zero force, left '
-                f'out of the neighbour sets, not waited for until they command again'
-            )
-        # the state of step k goes out after step k + 1 (below): the trackers, which wait
-        # for /swarm/odom of k + 1, start while this process computes the metrics of k
-        state = self._state_of(k)
-        self.model.advance()
-        if self.model.k in self.targets:
-            self.target = self.targets.pop(self.model.k)
-            if self.target_absent:
-                self.target_absent = False
-                self.get_logger().info(f'step {self.model.k}: the target publishes again')
-        for old in [j for j in self.targets if j < self.model.k]:
-            del self.targets[old]
-        if self.model.k >= self.steps:
-            self.done = True
-            # logged before the last state goes out: whoever waits for that state may stop
-            # this process right after it (a log call in a shut-down context raises)
-            self.get_logger().info(f'done: {self.steps} steps, {self.model.missed} missed')
-            self._publish_state(state, step_stamp(k, self.dt_ns))
-            return
-        self._publish_step()
-        self._publish_state(state, step_stamp(k, self.dt_ns))
-
     def _check_deadline(self) -> None:
         """10 ms timer: start when matched; past the deadline re-send step k once, then miss."""
         if self.waiting_for_match:
             self._start_when_matched()
-            return
-        if self.running and not self.done and time.monotonic() - self.step_started > self.timeout:
-            if not self.republished:
-                self.republished = True
-                self.get_logger().warn(
-                    f'step {self.model.k}: inputs {self._late()} late after '
-                    f'{self.timeout:g} s; publishing the step again'
-                )
-                self._publish_step(again=True)
-            else:
-                self._maybe_finish(force=True)
-
-    def _target_late(self) -> bool:
-        """Lockstep: the target state of step k is awaited and has not arrived."""
-        return self.target[0] != self.model.k and not self.target_absent
-
-    def _late(self) -> list[str]:
-        return [f'uav_{i}' for i in self.model.missing(self.model.k)] + (
-            ['target'] if self._target_late() else []
-        )
+        elif self.running:
+            self._carry_out(self.barrier.tick(time.monotonic()))
 
     # --- realtime ------------------------------------------------------------------------
     def _on_physics(self) -> None:
@@ -542,7 +439,7 @@ class PlantNode(Node):
             )
 
     def _on_publish(self) -> None:
-        if not self.running or self.published_final or self.target[3] == 0.0:
+        if not self.running or self.published_final or self.rt_target is None:
             return  # not started, finished, or no target state yet
         stamp = self.get_clock().now().to_msg()
         armed = self._arm()
@@ -552,7 +449,9 @@ class PlantNode(Node):
             return  # the trackers' first inputs went out; no state before the clock runs
         self.published_final = self.done  # the state at the end of the run goes out once
         self.model.published(time.monotonic())
-        self._publish_state(self._state_of(self.model.k), stamp)
+        self._publish_state(
+            self.model.snapshot(self.model.k, self._target(), self._target_age()), stamp
+        )
 
     # --- shared ------------------------------------------------------------------------------
     def _publish_odoms(self, stamp) -> None:
@@ -569,31 +468,12 @@ class PlantNode(Node):
                 )
                 pub.publish(self._odom_msgs[i])
 
-    def _state_of(self, k: int) -> dict:
-        """The fields of the ``/swarm/state`` sample of step k, taken now (the model's arrays
-        are replaced by :meth:`PlantModel.advance`, the commands are copied)."""
-        m = self.model
-        return {
-            'step': k,
-            'sim_time': k * self.cfg.dt,
-            'x': m.x,
-            'v': m.v,
-            'u': m.u.copy(),
-            's': m.s.copy(),
-            'target_x': self.target[1],
-            'target_v': self.target[2],
-            'missed_deadlines': m.missed,
-            'stale_inputs': m.stale,
-            'rejected_inputs': m.rejected + sum(self.tracker_rejected.values()),
-            'active': m.active.copy(),
-            'target_age': self._target_age(),
-            'command_latency': m.latency.copy(),
-        }
-
     def _publish_state(self, state: dict, stamp) -> None:
         """``/swarm/state`` (and every ``markers_every``-th time the markers) of a state
-        taken by :meth:`_state_of`, with its metrics."""
+        taken by :meth:`PlantModel.snapshot`, with its metrics and the trackers' own refusal
+        counts."""
         x, tx = state['x'], state['target_x']
+        state['rejected_inputs'] += sum(self.tracker_rejected.values())
         if self.markers_pub is not None and self.state_count % self.markers_every == 0:
             self.markers_pub.publish(markers_msg(x, tx, stamp, self.model.ids))
         self.state_count += 1

@@ -190,7 +190,7 @@ class PlayerNode(Node):
                 time.sleep(0.05)
             elif rem > 300_000:
                 time.sleep((rem - 200_000) / 1e9)
-            # else: the last 0.3 ms without sleeping (sleep overshoots by ~0.1 ms)
+            # else: the last 0.3 ms without sleeping (a sleep overshoots its request)
 
     def play(self) -> int:
         """Play (``loop``: forever); returns the number of messages published."""

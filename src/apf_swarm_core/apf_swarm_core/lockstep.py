@@ -1,0 +1,236 @@
+"""The plant's lockstep barrier: the protocol that makes the ROS graph step exactly as the
+simulator does, without ROS.
+
+Step k: wait for the target's state of step k (asked for ahead, up to ``lookahead - 1``
+steps, once fewer than half of that are asked for), then publish ``/swarm/odom`` of step k,
+``/clock`` and the per-UAV odometry; wait until the command of step k of every active
+tracker has arrived; integrate to k + 1, publish step k + 1, and only then the
+``/swarm/state`` sample of step k. Past ``timeout`` seconds of wall time the step is
+published once more; still missing after another ``timeout``, each missing input is counted
+in ``missed`` and no longer waited for: a silent tracker becomes inactive (see
+:meth:`~apf_swarm_core.agents.PlantModel.deactivate`), a silent target's last state is held
+and its age grows. A command or a target state that arrives again ends that.
+
+:class:`LockstepBarrier` takes the events (start, a target state, an accepted command, a
+clock tick) and returns the :class:`Action` list the node carries out in order; the plant
+node converts messages and publishes, nothing more.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .agents import PlantModel, Sample
+
+__all__ = ['LOOKAHEAD', 'Action', 'LockstepBarrier']
+
+#: how many steps ahead the plant asks for the target's states
+LOOKAHEAD = 64
+
+Kind = Literal['request', 'swarm_odom', 'step', 'state', 'info', 'warn']
+
+
+@dataclass(frozen=True)
+class Action:
+    """What the node does next: ``request`` the target's states up to ``step``; publish
+    ``swarm_odom`` of ``step`` (the held target state, :attr:`LockstepBarrier.target`);
+    publish ``step`` (``/clock`` and every UAV's odometry of the model's current state);
+    publish the ``state`` sample ``data`` of ``step`` (:meth:`LockstepBarrier.snapshot`);
+    log ``text`` at ``info`` or ``warn``."""
+
+    kind: Kind
+    step: int = -1
+    data: Any = None
+    text: str = ''
+
+
+@dataclass
+class LockstepBarrier:
+    """The barrier, target look-ahead, deadlines and re-sends of the lockstep plant around a
+    :class:`~apf_swarm_core.agents.PlantModel`; times are on the caller's monotonic clock
+    [s]."""
+
+    model: PlantModel
+    timeout: float
+    lookahead: int = LOOKAHEAD
+    running: bool = False
+    done: bool = False
+    target_absent: bool = False  # the target missed a deadline; its last state is held
+    requested: int = -1  # the last step whose target state was asked for
+    step_started: float = 0.0
+    republished: bool = False
+    odom_sent: bool = False
+    target: Sample = field(init=False)
+    targets: dict[int, Sample] = field(default_factory=dict)  # by step, k..requested
+
+    def __post_init__(self) -> None:
+        self.target = Sample(-1, np.zeros(3), np.zeros(3), 0.0)
+        self.steps = self.model.cfg.steps
+
+    # --- events ----------------------------------------------------------------------
+    def start(self, now: float) -> list[Action]:
+        """Every reader of step 0 is matched: publish step 0."""
+        self.running = True
+        return self._publish_step(now)
+
+    def on_target(
+        self, step: int, x: NDArray[np.float64], v: NDArray[np.float64], now: float
+    ) -> list[Action]:
+        """The target's state of ``step`` arrived (a step already integrated, or one never
+        asked for, is not kept)."""
+        k = self.model.k
+        if not k <= step <= max(self.requested, k):
+            return []
+        self.targets[step] = Sample(step, x, v, now)
+        out: list[Action] = []
+        if self.target.step != k and k in self.targets:
+            out += self._take_target()
+        out += self._maybe_swarm_odom()
+        out += self._maybe_finish(now)
+        return out
+
+    def on_command(self, now: float) -> list[Action]:
+        """The model accepted a command
+        (:meth:`~apf_swarm_core.agents.PlantModel.offer_command`)."""
+        return self._maybe_finish(now)
+
+    def tick(self, now: float) -> list[Action]:
+        """A clock tick: past ``timeout`` publish step k once more, past another miss its
+        late inputs and go on."""
+        if not self.running or self.done or now - self.step_started <= self.timeout:
+            return []
+        if not self.republished:
+            self.republished = True
+            return [
+                Action(
+                    'warn',
+                    text=f'step {self.model.k}: inputs {self.late()} late after '
+                    f'{self.timeout:g} s; publishing the step again',
+                ),
+                *self._publish_step(now, again=True),
+            ]
+        return self._maybe_finish(now, force=True)
+
+    # --- what the node reads --------------------------------------------------------------
+    def late(self) -> list[str]:
+        """The inputs step k waits for: ``uav_<i>`` and ``target``."""
+        return [f'uav_{i}' for i in self.model.missing(self.model.k)] + (
+            ['target'] if self._target_late() else []
+        )
+
+    def target_age(self) -> float:
+        """Age of the held target state [s of simulated time]."""
+        return max(0, self.model.k - self.target.step) * self.model.cfg.dt
+
+    def snapshot(self, k: int) -> dict[str, Any]:
+        """The ``/swarm/state`` fields of step ``k`` with the held target state, taken now
+        (:meth:`~apf_swarm_core.agents.PlantModel.snapshot`)."""
+        return self.model.snapshot(k, self.target, self.target_age())
+
+    # --- the protocol ----------------------------------------------------------------
+    def _publish_step(self, now: float, again: bool = False) -> list[Action]:
+        if not again:
+            self.republished = False
+        self.step_started = now
+        self.odom_sent = False
+        # what the trackers wait for goes out first
+        out = self._maybe_swarm_odom()
+        out += self._request(again)
+        out.append(Action('step', self.model.k))
+        return out
+
+    def _request(self, again: bool) -> list[Action]:
+        """Ask for the target's states up to ``lookahead - 1`` steps ahead once fewer than
+        half of that are asked for. ``again`` (step k is late): repeat the last request,
+        which the target answers by sending that window once more (step k is in it)."""
+        k = self.model.k
+        want = min(k + self.lookahead - 1, self.steps)
+        if again and self.requested >= k:
+            want = self.requested
+        elif want <= self.requested or self.requested - k >= self.lookahead // 2:
+            return []
+        self.requested = want
+        return [Action('request', want)]
+
+    def _maybe_swarm_odom(self) -> list[Action]:
+        """``/swarm/odom`` of step k once the target state of step k is held."""
+        k = self.model.k
+        if (
+            self.running
+            and not self.done
+            and not self.odom_sent
+            and (self.target.step == k or self.target_absent)
+        ):
+            self.odom_sent = True
+            return [Action('swarm_odom', k)]
+        return []
+
+    def _take_target(self) -> list[Action]:
+        self.target = self.targets.pop(self.model.k)
+        if self.target_absent:
+            self.target_absent = False
+            return [Action('info', text=f'step {self.model.k}: the target publishes again')]
+        return []
+
+    def _target_late(self) -> bool:
+        return self.target.step != self.model.k and not self.target_absent
+
+    def _maybe_finish(self, now: float, force: bool = False) -> list[Action]:
+        if not self.running or self.done:
+            return []
+        m = self.model
+        k = m.k
+        missing = m.missing(k)
+        target_late = self._target_late()
+        if (missing or target_late) and not force:
+            return []
+        if target_late:
+            # /swarm/odom of step k waits for the target, so no tracker has seen step k yet:
+            # only the target missed it. Hold its last state and let the trackers answer.
+            m.missed += 1
+            self.target_absent = True
+            self.step_started = now
+            self.republished = False
+            return [
+                Action(
+                    'warn',
+                    text=f'step {k}: no target state within 2 x {self.timeout:g} s '
+                    f'({m.missed} missed so far); holding the last one (its age grows in '
+                    '/swarm/odom) and not waiting for the target any more',
+                ),
+                *self._maybe_swarm_odom(),
+            ]
+        out: list[Action] = []
+        if missing:
+            m.missed += len(missing)
+            m.deactivate(missing)
+            out.append(
+                Action(
+                    'warn',
+                    text=f'step {k}: no command from '
+                    f'{[f"uav_{i}" for i in missing]} within 2 x {self.timeout:g} s '
+                    f'({m.missed} missed so far): zero force, left out of the '
+                    'neighbour sets, not waited for until they command again',
+                )
+            )
+        # the state of step k goes out after step k + 1: the trackers, which wait for
+        # /swarm/odom of k + 1, start while the node computes the metrics of k
+        state = Action('state', k, self.snapshot(k))
+        m.advance()
+        if m.k in self.targets:
+            out += self._take_target()
+        for old in [j for j in self.targets if j < m.k]:
+            del self.targets[old]
+        if m.k >= self.steps:
+            self.done = True
+            # logged before the last state goes out: whoever waits for that state may stop
+            # the node right after it
+            out += [Action('info', text=f'done: {self.steps} steps, {m.missed} missed'), state]
+            return out
+        out += self._publish_step(now)
+        out.append(state)
+        return out
