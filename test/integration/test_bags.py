@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from apf_swarm_nodes.bags.recover import _scan_mcap
 from apf_swarm_nodes.bringup import pick_domain_id, stop_process
 from apf_swarm_nodes.qos import qos_from_dict
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -447,7 +448,7 @@ def test_sigkilled_recorder_leaves_a_bag_that_reindex_recovers(graph, tmp_path: 
     file = bag / 'killed_0.mcap'
     # a flush every 0.1 s: the complete chunks hold >= 300 messages soon
     graph.spin_until(
-        lambda: publish_and_count(sent + 1) and len(bags._scan_mcap(file).messages) >= 300,
+        lambda: publish_and_count(sent + 1) and len(_scan_mcap(file).messages) >= 300,
         20,
         'a flushed chunk',
     )

@@ -142,7 +142,7 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
 
     from apf_swarm_msgs.msg import SwarmOdometry
 
-    from .bringup import stop_process
+    from .bringup.processes import stop_process
     from .conversions import swarm_odom_msg
 
     echo = subprocess.Popen(
@@ -263,7 +263,7 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> d
     """The cached probe, measured (and cached) first when missing or ``refresh``."""
     probe = None if refresh else load()
     if probe is None:
-        from .bringup import pick_domain_id
+        from .bringup.isolation import pick_domain_id
 
         if say is not None:
             say(f'measuring this machine (capacity probe, about 6 s; cached in {cache_path()})')

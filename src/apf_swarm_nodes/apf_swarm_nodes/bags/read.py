@@ -1,0 +1,120 @@
+"""Reading a bag's messages: raw records, the run's configuration, its trajectory and
+summary (``apf-swarm bag metrics``)."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+from ..errors import CliError
+from .info import BagInfo, _read_error, open_bag
+from .types import CUSTOM_CONFIG, CUSTOM_MODE, SWARM_STATE_TOPIC, _one_line, typestore
+
+# --------------------------------------------------------------------------------------------
+# reading: messages
+# --------------------------------------------------------------------------------------------
+
+
+def _any_reader(path: Path) -> Any:
+    """An opened rosbags AnyReader (types from the bag's own definitions); opening parses
+    every stored definition, so a failure here is a broken definition, not a damaged file."""
+    from rosbags.highlevel import AnyReader
+
+    reader = AnyReader([path], default_typestore=typestore())
+    try:
+        reader.open()
+    except Exception as exc:
+        raise CliError(
+            f'{path}: cannot load the type definitions stored in the bag '
+            f'({_one_line(exc)}); it was not written with full, valid ros2msg '
+            'definitions'
+        ) from None
+    return reader
+
+
+def iter_raw(
+    path: Path | str, topics: Iterable[str] | None = None, *, info: BagInfo | None = None
+) -> Iterator[tuple[str, str, int, bytes]]:
+    """``(topic, type, timestamp_ns, cdr bytes)`` of every message, in time order.
+
+    ``topics``: only these (CliError for a topic that is not in the bag).
+    """
+    info = info or open_bag(path)
+    wanted = None
+    if topics is not None:
+        wanted = set(topics)
+        for t in wanted:
+            info.topic(t)
+    try:
+        with contextlib.closing(_any_reader(info.path)) as reader:
+            conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
+            for conn, ts, raw in reader.messages(connections=conns):
+                yield conn.topic, conn.msgtype, int(ts), bytes(raw)
+    except CliError:
+        raise
+    except Exception as exc:  # rosbags raises ReaderError / AnyReaderError, mcap errors
+        raise _read_error(info.path, exc) from None
+
+
+def bag_config(info: BagInfo, config: Path | None = None) -> tuple[Any, str]:
+    """The run's SwarmConfig and timing mode: from ``config`` (a parameter file) or from the
+    bag's ``custom_data`` (the bring-up's recorder stores both)."""
+    import tempfile
+
+    from apf_swarm_core.config import load_config
+
+    mode = info.custom_data.get(CUSTOM_MODE, 'lockstep')
+    if config is not None:
+        return load_config(config), mode
+    text = info.custom_data.get(CUSTOM_CONFIG)
+    if not text:
+        raise CliError(
+            f'{info.path} has no apf_swarm configuration in its custom_data (not '
+            'recorded by `apf-swarm up --record`?); pass --config FILE'
+        )
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / 'config.yaml'
+        p.write_text(text)
+        return load_config(p), mode
+
+
+def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str) -> Any:
+    """Every ``/swarm/state`` message of the bag through the bring-up's StateAccumulator
+    (the same raw-bytes path and deserialization as the live run)."""
+    from ..samples import StateAccumulator
+
+    info.topic(SWARM_STATE_TOPIC)
+    acc = StateAccumulator(mode, cfg.steps, cfg.record_every)
+    for _topic, _type, _ts, raw in iter_raw(info.path, [SWARM_STATE_TOPIC], info=info):
+        acc.add_raw(raw)
+    return acc
+
+
+def bag_trajectory(
+    path: Path | str, config: Path | None = None
+) -> tuple[dict[str, Any], Any, str, Any]:
+    """``(trajectory, cfg, mode, accumulator)`` of a bag's ``/swarm/state``."""
+    info = open_bag(path)
+    cfg, mode = bag_config(info, config)
+    acc = swarm_state_accumulator(info, cfg, mode)
+    traj = acc.trajectory()
+    if traj is None:
+        raise CliError(f'{info.path}: /swarm/state has no message; nothing to compute')
+    return traj, cfg, mode, acc
+
+
+def bag_metrics(path: Path | str, config: Path | None = None) -> dict[str, Any]:
+    """summary.json of the run from the bag's ``/swarm/state`` (:func:`runio.run_summary`, the
+    function the bring-up uses), plus ``messages`` and ``mode``."""
+    from ..runio import run_summary
+
+    traj, cfg, mode, acc = bag_trajectory(path, config)
+    status = 'completed' if mode == 'realtime' or acc.complete else 'incomplete'
+    summary = run_summary(
+        traj, cfg, status=status, n_samples=len(acc.samples), dropped=acc.dropped
+    )
+    summary['mode'] = mode
+    summary['messages'] = acc.messages()
+    return summary

@@ -1,0 +1,121 @@
+"""Message types and QoS text of a bag: the full ``ros2msg`` definition and RIHS01 hash
+of a type (the rosbags Jazzy type store plus the ``.msg`` files of the ament index), and the
+constants of the bag layout."""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Sequence
+from functools import cache, lru_cache
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ..errors import CliError
+
+BAG_VERSION = 9
+#: custom_data keys (metadata.yaml) and the MCAP metadata record the recorder writes first
+CUSTOM_RECORDER = 'apf_swarm.recorder'  # JSON: received / written / dropped counts
+CUSTOM_CONFIG = 'apf_swarm.config'  # the run's ROS 2 parameter file (YAML text)
+CUSTOM_MODE = 'apf_swarm.mode'  # lockstep | realtime
+MCAP_METADATA_NAME = 'apf_swarm'
+DEFAULT_CHUNK_SIZE = 1 << 20
+SWARM_STATE_TOPIC = '/swarm/state'
+SWARM_STATE_TYPE = 'apf_swarm_msgs/msg/SwarmState'
+_FILE_RE = re.compile(r'^(?P<stem>.*?)(?:_(?P<index>\d+))?\.mcap$')
+
+
+# --------------------------------------------------------------------------------------------
+# types and QoS
+# --------------------------------------------------------------------------------------------
+
+
+def _msg_search_dirs() -> list[Path]:
+    """``share/`` directories of the ament index, then the repository's ``src/`` (a fresh
+    checkout before ``make``)."""
+    dirs = []
+    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
+        if prefix:
+            dirs.append(Path(prefix) / 'share')
+    dirs.append(Path(__file__).resolve().parents[2])  # src/ of the repository
+    return dirs
+
+
+def _find_msg_file(msgtype: str) -> Path | None:
+    pkg, _, name = msgtype.partition('/msg/')
+    if not name:
+        return None
+    for d in _msg_search_dirs():
+        for cand in (d / pkg / 'msg' / f'{name}.msg', d / pkg / pkg / 'msg' / f'{name}.msg'):
+            if cand.is_file():
+                return cand
+    return None
+
+
+@lru_cache(maxsize=1)
+def typestore() -> Any:
+    """The rosbags Jazzy type store with apf_swarm_msgs registered from their ``.msg`` files."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types: dict[str, Any] = {}
+    for name in ('ForceCommand', 'SwarmOdometry', 'SwarmState'):
+        path = _find_msg_file(f'apf_swarm_msgs/msg/{name}')
+        if path is not None:
+            types.update(get_types_from_msg(path.read_text(), f'apf_swarm_msgs/msg/{name}'))
+    store.register(types)
+    return store
+
+
+def _register_from_index(store: Any, msgtype: str, seen: set[str] | None = None) -> bool:
+    """Register ``msgtype`` (and its dependencies) from ``.msg`` files of the ament index."""
+    from rosbags.typesys import get_types_from_msg
+
+    seen = set() if seen is None else seen
+    if msgtype in store.fielddefs or msgtype in seen:
+        return True
+    seen.add(msgtype)
+    path = _find_msg_file(msgtype)
+    if path is None:
+        return False
+    types = get_types_from_msg(path.read_text(), msgtype)
+    store.register(types)
+    return msgtype in store.fielddefs
+
+
+@cache
+def type_definition(msgtype: str) -> tuple[str, str]:
+    """The full ``ros2msg`` definition text (dependencies included) and the RIHS01 hash.
+
+    Raises CliError for a type that is neither in the Jazzy type store nor in a ``.msg`` file
+    of the ament index.
+    """
+    store = typestore()
+    try:
+        if msgtype not in store.fielddefs and not _register_from_index(store, msgtype):
+            raise KeyError(msgtype)
+        msgdef, _ = store.generate_msgdef(msgtype, ros_version=2)
+        return msgdef, store.hash_rihs01(msgtype)
+    except Exception as exc:  # rosbags raises TypesysError / KeyError for missing dependencies
+        raise CliError(
+            f'message type {msgtype} is unknown: it is not a ROS 2 Jazzy type and no '
+            f'{msgtype}.msg is in the ament index ({_one_line(exc)}); build and '
+            'source the package that defines it'
+        ) from None
+
+
+def _qos_text(qos: Sequence[Any]) -> str:
+    """offered_qos_profiles as the YAML string stored in an MCAP channel (as rosbags does)."""
+    from rosbags.rosbag2.metadata import dump_qos_v9
+
+    return yaml.safe_dump(dump_qos_v9(list(qos)), default_flow_style=False).strip()
+
+
+def _one_line(exc: BaseException) -> str:
+    """``Type: message`` of an exception on one line (parsers report over several)."""
+    text = ' '.join(str(exc).split())
+    if len(text) > 300:
+        text = text[:297] + '...'
+    return f'{type(exc).__name__}: {text}' if text else type(exc).__name__

@@ -1,0 +1,214 @@
+"""The bring-up's command line (``scripts/swarm_up.py``, ``apf-swarm up``)."""
+
+from __future__ import annotations
+
+import argparse
+import faulthandler
+import signal
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from apf_swarm_core.config import SwarmConfig, preset_names, resolve
+from apf_swarm_core.errors import ApfSwarmError
+
+from ..argtypes import domain_id, nonneg_int, positive_float, positive_int
+from .isolation import check_capacity
+from .processes import DISCOVERY_RANGES, EXIT_BAD_INPUT, EXIT_INTERRUPTED
+from .session import Bringup
+
+# --------------------------------------------------------------------------------------------
+# command line
+# --------------------------------------------------------------------------------------------
+
+
+def resolve_config(args: argparse.Namespace) -> SwarmConfig:
+    """Preset or file, then ``--set``, then ``--n-trackers`` / ``--seed`` / ``--duration``."""
+    return resolve(
+        args.config,
+        args.preset,
+        args.sets,
+        n_trackers=args.n_trackers,
+        seed=args.seed,
+        duration=args.duration,
+    )
+
+
+def _netns_rule(text: str) -> str:
+    pattern, sep, ns = text.partition('=')
+    if not sep or not pattern or not ns:
+        raise argparse.ArgumentTypeError(f'{text!r}: expected PATTERN=NETNS, e.g. tracker_*=h2')
+    return text
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``swarm_up.py`` / ``apf-swarm up``."""
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument(
+        '--preset',
+        metavar='NAME',
+        help='named preset (config/NAME.yaml): ' + ', '.join(preset_names()),
+    )
+    g.add_argument('--config', metavar='FILE', type=Path, help='ROS 2 parameter file')
+    p.add_argument(
+        '--set',
+        metavar='KEY=VALUE',
+        action='append',
+        default=[],
+        dest='sets',
+        help='override a configuration key (repeatable), e.g. --set gamma=0.5',
+    )
+    p.add_argument('--n-trackers', type=int, metavar='N', help='number of tracker processes')
+    p.add_argument(
+        '--mode',
+        choices=('lockstep', 'realtime'),
+        default='lockstep',
+        help='lockstep: simulated time, reproduces the simulator (default); '
+        'realtime: wall-clock timers',
+    )
+    p.add_argument(
+        '--duration',
+        type=positive_float,
+        metavar='S',
+        help='simulated (lockstep) or wall (realtime) seconds',
+    )
+    p.add_argument('--seed', type=int, metavar='N')
+    p.add_argument(
+        '--domain-id',
+        type=domain_id,
+        metavar='N',
+        help='ROS_DOMAIN_ID of the run (default: a random unused-looking one, 1..101)',
+    )
+    p.add_argument(
+        '--discovery-range',
+        choices=DISCOVERY_RANGES,
+        default='LOCALHOST',
+        help='ROS_AUTOMATIC_DISCOVERY_RANGE (default LOCALHOST)',
+    )
+    p.add_argument(
+        '--record', action='store_true', help='also record a rosbag2 (MCAP) with the recorder node'
+    )
+    p.add_argument(
+        '--trackers-per-process',
+        type=positive_int,
+        default=1,
+        metavar='K',
+        help='host the trackers K to a process (executable trackers; each still '
+        'its own node with its own namespace and parameters); default 1',
+    )
+    p.add_argument(
+        '--node-netns',
+        type=_netns_rule,
+        action='append',
+        default=[],
+        metavar='PATTERN=NETNS',
+        help='run the node processes whose name matches PATTERN in that network '
+        'namespace (`ip netns exec`; root): simulated hosts, see '
+        'scripts/multihost.py; repeatable, first match wins',
+    )
+    p.add_argument(
+        '--allow-overload',
+        action='store_true',
+        help="start more tracker processes than this machine's limit, which "
+        'its probe derives (`apf-swarm probe`)',
+    )
+    p.add_argument(
+        '--on-recorder-death',
+        choices=('stop', 'continue'),
+        default='stop',
+        help='with --record: what a dying recorder does to the run (default stop; '
+        'continue: fly on unrecorded, reindex the bag afterwards)',
+    )
+    p.add_argument(
+        '--respawn',
+        action='store_true',
+        help='restart a node process that dies (counted in summary.json)',
+    )
+    p.add_argument(
+        '--max-respawns',
+        type=nonneg_int,
+        default=3,
+        metavar='K',
+        help='with --respawn: give up (exit 3) after K restarts of one node (default 3)',
+    )
+    p.add_argument(
+        '--ready-timeout',
+        type=positive_float,
+        default=30.0,
+        metavar='S',
+        help='how long to wait for every node and topic (default 30)',
+    )
+    p.add_argument(
+        '--stall-timeout',
+        type=positive_float,
+        default=20.0,
+        metavar='S',
+        help='stop when no /swarm/state arrives for this long (default 20)',
+    )
+    p.add_argument(
+        '--gains',
+        choices=('auto', 'config'),
+        default='auto',
+        help='realtime: auto (default) replaces the controller gains by '
+        '`apf-swarm design --control-rate` ones when the sampled-data '
+        "prediction says the configuration's would not hold the formation "
+        'at this size and rate; config flies them as given (warned)',
+    )
+    p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+    p.add_argument(
+        '--node-param',
+        action='append',
+        default=[],
+        metavar='NAME:=VALUE',
+        dest='node_params',
+        help='a node parameter for every node (repeatable), e.g. executor:=events, inputs:=odom',
+    )
+    p.add_argument('--out', type=Path, required=True, metavar='DIR')
+
+
+def build_parser(prog: str = 'swarm_up.py') -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=prog,
+        description='Bring up the ROS 2 swarm (target, plant, one tracker process '
+        'per UAV), run it, and write trajectory.npz, summary.json, logs and figures.',
+    )
+    add_arguments(p)
+    return p
+
+
+def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
+    """Run a bring-up from parsed arguments (:func:`add_arguments`); returns the exit code.
+
+    Raises :class:`~apf_swarm_core.errors.ApfSwarmError` for bad input (before anything
+    starts); the caller prints it and exits 2.
+    """
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # a hung run says where
+    cfg = resolve_config(args)
+    check_capacity(
+        cfg.n_trackers,
+        allow_overload=args.allow_overload,
+        per_process=args.trackers_per_process,
+        say=lambda m: print(f'{prog}: {m}', file=sys.stderr, flush=True),
+    )
+    return Bringup(args, cfg, prog=prog).execute()
+
+
+def main(argv: Sequence[str] | None = None, prog: str = 'swarm_up.py') -> int:
+    """Entry point of ``scripts/swarm_up.py``."""
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    try:
+        return run(args, prog=prog)
+    except ApfSwarmError as exc:
+        print(f'{prog}: error: {exc}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        print(f'{prog}: error: {exc.strerror or exc}: {exc.filename or ""}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f'{prog}: interrupted', file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,139 @@
+"""The command lines of a run's node processes, and the network namespaces of simulated
+hosts."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from ..errors import CliError
+from .processes import PACKAGE
+
+
+def executable_path(prefix: Path, name: str) -> Path:
+    return prefix / 'lib' / PACKAGE / name
+
+
+def package_prefix() -> Path:
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+
+    try:
+        return Path(get_package_prefix(PACKAGE))
+    except (PackageNotFoundError, KeyError, ValueError) as exc:
+        raise CliError(
+            f'package {PACKAGE} is not in the ament index ({exc}); build with '
+            '`make setup` and `source scripts/activate.sh`'
+        ) from None
+
+
+def node_commands(
+    prefix: Path,
+    config_file: Path,
+    n: int,
+    mode: str,
+    node_params: Sequence[str] = (),
+    per_process: int = 1,
+) -> list[tuple[str, list[str]]]:
+    """(log name, argv) of every node process of the swarm.
+
+    ``node_params`` (``NAME:=VALUE``) go to every node, e.g. ``executor:=events``.
+    ``per_process`` > 1: the trackers are hosted that many to a process (executable
+    ``trackers``, log names ``trackers_<first>-<last>``), each still its own node
+    ``/uav_<i>/tracker`` with its own parameters.
+    """
+    cfg = str(config_file)
+    extra = [a for p in node_params for a in ('-p', p)]
+
+    def exe(name: str) -> str:
+        return str(executable_path(prefix, name))
+
+    cmds = [
+        (
+            'target',
+            [
+                exe('target'),
+                '--ros-args',
+                '--params-file',
+                cfg,
+                '-r',
+                '__ns:=/target',
+                '-r',
+                '__node:=target',
+                '-p',
+                f'mode:={mode}',
+                '-p',
+                'wait_for_start:=true',
+                *extra,
+            ],
+        ),
+        (
+            'plant',
+            [
+                exe('plant'),
+                '--ros-args',
+                '--params-file',
+                cfg,
+                '-r',
+                '__node:=plant',
+                '-p',
+                f'mode:={mode}',
+                '-p',
+                'wait_for_start:=true',
+                *extra,
+            ],
+        ),
+    ]
+    if per_process > 1:
+        for first in range(1, n + 1, per_process):
+            last = min(n, first + per_process - 1)
+            cmds.append(
+                (
+                    f'trackers_{first}-{last}',
+                    [
+                        exe('trackers'),
+                        '--uav-ids',
+                        f'{first}-{last}',
+                        '--ros-args',
+                        '--params-file',
+                        cfg,
+                        '-p',
+                        f'mode:={mode}',
+                        *extra,
+                    ],
+                )
+            )
+        return cmds
+    for i in range(1, n + 1):
+        cmds.append(
+            (
+                f'tracker_{i}',
+                [
+                    exe('tracker'),
+                    '--ros-args',
+                    '--params-file',
+                    cfg,
+                    '-r',
+                    f'__ns:=/uav_{i}',
+                    '-r',
+                    '__node:=tracker',
+                    '-p',
+                    f'uav_id:={i}',
+                    '-p',
+                    f'mode:={mode}',
+                    *extra,
+                ],
+            )
+        )
+    return cmds
+
+
+def node_netns(name: str, rules: Sequence[str] | None) -> str | None:
+    """The network namespace a node process runs in: the first ``PATTERN=NETNS`` rule whose
+    shell pattern matches its log name (``tracker_3``, ``trackers_1-2``, ``plant``), or None."""
+    import fnmatch
+
+    for rule in rules or ():
+        pattern, _, ns = rule.partition('=')
+        if fnmatch.fnmatchcase(name, pattern):
+            return ns
+    return None

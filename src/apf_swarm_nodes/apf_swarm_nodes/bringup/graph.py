@@ -1,0 +1,151 @@
+"""What the ROS graph must show before a run starts: every node, every expected publisher
+and subscriber (:func:`expected_graph`, :func:`graph_missing`), and the recorder's status."""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+# --------------------------------------------------------------------------------------------
+# the graph: what must be there before the start
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TopicExpectation:
+    """A topic and the publisher / subscriber counts the graph must show.
+
+    ``or_subscribers_of``: subscribers of that other topic count too (a tracker reads its
+    inputs either from the per-UAV odometry topics or from the aggregate ``/swarm/odom``).
+    ``optional``: only checked when the topic has a subscriber (``/swarm/odom`` when no
+    tracker reads it).
+    """
+
+    topic: str
+    publishers: int
+    subscribers: int
+    or_subscribers_of: str | None = None
+    optional: bool = False
+
+
+SWARM_ODOM = '/swarm/odom'
+
+
+def expected_graph(
+    n: int, mode: str, readers: int | None = None
+) -> tuple[list[str], list[TopicExpectation]]:
+    """Fully qualified node names and topic endpoint counts of a swarm of ``n`` trackers.
+
+    Every tracker reads every tracker's odometry and the target's, either as ``/uav_<j>/odom``
+    and ``/target/odom`` (``inputs:=odom``) or as the one aggregate ``/swarm/odom`` message per
+    step (``inputs:=aggregate``); the counts accept either. ``readers``: how many subscribe
+    to each (default n; a realtime process of several trackers reads ``/swarm/odom`` once,
+    see :func:`input_readers`). ``/swarm/start`` and this node's
+    ``/swarm/state`` subscription are checked on its own endpoints (matched counts), see
+    :meth:`Bringup.missing`.
+    """
+    nodes = ['/target/target', '/plant'] + [f'/uav_{i}/tracker' for i in range(1, n + 1)]
+    topics = []
+    readers = n if readers is None else readers
+    for i in range(1, n + 1):
+        topics.append(TopicExpectation(f'/uav_{i}/odom', 1, readers, or_subscribers_of=SWARM_ODOM))
+        topics.append(TopicExpectation(f'/uav_{i}/force_cmd', 1, 1))
+    topics.append(TopicExpectation('/target/odom', 1, readers + 1, or_subscribers_of=SWARM_ODOM))
+    topics.append(TopicExpectation(SWARM_ODOM, 1, 0, optional=True))
+    if mode == 'lockstep':
+        topics.append(TopicExpectation('/clock', 1, 0))
+        topics.append(TopicExpectation('/target/request', 1, 1))
+    topics.append(TopicExpectation('/swarm/state', 1, 1))
+    return nodes, topics
+
+
+def input_readers(n: int, mode: str, per_process: int, node_params: Sequence[str] = ()) -> int:
+    """How many subscribers read the trackers' inputs: one per tracker, except in realtime
+    with the aggregate inputs, where a process of several trackers subscribes to
+    ``/swarm/odom`` once and hands each message to its other nodes (the ``trackers``
+    executable): one per process."""
+    inputs = next(
+        (p.split(':=', 1)[1] for p in reversed(node_params) if p.startswith('inputs:=')),
+        'aggregate',
+    )
+    if mode == 'realtime' and per_process > 1 and inputs == 'aggregate':
+        return -(-n // per_process)
+    return n
+
+
+def graph_missing(
+    present_nodes: Iterable[str],
+    counts: Mapping[str, tuple[int, int]],
+    nodes: Sequence[str],
+    topics: Sequence[TopicExpectation],
+) -> list[str]:
+    """What is not there yet, in words (empty when the graph is complete).
+
+    ``counts`` maps a topic to its (publishers, subscribers) as the graph shows them.
+    """
+    present = set(present_nodes)
+    out = [f'node {name}' for name in nodes if name not in present]
+    for t in topics:
+        pubs, subs = counts.get(t.topic, (0, 0))
+        if t.optional and subs == 0:
+            continue
+        extra = counts.get(t.or_subscribers_of, (0, 0))[1] if t.or_subscribers_of else 0
+        if pubs < t.publishers or subs + extra < t.subscribers:
+            sub_text = f'{subs}' + (
+                f' + {extra} on {t.or_subscribers_of}' if t.or_subscribers_of else ''
+            )
+            need = f' (need >= {t.subscribers})' if t.subscribers else ''
+            out.append(
+                f'topic {t.topic}: publishers {pubs} (need {t.publishers}), '
+                f'subscribers {sub_text}{need}'
+            )
+    return out
+
+
+RECORDER_STATUS = '/recorder/status'
+#: the recorder drains its queues and writes the MCAP summary after SIGINT
+RECORDER_STOP_SEQUENCE = ((signal.SIGINT, 20.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0))
+
+
+def recorder_missing(status: Mapping[str, Any] | None, topics: Sequence[str]) -> list[str]:
+    """What the recorder has not got yet: ``topics`` it does not record, or a publisher it
+    has not matched (``status``: its last ``/recorder/status`` document, None before one)."""
+    if status is None:
+        return ['recorder: no /recorder/status yet']
+    rec = status.get('topics', {})
+    out = [f'recorder: not recording {t} yet' for t in topics if t not in rec]
+    for t, v in sorted(rec.items()):
+        if v.get('matched', 0) < v.get('publishers', 0):
+            out.append(
+                f'recorder: {t} matched {v.get("matched")} of {v.get("publishers")} publishers'
+            )
+    return out
+
+
+def recording_fields(bag: Path) -> dict[str, Any]:
+    """summary.json ``recording``: the bag and the recorder's counts (its metadata.yaml)."""
+    import json
+
+    import yaml
+
+    out: dict[str, Any] = {'bag': str(bag)}
+    try:
+        meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        out['error'] = (
+            f'no readable {bag / "metadata.yaml"} (the recorder did not close the '
+            f'bag); `apf-swarm bag reindex {bag}` recovers its flushed chunks'
+        )
+        return out
+    out['messages'] = int(meta.get('message_count', 0))
+    out['topics'] = len(meta.get('topics_with_message_count') or [])
+    try:
+        counts = json.loads((meta.get('custom_data') or {}).get('apf_swarm.recorder', '{}'))
+    except ValueError:
+        counts = {}
+    for key in ('received', 'written', 'lost', 'dropped'):
+        out[key] = counts.get(key)
+    return out

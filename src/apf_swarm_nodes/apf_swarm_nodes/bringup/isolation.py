@@ -1,0 +1,140 @@
+"""Isolation of a run: its ``ROS_DOMAIN_ID`` (a random domain nobody uses, leased under
+a lock), and the capacity check before it starts."""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import random
+import re
+import subprocess
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import psutil
+
+from ..errors import CliError
+
+# --------------------------------------------------------------------------------------------
+# configuration, isolation, command lines
+# --------------------------------------------------------------------------------------------
+
+
+def check_capacity(
+    n_trackers: int,
+    *,
+    allow_overload: bool = False,
+    per_process: int = 1,
+    say: Callable[[str], None] | None = None,
+) -> None:
+    """Refuse more tracker processes than this machine runs (CliError naming the limit).
+
+    The limit counts processes (``ceil(n_trackers / per_process)``) and comes from the
+    machine's probe (:func:`apf_swarm_nodes.probe.process_limit`: CPU at the lowest rate and
+    memory); a process of K trackers takes far less CPU and memory than K processes, but its
+    trackers share one core. Without a probe (it failed) nothing is refused, with a warning."""
+    from .. import probe
+
+    if allow_overload:
+        return
+    procs = -(-n_trackers // per_process)
+    try:
+        machine = probe.ensure(say=say)
+    except (RuntimeError, OSError, ValueError, subprocess.TimeoutExpired) as exc:
+        if say is not None:
+            say(f'warning: {exc}; the tracker process limit is not known, none applied')
+        return
+    limit = probe.process_limit(machine)
+    if procs > limit['processes'] and not allow_overload:
+        raise CliError(
+            f'n_trackers = {n_trackers} in {procs} processes is more than this '
+            f'machine runs: its probe (`apf-swarm probe`) allows '
+            f'{limit["processes"]} tracker processes ({limit["cpu"]} by CPU at '
+            f'{probe.RATES[-1]:g} Hz, {limit["memory"]} by memory); use fewer '
+            f'trackers, --trackers-per-process K to host several in one process, '
+            f'or --allow-overload to start them anyway'
+        )
+
+
+_FASTDDS_PORT_BASE, _FASTDDS_DOMAIN_GAIN = 7400, 250
+
+
+def _bound_udp_ports() -> set[int]:
+    ports: set[int] = set()
+    with contextlib.suppress(psutil.Error, OSError):
+        ports.update(c.laddr.port for c in psutil.net_connections('udp') if c.laddr)
+    try:
+        for entry in os.listdir('/dev/shm'):
+            m = re.match(r'fastrtps_port(\d+)$', entry)
+            if m:
+                ports.add(int(m.group(1)))
+    except OSError:
+        pass
+    return ports
+
+
+def domain_looks_busy(domain: int, ports: set[int] | None = None) -> bool:
+    """True when a UDP port (or Fast DDS shared-memory port) of the domain's range is in use."""
+    ports = _bound_udp_ports() if ports is None else ports
+    lo = _FASTDDS_PORT_BASE + _FASTDDS_DOMAIN_GAIN * domain
+    return any(lo <= p < lo + _FASTDDS_DOMAIN_GAIN for p in ports)
+
+
+#: how long a picked domain stays reserved for its picker [s]: long enough for the run it
+#: was picked for to start its nodes, whose bound ports then mark it busy
+DOMAIN_LEASE = 60.0
+
+
+def _lease_dir() -> Path:
+    base = os.environ.get('XDG_RUNTIME_DIR') or tempfile.gettempdir()
+    return Path(base) / 'apf_swarm-domains'
+
+
+def pick_domain_id(
+    exclude: Iterable[int] = (), lo: int = 1, hi: int = 101, rng: random.Random | None = None
+) -> int:
+    """A random domain in ``[lo, hi]``, not in ``exclude``, preferring one nobody uses: no
+    bound port of its range, and not picked in the last :data:`DOMAIN_LEASE` seconds by any
+    process of this machine (a lease file, written under a lock, so two runs that pick at
+    the same instant, before either has bound a port, get different domains)."""
+    rng = rng or random.SystemRandom()
+    excl = set(exclude)
+    candidates = [d for d in range(lo, hi + 1) if d not in excl]
+    rng.shuffle(candidates)
+    leases = _lease_dir()
+    try:
+        leases.mkdir(parents=True, exist_ok=True)
+        lock = open(leases / '.lock', 'w')  # noqa: SIM115 (held across the lease, closed below)
+    except OSError:
+        lock = None  # no lease files here: the ports decide alone
+    try:
+        if lock is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        ports, now = _bound_udp_ports(), time.time()
+
+        def leased(d: int) -> bool:
+            try:
+                return now - (leases / str(d)).stat().st_mtime < DOMAIN_LEASE
+            except OSError:
+                return False
+
+        free = [d for d in candidates if not domain_looks_busy(d, ports)]
+        d = next(
+            (d for d in free if lock is None or not leased(d)), free[0] if free else candidates[0]
+        )
+        if lock is not None:
+            (leases / str(d)).write_text(f'{os.getpid()}\n')
+        return d
+    finally:
+        if lock is not None:
+            lock.close()
+
+
+def env_domain() -> int | None:
+    try:
+        return int(os.environ.get('ROS_DOMAIN_ID', ''))
+    except ValueError:
+        return None

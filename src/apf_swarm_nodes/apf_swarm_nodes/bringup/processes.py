@@ -1,0 +1,254 @@
+"""Process supervision without ROS: each node an OS process in its own process group,
+started, watched, restarted and stopped by its own PID (:class:`Child`, :class:`ProcessGroup`),
+and the bring-up's exit codes."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..machine import group_members
+
+PACKAGE = 'apf_swarm_nodes'
+EXIT_OK = 0
+EXIT_BAD_INPUT = 2
+EXIT_CHILD_DIED = 3
+EXIT_STALLED = 4
+EXIT_LOST_SAMPLES = 5
+EXIT_INTERRUPTED = 130
+
+#: escalation of :meth:`ProcessGroup.stop_all`: (signal, seconds to wait after it)
+STOP_SEQUENCE = ((signal.SIGINT, 5.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0))
+
+DISCOVERY_RANGES = ('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF')
+
+
+# --------------------------------------------------------------------------------------------
+# process supervision (no ROS)
+# --------------------------------------------------------------------------------------------
+
+
+def describe_rc(rc: int) -> str:
+    if rc < 0:
+        try:
+            return f'killed by {signal.Signals(-rc).name}'
+        except ValueError:
+            return f'killed by signal {-rc}'
+    return f'exit code {rc}'
+
+
+def stop_process(
+    popen: subprocess.Popen,
+    sequence: Sequence[tuple[int, float]] = ((signal.SIGINT, 30.0), (signal.SIGKILL, 5.0)),
+) -> int | None:
+    """Stop one process started with ``start_new_session=True``: each signal of ``sequence``
+    to its process group, then wait at most that many seconds, until it has exited. Returns
+    its exit code (None if it outlived every signal). :meth:`ProcessGroup.stop_all` does the
+    same for a whole graph, and also waits for every member of each group."""
+    for sig, wait_s in sequence:
+        if popen.poll() is not None:
+            break
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(popen.pid, sig)
+        try:
+            popen.wait(wait_s)
+        except subprocess.TimeoutExpired:
+            continue
+    return popen.poll()
+
+
+def _group_alive(pgid: int) -> bool:
+    """True while process group ``pgid`` has a member that is not a zombie."""
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    # zombies answer kill(0) too (and PID 1 of a container may never reap them)
+    return bool(group_members(pgid))
+
+
+def tail_lines(path: Path, n: int = 10, max_bytes: int = 16384) -> list[str]:
+    """The last ``n`` lines of a text file (empty list if unreadable)."""
+    try:
+        with open(path, 'rb') as f:
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - max_bytes))
+            data = f.read()
+    except OSError:
+        return []
+    lines = data.decode('utf-8', errors='replace').splitlines()
+    return lines[-n:]
+
+
+@dataclass
+class Child:
+    """One supervised OS process: its own process group, output appended to ``log_path``."""
+
+    name: str
+    argv: list[str]
+    log_path: Path
+    env: Mapping[str, str] | None = None
+    cwd: Path | None = None
+    popen: subprocess.Popen[bytes] | None = None
+    starts: int = 0
+    stopping: bool = False
+    pids: list[int] = field(default_factory=list)
+
+    def start(self) -> None:
+        """Start (or restart) the process; the log is appended to, with a header on restarts."""
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.log_path, 'ab') as log:
+            if self.starts:
+                log.write(
+                    f'\n===== {self.name}: restart {self.starts} at '
+                    f'{time.strftime("%H:%M:%S")} =====\n'.encode()
+                )
+                log.flush()
+            self.popen = subprocess.Popen(
+                self.argv,
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                env=dict(self.env) if self.env is not None else None,
+                cwd=self.cwd,
+                start_new_session=True,
+                close_fds=True,
+            )
+        self.starts += 1
+        self.stopping = False
+        self.pids.append(self.popen.pid)
+
+    @property
+    def pid(self) -> int | None:
+        return self.popen.pid if self.popen is not None else None
+
+    @property
+    def respawns(self) -> int:
+        return max(0, self.starts - 1)
+
+    def poll(self) -> int | None:
+        """The exit code once the process ended (reaped), else None (also when never started)."""
+        return self.popen.poll() if self.popen is not None else None
+
+    @property
+    def running(self) -> bool:
+        return self.popen is not None and self.popen.poll() is None
+
+    def signal_group(self, sig: int) -> None:
+        """Send ``sig`` to the child's process group (no error if it is gone); a stopped
+        (SIGSTOP, Ctrl-Z) process is continued so that it can handle SIGINT / SIGTERM."""
+        if self.popen is None:
+            return
+        try:
+            os.killpg(self.popen.pid, sig)
+            if sig not in (signal.SIGKILL, signal.SIGCONT):
+                os.killpg(self.popen.pid, signal.SIGCONT)
+        except ProcessLookupError:
+            pass
+
+    def tail(self, n: int = 10) -> list[str]:
+        return tail_lines(self.log_path, n)
+
+    def death_report(self, rc: int, n: int = 10) -> str:
+        """Multi-line report of an unexpected exit: name, pid, exit code, last log lines."""
+        lines = self.tail(n)
+        head = (
+            f'{self.name} (pid {self.pid}) died unexpectedly: {describe_rc(rc)}; '
+            f'last {len(lines)} lines of {self.log_path}:'
+        )
+        return '\n'.join([head] + [f'    | {ln}' for ln in lines])
+
+
+class ProcessGroup:
+    """A set of :class:`Child` processes started, polled and stopped together."""
+
+    def __init__(self, stop_sequence: Sequence[tuple[int, float]] = STOP_SEQUENCE) -> None:
+        self.children: list[Child] = []
+        self.stop_sequence = tuple(stop_sequence)
+
+    def add(self, child: Child) -> Child:
+        if any(c.name == child.name for c in self.children):
+            raise ValueError(f'duplicate child name {child.name!r}')
+        self.children.append(child)
+        return child
+
+    def __iter__(self):
+        return iter(self.children)
+
+    def start_all(self) -> None:
+        for c in self.children:
+            c.start()
+
+    def poll(self) -> list[tuple[Child, int]]:
+        """Children that exited since they were (re)started and were not asked to stop."""
+        return [(c, rc) for c in self.children if not c.stopping and (rc := c.poll()) is not None]
+
+    def stop_all(
+        self, *, hurry: Callable[[], int] | None = None, poll_interval: float = 0.02
+    ) -> dict[str, str]:
+        """Stop every running child: SIGINT to each group, wait, SIGTERM, wait, SIGKILL.
+
+        A child counts as stopped when its process has exited (and is reaped) and its process
+        group has no member left. Each stage waits at most its time in :attr:`stop_sequence`
+        and ends early once every child is stopped, or when ``hurry()`` (a counter, e.g. of
+        signals received) grows: each further Ctrl-C moves on to the next stage at once.
+        Returns ``{name: how}``, ``how`` one of
+        ``exited`` (had already ended), ``SIGINT``, ``SIGTERM``, ``SIGKILL`` (the signal after
+        which it stopped) or ``not stopped`` (should never happen; see :meth:`leftovers`).
+        """
+
+        def stopped(c: Child) -> bool:
+            return c.poll() is not None and not _group_alive(c.popen.pid)
+
+        how: dict[str, str] = {}
+        pending = []
+        for c in self.children:
+            if c.popen is None:
+                continue
+            c.stopping = True
+            if stopped(c):
+                how[c.name] = 'exited'
+            else:
+                pending.append(c)
+        for sig, wait_s in self.stop_sequence:
+            if not pending:
+                break
+            for c in pending:
+                c.signal_group(sig)
+            deadline = time.monotonic() + wait_s
+            hurried = hurry() if hurry else 0
+            while pending:
+                still = []
+                for c in pending:
+                    if stopped(c):
+                        how[c.name] = signal.Signals(sig).name
+                    else:
+                        still.append(c)
+                pending = still
+                if not pending or time.monotonic() >= deadline:
+                    break
+                if hurry is not None and hurry() > hurried:
+                    break
+                time.sleep(poll_interval)
+        for c in pending:
+            how[c.name] = 'not stopped'
+        return how
+
+    def leftovers(self) -> list[tuple[str, int]]:
+        """(name, pid) of every live process in a process group this group ever started
+        (each start is a new session: process group id = the child's pid); empty when clean."""
+        return [
+            (c.name, member)
+            for c in self.children
+            for pid in c.pids
+            for member in group_members(pid)
+        ]
