@@ -6,8 +6,18 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from pathlib import Path
 
-__all__ = ['domain_id', 'nonneg_float', 'nonneg_int', 'positive_float', 'positive_int']
+from apf_swarm_core.config import preset_names
+
+__all__ = [
+    'add_config_args',
+    'domain_id',
+    'nonneg_float',
+    'nonneg_int',
+    'positive_float',
+    'positive_int',
+]
 
 
 def _number(kind: type, lo: float, strict: bool, what: str) -> Callable[[str], float]:
@@ -36,3 +46,26 @@ def domain_id(text: str) -> int:
     if val > 232:
         raise argparse.ArgumentTypeError(f'{val}: a ROS domain id is 0..232')
     return val
+
+
+def add_config_args(
+    p: argparse.ArgumentParser, *, required: bool = True, default_preset: str | None = None
+) -> None:
+    """``--preset NAME | --config FILE`` and ``--set KEY=VALUE``: the configuration options of
+    every command (resolved by :func:`apf_swarm_core.config.resolve`)."""
+    g = p.add_mutually_exclusive_group(required=required)
+    g.add_argument(
+        '--preset',
+        metavar='NAME',
+        default=default_preset,
+        help='named preset (config/NAME.yaml): ' + ', '.join(preset_names()),
+    )
+    g.add_argument('--config', metavar='FILE', type=Path, help='ROS 2 parameter file')
+    p.add_argument(
+        '--set',
+        metavar='KEY=VALUE',
+        action='append',
+        default=[],
+        dest='sets',
+        help='override a configuration key (repeatable), e.g. --set gamma=0.5',
+    )

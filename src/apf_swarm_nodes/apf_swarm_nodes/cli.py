@@ -21,41 +21,19 @@ from apf_swarm_core.config import (
     REALTIME_RATE,
     SwarmConfig,
     load_preset,
-    preset_names,
     resolve,
 )
 from apf_swarm_core.design import b_for_spacing, equilibrium_formation, triangle_c_for_spacing
 from apf_swarm_core.errors import ApfSwarmError
 from apf_swarm_core.simulator import simulate
 
-from .argtypes import nonneg_float, positive_float
+from .argtypes import add_config_args, nonneg_float, positive_float
 from .progress import Progress
 from .runio import format_summary, write_run
 
 __all__ = ['build_parser', 'main']
 
 PROG = 'apf-swarm'
-
-
-def _add_config_args(
-    p: argparse.ArgumentParser, *, required: bool = True, default_preset: str | None = None
-) -> None:
-    g = p.add_mutually_exclusive_group(required=required)
-    g.add_argument(
-        '--preset',
-        metavar='NAME',
-        default=default_preset,
-        help='named preset (config/NAME.yaml): ' + ', '.join(preset_names()),
-    )
-    g.add_argument('--config', metavar='FILE', type=Path, help='ROS 2 parameter file')
-    p.add_argument(
-        '--set',
-        metavar='KEY=VALUE',
-        action='append',
-        default=[],
-        dest='sets',
-        help='override a configuration key (repeatable), e.g. --set gamma=0.5',
-    )
 
 
 def _load(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> SwarmConfig:
@@ -547,7 +525,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
 
     p = sub.add_parser('simulate', help='run the headless simulator')
-    _add_config_args(p)
+    add_config_args(p)
     p.add_argument('--law', choices=('proposed', 'traditional'))
     p.add_argument('--n-trackers', type=int)
     p.add_argument('--duration', type=float, metavar='S')
@@ -561,7 +539,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         'check', help='validation and gain report (exit 0 ok, 1 warnings, 2 errors)'
     )
-    _add_config_args(p)
+    add_config_args(p)
     p.add_argument(
         '--mode',
         choices=('lockstep', 'realtime'),
@@ -580,7 +558,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_check)
 
     p = sub.add_parser('design', help='b (or c) for a spacing, and the equilibrium shape')
-    _add_config_args(p, required=False, default_preset='triangle')
+    add_config_args(p, required=False, default_preset='triangle')
     p.add_argument(
         '--spacing', type=float, metavar='D', help='wanted nearest-neighbour distance [m]'
     )
@@ -600,7 +578,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser('sweep', help='both laws over values of one key, batched')
-    _add_config_args(p, required=False, default_preset='triangle')
+    add_config_args(p, required=False, default_preset='triangle')
     p.add_argument('--param', required=True, metavar='NAME')
     p.add_argument('--values', required=True, metavar='V1,V2,...')
     p.add_argument('--seeds', type=int, default=1, metavar='K')

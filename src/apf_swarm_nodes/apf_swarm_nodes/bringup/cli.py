@@ -9,10 +9,10 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from apf_swarm_core.config import SwarmConfig, preset_names, resolve
+from apf_swarm_core.config import SwarmConfig, resolve
 from apf_swarm_core.errors import ApfSwarmError
 
-from ..argtypes import domain_id, nonneg_int, positive_float, positive_int
+from ..argtypes import add_config_args, domain_id, nonneg_int, positive_float, positive_int
 from .isolation import check_capacity
 from .processes import DISCOVERY_RANGES, EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from .session import Bringup
@@ -43,21 +43,7 @@ def _netns_rule(text: str) -> str:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``swarm_up.py`` / ``apf-swarm up``."""
-    g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument(
-        '--preset',
-        metavar='NAME',
-        help='named preset (config/NAME.yaml): ' + ', '.join(preset_names()),
-    )
-    g.add_argument('--config', metavar='FILE', type=Path, help='ROS 2 parameter file')
-    p.add_argument(
-        '--set',
-        metavar='KEY=VALUE',
-        action='append',
-        default=[],
-        dest='sets',
-        help='override a configuration key (repeatable), e.g. --set gamma=0.5',
-    )
+    add_config_args(p)
     p.add_argument('--n-trackers', type=int, metavar='N', help='number of tracker processes')
     p.add_argument(
         '--mode',
