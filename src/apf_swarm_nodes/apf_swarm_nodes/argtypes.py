@@ -21,7 +21,7 @@ __all__ = [
 
 
 def _number(kind: type, lo: float, strict: bool, what: str) -> Callable[[str], float]:
-    def convert(text: str):
+    def convert(text: str) -> float:
         try:
             val = kind(text)
         except ValueError:
@@ -42,7 +42,7 @@ nonneg_int = _number(int, 0, False, 'must be >= 0')
 
 def domain_id(text: str) -> int:
     """A ROS domain id, 0..232."""
-    val = nonneg_int(text)
+    val = int(nonneg_int(text))
     if val > 232:
         raise argparse.ArgumentTypeError(f'{val}: a ROS domain id is 0..232')
     return val

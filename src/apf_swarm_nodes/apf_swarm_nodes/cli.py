@@ -40,7 +40,7 @@ def _load(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> Swar
     return resolve(args.config, args.preset, args.sets, **(extra or {}))
 
 
-def _progress(args: argparse.Namespace, label: str):
+def _progress(args: argparse.Namespace, label: str) -> Progress | None:
     return None if getattr(args, 'quiet', False) else Progress(label)
 
 
@@ -228,14 +228,16 @@ def cmd_design(args: argparse.Namespace) -> int:
         raise ApfSwarmError(
             'design needs --spacing D (formation) or --control-rate HZ (gains for a realtime loop)'
         )
-    n, p = cfg.n_trackers, cfg.potential_params()
+    n = cfg.n_trackers
+    pp = cfg.potential_params()
+    p = {'k_n': pp['k_n'], 'k_f': pp['k_f'], 'a': pp['a'], 'b': pp['b'], 'c': pp['c']}
     if args.solve == 'b':
         p['b'] = b_for_spacing(args.spacing, n, k_n=p['k_n'], k_f=p['k_f'], a=p['a'], c=p['c'])
     else:
         if n != 3:
             raise ApfSwarmError('--solve c has a closed form for 3 trackers only; use --solve b')
         p['c'] = triangle_c_for_spacing(args.spacing, p['a'], p['b'], p['k_n'], p['k_f'])
-    form = equilibrium_formation(n, **p)
+    form = equilibrium_formation(n, k_n=p['k_n'], k_f=p['k_f'], a=p['a'], b=p['b'], c=p['c'])
     out = {
         'n_trackers': n,
         'spacing': args.spacing,

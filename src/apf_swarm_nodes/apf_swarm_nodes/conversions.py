@@ -201,7 +201,7 @@ def swarm_state_msg(
     missed_deadlines: int,
     stale_inputs: int,
     rejected_inputs: int,
-    active: Sequence[bool] | None = None,
+    active: Sequence[bool] | NDArray[np.bool_] | None = None,
     target_age: float = 0.0,
     command_latency: Sequence[float] | None = None,
     out: SwarmState | None = None,
@@ -308,7 +308,7 @@ def swarm_odom_msg(
     v: NDArray[np.float64],
     target_x: NDArray[np.float64],
     target_v: NDArray[np.float64],
-    active: Sequence[bool] | None = None,
+    active: Sequence[bool] | NDArray[np.bool_] | None = None,
     target_age: float = 0.0,
     command_latency: NDArray[np.float64] | None = None,
 ) -> SwarmOdometry:

@@ -45,6 +45,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import rclpy
 from apf_swarm_core.config import REALTIME_RATE
@@ -211,7 +212,7 @@ def running() -> bool:
     return rclpy.ok() and not _STOP.is_set()
 
 
-def _stop_between_callbacks(signum: int, _frame) -> None:
+def _stop_between_callbacks(signum: int, _frame: object) -> None:
     """The first SIGINT / SIGTERM stops the spin loop between callbacks; a second one (a
     callback or the shutdown hangs) terminates the process as usual."""
     _STOP.set()
@@ -222,7 +223,7 @@ def run_nodes(
     name: str,
     factories: Sequence[Callable[[], Node]],
     args: list[str] | None = None,
-    run: Callable[[Node], None] | None = None,
+    run: Callable[[Any], None] | None = None,
 ) -> int:
     """The Jazzy ``main()`` for one or several nodes in one process: init, build the nodes,
     spin them together on one executor (the ``executor`` parameter of the first decides),
@@ -271,7 +272,7 @@ def run_node(
     name: str,
     factory: Callable[[], Node],
     args: list[str] | None = None,
-    run: Callable[[Node], None] | None = None,
+    run: Callable[[Any], None] | None = None,
 ) -> int:
     """:func:`run_nodes` for one node (every node's ``main()``)."""
     return run_nodes(name, [factory], args, run)

@@ -168,6 +168,7 @@ class PlayerNode(Node):
     def _publish_clock(self, t_bag_ns: int) -> None:
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = divmod(int(t_bag_ns), 1_000_000_000)
+        assert self.clock_pub is not None  # only called when /clock is published
         self.clock_pub.publish(msg)
 
     def _wait_until(self, due_ns: int, bag_at: Any) -> bool:

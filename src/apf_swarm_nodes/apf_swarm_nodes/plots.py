@@ -17,6 +17,7 @@ import matplotlib.pyplot as plt
 import matplotlib.ticker
 import numpy as np
 from apf_swarm_core.metrics import centroid_error
+from matplotlib.figure import Figure
 
 __all__ = [
     'paper_figures',
@@ -31,7 +32,7 @@ Traj = Mapping[str, Any]
 _LAW_TITLE = {'traditional': 'traditional (sign) law', 'proposed': 'proposed (saturated) law'}
 
 
-def _save(fig: plt.Figure, path: Path) -> Path:
+def _save(fig: Figure, path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -177,9 +177,9 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
             pub.get_subscription_count() < 1 or node.count_publishers(PONG) < 1
         ) and time.monotonic() < deadline:
             if echo.poll() is not None:
+                err = (echo.stderr.read() if echo.stderr else b'').decode(errors='replace')
                 raise RuntimeError(
-                    f"the probe's echo process exited {echo.returncode}: "
-                    f'{echo.stderr.read().decode(errors="replace")[-500:]}'
+                    f"the probe's echo process exited {echo.returncode}: {err[-500:]}"
                 )
             rclpy.spin_once(node, timeout_sec=0.05)
         step, period = 0, 1.0 / rate

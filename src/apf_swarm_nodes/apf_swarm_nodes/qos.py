@@ -30,7 +30,7 @@ def qos_to_dict(qos: Any) -> dict[str, Any]:
     """A rosbags ``Qos`` as the metadata.yaml v9 mapping."""
     from rosbags.rosbag2.metadata import dump_qos_v9
 
-    out: dict[str, Any] = dump_qos_v9([qos])[0]
+    out: dict[str, Any] = dict(dump_qos_v9([qos])[0])
     return out
 
 

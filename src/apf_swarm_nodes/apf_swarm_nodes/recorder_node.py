@@ -130,7 +130,7 @@ class _Topic:
 
     def __init__(self, name: str, msgtype: str, conn: Any) -> None:
         self.name, self.type, self.conn = name, msgtype, conn
-        self.sub = None
+        self.sub: Any = None
         self.received = self.written = self.lost = 0
         self.last_seq = 0
         self.single_pub = False
@@ -182,7 +182,7 @@ class RecorderNode(Node):
         self._last_status = ''
         #: [period, next due (monotonic), what]: run by :meth:`spin` between waits
         now = time.monotonic()
-        self.periodic = [
+        self.periodic: list[list[Any]] = [
             [float(p['discovery_period']), now, self._discover],
             [float(p['flush_period']), now + float(p['flush_period']), self._flush],
             [0.5, now + 0.5, self._publish_status],

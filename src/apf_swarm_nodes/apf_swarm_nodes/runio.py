@@ -116,7 +116,8 @@ def write_run(
     out.mkdir(parents=True, exist_ok=True)
     paths = {'trajectory': out / 'trajectory.npz', 'summary': out / 'summary.json'}
     keys = [*TRAJECTORY_KEYS, *(k for k in RUN_ARRAYS if k in traj)]
-    np.savez(paths['trajectory'], **{k: np.asarray(traj[k]) for k in keys})
+    arrays: dict[str, Any] = {k: np.asarray(traj[k]) for k in keys}
+    np.savez(paths['trajectory'], **arrays)
     paths['summary'].write_text(json.dumps(summary, indent=2) + '\n')
     if cfg is not None:
         paths['config'] = out / 'config.yaml'

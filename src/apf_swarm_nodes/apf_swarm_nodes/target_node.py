@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
+from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from std_msgs.msg import Empty, UInt64
@@ -53,7 +55,7 @@ NODE_PARAMS = (
 class TargetNode(Node):
     """Publishes the trajectory's state; the trajectory itself is the core's."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__('target', **kwargs)
         declare_config(self)
         p = declare_node_params(self, NODE_PARAMS)
@@ -77,7 +79,7 @@ class TargetNode(Node):
             f'target: {self.cfg.target_trajectory} at {self.cfg.target_speed:g} m/s, {self.mode}'
         )
 
-    def _publish(self, t: float, stamp) -> None:
+    def _publish(self, t: float, stamp: Time) -> None:
         x, v = self.traj.state(t)
         self._msg = odom_msg(x, v, stamp, 'target', out=self._msg)
         self.pub.publish(self._msg)

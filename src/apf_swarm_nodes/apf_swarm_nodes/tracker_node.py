@@ -27,8 +27,12 @@ from __future__ import annotations
 import random
 import sys
 import time
+from functools import partial
+from typing import Any
 
 from apf_swarm_core.agents import TrackerAgent
+from apf_swarm_core.config import SwarmConfig
+from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
@@ -103,7 +107,7 @@ class TrackerNode(Node):
     process, which hands each message on (:func:`group_main`, realtime).
     """
 
-    def __init__(self, swarm_odom: bool = True, **kwargs) -> None:
+    def __init__(self, swarm_odom: bool = True, **kwargs: Any) -> None:
         super().__init__('tracker', **kwargs)
         declare_config(self, writable=TrackerAgent.RETUNABLE)
         p = declare_node_params(self, NODE_PARAMS)
@@ -129,7 +133,7 @@ class TrackerNode(Node):
             for j in self.agent.ids:
                 if j != self.uav_id:
                     self.create_subscription(
-                        Odometry, odom_topic(j), lambda m, j=j: self._on_odom(j, m), qos
+                        Odometry, odom_topic(j), partial(self._on_odom, j), qos
                     )
             self.create_subscription(Odometry, TARGET_ODOM, lambda m: self._on_odom(0, m), qos)
         elif swarm_odom:
@@ -150,7 +154,7 @@ class TrackerNode(Node):
             f'{[j for j in self.agent.ids if j != self.uav_id]}, dt {self.cfg.dt:g} s'
         )
 
-    def _retune(self, cfg) -> None:
+    def _retune(self, cfg: SwarmConfig) -> None:
         """An accepted parameter change: the controller and potential use it from now on."""
         changed = self.agent.retune(cfg)
         self.cfg = cfg
@@ -159,7 +163,7 @@ class TrackerNode(Node):
                 'retuned: ' + ', '.join(f'{k} = {getattr(cfg, k)!r}' for k in changed)
             )
 
-    def _now_and_age(self, stamp) -> tuple[float, float]:
+    def _now_and_age(self, stamp: Time) -> tuple[float, float]:
         """(now, age of a message with this stamp) [s]: lockstep on the simulated clock
         (the stamp is the step's time, age 0), realtime on the monotonic clock (age = ROS
         time now - stamp, never negative)."""
@@ -197,7 +201,7 @@ class TrackerNode(Node):
         for node in self.fanout:
             node._take_swarm_odom(msg, m)
 
-    def _take_swarm_odom(self, msg: SwarmOdometry, m) -> None:
+    def _take_swarm_odom(self, msg: SwarmOdometry, m: Any) -> None:
         step = m.step if self.mode == 'lockstep' else -1
         seq = step if step >= 0 else m.stamp_ns
         now, age = self._now_and_age(msg.header.stamp)
@@ -222,10 +226,14 @@ class TrackerNode(Node):
         elif self.mode == 'realtime' and self.on_odom:
             self._realtime_command(msg.header.stamp)
 
-    def _publish(self, step: int, stamp, now: float | None = None) -> None:
+    def _publish(self, step: int, stamp: Time, now: float | None = None) -> None:
         """The command of ``step``; lockstep with a stale input (the target silent for
         longer than input_timeout of simulated time): the safe brake, flagged stale."""
-        stale = self.agent.stale_sources(now, self.timeout) if self.mode == 'lockstep' else []
+        stale = (
+            self.agent.stale_sources(now, self.timeout)
+            if self.mode == 'lockstep' and now is not None
+            else []
+        )
         if stale:
             self._send_brake(step, stamp, stale)
             self.agent.brake(step)
@@ -265,7 +273,7 @@ class TrackerNode(Node):
         if not self.on_odom or self.agent.stale_sources(time.monotonic(), self.timeout):
             self._realtime_command(self.get_clock().now().to_msg())
 
-    def _realtime_command(self, stamp) -> None:
+    def _realtime_command(self, stamp: Time) -> None:
         """Command from the latest inputs, or the safe brake when one is stale.
 
         The header stamp is the stamp of the odometry that triggered it (trigger odom), so
@@ -286,7 +294,7 @@ class TrackerNode(Node):
             return
         self._send_brake(self._tick, stamp, stale)
 
-    def _send_brake(self, step: int, stamp, stale: list[int]) -> None:
+    def _send_brake(self, step: int, stamp: Time, stale: list[int]) -> None:
         """Publish the safe brake (:func:`apf_swarm_core.agents.brake_force`), flagged stale."""
         self.agent.stale += 1
         if not self._stale_reported:

@@ -9,7 +9,7 @@ import os
 import signal
 import subprocess
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,7 +44,7 @@ def describe_rc(rc: int) -> str:
 
 
 def stop_process(
-    popen: subprocess.Popen,
+    popen: subprocess.Popen[bytes],
     sequence: Sequence[tuple[int, float]] = ((signal.SIGINT, 30.0), (signal.SIGKILL, 5.0)),
 ) -> int | None:
     """Stop one process started with ``start_new_session=True``: each signal of ``sequence``
@@ -181,7 +181,7 @@ class ProcessGroup:
         self.children.append(child)
         return child
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Child]:
         return iter(self.children)
 
     def start_all(self) -> None:
@@ -207,7 +207,7 @@ class ProcessGroup:
         """
 
         def stopped(c: Child) -> bool:
-            return c.poll() is not None and not _group_alive(c.popen.pid)
+            return c.popen is not None and c.poll() is not None and not _group_alive(c.popen.pid)
 
         how: dict[str, str] = {}
         pending = []

@@ -113,11 +113,15 @@ class Bringup:
         self.signals = _Signals()
         self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
         self.domain_id: int | None = None
-        self.node = None
-        self.executor = None
-        self.state_sub = None
-        self.start_pub = None
-        self.t_launch = self.t_start = self.t_end = None
+        # rclpy objects, made by run() once rclpy is imported (this module does not import it)
+        self.node: Any = None
+        self.executor: Any = None
+        self.state_sub: Any = None
+        self.start_pub: Any = None
+        # monotonic times of the launch, the start and the end of the run [s]
+        self.t_launch: Any = None
+        self.t_start: Any = None
+        self.t_end: Any = None
         self.stop_how: dict[str, str] = {}
         self.stop_seconds = 0.0
         self.leftovers: list[tuple[str, int]] = []

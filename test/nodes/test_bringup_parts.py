@@ -1,0 +1,148 @@
+"""The bring-up's ROS-free parts: graph expectations, process supervision (real
+subprocesses, no ROS) and the accumulation of /swarm/state samples."""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from apf_swarm_nodes.bringup import (
+    Child,
+    ProcessGroup,
+    StateAccumulator,
+    expected_graph,
+    graph_missing,
+)
+from apf_swarm_nodes.bringup.graph import input_readers
+from apf_swarm_nodes.errors import CliError
+
+
+def complete_counts(n: int, mode: str) -> tuple[list[str], dict[str, tuple[int, int]]]:
+    nodes, topics = expected_graph(n, mode)
+    return nodes, {t.topic: (t.publishers, t.subscribers) for t in topics}
+
+
+@pytest.mark.parametrize('mode', ['lockstep', 'realtime'])
+def test_a_complete_graph_misses_nothing_and_each_gap_is_named(mode: str) -> None:
+    nodes, counts = complete_counts(3, mode)
+    _, topics = expected_graph(3, mode)
+    assert graph_missing(nodes, counts, nodes, topics) == []
+    assert len(nodes) == 5 and ('/clock' in counts) == (mode == 'lockstep')
+    # a tracker missing, and a force topic without its publisher
+    gone = [n for n in nodes if n != '/uav_2/tracker']
+    short = dict(counts, **{'/uav_3/force_cmd': (0, 1)})
+    missing = graph_missing(gone, short, nodes, topics)
+    assert missing[0] == 'node /uav_2/tracker'
+    assert missing[1].startswith('topic /uav_3/force_cmd: publishers 0 (need 1)')
+
+
+def test_the_aggregate_inputs_count_for_the_per_uav_readers() -> None:
+    nodes, topics = expected_graph(3, 'realtime')
+    counts = {t.topic: (t.publishers, 0 if 'odom' in t.topic else t.subscribers) for t in topics}
+    assert any(
+        'subscribers 0 + 0 on /swarm/odom' in m
+        for m in graph_missing(nodes, counts, nodes, topics)
+    )
+    counts['/swarm/odom'] = (1, 3)  # every tracker reads the aggregate instead
+    counts['/target/odom'] = (1, 1)  # and the plant reads the target
+    assert graph_missing(nodes, counts, nodes, topics) == []
+    # a realtime process of 4 trackers reads the aggregate once
+    assert input_readers(16, 'realtime', 4) == 4
+    assert input_readers(16, 'lockstep', 4) == 16
+    assert input_readers(16, 'realtime', 4, ['inputs:=odom']) == 16
+
+
+def wait_until(cond, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.02)
+    return cond()
+
+
+def test_a_group_stops_each_child_with_the_first_signal_that_works(tmp_path: Path) -> None:
+    # one child exits on SIGINT, one ignores SIGINT and exits on SIGTERM, one has exited already
+    ignores_int = (
+        'import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); '
+        'print("ready", flush=True); time.sleep(60)'
+    )
+    group = ProcessGroup(
+        stop_sequence=((signal.SIGINT, 2.0), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0))
+    )
+    group.add(
+        Child('polite', [sys.executable, '-c', 'import time; time.sleep(60)'], tmp_path / 'a.log')
+    )
+    group.add(Child('stubborn', [sys.executable, '-c', ignores_int], tmp_path / 'b.log'))
+    group.add(Child('done', [sys.executable, '-c', 'print("bye")'], tmp_path / 'c.log'))
+    with pytest.raises(ValueError, match='duplicate child name'):
+        group.add(Child('done', ['true'], tmp_path / 'd.log'))
+    group.start_all()
+    done = group.children[2]
+    assert wait_until(lambda: done.poll() is not None, 10)
+    assert group.poll() == [(done, 0)]  # an unexpected exit is reported
+    # the stubborn child ignores SIGINT only once it says so
+    assert wait_until(lambda: 'ready' in (tmp_path / 'b.log').read_text(), 10)
+    how = group.stop_all()
+    assert how == {'done': 'exited', 'polite': 'SIGINT', 'stubborn': 'SIGTERM'}, how
+    assert group.leftovers() == []
+    assert (tmp_path / 'c.log').read_text().strip() == 'bye'
+
+
+def test_a_restarted_child_appends_to_its_log_with_a_header(tmp_path: Path) -> None:
+    c = Child('echo', [sys.executable, '-c', 'print("run")'], tmp_path / 'e.log')
+    c.start()
+    assert wait_until(lambda: c.poll() is not None, 10)
+    c.start()
+    assert wait_until(lambda: c.poll() is not None, 10)
+    text = (tmp_path / 'e.log').read_text()
+    assert text.count('run') == 2 and 'echo: restart 1' in text
+    assert c.respawns == 1 and len(c.pids) == 2
+
+
+def sample(step: int, n: int = 3) -> SimpleNamespace:
+    z = np.zeros((n, 3))
+    return SimpleNamespace(
+        step=step,
+        t=step * 0.001,
+        x=z + step,
+        v=z,
+        u=z,
+        s=z,
+        target_x=np.zeros(3),
+        target_v=np.zeros(3),
+        active=(True,) * n,
+        target_age=0.0,
+        stale_inputs=0,
+        command_latency=(0.0,) * n,
+    )
+
+
+def test_lockstep_samples_count_gaps_and_out_of_order_steps() -> None:
+    acc = StateAccumulator('lockstep', 10, record_every=2)
+    for k in (0, 1, 2, 5, 4, 6, 7, 8, 9):
+        acc.add(sample(k))
+    m = acc.messages()
+    assert m['received'] == 9 and m['dropped'] == 2 and m['gaps'] == [[3, 4]]
+    assert m['out_of_order'] == 1 and m['expected'] == 10 and acc.complete
+    traj = acc.trajectory()
+    assert traj is not None
+    # every second step is kept; the dropped step 4 is not there
+    np.testing.assert_array_equal(traj['t'] * 1000, [0, 2, 6, 8])
+    assert traj['x'].shape == (4, 3, 3) and traj['active'].dtype == bool
+
+
+def test_a_trajectory_refuses_samples_of_another_size() -> None:
+    acc = StateAccumulator('realtime', 10)
+    acc.add(sample(0))
+    acc.add(sample(0))  # the publish timer repeated a step
+    acc.add(sample(3, n=4))
+    assert acc.messages()['repeated'] == 1
+    with pytest.raises(CliError, match='changed its number of trackers from 3'):
+        acc.trajectory()
+    assert StateAccumulator('lockstep', 5).trajectory() is None
