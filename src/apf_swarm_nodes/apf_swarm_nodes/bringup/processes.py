@@ -252,3 +252,11 @@ class ProcessGroup:
             for pid in c.pids
             for member in group_members(pid)
         ]
+
+
+class StopRun(Exception):  # noqa: N818 (a control-flow signal, not an error)
+    """Ends the run early with an exit code and a status word."""
+
+    def __init__(self, code: int, status: str, message: str = '') -> None:
+        super().__init__(message)
+        self.code, self.status, self.message = code, status, message

@@ -1,0 +1,193 @@
+"""The bring-up's own ROS node: its subscription to ``/swarm/state`` and the ``/swarm/start``
+publisher, the wait until the graph shows every node and matched endpoint, and the drain
+and shutdown at the end."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import time
+from pathlib import Path
+from typing import Any
+
+from apf_swarm_core.config import (
+    SwarmConfig,
+)
+
+from ..samples import StateAccumulator
+from .graph import (
+    RECORDER_STATUS,
+    expected_graph,
+    graph_missing,
+    input_readers,
+    recorder_missing,
+)
+from .processes import (
+    EXIT_BAD_INPUT,
+    StopRun,
+)
+
+
+class GraphWatch:
+    """What :class:`~.session.Bringup` does on the ROS graph (a mixin)."""
+
+    args: argparse.Namespace
+    cfg: SwarmConfig
+    mode: str
+    n: int
+    node_params: list[str]
+    acc: StateAccumulator
+    rec_status: dict[str, Any] | None
+    node: Any
+    executor: Any
+    state_sub: Any
+    start_pub: Any
+    t_launch: Any
+    t_start: Any
+    domain_id: int | None
+    out: Path
+
+    def say(self, text: str) -> None:
+        raise NotImplementedError
+
+    def warn_once(self, key: str, text: str) -> None:
+        raise NotImplementedError
+
+    def check_signals(self) -> None:
+        raise NotImplementedError
+
+    def supervise(self) -> None:
+        raise NotImplementedError
+
+    def init_ros(self) -> None:
+        import rclpy
+        from rclpy.experimental import EventsExecutor
+        from rclpy.signals import SignalHandlerOptions
+        from std_msgs.msg import Empty
+
+        from apf_swarm_msgs.msg import SwarmState
+
+        from ..node_common import START_QOS, STATE_QOS, SWARM_START, SWARM_STATE
+
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node('swarm_up')
+        # the events executor costs less CPU per /swarm/state sample than the single-
+        # threaded one, and the bring-up shares the cores with the swarm
+        # (bench/bench_graph.py compares the executors)
+        self.executor = EventsExecutor()
+        self.executor.add_node(self.node)
+        self.state_sub = self.node.create_subscription(
+            SwarmState, SWARM_STATE, self.acc.add_raw, STATE_QOS, raw=True
+        )
+        if self.args.record:
+            import json
+
+            from std_msgs.msg import String
+
+            def on_status(msg: Any) -> None:
+                with contextlib.suppress(ValueError):
+                    self.rec_status = json.loads(msg.data)
+
+            self.node.create_subscription(String, RECORDER_STATUS, on_status, START_QOS)
+        self.start_pub = self.node.create_publisher(Empty, SWARM_START, START_QOS)
+        self._empty_msg = Empty
+
+    def spin(self, timeout: float) -> None:
+        self.executor.spin_once(timeout_sec=timeout)
+
+    def missing(self) -> list[str]:
+        node = self.node
+        present = {
+            (ns.rstrip('/') + '/' + name) for name, ns in node.get_node_names_and_namespaces()
+        }
+        nodes, topics = expected_graph(
+            self.n,
+            self.mode,
+            input_readers(self.n, self.mode, self.args.trackers_per_process, self.node_params),
+        )
+        if self.args.record:
+            nodes = [*nodes, '/recorder']
+        counts = {
+            t.topic: (node.count_publishers(t.topic), node.count_subscribers(t.topic))
+            for t in topics
+        }
+        miss = graph_missing(present, counts, nodes, topics)
+        for t in topics:
+            if counts[t.topic][0] > t.publishers:
+                self.warn_once(
+                    'pubs' + t.topic,
+                    f'{t.topic} has {counts[t.topic][0]} publishers (expected '
+                    f'{t.publishers}): another graph on ROS_DOMAIN_ID='
+                    f'{self.domain_id}, or a respawned node not yet forgotten?',
+                )
+        # our own endpoints: matched counts, not mere discovery
+        nstate = self.state_sub.get_publisher_count()
+        if nstate < 1:
+            miss.append(
+                f"topic /swarm/state: this bring-up's subscription matched to "
+                f'{nstate} publishers (need 1: the plant)'
+            )
+        # the plant waits for the start in both modes; the target only in realtime (in
+        # lockstep it is driven by the plant's /target/request)
+        nstart = self.start_pub.get_subscription_count()
+        want, who = (2, 'plant, target') if self.mode == 'realtime' else (1, 'plant')
+        if nstart < want:
+            miss.append(
+                f'topic /swarm/start: matched subscribers {nstart} (need >= {want}: {who})'
+            )
+        if self.args.record:
+            miss += recorder_missing(
+                self.rec_status, [t.topic for t in topics if t.publishers and not t.optional]
+            )
+        return miss
+
+    def wait_ready(self) -> None:
+        t0 = time.monotonic()
+        deadline = t0 + self.args.ready_timeout
+        last_check, last_report = 0.0, t0
+        miss = ['(not checked yet)']
+        while True:
+            self.spin(0.05)
+            self.check_signals()
+            self.supervise()
+            now = time.monotonic()
+            if now - last_check >= 0.1:
+                last_check = now
+                miss = self.missing()
+                if not miss:
+                    return
+            if now - last_report >= 5.0:
+                last_report = now
+                self.say(
+                    f'waiting for the graph ({now - t0:.0f} s of '
+                    f'{self.args.ready_timeout:g}): {len(miss)} missing, e.g. {miss[0]}'
+                )
+            if now >= deadline:
+                raise StopRun(
+                    EXIT_BAD_INPUT,
+                    'not_ready',
+                    f'the ROS graph was not complete after {self.args.ready_timeout:g} s '
+                    f'(--ready-timeout, ROS_DOMAIN_ID={self.domain_id}); '
+                    f'{len(miss)} never appeared:\n'
+                    + ''.join(f'    {m}\n' for m in miss)
+                    + f'  node logs: {self.out / "logs"}',
+                )
+
+    def drain(self, seconds: float = 0.2) -> None:
+        """Take what is already queued (realtime end) without waiting for more."""
+        end = time.monotonic() + seconds
+        before = -1
+        while time.monotonic() < end and before != self.acc.received:
+            before = self.acc.received
+            self.spin(0.02)
+
+    def shutdown_ros(self) -> None:
+        import rclpy
+
+        if self.executor is not None:
+            self.executor.shutdown(timeout_sec=1.0)
+            self.executor = None
+        if self.node is not None:
+            self.node.destroy_node()
+            self.node = None
+        rclpy.try_shutdown()

@@ -1,0 +1,121 @@
+"""The realtime run's prediction: the sampled-data check before the run (gains scheduled
+when the configuration's would lose the formation) and, after it, the run judged by flight
+next to its headless emulation at the measured latencies."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+from typing import Any
+
+from apf_swarm_core.config import (
+    DEFAULT_LATENCY,
+    REALTIME_RATE,
+    SwarmConfig,
+)
+
+
+class RealtimePrediction:
+    """What :class:`~.session.Bringup` does for a realtime run's prediction (a mixin)."""
+
+    args: argparse.Namespace
+    cfg: SwarmConfig
+    n: int
+    capacity: dict[str, Any] | None
+    prediction: Any
+    gains_scheduled: dict[str, Any]
+
+    def say(self, text: str) -> None:
+        raise NotImplementedError
+
+    def realtime_check(self) -> None:
+        """Realtime: the sampled-data prediction before the run (printed, and kept for
+        summary.json); with ``--gains auto`` a failing one is replaced by designed gains."""
+        from apf_swarm_core.sampled import predict, schedule_gains
+
+        from .. import probe
+
+        cfg = self.cfg
+        try:
+            machine = probe.ensure(say=self.say)
+        except (RuntimeError, OSError, ValueError, subprocess.TimeoutExpired) as exc:
+            self.say(
+                f'warning: {exc}; assuming {REALTIME_RATE:g} Hz and '
+                f'{DEFAULT_LATENCY * 1e3:g} ms of latency'
+            )
+            machine = None
+        measured = (
+            probe.derive(machine, self.n, cfg.control_rate or None)
+            if machine
+            else {'rate': cfg.control_rate or REALTIME_RATE, 'latency': None, 'capacity': {}}
+        )
+        self.capacity = measured
+        if cfg.control_rate <= 0:
+            cfg = cfg.replace(control_rate=measured['rate'])
+            self.say(
+                f'control rate {measured["rate"]:g} Hz for {self.n} trackers on this '
+                f'machine (`apf-swarm probe`)'
+            )
+        latency = cfg.latency or measured['latency'] or DEFAULT_LATENCY
+        fits = measured['capacity'].get(f'{cfg.control_rate:g}')
+        if fits is not None and self.n > fits:
+            self.say(
+                f'warning: {self.n} trackers at {cfg.control_rate:g} Hz are more than '
+                f"the {fits} that fit in {probe.CPU_BUDGET:.0%} of this machine's cores "
+                f'(`apf-swarm probe`): expect late commands; a lower rate (--set '
+                f'control_rate=HZ: '
+                + ', '.join(f'{v} at {k} Hz' for k, v in measured['capacity'].items())
+                + ') or fewer trackers'
+            )
+        if getattr(self.args, 'gains', 'auto') == 'auto':
+            cfg, pred, gains, warnings = schedule_gains(cfg, latency=latency)
+        else:
+            pred = predict(cfg, latency=latency)
+            gains, warnings = None, list(pred.warnings)
+        if gains:
+            self.say(
+                'scheduled gains for '
+                f'{cfg.n_trackers} trackers at '
+                f'{cfg.control_rate:g} Hz, {latency * 1e3:g} ms (the '
+                "configuration's are predicted to lose the formation; "
+                '--gains config keeps them): '
+                + ', '.join(
+                    f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
+                    for k, v in gains.items()
+                )
+            )
+            self.gains_scheduled = gains
+        for w in warnings:
+            self.say(f'warning: {w}')
+        self.cfg = cfg
+        self.prediction = pred
+
+    def predicted(self, traj: dict[str, Any]) -> dict[str, Any]:
+        """Realtime: the run judged by flight next to its headless emulation at the same
+        rate with the latencies the plant measured (and the prediction before the run)."""
+        import numpy as np
+        from apf_swarm_core.metrics import flight
+        from apf_swarm_core.simulator import design_pair_sets, simulate
+
+        pairs = design_pair_sets(self.cfg)
+        lat = np.asarray(traj.get('command_latency', np.zeros((0,))), dtype=float).ravel()
+        lat = lat[(lat > 0) & np.isfinite(lat)]
+        out: dict[str, Any] = {
+            'before_run': self.prediction.to_dict(),
+            'gains_scheduled': self.gains_scheduled,
+            'machine': self.capacity,
+            'run': flight(traj, pairs),
+        }
+        if lat.size:
+            out['latency'] = {
+                q: round(float(np.quantile(lat, v)), 6)
+                for q, v in (('p50', 0.5), ('p90', 0.9), ('p99', 0.99))
+            }
+            emu_cfg = self.cfg.replace(
+                duration=float(traj['t'][-1] - traj['t'][0]) or self.cfg.duration,
+                latency=float(np.median(lat)),
+            )
+            emu = simulate(emu_cfg, latency_samples=lat)
+            out['emulation'] = flight(emu.trajectory, pairs)
+            out['latency_samples'] = np.round(lat[:: max(1, lat.size // 2000)], 6).tolist()
+        return out
