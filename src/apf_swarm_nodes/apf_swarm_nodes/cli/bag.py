@@ -1,0 +1,191 @@
+"""The ``apf-swarm bag`` commands (info, metrics, plot, export, reindex, play) and their
+parser."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from apf_swarm_core.errors import ApfSwarmError
+
+from ..argtypes import nonneg_float, positive_float
+from ..runio import format_summary
+from .commands import PROG
+
+
+def cmd_bag_info(args: argparse.Namespace) -> int:
+    from ..bags import format_info, info_dict, open_bag
+
+    info = open_bag(args.bag)
+    print(json.dumps(info_dict(info), indent=2) if args.json else format_info(info))
+    return 0
+
+
+def cmd_bag_metrics(args: argparse.Namespace) -> int:
+    from ..bags import bag_metrics
+
+    summary = bag_metrics(args.bag, args.config)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(format_summary(summary))
+        m = summary['messages']
+        print(
+            f'  /swarm/state     {m["received"]} samples, {m["dropped"]} missing, mode '
+            f'{summary["mode"]}'
+        )
+    return 0
+
+
+def cmd_bag_plot(args: argparse.Namespace) -> int:
+    from ..bags import bag_trajectory
+    from ..plots import paper_figures
+
+    traj, cfg, _mode, _acc = bag_trajectory(args.bag, args.config)
+    if len(traj['t']) < 2:
+        raise ApfSwarmError(
+            f'{args.bag}: /swarm/state has {len(traj["t"])} sample; a figure needs two'
+        )
+    paths = paper_figures({cfg.law: traj}, args.out)
+    print(f'wrote {len(paths)} figures into {args.out}: ' + ', '.join(p.name for p in paths))
+    return 0
+
+
+def cmd_bag_export(args: argparse.Namespace) -> int:
+    from ..bags import export_csv
+
+    if args.csv is None:
+        n = export_csv(args.bag, args.topic, sys.stdout)
+        return 0 if n >= 0 else 1
+    if args.csv.exists() and not args.force:
+        raise ApfSwarmError(f'{args.csv} exists; choose another file or pass --force')
+    tmp = args.csv.with_name(args.csv.name + '.tmp')
+    with open(tmp, 'w', newline='') as fh:
+        try:
+            n = export_csv(args.bag, args.topic, fh)
+        except BaseException:
+            fh.close()
+            tmp.unlink(missing_ok=True)
+            raise
+    tmp.replace(args.csv)
+    print(f'wrote {n} rows of {args.topic} to {args.csv}', file=sys.stderr)
+    return 0
+
+
+def cmd_bag_reindex(args: argparse.Namespace) -> int:
+    from ..bags import reindex
+
+    reindex(args.bag, stream=sys.stdout)
+    return 0
+
+
+def cmd_bag_play(args: argparse.Namespace) -> int:
+    from ..bags import open_bag
+
+    info = open_bag(args.bag)  # bad input: one line and exit 2, before ROS starts
+    from ..player_node import msg_class
+
+    for t in args.topics or [t.name for t in info.topics]:
+        msg_class(info.topic(t).type)  # a type that is not installed: one line, exit 2
+    for rule in args.remap:
+        if ':=' not in rule:
+            raise ApfSwarmError(f'--remap {rule!r}: expected FROM:=TO')
+    ros = [
+        '--ros-args',
+        '-p',
+        f'bag:={info.path.resolve()}',
+        '-p',
+        f'rate:={args.rate!r}',
+        '-p',
+        f'loop:={str(args.loop).lower()}',
+        '-p',
+        f'start_offset:={args.start_offset!r}',
+        '-p',
+        f'clock:={float(args.clock or 0.0)!r}',
+    ]
+    if args.topics:
+        ros += ['-p', 'topics:=[' + ','.join(args.topics) + ']']
+    if args.wait_for:
+        ros += ['-p', 'wait_for:=[' + ','.join(args.wait_for) + ']']
+    for rule in args.remap:
+        ros += ['-r', rule]
+    from ..node_common import run_node
+    from ..player_node import PlayerNode, _run
+
+    return run_node(PROG, PlayerNode, [PROG, *ros], run=_run)
+
+
+def _add_bag_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        'bag',
+        help='inspect, replay and repair rosbag2 (MCAP) bags',
+        description='Bags recorded by `apf-swarm up --record` (BAG = the bag '
+        'directory, e.g. runs/r/bag). Every command but play works without a ROS '
+        'graph.',
+    )
+    bsub = p.add_subparsers(dest='bag_command', required=True, metavar='BAG_COMMAND')
+
+    q = bsub.add_parser(
+        'info',
+        help='storage, duration, size, counts; per topic type, count, '
+        'frequency, QoS (from the summaries, fast on big bags)',
+    )
+    q.add_argument('bag', type=Path, metavar='BAG')
+    q.add_argument('--json', action='store_true')
+    q.set_defaults(func=cmd_bag_info)
+
+    q = bsub.add_parser('metrics', help="the run's summary.json computed from /swarm/state")
+    q.add_argument('bag', type=Path, metavar='BAG')
+    q.add_argument(
+        '--config',
+        type=Path,
+        metavar='FILE',
+        help='parameter file of the run (default: the one stored in the bag)',
+    )
+    q.add_argument('--json', action='store_true')
+    q.set_defaults(func=cmd_bag_metrics)
+
+    q = bsub.add_parser('plot', help='the figures of `apf-swarm reproduce` from /swarm/state')
+    q.add_argument('bag', type=Path, metavar='BAG')
+    q.add_argument('--out', type=Path, required=True, metavar='DIR')
+    q.add_argument('--config', type=Path, metavar='FILE')
+    q.set_defaults(func=cmd_bag_plot)
+
+    q = bsub.add_parser('export', help='flattened fields of one topic as CSV')
+    q.add_argument('bag', type=Path, metavar='BAG')
+    q.add_argument('--topic', required=True, metavar='T')
+    q.add_argument('--csv', type=Path, metavar='FILE', help='output file (default: stdout)')
+    q.add_argument('--force', action='store_true', help='overwrite FILE')
+    q.set_defaults(func=cmd_bag_export)
+
+    q = bsub.add_parser(
+        'reindex',
+        help='rebuild metadata.yaml (and truncated MCAP files) from '
+        'the MCAP files; keeps a backup of what it replaces',
+    )
+    q.add_argument('bag', type=Path, metavar='BAG')
+    q.set_defaults(func=cmd_bag_reindex)
+
+    q = bsub.add_parser('play', help='republish the bag with its recorded timing (ROS graph)')
+    q.add_argument('bag', type=Path, metavar='BAG')
+    q.add_argument('--rate', type=positive_float, default=1.0, metavar='R')
+    q.add_argument('--loop', action='store_true')
+    q.add_argument('--start-offset', type=nonneg_float, default=0.0, metavar='S')
+    q.add_argument('--topics', nargs='+', metavar='T', help='play only these topics')
+    q.add_argument(
+        '--clock',
+        type=positive_float,
+        nargs='?',
+        const=100.0,
+        default=None,
+        metavar='HZ',
+        help='publish /clock at HZ (default 100) instead of the recorded /clock',
+    )
+    q.add_argument('--remap', nargs='+', default=[], metavar='FROM:=TO')
+    q.add_argument(
+        '--wait-for', nargs='+', metavar='T', help='start only when these topics have a subscriber'
+    )
+    q.set_defaults(func=cmd_bag_play)
