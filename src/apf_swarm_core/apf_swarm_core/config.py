@@ -20,16 +20,11 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
-import os
-import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
-from pathlib import Path
 from typing import Any
 
-import yaml
-
-from .errors import ConfigError, UnknownPresetError
+from .errors import ConfigError
 from .laws import LAWS, SWITCHINGS
 from .plant import NOISE_KINDS
 from .potential import NEIGHBOUR_RULES, PotentialParams
@@ -611,156 +606,15 @@ def config_from_mapping(
     return SwarmConfig(**kwargs, uav_overrides=dict(overrides or {}))
 
 
-_UAV_SECTION = re.compile(r'^/?uav_(\d+)(/.*)?$')
-
-
-def load_config(path: str | os.PathLike[str]) -> SwarmConfig:
-    """Load a ROS 2 parameter file (``/**: ros__parameters:`` plus ``/uav_<i>/...`` sections)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(
-            f'configuration file {path} does not exist; pass an existing YAML file '
-            f'or a preset name ({", ".join(preset_names())})'
-        )
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, 'problem_mark', None)
-        where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark else ''
-        problem = getattr(exc, 'problem', None) or str(exc).splitlines()[0]
-        raise ConfigError(f'{path} is not valid YAML{where}: {problem}') from None
-    if not isinstance(doc, dict):
-        raise ConfigError(
-            f"{path}: expected a ROS 2 parameter file with a '/**: ros__parameters:' "
-            'section at the top level'
-        )
-    base: dict[str, Any] = {}
-    overrides: dict[int, dict[str, Any]] = {}
-    for section, body in doc.items():
-        if (
-            not isinstance(body, dict)
-            or 'ros__parameters' not in body
-            or not isinstance(body['ros__parameters'], dict)
-        ):
-            raise ConfigError(
-                f"{path}: section {section!r} must contain a 'ros__parameters:' mapping"
-            )
-        params = body['ros__parameters']
-        m = _UAV_SECTION.match(str(section))
-        if str(section) in ('/**', '**'):
-            base.update(params)
-        elif m:
-            overrides.setdefault(int(m.group(1)), {}).update(
-                {k: v for k, v in params.items() if k not in _NODE_KEYS}
-            )
-        else:
-            # sections for other nodes (/plant, /target, ...) may carry node-only settings
-            continue
-    if not base:
-        raise ConfigError(f"{path}: no '/**: ros__parameters:' section with the swarm keys")
-    return config_from_mapping(base, source=str(path), overrides=overrides)
-
-
-def preset_dirs() -> list[Path]:
-    """Directories searched for presets, first match wins.
-
-    ``$APF_SWARM_CONFIG_PATH`` (os.pathsep-separated), then a ``config/`` directory next to a
-    parent of this file (the source tree or a symlink install), then the installed
-    ``share/apf_swarm_core/config``.
-    """
-    dirs: list[Path] = []
-    env = os.environ.get('APF_SWARM_CONFIG_PATH')
-    if env:
-        dirs += [Path(p) for p in env.split(os.pathsep) if p]
-    here = Path(__file__).resolve()
-    for parent in here.parents:
-        cand = parent / 'config'
-        if (cand / 'triangle.yaml').is_file():
-            dirs.append(cand)
-            break
-    for parent in Path(__file__).absolute().parents:
-        cand = parent / 'share' / 'apf_swarm_core' / 'config'
-        if cand.is_dir():
-            dirs.append(cand)
-            break
-    return dirs
-
-
-def preset_names() -> list[str]:
-    """Names of the presets found in :func:`preset_dirs`."""
-    names: set[str] = set()
-    for d in preset_dirs():
-        names.update(p.stem for p in d.glob('*.yaml'))
-    return sorted(names)
-
-
-def preset_path(name: str) -> Path:
-    """Path of preset ``name``; :class:`UnknownPresetError` lists the available ones."""
-    for d in preset_dirs():
-        p = d / f'{name}.yaml'
-        if p.is_file():
-            return p
-    raise UnknownPresetError(
-        f'unknown preset {name!r}; available presets: '
-        f'{", ".join(preset_names()) or "(none found)"}; or pass --config FILE'
-    )
-
-
-def load_preset(name: str) -> SwarmConfig:
-    """Load a named preset (``config/<name>.yaml``)."""
-    return load_config(preset_path(name))
-
-
-def parse_set(items: list[str] | tuple[str, ...]) -> dict[str, Any]:
-    """Parse ``KEY=VALUE`` strings (VALUE in YAML syntax: ``3``, ``0.5``, ``[1, 2, 3]``)."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, raw = item.partition('=')
-        key = key.strip()
-        if not sep or not key:
-            raise ConfigError(f'--set {item!r}: expected KEY=VALUE, e.g. --set gamma=0.5')
-        if key not in KEYS:
-            raise _unknown(key, '--set')
-        try:
-            out[key] = yaml.safe_load(raw)
-        except yaml.YAMLError:
-            raise ConfigError(f'--set {item!r}: the value is not valid YAML') from None
-    return out
-
-
-def apply_overrides(cfg: SwarmConfig, values: Mapping[str, Any]) -> SwarmConfig:
-    """A copy of ``cfg`` with ``values`` applied and validated."""
-    merged = {k: v for k, v in cfg.to_dict().items() if k != 'uav_overrides'}
-    for key in values:
-        if key not in KEYS:
-            raise _unknown(key, 'overrides')
-    merged.update(values)
-    return config_from_mapping(merged, overrides=cfg.uav_overrides, source='overrides')
-
-
-def to_ros_params(cfg: SwarmConfig) -> dict[str, Any]:
-    """The configuration as a ROS 2 parameter file document (for the resolved config of a run)."""
-    d = cfg.to_dict()
-    over = d.pop('uav_overrides')
-    doc: dict[str, Any] = {'/**': {'ros__parameters': d}}
-    for i, vals in sorted(over.items()):
-        doc[f'/uav_{i}/tracker'] = {
-            'ros__parameters': {k: list(v) if isinstance(v, tuple) else v for k, v in vals.items()}
-        }
-    return doc
-
-
-def resolve(
-    config: str | os.PathLike[str] | None,
-    preset: str | None,
-    sets: Sequence[str] | None = (),
-    **overrides: Any,
-) -> SwarmConfig:
-    """The configuration of a command: a parameter file (``config``) or a named preset, then
-    the ``KEY=VALUE`` overrides of ``sets`` (``--set``), then the keyword ``overrides``
-    that are not None (a command's own options, e.g. ``n_trackers``). The one loader of
-    ``apf-swarm`` and the bring-up."""
-    cfg = load_config(config) if config is not None else load_preset(preset or '')
-    values = parse_set(list(sets or []))
-    values.update({k: v for k, v in overrides.items() if v is not None})
-    return apply_overrides(cfg, values) if values else cfg
+# the file side of a configuration, one import away for every user of this module
+from .config_files import (  # noqa: E402 (needs SwarmConfig above)
+    apply_overrides,
+    load_config,
+    load_preset,
+    parse_set,
+    preset_dirs,
+    preset_names,
+    preset_path,
+    resolve,
+    to_ros_params,
+)
