@@ -10,11 +10,11 @@ from apf_swarm_core.agents import (
     MAX_FORCE,
     MAX_POSITION,
     MAX_SPEED,
-    PlantModel,
     TrackerAgent,
     brake_force,
     input_problem,
 )
+from apf_swarm_core.plant_model import PlantModel
 from apf_swarm_core.simulator import BatchSimulator
 
 from apf_swarm_core import load_preset

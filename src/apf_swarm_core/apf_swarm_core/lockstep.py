@@ -8,7 +8,7 @@ tracker has arrived; integrate to k + 1, publish step k + 1, and only then the
 ``/swarm/state`` sample of step k. Past ``timeout`` seconds of wall time the step is
 published once more; still missing after another ``timeout``, each missing input is counted
 in ``missed`` and no longer waited for: a silent tracker becomes inactive (see
-:meth:`~apf_swarm_core.agents.PlantModel.deactivate`), a silent target's last state is held
+:meth:`~apf_swarm_core.plant_model.PlantModel.deactivate`), a silent target's last state is held
 and its age grows. A command or a target state that arrives again ends that.
 
 :class:`LockstepBarrier` takes the events (start, a target state, an accepted command, a
@@ -24,7 +24,8 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from .agents import PlantModel, Sample
+from .agents import Sample
+from .plant_model import PlantModel
 
 __all__ = ['LOOKAHEAD', 'Action', 'LockstepBarrier']
 
@@ -51,7 +52,7 @@ class Action:
 @dataclass
 class LockstepBarrier:
     """The barrier, target look-ahead, deadlines and re-sends of the lockstep plant around a
-    :class:`~apf_swarm_core.agents.PlantModel`; times are on the caller's monotonic clock
+    :class:`~apf_swarm_core.plant_model.PlantModel`; times are on the caller's monotonic clock
     [s]."""
 
     model: PlantModel
@@ -95,7 +96,7 @@ class LockstepBarrier:
 
     def on_command(self, now: float) -> list[Action]:
         """The model accepted a command
-        (:meth:`~apf_swarm_core.agents.PlantModel.offer_command`)."""
+        (:meth:`~apf_swarm_core.plant_model.PlantModel.offer_command`)."""
         return self._maybe_finish(now)
 
     def tick(self, now: float) -> list[Action]:
@@ -128,7 +129,7 @@ class LockstepBarrier:
 
     def snapshot(self, k: int) -> dict[str, Any]:
         """The ``/swarm/state`` fields of step ``k`` with the held target state, taken now
-        (:meth:`~apf_swarm_core.agents.PlantModel.snapshot`)."""
+        (:meth:`~apf_swarm_core.plant_model.PlantModel.snapshot`)."""
         return self.model.snapshot(k, self.target, self.target_age())
 
     # --- the protocol ----------------------------------------------------------------

@@ -85,7 +85,7 @@ def predict_velocity(
 
 
 class Predictor:
-    """The state a command will act on, for :func:`~apf_swarm_core.simulator.control_step`.
+    """The state a command will act on, for :func:`~apf_swarm_core.control.control_step`.
 
     Holds the horizon and each controlled tracker's last command (zero before the first,
     or after :meth:`hold` with a brake).

@@ -8,7 +8,7 @@ configuration alone whether the formation then holds (derivation in docs/THEORY.
 1. **Modes.** Near the design equilibrium x* (positions relative to the target), inside the
    boundary layer of eq. 8, the manifold of eq. 31 is linear, ``s = v_rel + K H e`` with
    ``e = x - x*``, ``K = alpha + beta/gamma`` (the layer gain) and H the Hessian of J at x*
-   (:func:`apf_swarm_core.potential.hessian`). H is symmetric: in its eigenvectors the
+   (:func:`apf_swarm_core.newton.hessian`). H is symmetric: in its eigenvectors the
    swarm splits into independent modes, one per eigenvalue lambda, ``s_l = e_l' + K lambda
    e_l``; the rigid rotations have lambda = 0, the centroid lambda = k_N, and the stiffest
    mode ``lambda_max`` grows with the number of trackers.
@@ -61,7 +61,7 @@ from numpy.typing import NDArray
 
 from .config import SwarmConfig
 from .metrics import FLIGHT_CRITERIA
-from .potential import hessian
+from .newton import hessian
 from .prediction import compensation_horizon
 
 __all__ = [
@@ -210,7 +210,7 @@ def loop_limit(cfg: SwarmConfig) -> float:
 def effective_spectrum(cfg: SwarmConfig, eigs: NDArray[np.float64]) -> NDArray[np.float64]:
     """The curvatures the manifold descends: the Hessian's eigenvalues ``lambda`` along the
     gradient (the paper), ``lambda / max(|lambda|, mu)`` along the Newton direction
-    (``precondition = newton``, :func:`apf_swarm_core.potential.newton_matrix`): 1 for every
+    (``precondition = newton``, :func:`apf_swarm_core.newton.newton_matrix`): 1 for every
     mode at least as stiff as ``mu``."""
     eigs = np.asarray(eigs, dtype=float)
     if cfg.precondition != 'newton':

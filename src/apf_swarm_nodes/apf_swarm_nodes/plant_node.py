@@ -35,8 +35,9 @@ import time
 from functools import partial
 from typing import Any
 
-from apf_swarm_core.agents import PlantModel, Sample, input_problem
+from apf_swarm_core.agents import Sample, input_problem
 from apf_swarm_core.lockstep import Action, LockstepBarrier
+from apf_swarm_core.plant_model import PlantModel
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
