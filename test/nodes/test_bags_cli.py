@@ -13,6 +13,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -320,3 +321,19 @@ def test_flatten_nested_and_arrays() -> None:
     flat = bags.flatten(pose)
     assert flat['covariance.35'] == 35.0 and flat['pose.orientation.w'] == 1.0
     assert len(flat) == 7 + 36
+
+
+def test_the_bag_tools_import_no_rclpy() -> None:
+    # the bag package and the whole metrics path (samples, runio) run without rclpy
+    code = (
+        'import sys\n'
+        'from apf_swarm_nodes import bags, runio, samples\n'
+        'import apf_swarm_nodes.bags.read, apf_swarm_nodes.bags.recover\n'
+        'import apf_swarm_nodes.bags.export, apf_swarm_nodes.bags.write\n'
+        'print(sorted(m for m in sys.modules if m.split(".")[0] == "rclpy"))\n'
+    )
+    done = subprocess.run(
+        [sys.executable, '-c', code], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == '[]', done.stdout

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -14,22 +15,29 @@ from .errors import CliError
 # --------------------------------------------------------------------------------------------
 
 
+def rclpy_decode(raw: bytes) -> Any:
+    """A serialized ``SwarmState`` deserialized by rclpy (the live run's path)."""
+    from rclpy.serialization import deserialize_message
+
+    from apf_swarm_msgs.msg import SwarmState
+
+    return deserialize_message(raw, SwarmState)
+
+
 @dataclass
 class RawSample:
-    """A serialized ``/swarm/state`` message and its step; ``sample`` deserializes it."""
+    """A serialized ``/swarm/state`` message and its step; ``sample`` deserializes it with
+    ``decode`` (rclpy's by default; the bag tools pass rosbags')."""
 
     step: int
     raw: bytes
+    decode: Callable[[bytes], Any] = rclpy_decode
 
     @property
     def sample(self) -> Any:
-        from rclpy.serialization import deserialize_message
-
-        from apf_swarm_msgs.msg import SwarmState
-
         from .conversions import swarm_state_arrays
 
-        return swarm_state_arrays(deserialize_message(self.raw, SwarmState))
+        return swarm_state_arrays(self.decode(self.raw))
 
 
 class StateAccumulator:
@@ -43,7 +51,14 @@ class StateAccumulator:
     strictly.
     """
 
-    def __init__(self, mode: str, steps: int, record_every: int = 1) -> None:
+    def __init__(
+        self,
+        mode: str,
+        steps: int,
+        record_every: int = 1,
+        decode: Callable[[bytes], Any] = rclpy_decode,
+    ) -> None:
+        self.decode = decode
         self.mode, self.steps, self.record_every = mode, int(steps), max(1, int(record_every))
         self.samples: list[Any] = []
         self.received = 0
@@ -66,7 +81,7 @@ class StateAccumulator:
             self.received += 1
             self.out_of_order += 1
             return
-        self.add(RawSample(step, raw))
+        self.add(RawSample(step, raw, self.decode))
 
     def add(self, sample: Any) -> None:
         self.received += 1

@@ -10,7 +10,14 @@ from typing import Any
 
 from ..errors import CliError
 from .info import BagInfo, _read_error, open_bag
-from .types import CUSTOM_CONFIG, CUSTOM_MODE, SWARM_STATE_TOPIC, _one_line, typestore
+from .types import (
+    CUSTOM_CONFIG,
+    CUSTOM_MODE,
+    SWARM_STATE_TOPIC,
+    SWARM_STATE_TYPE,
+    _one_line,
+    typestore,
+)
 
 # --------------------------------------------------------------------------------------------
 # reading: messages
@@ -82,11 +89,17 @@ def bag_config(info: BagInfo, config: Path | None = None) -> tuple[Any, str]:
 
 def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str) -> Any:
     """Every ``/swarm/state`` message of the bag through the bring-up's StateAccumulator
-    (the same raw-bytes path and deserialization as the live run)."""
+    (the live run's raw-bytes path and conversion; the CDR decoded by rosbags, so that the
+    bag tools need no rclpy)."""
     from ..samples import StateAccumulator
 
     info.topic(SWARM_STATE_TOPIC)
-    acc = StateAccumulator(mode, cfg.steps, cfg.record_every)
+    store = typestore()
+
+    def decode(raw: bytes) -> Any:
+        return store.deserialize_cdr(raw, SWARM_STATE_TYPE)
+
+    acc = StateAccumulator(mode, cfg.steps, cfg.record_every, decode)
     for _topic, _type, _ts, raw in iter_raw(info.path, [SWARM_STATE_TOPIC], info=info):
         acc.add_raw(raw)
     return acc
