@@ -375,7 +375,7 @@ def test_limited_neighbour_sets_agents_equal_the_simulator(cfg, rule) -> None:
 
 
 def test_neighbour_mask_rules() -> None:
-    from apf_swarm_core.potential import neighbour_mask
+    from apf_swarm_core.neighbours import neighbour_mask
 
     x = np.array([[0.0, 0, 0], [1.0, 0, 0], [3.0, 0, 0], [10.0, 0, 0]])
     near = neighbour_mask(x, rule='nearest', count=2)

@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
+from apf_swarm_core.controller import SlidingModeController
 from apf_swarm_core.laws import (
-    SlidingModeController,
     filter_step,
     kinematic_velocity,
     known_force,

@@ -37,8 +37,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .config import DEFAULT_LATENCY, SwarmConfig
-from .laws import ControlOutput, switching_force
-from .potential import neighbour_mask
+from .controller import ControlOutput
+from .laws import switching_force
+from .neighbours import neighbour_mask
 from .prediction import LatencyEstimate, compensation_horizon
 from .simulator import (
     control_step,

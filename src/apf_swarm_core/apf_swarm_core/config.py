@@ -26,8 +26,9 @@ from typing import Any
 
 from .errors import ConfigError
 from .laws import LAWS, SWITCHINGS
+from .neighbours import NEIGHBOUR_RULES
 from .plant import NOISE_KINDS
-from .potential import NEIGHBOUR_RULES, PotentialParams
+from .potential import PotentialParams
 from .prediction import COMPENSATIONS
 from .saturation import SATURATIONS
 from .target import TRAJECTORIES, Trajectory, make_trajectory
@@ -388,7 +389,7 @@ class SwarmConfig:
         return {'k_n': self.k_n, 'k_f': self.k_f, 'a': self.a, 'b': self.b, 'c': self.c}
 
     def neighbour_rule(self) -> dict[str, Any]:
-        """Keyword arguments of :func:`apf_swarm_core.potential.neighbour_mask`, or ``{}``
+        """Keyword arguments of :func:`apf_swarm_core.neighbours.neighbour_mask`, or ``{}``
         for the paper's all-to-all potential."""
         if self.neighbours == 'all':
             return {}

@@ -11,8 +11,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .config import SwarmConfig
+from .controller import ControlOutput, SlidingModeController
 from .gains import per_run
-from .laws import ControlOutput, SlidingModeController
 from .newton import newton_basis, newton_direction
 from .potential import (
     PotentialParams,

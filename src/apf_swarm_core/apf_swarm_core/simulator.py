@@ -41,15 +41,15 @@ from .control import (
     make_preconditioner,
     make_predictor,
 )
+from .controller import ControlOutput
 from .design import Formation, design_pairs
 from .design import design_formations as _design_formations
 from .gains import per_run
-from .laws import ControlOutput
 from .metrics import summarize
+from .neighbours import neighbour_mask
 from .plant import DisturbanceSource, plant_step, uniform_ball
 from .potential import (
     PotentialParams,
-    neighbour_mask,
 )
 
 __all__ = [

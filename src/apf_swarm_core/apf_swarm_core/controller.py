@@ -1,0 +1,227 @@
+"""The sliding-mode controller of a set of trackers (:class:`SlidingModeController`): the
+filter state of eq. 26 and one command per step by the paper's law (eq. 22-31) or the
+traditional one, with the gains shaped once per run or batch; :class:`ControlOutput` is what
+a step returns."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .gains import shaped
+from .laws import (
+    LAWS,
+    SWITCHINGS,
+    _check_saturation,
+    _decay,
+    _filter,
+    _surface_continuous,
+    _surface_filtered,
+    _surface_proposed,
+    _switching,
+    _switching_layer,
+)
+from .saturation import (
+    _layer_bound,
+    _outside,
+)
+
+__all__ = ['ControlOutput', 'SlidingModeController']
+
+
+@dataclass(frozen=True, init=False)
+class ControlOutput:
+    """What one controller step produced for m trackers (arrays of shape (..., m, 3))."""
+
+    force: NDArray[np.float64]
+    sliding_surface: NDArray[np.float64]
+    gradient: NDArray[np.float64]
+    filter_state: NDArray[np.float64]
+    saturated: NDArray[np.bool_]
+
+    def __init__(
+        self,
+        force: NDArray[np.float64],
+        sliding_surface: NDArray[np.float64],
+        gradient: NDArray[np.float64],
+        filter_state: NDArray[np.float64],
+        saturated: NDArray[np.bool_],
+    ) -> None:
+        # what the generated frozen __init__ does (one object.__setattr__ per field), at
+        # less than half its cost: it is built once per controller step
+        d = self.__dict__
+        d['force'] = force
+        d['sliding_surface'] = sliding_surface
+        d['gradient'] = gradient
+        d['filter_state'] = filter_state
+        d['saturated'] = saturated
+
+
+#: controller fields its prepared gains are derived from
+_GAIN_FIELDS = frozenset(
+    {
+        'law',
+        'alpha',
+        'beta',
+        'gamma',
+        'lambda_filter',
+        'u0',
+        'dt',
+        'drag',
+        'saturation',
+        'switching',
+        'phi',
+        'feedforward',
+    }
+)
+
+
+@dataclass(frozen=True)
+class _ControllerGains:
+    """Gains of a :class:`SlidingModeController` shaped once for the kernels."""
+
+    alpha: NDArray[np.float64]
+    beta: NDArray[np.float64]
+    gamma: Any  # as given, for sat_continuous
+    layer_bound: NDArray[np.float64]  # ||grad||^2 bound of the layer test, against (..., m)
+    layer_gain: NDArray[np.float64]  # alpha + beta / gamma of eq. 31
+    neg_u0: NDArray[np.float64]
+    drag: NDArray[np.float64]
+    decay: NDArray[np.float64]  # e^{-dt/lambda} of eq. 26
+    gain_in: NDArray[np.float64]  # (1 - decay) beta
+    manifold: int  # 0 proposed with eq. 8, 1 traditional, 2 continuous sat
+    inv_phi: NDArray[np.float64] | None  # 1/phi of the boundary-layer switching, None: sign
+    feedforward: NDArray[np.float64] | None  # weight w of the target velocity, None: 0
+
+
+@dataclass
+class SlidingModeController:
+    """Stateful sliding-mode controller for m trackers (m = 1 in a tracker node).
+
+    Holds the filter state z of eq. 26 explicitly; :meth:`reset` zeroes it. One call of
+    :meth:`step` computes the manifold with the current z, the force of eq. 24, and advances z
+    by one sample of length ``dt``.
+
+    Parameters
+    ----------
+    law : 'proposed' or 'traditional'
+    alpha [1/s], beta [m/s], gamma [m], lambda_filter [s], u0 [N], drag [N s/m] : gains, floats
+        or arrays of shape (...) for a batch of runs.
+    dt : float
+        Control period [s].
+    shape : tuple
+        Shape of the state, ``(..., m, 3)``.
+    saturation : 'paper' or 'continuous'
+    switching : 'sign' (eq. 24) or 'layer' (:func:`layer_switching_force`, width ``phi``)
+    phi : float [m/s]
+        Boundary-layer width of ``switching='layer'``.
+    feedforward : float
+        Weight ``w`` of the target velocity in the manifold (0: the paper's manifolds); the
+        target velocity is the ``v_ref`` argument of :meth:`step`.
+
+    The gains are shaped for the kernels once and the result is cached; assigning any gain
+    attribute (``ctl.gamma = 0.3``) invalidates the cache. Gain arrays must be replaced, not
+    modified in place.
+    """
+
+    law: str  # 'proposed' or 'traditional' (LAWS), checked on construction
+    alpha: ArrayLike
+    beta: ArrayLike
+    gamma: ArrayLike
+    lambda_filter: ArrayLike
+    u0: ArrayLike
+    dt: float
+    shape: tuple[int, ...] = (1, 3)
+    drag: ArrayLike = 0.0
+    saturation: str = 'paper'
+    switching: str = 'sign'
+    phi: ArrayLike = 0.15
+    feedforward: ArrayLike = 0.0
+    z: NDArray[np.float64] = field(init=False, repr=False)
+    _gains: _ControllerGains | None = field(init=False, repr=False, compare=False, default=None)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        object.__setattr__(self, name, value)
+        if name in _GAIN_FIELDS:
+            object.__setattr__(self, '_gains', None)
+
+    def _prepare(self) -> _ControllerGains:
+        alpha, beta, gamma = shaped(self.alpha), shaped(self.beta), shaped(self.gamma)
+        decay = _decay(shaped(self.lambda_filter), self.dt)
+        if self.law == 'traditional':
+            manifold = 1
+        else:
+            _check_saturation(self.saturation)
+            manifold = 0 if self.saturation == 'paper' else 2
+        if self.switching not in SWITCHINGS:
+            raise ValueError(f'switching must be one of {SWITCHINGS}, got {self.switching!r}')
+        ff = shaped(self.feedforward)
+        # the layer bound depends on gamma only: kept while gamma is the same object (a
+        # realtime tracker re-prepares for every command, with a new dt)
+        cached = self.__dict__.get('_bound_of')
+        if cached is not None and cached[0] is self.gamma:
+            bound = cached[1]
+        else:
+            bound = _layer_bound(shaped(self.gamma, 1))
+            object.__setattr__(self, '_bound_of', (self.gamma, bound))
+        # np.asarray: arithmetic on 0-d arrays gives numpy scalars, which numpy treats like
+        # Python floats, the slower operand (see the module docstring)
+        gains = _ControllerGains(
+            alpha=alpha,
+            beta=beta,
+            gamma=self.gamma,
+            layer_bound=bound,
+            layer_gain=np.asarray(alpha + beta / gamma),
+            neg_u0=np.asarray(-shaped(self.u0)),
+            drag=shaped(self.drag),
+            decay=np.asarray(decay),
+            gain_in=np.asarray((1.0 - decay) * beta),
+            manifold=manifold,
+            inv_phi=np.asarray(1.0 / shaped(self.phi)) if self.switching == 'layer' else None,
+            feedforward=ff if np.any(ff != 0.0) else None,
+        )
+        object.__setattr__(self, '_gains', gains)
+        return gains
+
+    def __post_init__(self) -> None:
+        if self.law not in LAWS:
+            raise ValueError(f'law must be one of {LAWS}, got {self.law!r}')
+        self.reset()
+
+    def reset(self, z: ArrayLike | None = None) -> None:
+        """Set the filter state to ``z`` (default zeros), e.g. after a respawn."""
+        self.z = (
+            np.zeros(self.shape) if z is None else np.array(z, dtype=float).reshape(self.shape)
+        )
+
+    def step(self, v: ArrayLike, grad: ArrayLike, v_ref: ArrayLike | None = None) -> ControlOutput:
+        """Compute the command for velocities ``v`` and gradients ``grad`` (shape
+        ``(..., m, 3)``); ``v_ref`` (shape ``(..., 3)``), the target velocity, enters the
+        manifold as ``v - feedforward v_ref`` when ``feedforward`` is not 0."""
+        p = self._gains or self._prepare()
+        v = np.asarray(v, dtype=float)
+        grad = np.asarray(grad, dtype=float)
+        z = self.z
+        outside = _outside(grad, p.layer_bound)
+        manifold = p.manifold
+        vs = (
+            v
+            if p.feedforward is None or v_ref is None
+            else v - p.feedforward * np.asarray(v_ref, dtype=float)[..., None, :]
+        )
+        if manifold == 0:
+            s = _surface_proposed(vs, grad, z, outside, p.alpha, p.layer_gain)
+        elif manifold == 1:
+            s = _surface_filtered(vs, grad, z, p.alpha)
+        else:
+            s = _surface_continuous(vs, grad, p.alpha, p.beta, p.gamma)
+        force = (
+            _switching(s, v, p.neg_u0, p.drag)
+            if p.inv_phi is None
+            else _switching_layer(s, v, p.neg_u0, p.inv_phi, p.drag)
+        )
+        object.__setattr__(self, 'z', _filter(z, grad, p.decay, p.gain_in))  # not a gain
+        return ControlOutput(force, s, grad, z, outside)  # positional: cheaper per step
