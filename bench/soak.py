@@ -87,8 +87,11 @@ def analyse(
         # samples after the run's end would see the nodes shutting down
         own = [s for s in samples if s['node'] == name and s['t'] <= duration]
         t0, t1 = warmup * duration, (warmup + window) * duration
+        # the end window ends at the node's last sample: a realtime run ends with the
+        # plant's final state, up to a sampling period or two before ``duration``
+        end = max((s['t'] for s in own), default=duration)
         early = [s['rss_mb'] for s in own if t0 <= s['t'] < t1]
-        late = [s['rss_mb'] for s in own if s['t'] >= (1 - window) * duration]
+        late = [s['rss_mb'] for s in own if s['t'] >= end - window * duration]
         cpu = [s for s in own if s['t'] >= t0]
         cpu_pct = (
             100.0 * (cpu[-1]['cpu_s'] - cpu[0]['cpu_s']) / (cpu[-1]['t'] - cpu[0]['t'])

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from apf_swarm_core.metrics import SUMMARY_KEYS
 from apf_swarm_nodes.bags.recover import _scan_mcap
 from apf_swarm_nodes.bringup import pick_domain_id, stop_process
 from apf_swarm_nodes.qos import qos_from_dict
@@ -172,21 +173,7 @@ def test_metrics_equal_the_live_summary(recorded: Path) -> None:
         if key in ('mode',):
             continue
         assert value == live[key], key  # the same samples through the same function
-    sim_keys = (
-        'law',
-        'n_trackers',
-        'dt',
-        'duration',
-        'seed',
-        'centroid_error',
-        'formation',
-        'chattering',
-        'potential',
-        'converged',
-        'time_to_converge',
-        'warnings',
-    )
-    assert all(k in got for k in sim_keys)
+    assert all(k in got for k in SUMMARY_KEYS)
 
 
 def test_export_and_plot(recorded: Path, tmp_path: Path) -> None:

@@ -66,6 +66,14 @@ def wait_until(cond, timeout: float) -> bool:
     return cond()
 
 
+#: a child that ends on SIGINT, whatever disposition it inherited (a background job of a
+#: non-interactive shell starts with SIGINT ignored, and Python then keeps it ignored)
+POLITE = (
+    'import signal, time; signal.signal(signal.SIGINT, signal.default_int_handler); '
+    'print("ready", flush=True); time.sleep(60)'
+)
+
+
 def test_a_group_stops_each_child_with_the_first_signal_that_works(tmp_path: Path) -> None:
     # one child exits on SIGINT, one ignores SIGINT and exits on SIGTERM, one has exited already
     ignores_int = (
@@ -78,7 +86,7 @@ def test_a_group_stops_each_child_with_the_first_signal_that_works(tmp_path: Pat
     group.add(
         Child(
             'polite',
-            [sys.executable, '-c', 'import time; print("ready", flush=True); time.sleep(60)'],
+            [sys.executable, '-c', POLITE],
             tmp_path / 'a.log',
         )
     )
