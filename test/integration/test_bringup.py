@@ -27,8 +27,8 @@ import pytest
 from apf_swarm_core.config import load_config
 from apf_swarm_core.metrics import hf_velocity_rms
 from apf_swarm_core.simulator import TRAJECTORY_KEYS, simulate
+from apf_swarm_nodes.analysis.runio import RUN_ARRAYS
 from apf_swarm_nodes.bringup import pick_domain_id
-from apf_swarm_nodes.runio import RUN_ARRAYS
 
 ROOT = Path(__file__).resolve().parents[2]
 SWARM_UP = ROOT / 'scripts' / 'swarm_up.py'

@@ -327,7 +327,7 @@ def test_the_bag_tools_import_no_rclpy() -> None:
     # the bag package and the whole metrics path (samples, runio) run without rclpy
     code = (
         'import sys\n'
-        'from apf_swarm_nodes import bags, runio, samples\n'
+        'from apf_swarm_nodes import bags\nfrom apf_swarm_nodes.analysis import runio, samples\n'
         'import apf_swarm_nodes.bags.read, apf_swarm_nodes.bags.recover\n'
         'import apf_swarm_nodes.bags.export, apf_swarm_nodes.bags.write\n'
         'print(sorted(m for m in sys.modules if m.split(".")[0] == "rclpy"))\n'

@@ -4,7 +4,7 @@ the accumulated /swarm/state is complete (bringup.StateAccumulator)."""
 from __future__ import annotations
 
 import numpy as np
-from apf_swarm_nodes.runio import TARGET_SILENT_AGE, fault_report
+from apf_swarm_nodes.analysis.runio import TARGET_SILENT_AGE, fault_report
 
 
 def test_inactive_trackers_and_a_silent_target_become_spans_with_warnings() -> None:

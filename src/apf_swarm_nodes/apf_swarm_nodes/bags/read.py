@@ -91,7 +91,7 @@ def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str) -> Any:
     """Every ``/swarm/state`` message of the bag through the bring-up's StateAccumulator
     (the live run's raw-bytes path and conversion; the CDR decoded by rosbags, so that the
     bag tools need no rclpy)."""
-    from ..samples import StateAccumulator
+    from ..analysis.samples import StateAccumulator
 
     info.topic(SWARM_STATE_TOPIC)
     store = typestore()
@@ -121,7 +121,7 @@ def bag_trajectory(
 def bag_metrics(path: Path | str, config: Path | None = None) -> dict[str, Any]:
     """summary.json of the run from the bag's ``/swarm/state`` (:func:`runio.run_summary`, the
     function the bring-up uses), plus ``messages`` and ``mode``."""
-    from ..runio import run_summary
+    from ..analysis.runio import run_summary
 
     traj, cfg, mode, acc = bag_trajectory(path, config)
     status = 'completed' if mode == 'realtime' or acc.complete else 'incomplete'

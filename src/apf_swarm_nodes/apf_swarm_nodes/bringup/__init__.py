@@ -40,7 +40,7 @@ the process supervision (:class:`Child`, :class:`ProcessGroup`), the graph expec
 (:class:`StateAccumulator`) are usable and testable without ROS.
 """
 
-from ..samples import StateAccumulator
+from ..analysis.samples import StateAccumulator
 from .cli import add_arguments, build_parser, main, resolve_config, run
 from .commands import node_commands
 from .graph import TopicExpectation, expected_graph, graph_missing

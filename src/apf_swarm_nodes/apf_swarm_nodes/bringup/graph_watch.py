@@ -14,7 +14,7 @@ from apf_swarm_core.config import (
     SwarmConfig,
 )
 
-from ..samples import StateAccumulator
+from ..analysis.samples import StateAccumulator
 from .graph import (
     RECORDER_STATUS,
     expected_graph,

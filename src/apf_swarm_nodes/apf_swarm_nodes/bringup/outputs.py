@@ -11,7 +11,7 @@ from apf_swarm_core.config import (
     SwarmConfig,
 )
 
-from ..samples import StateAccumulator
+from ..analysis.samples import StateAccumulator
 from .graph import (
     recording_fields,
 )
@@ -85,7 +85,7 @@ class RunOutputs:
         }
 
     def write_outputs(self, status: str) -> dict[str, Path]:
-        from ..runio import format_summary, run_summary, write_run
+        from ..analysis.runio import format_summary, run_summary, write_run
 
         traj = self.acc.trajectory()
         if traj is None:
@@ -109,7 +109,7 @@ class RunOutputs:
             summary['prediction'] = self.predicted(traj)
         paths = write_run(self.out, traj, summary, cfg)
         if not self.args.no_plots and len(traj['t']) > 1:
-            from .. import plots
+            from ..analysis import plots
 
             title = f'{cfg.law} law, ROS 2 {self.mode} run'
             paths['trajectories_3d'] = plots.plot_trajectories_3d(

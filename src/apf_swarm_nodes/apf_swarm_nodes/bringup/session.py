@@ -18,8 +18,8 @@ from apf_swarm_core.config import (
     to_ros_params,
 )
 
+from ..analysis.samples import StateAccumulator
 from ..errors import CliError
-from ..samples import StateAccumulator
 from .commands import executable_path, node_commands, node_netns, package_prefix
 from .graph import (
     RECORDER_STOP_SEQUENCE,

@@ -11,8 +11,8 @@ from typing import Any
 
 from apf_swarm_core.errors import ApfSwarmError
 
+from ..analysis.runio import format_summary
 from ..argtypes import nonneg_float, positive_float
-from ..runio import format_summary
 from .commands import PROG
 
 
@@ -41,8 +41,8 @@ def cmd_bag_metrics(args: argparse.Namespace) -> int:
 
 
 def cmd_bag_plot(args: argparse.Namespace) -> int:
+    from ..analysis.plots import paper_figures
     from ..bags import bag_trajectory
-    from ..plots import paper_figures
 
     traj, cfg, _mode, _acc = bag_trajectory(args.bag, args.config)
     if len(traj['t']) < 2:

@@ -22,9 +22,9 @@ from apf_swarm_core.design import b_for_spacing, equilibrium_formation, triangle
 from apf_swarm_core.errors import ApfSwarmError
 from apf_swarm_core.simulator import simulate
 
+from ..analysis.runio import format_summary, write_run
 from ..argtypes import nonneg_float
 from ..progress import Progress
-from ..runio import format_summary, write_run
 
 PROG = 'apf-swarm'
 
@@ -262,7 +262,7 @@ def cmd_design(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from ..studies import GAMMA_VALUES, reproduce
+    from ..analysis.studies import GAMMA_VALUES, reproduce
 
     presets = {name: load_preset(name) for name in ('triangle', 'paper')}
     if args.duration is not None:
@@ -287,7 +287,7 @@ def _parse_values(text: str) -> list[Any]:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from ..studies import sweep, write_sweep
+    from ..analysis.studies import sweep, write_sweep
 
     cfg = _load(args, {'duration': args.duration})
     values = _parse_values(args.values)

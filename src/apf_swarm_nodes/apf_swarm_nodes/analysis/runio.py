@@ -12,7 +12,7 @@ import yaml
 from apf_swarm_core.config import SwarmConfig, to_ros_params
 from apf_swarm_core.simulator import TRAJECTORY_KEYS
 
-from .errors import CliError
+from ..errors import CliError
 
 __all__ = [
     'RUN_ARRAYS',

@@ -12,7 +12,7 @@ from apf_swarm_core.checks import check_config
 from apf_swarm_core.config import SwarmConfig, apply_overrides
 from apf_swarm_core.simulator import BATCHABLE, simulate, simulate_batch
 
-from .errors import CliError
+from ..errors import CliError
 from .plots import paper_figures, plot_tradeoff
 from .runio import write_run
 

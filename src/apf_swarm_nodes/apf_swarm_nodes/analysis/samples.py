@@ -8,7 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from .errors import CliError
+from ..errors import CliError
 
 # --------------------------------------------------------------------------------------------
 # the run's data
@@ -35,7 +35,7 @@ class RawSample:
 
     @property
     def sample(self) -> Any:
-        from .conversions import swarm_state_arrays
+        from ..conversions import swarm_state_arrays
 
         return swarm_state_arrays(self.decode(self.raw))
 
@@ -73,7 +73,7 @@ class StateAccumulator:
     def add_raw(self, raw: bytes) -> None:
         """A serialized SwarmState: kept as bytes, deserialized only when needed (the
         bring-up shares the CPU with the swarm; deserializing every step costs ~0.4 ms)."""
-        from .conversions import swarm_state_step
+        from ..conversions import swarm_state_step
 
         try:
             step = swarm_state_step(raw)
