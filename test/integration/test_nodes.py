@@ -170,7 +170,7 @@ def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: st
     )
     qos = control_qos('lockstep')
     forces: list[ForceCommand] = []
-    graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
+    sub = graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
     rng = np.random.default_rng(7)
     x = rng.normal(scale=2.0, size=(3, 3))
     v = rng.normal(size=(3, 3))
@@ -214,9 +214,8 @@ def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: st
                 )
             )
 
-    graph.spin_until(
-        lambda: graph.node.count_publishers('/uav_2/force_cmd') == 1, 30, 'the force publisher'
-    )
+    # matched, not only discovered: a command sent before this reader matched is lost
+    graph.spin_until(lambda: sub.get_publisher_count() == 1, 30, 'the force publisher matched')
     send(0, x)
     graph.spin_until(lambda: len(forces) == 1, 10, 'the force of step 0')
     ref = TrackerAgent(cfg, 2)
@@ -327,15 +326,12 @@ def test_realtime_tracker_commands_on_fresh_inputs_and_brakes_when_they_go_stale
     )
     qos = control_qos('realtime')
     forces: list[tuple[float, ForceCommand]] = []
-    graph.node.create_subscription(
+    sub = graph.node.create_subscription(
         ForceCommand, '/uav_2/force_cmd', lambda m: forces.append((time.monotonic(), m)), qos
     )
     spub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
     graph.spin_until(
-        lambda: (
-            spub.get_subscription_count() == 1
-            and graph.node.count_publishers('/uav_2/force_cmd') == 1
-        ),
+        lambda: spub.get_subscription_count() == 1 and sub.get_publisher_count() == 1,
         30,
         'the tracker endpoints',
     )
@@ -444,13 +440,13 @@ def test_parameters_set_at_run_time_are_applied_or_refused_with_a_reason(graph) 
     )
     qos = control_qos('lockstep')
     forces: list[ForceCommand] = []
-    graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
+    sub = graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
     spub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
     client = AsyncParameterClient(graph.node, '/uav_2/tracker')
     graph.spin_until(
         lambda: (
             spub.get_subscription_count() == 1
-            and graph.node.count_publishers('/uav_2/force_cmd') == 1
+            and sub.get_publisher_count() == 1
             and client.services_are_ready()
         ),
         30,
