@@ -1,8 +1,8 @@
 """What this machine is and what its processes cost: the one place the project reads them
 (psutil; the CPU model from ``/proc/cpuinfo``, which psutil does not give).
 
-Used by the capacity probe (its cache key), the bring-up (process groups) and every
-benchmark (the machine line of its table, each process's CPU and memory).
+Used by the capacity probe (its cache key), the bring-up (process groups, bound ports) and
+the benchmarks (the CPU model, each process's CPU and memory).
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ import psutil
 
 __all__ = [
     'cpu_model',
-    'describe',
     'group_members',
     'identity',
     'machine_busy_seconds',
@@ -43,12 +42,6 @@ def identity() -> dict[str, Any]:
     """What tells one machine from another for a cached measurement: CPU model, cores,
     host name."""
     return {'cpu': cpu_model(), 'cores': os.cpu_count() or 1, 'host': socket.gethostname()}
-
-
-def describe() -> str:
-    """One line for a benchmark's table: CPU, cores and the load average now."""
-    load = ', '.join(f'{v:.2f}' for v in psutil.getloadavg())
-    return f'{cpu_model()}, {os.cpu_count()} cores, load average {load}'
 
 
 def process_cpu_seconds(pid: int) -> float | None:
