@@ -8,6 +8,7 @@ from apf_swarm_core.metrics import (
     SUMMARY_KEYS,
     centroid_error,
     flight,
+    formation_edges,
     formation_error,
     heading_rate,
     hf_velocity_rms,
@@ -204,3 +205,28 @@ def test_summary_and_flight_judge_the_nearest_of_several_designs():
     )
     assert s['converged'] is False and not flight(traj, [wide])['flies']
     assert nearest_design(x, []) is None
+
+
+def test_formation_edges_match_pairs_by_rank_as_formation_error_does():
+    # the right triangle (3, 4, 5) against the design (5, 3, 4): every pair matched exactly
+    right = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, 4.0, 0.0]])
+    i, j, design, err = formation_edges(right, [5.0, 3.0, 4.0], neighbour_ratio=math.inf)
+    assert sorted(zip(i.tolist(), j.tolist(), strict=True)) == [(0, 1), (0, 2), (1, 2)]
+    np.testing.assert_allclose(err, 0.0, atol=1e-15)
+    by_pair = dict(zip(zip(i.tolist(), j.tolist(), strict=True), design.tolist(), strict=True))
+    assert by_pair == {(0, 1): 3.0, (0, 2): 4.0, (1, 2): 5.0}
+    # only the neighbours: the design's 5 m pair is longer than 1.5 x its 3 m spacing
+    i, j, design, _ = formation_edges(right, [5.0, 3.0, 4.0])
+    assert sorted(design.tolist()) == [3.0, 4.0]
+
+
+def test_formation_edges_rms_is_the_formation_error():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(7, 3))
+    design = rng.uniform(1.0, 3.0, size=21)
+    *_, err = formation_edges(x, design, neighbour_ratio=math.inf)
+    assert float(np.sqrt(np.mean(err**2))) == pytest.approx(
+        float(formation_error(x, design)), rel=1e-12
+    )
+    with pytest.raises(ValueError, match='20 design pair distances for 21 pairs'):
+        formation_edges(x, design[:20])

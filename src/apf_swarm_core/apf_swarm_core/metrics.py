@@ -7,7 +7,7 @@ Arrays follow the trajectory schema: ``t (T,)``, ``x (T, n, 3)``, ``v (T, n, 3)`
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
@@ -22,6 +22,7 @@ __all__ = [
     'SUMMARY_KEYS',
     'centroid_error',
     'flight',
+    'formation_edges',
     'formation_error',
     'heading_rate',
     'hf_velocity_rms',
@@ -82,6 +83,32 @@ def formation_error(x: ArrayLike, expected_pairs: ArrayLike) -> NDArray[np.float
     d = np.sort(pair_distances(x), axis=-1)
     e = np.sort(np.asarray(expected_pairs, dtype=float))
     return np.sqrt(np.mean((d - e) ** 2, axis=-1))
+
+
+def formation_edges(
+    x: ArrayLike, expected_pairs: ArrayLike, neighbour_ratio: float = 1.5
+) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]:
+    """The formation's edges at one instant and each one's error against the design.
+
+    Pairs are matched to the design as :func:`formation_error` matches them: the k-th shortest
+    pair distance of ``x (n, 3)`` against the k-th shortest of ``expected_pairs``, so the RMS
+    of the errors over every pair (``neighbour_ratio = inf``) is :func:`formation_error`.
+    An edge is a pair whose design distance is at most ``neighbour_ratio`` times the design's
+    nearest-neighbour spacing (the neighbours a viewer draws).
+
+    Returns ``(i, j, design, error)``: tracker rows ``(E,)``, design distances ``(E,)`` [m]
+    and ``d_ij - design`` ``(E,)`` [m].
+    """
+    x = np.asarray(x, dtype=float)
+    i, j = _pairs(x.shape[0])
+    d = pair_distances(x)
+    e = np.sort(np.asarray(expected_pairs, dtype=float))
+    if e.shape != d.shape:
+        raise ValueError(f'{len(e)} design pair distances for {len(d)} pairs of trackers')
+    design = np.empty_like(d)
+    design[np.argsort(d, kind='stable')] = e
+    keep = design <= neighbour_ratio * e[0] if len(e) else np.zeros(0, dtype=bool)
+    return i[keep], j[keep], design[keep], (d - design)[keep]
 
 
 def potential_series(
@@ -230,7 +257,7 @@ def _f(value: float | None) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
 
-def nearest_design(x: ArrayLike, designs: list[ArrayLike]) -> NDArray[np.float64] | None:
+def nearest_design(x: ArrayLike, designs: Sequence[ArrayLike]) -> NDArray[np.float64] | None:
     """Of several designs' pair distances (the minima of J a swarm may settle in), the one
     whose :func:`formation_error` over the positions ``x (T, n, 3)`` has the smallest RMS;
     ``None`` when there is none."""
