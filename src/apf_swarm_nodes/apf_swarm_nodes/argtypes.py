@@ -11,10 +11,13 @@ from pathlib import Path
 from apf_swarm_core.config import preset_names
 
 __all__ = [
+    'add_animation_args',
     'add_config_args',
+    'add_view_args',
     'domain_id',
     'nonneg_float',
     'nonneg_int',
+    'port_number',
     'positive_float',
     'positive_int',
 ]
@@ -38,6 +41,14 @@ positive_float = _number(float, 0.0, True, 'must be a positive number')
 nonneg_float = _number(float, 0.0, False, 'must be >= 0')
 positive_int = _number(int, 1, False, 'must be >= 1')
 nonneg_int = _number(int, 0, False, 'must be >= 0')
+
+
+def port_number(text: str) -> int:
+    """A TCP port, 0..65535 (0: any free port)."""
+    val = int(nonneg_int(text))
+    if val > 65535:
+        raise argparse.ArgumentTypeError(f'{val}: a TCP port is 0..65535')
+    return val
 
 
 def domain_id(text: str) -> int:
@@ -68,4 +79,58 @@ def add_config_args(
         default=[],
         dest='sets',
         help='override a configuration key (repeatable), e.g. --set gamma=0.5',
+    )
+
+
+def add_animation_args(p: argparse.ArgumentParser) -> None:
+    """``--speed``, ``--fps``, ``--projection`` of the commands that write an animation."""
+    p.add_argument(
+        '--speed',
+        type=positive_float,
+        metavar='X',
+        help='speed-up against real time (default: the run in at most 20 s)',
+    )
+    p.add_argument(
+        '--fps', type=positive_int, default=15, metavar='F', help='frames per second (15)'
+    )
+    p.add_argument(
+        '--projection', choices=('3d', 'top'), default='3d', help='3-D (default) or from above'
+    )
+
+
+def add_view_args(
+    p: argparse.ArgumentParser, *, flag: str = '--view', default: int | None = None
+) -> None:
+    """The live view's port (``flag``; ``--view [PORT]`` when ``default`` is None: off unless
+    given, 8765 when given without a value) and ``--view-host``."""
+    from .view.server import DEFAULT_PORT
+
+    port = port_number
+    if default is None:
+        p.add_argument(
+            flag,
+            dest='view',
+            type=port,
+            nargs='?',
+            const=DEFAULT_PORT,
+            default=None,
+            metavar='PORT',
+            help=f'serve the run to the Foxglove app on ws://HOST:PORT (default {DEFAULT_PORT}; '
+            '0: any free port, printed)',
+        )
+    else:
+        p.add_argument(
+            flag,
+            dest='port',
+            type=port,
+            default=default,
+            metavar='PORT',
+            help=f'WebSocket port of the view (default {default}; 0: any free port, printed)',
+        )
+    p.add_argument(
+        '--view-host',
+        dest='host',
+        default='127.0.0.1',
+        metavar='ADDR',
+        help='address the view binds to (default 127.0.0.1: this machine only)',
     )

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import csv
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from apf_swarm_core.checks import check_config
 from apf_swarm_core.config import SwarmConfig, apply_overrides
-from apf_swarm_core.simulator import BATCHABLE, simulate, simulate_batch
+from apf_swarm_core.simulator import BATCHABLE, design_pair_sets, simulate, simulate_batch
 
 from ..errors import CliError
 from .plots import paper_figures, plot_tradeoff
@@ -161,13 +161,43 @@ def _gamma_conclusion(rows: list[dict[str, Any]]) -> tuple[list[str], list[float
     return lines, both
 
 
+def _animations(
+    out: Path,
+    name: str,
+    cfg: SwarmConfig,
+    trajs: Mapping[str, Any],
+    progress_factory: Callable[[str], Callable[[int, int], None]] | None,
+) -> list[Path]:
+    """One top-view GIF per law, the whole run in 10 s."""
+    from .animate import animate, auto_speed
+
+    paths = []
+    for law, traj in trajs.items():
+        path = out / f'{name}_{law}.gif'
+        prog = progress_factory(f'{name}/{law} animation') if progress_factory else None
+        animate(
+            traj,
+            path,
+            designs=design_pair_sets(cfg),
+            speed=auto_speed(float(traj['t'][-1] - traj['t'][0]), longest=10.0),
+            fps=10,
+            view='top',
+            title=f'{name}: {law} law',
+            progress=prog,
+        )
+        paths.append(path)
+    return paths
+
+
 def reproduce(
     out: Path,
     presets: dict[str, SwarmConfig],
     progress_factory: Callable[[str], Callable[[int, int], None]] | None = None,
     gamma_values: Sequence[float] = GAMMA_VALUES,
+    animations: bool = True,
 ) -> Path:
-    """Run both laws on each preset, draw Figures 1-7 per preset, write ``report.md``."""
+    """Run both laws on each preset, draw Figures 1-7 per preset, write ``report.md``;
+    ``animations``: also ``<preset>_<law>.gif`` of the first preset's runs (10 s each)."""
     out.mkdir(parents=True, exist_ok=True)
     report = [
         "# apf_swarm: reproduction of the paper's section 3",
@@ -191,6 +221,8 @@ def reproduce(
             trajs[law] = res.trajectory
             write_run(out / name / law, res.trajectory, summaries[law], c)
         figs = paper_figures(trajs, out, prefix=f'{name}_')
+        if animations and name == next(iter(presets)):
+            figs += _animations(out, name, cfg, trajs, progress_factory)
         check = check_config(cfg, trajs['proposed'])
         everything[name] = {'summaries': summaries, 'check': check.as_dict()}
         report += [

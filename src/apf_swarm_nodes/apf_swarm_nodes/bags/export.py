@@ -47,12 +47,15 @@ def flatten(msg: Any, prefix: str = '') -> dict[str, Any]:
     return out
 
 
-def export_csv(path: Path | str, topic: str, out: TextIO) -> int:
+def export_csv(path: Path | str, topic: str, out: TextIO, *, quiet: bool = True) -> int:
     """Flattened fields of every message of ``topic`` as CSV into ``out``; returns the rows.
 
     Columns: ``timestamp_ns`` (the bag's receive time), then the fields in first-seen order
     (a variable-length array adds columns as it grows; shorter rows leave them empty).
+    ``quiet=False``: a progress bar on stderr.
     """
+    from ..progress import progress_iter
+
     info = open_bag(path)
     t = info.topic(topic)
     rows: list[dict[str, Any]] = []
@@ -60,7 +63,8 @@ def export_csv(path: Path | str, topic: str, out: TextIO) -> int:
     try:
         with contextlib.closing(_any_reader(info.path)) as reader:
             conns = [c for c in reader.connections if c.topic == topic]
-            for conn, ts, raw in reader.messages(connections=conns):
+            messages = reader.messages(connections=conns)
+            for conn, ts, raw in progress_iter(messages, topic, total=t.count, quiet=quiet):
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
                 except Exception as exc:

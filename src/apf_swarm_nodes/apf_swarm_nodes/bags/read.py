@@ -87,43 +87,49 @@ def bag_config(info: BagInfo, config: Path | None = None) -> tuple[Any, str]:
         return load_config(p), mode
 
 
-def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str) -> Any:
+def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str, *, quiet: bool = True) -> Any:
     """Every ``/swarm/state`` message of the bag through the bring-up's StateAccumulator
     (the live run's raw-bytes path and conversion; the CDR decoded by rosbags, so that the
-    bag tools need no rclpy)."""
+    bag tools need no rclpy). ``quiet=False``: a progress bar on stderr."""
     from ..analysis.samples import StateAccumulator
+    from ..progress import progress_iter
 
-    info.topic(SWARM_STATE_TOPIC)
+    count = info.topic(SWARM_STATE_TOPIC).count
     store = typestore()
 
     def decode(raw: bytes) -> Any:
         return store.deserialize_cdr(raw, SWARM_STATE_TYPE)
 
     acc = StateAccumulator(mode, cfg.steps, cfg.record_every, decode)
-    for _topic, _type, _ts, raw in iter_raw(info.path, [SWARM_STATE_TOPIC], info=info):
+    messages = iter_raw(info.path, [SWARM_STATE_TOPIC], info=info)
+    for _topic, _type, _ts, raw in progress_iter(
+        messages, SWARM_STATE_TOPIC, total=count, quiet=quiet
+    ):
         acc.add_raw(raw)
     return acc
 
 
 def bag_trajectory(
-    path: Path | str, config: Path | None = None
+    path: Path | str, config: Path | None = None, *, quiet: bool = True
 ) -> tuple[dict[str, Any], Any, str, Any]:
     """``(trajectory, cfg, mode, accumulator)`` of a bag's ``/swarm/state``."""
     info = open_bag(path)
     cfg, mode = bag_config(info, config)
-    acc = swarm_state_accumulator(info, cfg, mode)
+    acc = swarm_state_accumulator(info, cfg, mode, quiet=quiet)
     traj = acc.trajectory()
     if traj is None:
         raise CliError(f'{info.path}: /swarm/state has no message; nothing to compute')
     return traj, cfg, mode, acc
 
 
-def bag_metrics(path: Path | str, config: Path | None = None) -> dict[str, Any]:
+def bag_metrics(
+    path: Path | str, config: Path | None = None, *, quiet: bool = True
+) -> dict[str, Any]:
     """summary.json of the run from the bag's ``/swarm/state`` (:func:`runio.run_summary`, the
     function the bring-up uses), plus ``messages`` and ``mode``."""
     from ..analysis.runio import run_summary
 
-    traj, cfg, mode, acc = bag_trajectory(path, config)
+    traj, cfg, mode, acc = bag_trajectory(path, config, quiet=quiet)
     status = 'completed' if mode == 'realtime' or acc.complete else 'incomplete'
     summary = run_summary(
         traj, cfg, status=status, n_samples=len(acc.samples), dropped=acc.dropped

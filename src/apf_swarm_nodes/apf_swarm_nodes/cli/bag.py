@@ -12,7 +12,8 @@ from typing import Any
 from apf_swarm_core.errors import ApfSwarmError
 
 from ..analysis.runio import format_summary
-from ..argtypes import nonneg_float, positive_float
+from ..argtypes import add_animation_args, add_view_args, nonneg_float, positive_float
+from ..view.server import DEFAULT_PORT
 from .commands import PROG
 
 
@@ -27,7 +28,7 @@ def cmd_bag_info(args: argparse.Namespace) -> int:
 def cmd_bag_metrics(args: argparse.Namespace) -> int:
     from ..bags import bag_metrics
 
-    summary = bag_metrics(args.bag, args.config)
+    summary = bag_metrics(args.bag, args.config, quiet=args.quiet)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -44,7 +45,7 @@ def cmd_bag_plot(args: argparse.Namespace) -> int:
     from ..analysis.plots import paper_figures
     from ..bags import bag_trajectory
 
-    traj, cfg, _mode, _acc = bag_trajectory(args.bag, args.config)
+    traj, cfg, _mode, _acc = bag_trajectory(args.bag, args.config, quiet=args.quiet)
     if len(traj['t']) < 2:
         raise ApfSwarmError(
             f'{args.bag}: /swarm/state has {len(traj["t"])} sample; a figure needs two'
@@ -54,18 +55,46 @@ def cmd_bag_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bag_animate(args: argparse.Namespace) -> int:
+    from ..analysis.animate import check_path
+    from ..bags import bag_trajectory
+    from .commands import write_animation
+
+    check_path(args.out)
+    traj, cfg, _mode, _acc = bag_trajectory(args.bag, args.config, quiet=args.quiet)
+    write_animation(args, traj, cfg, args.out)
+    return 0
+
+
+def cmd_bag_view(args: argparse.Namespace) -> int:
+    from ..view.bag import serve_bag
+
+    frames = serve_bag(
+        args.bag,
+        host=args.host,
+        port=args.port,
+        rate=args.rate,
+        loop=args.loop,
+        wait_client=args.wait_client,
+        config=args.config,
+        say=lambda m: print(f'{PROG} bag view: {m}', file=sys.stderr, flush=True),
+    )
+    print(f'{PROG} bag view: sent {frames} frames', file=sys.stderr)
+    return 0
+
+
 def cmd_bag_export(args: argparse.Namespace) -> int:
     from ..bags import export_csv
 
     if args.csv is None:
-        n = export_csv(args.bag, args.topic, sys.stdout)
+        n = export_csv(args.bag, args.topic, sys.stdout, quiet=args.quiet)
         return 0 if n >= 0 else 1
     if args.csv.exists() and not args.force:
         raise ApfSwarmError(f'{args.csv} exists; choose another file or pass --force')
     tmp = args.csv.with_name(args.csv.name + '.tmp')
     with open(tmp, 'w', newline='') as fh:
         try:
-            n = export_csv(args.bag, args.topic, fh)
+            n = export_csv(args.bag, args.topic, fh, quiet=args.quiet)
         except BaseException:
             fh.close()
             tmp.unlink(missing_ok=True)
@@ -146,19 +175,48 @@ def _add_bag_parser(sub: Any) -> None:
         help='parameter file of the run (default: the one stored in the bag)',
     )
     q.add_argument('--json', action='store_true')
+    q.add_argument('--quiet', action='store_true', help='no progress bar')
     q.set_defaults(func=cmd_bag_metrics)
 
     q = bsub.add_parser('plot', help='the figures of `apf-swarm reproduce` from /swarm/state')
     q.add_argument('bag', type=Path, metavar='BAG')
     q.add_argument('--out', type=Path, required=True, metavar='DIR')
     q.add_argument('--config', type=Path, metavar='FILE')
+    q.add_argument('--quiet', action='store_true', help='no progress bar')
     q.set_defaults(func=cmd_bag_plot)
+
+    q = bsub.add_parser('animate', help='an animation of the run (.gif or .mp4) from /swarm/state')
+    q.add_argument('bag', type=Path, metavar='BAG')
+    q.add_argument('--out', type=Path, required=True, metavar='FILE')
+    q.add_argument('--config', type=Path, metavar='FILE')
+    add_animation_args(q)
+    q.add_argument('--quiet', action='store_true', help='no progress bar')
+    q.set_defaults(func=cmd_bag_animate)
+
+    q = bsub.add_parser(
+        'view',
+        help='serve the run to the Foxglove app (WebSocket) as a live run is served, no ROS graph',
+    )
+    q.add_argument('bag', type=Path, metavar='BAG')
+    add_view_args(q, flag='--port', default=DEFAULT_PORT)
+    q.add_argument('--rate', type=positive_float, default=1.0, metavar='R', help='speed (1)')
+    q.add_argument('--loop', action='store_true', help='play again until Ctrl-C')
+    q.add_argument(
+        '--wait-client',
+        type=nonneg_float,
+        default=None,
+        metavar='S',
+        help='give up when no client subscribed within S seconds (default: wait)',
+    )
+    q.add_argument('--config', type=Path, metavar='FILE')
+    q.set_defaults(func=cmd_bag_view)
 
     q = bsub.add_parser('export', help='flattened fields of one topic as CSV')
     q.add_argument('bag', type=Path, metavar='BAG')
     q.add_argument('--topic', required=True, metavar='T')
     q.add_argument('--csv', type=Path, metavar='FILE', help='output file (default: stdout)')
     q.add_argument('--force', action='store_true', help='overwrite FILE')
+    q.add_argument('--quiet', action='store_true', help='no progress bar')
     q.set_defaults(func=cmd_bag_export)
 
     q = bsub.add_parser(

@@ -20,7 +20,7 @@ from apf_swarm_core.config import (
 )
 from apf_swarm_core.design import b_for_spacing, equilibrium_formation, triangle_c_for_spacing
 from apf_swarm_core.errors import ApfSwarmError
-from apf_swarm_core.simulator import simulate
+from apf_swarm_core.simulator import design_pair_sets, simulate
 
 from ..analysis.runio import format_summary, write_run
 from ..argtypes import nonneg_float
@@ -122,13 +122,39 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     )
     if samples is not None and cfg.control_rate <= 0:
         raise ApfSwarmError('--latency FILE emulates a realtime loop: give --control-rate HZ')
+    if args.animate is not None:
+        from ..analysis.animate import check_path
+
+        check_path(args.animate)
     report = check_config(cfg)
     res = simulate(cfg, progress=_progress(args, 'simulate'), latency_samples=samples)
     summary = res.summary(warnings=report.warnings)
     write_run(args.out, res.trajectory, summary, cfg)
     print(format_summary(summary))
     print(f'wrote {args.out / "trajectory.npz"} and {args.out / "summary.json"}')
+    if args.animate is not None:
+        write_animation(args, res.trajectory, cfg, args.animate)
     return 0
+
+
+def write_animation(args: argparse.Namespace, traj: Any, cfg: SwarmConfig, path: Path) -> None:
+    """The animation of a run as the options ``--speed``, ``--fps``, ``--projection`` say."""
+    from ..analysis.animate import animate, auto_speed
+
+    t = traj['t']
+    speed = args.speed or auto_speed(float(t[-1] - t[0]) if len(t) else 0.0)
+    progress = None if args.quiet else Progress('animate', unit='frames')
+    frames = animate(
+        traj,
+        path,
+        designs=design_pair_sets(cfg),
+        speed=speed,
+        fps=args.fps,
+        view=args.projection,
+        title=f'{cfg.n_trackers} trackers, {cfg.law} law',
+        progress=progress,
+    )
+    print(f'wrote {path} ({frames} frames, {speed:g}x)')
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -268,7 +294,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if args.duration is not None:
         presets = {k: v.replace(duration=args.duration) for k, v in presets.items()}
     gammas = GAMMA_VALUES if not args.quick else (0.02, 0.2, 1.0)
-    path = reproduce(args.out, presets, None if args.quiet else Progress, gammas)
+    path = reproduce(
+        args.out, presets, None if args.quiet else Progress, gammas, not args.no_animations
+    )
     print(path.read_text().split('## Conclusion', 1)[-1].strip())
     print(f'wrote {path} and the figures next to it')
     return 0

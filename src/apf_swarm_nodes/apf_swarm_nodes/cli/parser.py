@@ -12,7 +12,7 @@ from apf_swarm_core.config import (
 )
 from apf_swarm_core.errors import ApfSwarmError
 
-from ..argtypes import add_config_args, positive_float
+from ..argtypes import add_animation_args, add_config_args, positive_float
 from .bag import _add_bag_parser
 from .commands import (
     PROG,
@@ -61,6 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--seed', type=int)
     _add_realtime_args(p)
     p.add_argument('--out', type=Path, required=True, metavar='DIR')
+    p.add_argument(
+        '--animate', type=Path, metavar='FILE', help='also write an animation (.gif or .mp4)'
+    )
+    add_animation_args(p)
     p.add_argument('--quiet', action='store_true', help='no progress line')
     p.set_defaults(func=cmd_simulate)
 
@@ -102,6 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', type=Path, required=True, metavar='DIR')
     p.add_argument('--duration', type=float, metavar='S', help="override the presets' duration")
     p.add_argument('--quick', action='store_true', help='3 gamma values instead of 8')
+    p.add_argument(
+        '--no-animations', action='store_true', help='skip the animation of each law (GIF)'
+    )
     p.add_argument('--quiet', action='store_true')
     p.set_defaults(func=cmd_reproduce)
 
