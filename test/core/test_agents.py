@@ -203,7 +203,7 @@ def test_plant_refuses_bad_commands_and_holds_missing_ones(cfg) -> None:
 
 
 def test_obstacle_gradient_matches_finite_differences_of_the_repulsion() -> None:
-    from apf_swarm_core.potential import obstacle_gradient
+    from apf_swarm_core.gradients import obstacle_gradient
 
     rng = np.random.default_rng(5)
     x = rng.normal(size=(2, 3))
@@ -228,7 +228,7 @@ def test_obstacle_gradient_matches_finite_differences_of_the_repulsion() -> None
 def test_an_inactive_neighbour_leaves_the_formation_term_and_repels(cfg) -> None:
     """With uav_3 inactive, uav_2's gradient is that of the pair (1, 2) plus the repulsion
     of uav_3 only: far away uav_3 changes nothing, close by it pushes uav_2 away."""
-    from apf_swarm_core.potential import gradient
+    from apf_swarm_core.gradients import gradient
 
     p = cfg.potential_params()
     x = np.array([[1.0, 0.0, 5.0], [-1.0, 0.0, 5.0], [30.0, 0.0, 5.0]])

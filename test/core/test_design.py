@@ -15,8 +15,8 @@ from apf_swarm_core.design import (
     triangle_spacing,
 )
 from apf_swarm_core.errors import ConfigError
+from apf_swarm_core.gradients import gradient
 from apf_swarm_core.laws import kinematic_velocity
-from apf_swarm_core.potential import gradient
 
 
 def _spec_triangle_side(a, b, c, k_n, k_f):

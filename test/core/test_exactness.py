@@ -5,8 +5,9 @@ trajectory): every check here is exact equality, not a tolerance."""
 import numpy as np
 import pytest
 from apf_swarm_core.controller import SlidingModeController
+from apf_swarm_core.gradients import gradient
 from apf_swarm_core.plant import DisturbanceSource, plant_step
-from apf_swarm_core.potential import _pair_weight_neg, gradient, pair_weight
+from apf_swarm_core.potential import _pair_weight_neg, pair_weight
 from apf_swarm_core.saturation import _layer_bound, outside_layer
 from apf_swarm_core.simulator import TRAJECTORY_KEYS, BatchSimulator
 

@@ -2,8 +2,9 @@
 
 import numpy as np
 import pytest
+from apf_swarm_core.gradients import gradient, target_gradient
 from apf_swarm_core.laws import kinematic_velocity
-from apf_swarm_core.potential import gradient, pair_weight, potential, target_gradient
+from apf_swarm_core.potential import pair_weight, potential
 
 
 def _random_params(rng):

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from apf_swarm_core.config import load_preset
 from apf_swarm_core.errors import ConfigError
+from apf_swarm_core.gradients import gradient
 from apf_swarm_core.laws import layer_switching_force
 from apf_swarm_core.metrics import flight
 from apf_swarm_core.newton import hessian, newton_basis, newton_direction
-from apf_swarm_core.potential import gradient
 from apf_swarm_core.sampled import (
     RELAY_LIMIT,
     design_hessian_spectrum,

@@ -23,7 +23,7 @@ Faults (docs/RELIABILITY.md):
   their potential (the neighbour set shrinks: the rest form the formation of one tracker
   fewer around the target, three trackers become a pair) but keep them as obstacles, with
   the repulsive half of the pair term only
-  (:func:`~apf_swarm_core.potential.obstacle_gradient`): a drifting UAV is avoided, not
+  (:func:`~apf_swarm_core.gradients.obstacle_gradient`): a drifting UAV is avoided, not
   followed. A command from an inactive tracker makes it active again (a respawned tracker
   rejoins).
 """

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 
 from .config import SwarmConfig
 from .design import expected_spacing, triangle_spacing
-from .potential import gradient
+from .gradients import gradient
 
 __all__ = [
     'CheckReport',

@@ -385,7 +385,7 @@ class SwarmConfig:
         return rows
 
     def potential_params(self) -> PotentialParams:
-        """Keyword arguments of :func:`apf_swarm_core.potential.gradient`."""
+        """Keyword arguments of :func:`apf_swarm_core.gradients.gradient`."""
         return {'k_n': self.k_n, 'k_f': self.k_f, 'a': self.a, 'b': self.b, 'c': self.c}
 
     def neighbour_rule(self) -> dict[str, Any]:

@@ -13,13 +13,9 @@ from numpy.typing import ArrayLike, NDArray
 from .config import SwarmConfig
 from .controller import ControlOutput, SlidingModeController
 from .gains import per_run
+from .gradients import gradient, obstacle_gradient
 from .newton import newton_basis, newton_direction
-from .potential import (
-    PotentialParams,
-    Rows,
-    gradient,
-    obstacle_gradient,
-)
+from .potential import PotentialParams, Rows
 from .prediction import Predictor, compensation_horizon
 
 __all__ = [
@@ -146,11 +142,11 @@ def control_step(
     v : array (..., m, 3)
         Velocities of the selected trackers [m/s].
     target_x : array (..., 3)
-    potential_params : keyword arguments of :func:`apf_swarm_core.potential.gradient`
-    rows, mask : see :func:`apf_swarm_core.potential.gradient`
+    potential_params : keyword arguments of :func:`apf_swarm_core.gradients.gradient`
+    rows, mask : see :func:`apf_swarm_core.gradients.gradient`
     obstacles : array (k, 3), optional
         Bodies that only repel (silent trackers, see :mod:`apf_swarm_core.agents`): their
-        :func:`~apf_swarm_core.potential.obstacle_gradient` is added to the gradient of the
+        :func:`~apf_swarm_core.gradients.obstacle_gradient` is added to the gradient of the
         selected rows (a single run).
     target_v : array (..., 3), optional
         Target velocity, for a controller with ``feedforward`` (ignored without) and for a

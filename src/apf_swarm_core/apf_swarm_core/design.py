@@ -22,7 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ConfigError
-from .potential import PotentialParams, gradient, potential
+from .gradients import gradient
+from .potential import PotentialParams, potential
 
 __all__ = [
     'MULTISTART_MAX',

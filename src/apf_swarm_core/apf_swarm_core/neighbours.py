@@ -1,6 +1,6 @@
 """Neighbour rules beside the paper's all-to-all potential: which trackers enter each
 tracker's pair term (the ``k`` nearest, or those within a radius), as the mask
-:func:`~apf_swarm_core.potential.gradient` takes."""
+:func:`~apf_swarm_core.gradients.gradient` takes."""
 
 from __future__ import annotations
 
