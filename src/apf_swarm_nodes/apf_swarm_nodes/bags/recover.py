@@ -14,7 +14,7 @@ import yaml
 
 from ..errors import CliError
 from .info import _read_metadata, bag_files
-from .types import DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME
+from .types import DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME, ROS_DISTRO
 from .write import _write_metadata, build_metadata
 
 # --------------------------------------------------------------------------------------------
@@ -218,7 +218,7 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
         files=file_stats,
         topics=list(topics.values()),
         custom_data=custom,
-        ros_distro=str(old_meta.get('ros_distro', 'rosbags')),
+        ros_distro=str(old_meta.get('ros_distro', ROS_DISTRO)),
     )
     if (path / 'metadata.yaml').is_file():
         shutil.copy2(path / 'metadata.yaml', backup_dir() / 'metadata.yaml')

@@ -16,6 +16,8 @@ import yaml
 from ..errors import CliError
 
 BAG_VERSION = 9
+#: the distribution the bags are written for, as rosbag2 names it (metadata.yaml and MCAP)
+ROS_DISTRO = 'jazzy'
 #: custom_data keys (metadata.yaml) and the MCAP metadata record the recorder writes first
 CUSTOM_RECORDER = 'apf_swarm.recorder'  # JSON: received / written / dropped counts
 CUSTOM_CONFIG = 'apf_swarm.config'  # the run's ROS 2 parameter file (YAML text)

@@ -12,7 +12,14 @@ from typing import Any
 import yaml
 
 from ..errors import CliError
-from .types import BAG_VERSION, DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME, _qos_text, type_definition
+from .types import (
+    BAG_VERSION,
+    DEFAULT_CHUNK_SIZE,
+    MCAP_METADATA_NAME,
+    ROS_DISTRO,
+    _qos_text,
+    type_definition,
+)
 
 # --------------------------------------------------------------------------------------------
 # writing
@@ -89,7 +96,9 @@ class _McapFile:
             os.fsync(self._file.fileno())
 
     def close(self, metadata: str) -> None:
-        self._writer.add_metadata('rosbag2', {'serialized_metadata': metadata})
+        self._writer.add_metadata(
+            'rosbag2', {'ros_distro': ROS_DISTRO, 'serialized_metadata': metadata}
+        )
         self._writer.finish()
         self._file.close()
 
@@ -116,7 +125,7 @@ def build_metadata(
     files: Sequence[Mapping[str, Any]],
     topics: Sequence[Mapping[str, Any]],
     custom_data: Mapping[str, str] | None = None,
-    ros_distro: str = 'rosbags',
+    ros_distro: str = ROS_DISTRO,
 ) -> dict[str, Any]:
     """The ``rosbag2_bagfile_information`` document (version 9) of a bag.
 

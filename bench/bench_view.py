@@ -1,0 +1,156 @@
+#!/usr/bin/env python3
+"""What the live view costs a realtime run: without ``--view``, with ``--view`` and no client,
+and with a Foxglove client subscribed to every channel.
+
+Run from the workspace root with the workspace sourced (``source scripts/activate.sh``):
+
+    python bench/bench_view.py [--n 8] [--duration 15] [--rounds 2] [--json FILE]
+
+Each round runs the three cases one after another (interleaved, so that a drift of the
+machine's speed falls on all of them), each a ``apf-swarm up --preset realtime --mode
+realtime`` run of ``--n`` trackers four to a process. Per case: the control loop's command
+latency (p50 / p99 over the flight, from ``trajectory.npz``), missed deadlines, the CPU of
+the bring-up process (the view lives there) and of all the run's processes, and for the
+watched case the frames the client received. Ratios are against the no-view case of the same
+round. Output: a Markdown table on stdout, progress on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import psutil
+
+CASES = ('no view', 'view, no client', 'view, watched')
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def watch(url: str, stop: threading.Event, counts: dict[str, int]) -> None:
+    """A Foxglove client that subscribes to every channel and counts scene frames."""
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    with connect(url, subprotocols=['foxglove.sdk.v1'], open_timeout=30) as ws:
+        channels: list[dict[str, Any]] = []
+        while len(channels) < 3:
+            msg = json.loads(ws.recv(timeout=30))
+            if msg['op'] == 'advertise':
+                channels += msg['channels']
+        subs = [{'id': k, 'channelId': c['id']} for k, c in enumerate(channels)]
+        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+        scene = next(k for k, c in enumerate(channels) if c['topic'] == '/swarm/scene')
+        while not stop.is_set():
+            try:
+                m = ws.recv(timeout=0.5)
+            except TimeoutError:
+                continue
+            except ConnectionClosed:
+                return
+            if isinstance(m, bytes) and m[0] == 1 and int.from_bytes(m[1:5], 'little') == scene:
+                counts['frames'] += 1
+
+
+def run_case(case: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
+    cmd = [
+        'apf-swarm', 'up', '--preset', 'realtime', '--mode', 'realtime',
+        '--n-trackers', str(args.n), '--trackers-per-process', '4',
+        '--duration', str(args.duration), '--no-plots', '--out', str(out),
+    ]  # fmt: skip
+    if case != 'no view':
+        cmd += ['--view', '0']
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    me = psutil.Process(proc.pid)
+    cpu: dict[int, float] = {}
+    stop, counts = threading.Event(), {'frames': 0}
+    client: threading.Thread | None = None
+    assert proc.stderr is not None
+    for line in proc.stderr:
+        found = re.search(r'view: (ws://\S+)', line)
+        if found and case == 'view, watched' and client is None:
+            client = threading.Thread(target=watch, args=(found.group(1), stop, counts))
+            client.start()
+        for p in [me, *me.children(recursive=True)]:
+            try:
+                t = p.cpu_times()
+                cpu[p.pid] = t.user + t.system
+            except psutil.Error:
+                pass
+    proc.wait()
+    stop.set()
+    if client is not None:
+        client.join(timeout=10)
+    summary = json.loads((out / 'summary.json').read_text())
+    with np.load(out / 'trajectory.npz') as npz:
+        lat = np.asarray(npz['command_latency'], dtype=float)
+    lat = lat[lat > 0] * 1e3
+    return {
+        'case': case,
+        'p50': float(np.percentile(lat, 50)) if lat.size else float('nan'),
+        'p99': float(np.percentile(lat, 99)) if lat.size else float('nan'),
+        'missed': int(summary['missed_deadlines']),
+        'cpu_bringup': cpu.get(proc.pid, float('nan')),
+        'cpu_all': sum(cpu.values()),
+        'frames': counts['frames'],
+        'rc': proc.returncode,
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--n', type=int, default=8)
+    ap.add_argument('--duration', type=float, default=15.0)
+    ap.add_argument('--rounds', type=int, default=2)
+    ap.add_argument('--json', type=Path)
+    args = ap.parse_args()
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(args.rounds):
+            for k, case in enumerate(CASES):
+                log(f'round {r + 1}/{args.rounds}: {case}')
+                row = run_case(case, args, Path(tmp) / f'{r}-{k}')
+                row['round'] = r + 1
+                rows.append(row)
+    from bench_simulator import machine
+
+    print(f'\n{machine()}; {args.n} trackers four to a process, {args.duration:g} s each\n')
+    print(
+        '| case | latency p50 / p99 [ms] | missed deadlines | bring-up CPU [s] | '
+        'all CPU [s] | CPU ratio (all) | frames received |'
+    )
+    print('|---|---|---|---|---|---|---|')
+    for case in CASES:
+        mine = [r for r in rows if r['case'] == case]
+        base = [r for r in rows if r['case'] == 'no view']
+        ratio = statistics.median(
+            m['cpu_all'] / b['cpu_all'] for m, b in zip(mine, base, strict=True)
+        )
+        print(
+            f'| {case} | {statistics.median(r["p50"] for r in mine):.1f} / '
+            f'{statistics.median(r["p99"] for r in mine):.1f} | '
+            f'{max(r["missed"] for r in mine)} | '
+            f'{statistics.median(r["cpu_bringup"] for r in mine):.1f} | '
+            f'{statistics.median(r["cpu_all"] for r in mine):.1f} | {ratio:.3f} | '
+            f'{statistics.median(r["frames"] for r in mine):.0f} |'
+        )
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + '\n')
+    return 0 if all(r['rc'] == 0 for r in rows) else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
