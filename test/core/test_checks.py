@@ -1,15 +1,12 @@
-"""Unit tests of apf_swarm_core.checks: the paper's conditions and the u0 bounds."""
+"""Unit tests of apf_swarm_core.checks and apf_swarm_core.gain_bounds: the paper's conditions
+and the u0 bounds."""
 
 import math
 
 import numpy as np
 import pytest
-from apf_swarm_core.checks import (
-    check_config,
-    gain_bounds,
-    gain_bounds_from_run,
-    pair_hessian_bound,
-)
+from apf_swarm_core.checks import check_config
+from apf_swarm_core.gain_bounds import gain_bounds, gain_bounds_from_run, pair_hessian_bound
 
 from apf_swarm_core import load_preset
 

@@ -1,0 +1,160 @@
+"""The lower bounds on the switching gain u0 (Theorem 1 / eq. 29, eq. 37, eq. 43).
+
+Each bound is given as printed in the paper (with ``-f_bar``) and corrected (``+f_bar/M_lo``,
+the usual sliding-mode argument), from a priori estimates of ``J_bar`` and ``J_bar_s``
+(:func:`gain_bounds`) or from run data (:func:`gain_bounds_from_run`). What they mean for a
+configuration, in words, is :func:`apf_swarm_core.checks.check_config`'s.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .config import SwarmConfig
+from .gradients import gradient
+
+__all__ = ['GainBound', 'gain_bounds', 'gain_bounds_from_run', 'pair_hessian_bound']
+
+
+@dataclass(frozen=True)
+class GainBound:
+    """A lower bound on u0: the printed form and the corrected form, and whether u0 clears them."""
+
+    name: str  # 'theorem1_eq29', 'eq37', 'eq43'
+    regime: str  # which part of the law it covers
+    printed: float  # bound as printed in the paper [N]
+    corrected: float  # bound with +f_bar/M_lo [N]
+    u0: float
+
+    @property
+    def holds_printed(self) -> bool:
+        return self.u0 > self.printed
+
+    @property
+    def holds_corrected(self) -> bool:
+        return self.u0 > self.corrected
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            'name': self.name,
+            'regime': self.regime,
+            'printed': self.printed,
+            'corrected': self.corrected,
+            'u0': self.u0,
+            'holds_printed': self.holds_printed,
+            'holds_corrected': self.holds_corrected,
+        }
+
+
+def pair_hessian_bound(a: float, b: float) -> float:
+    """Bound on the spectral norm of the Hessian of one pair term of eq. 44.
+
+    The Hessian of ``(a/2) r^2 + (bc/2) e^{-r^2/c}`` is ``w I + (2b/c) e^{-r^2/c} d d^T`` with
+    ``w = a - b e^{-r^2/c}``; its eigenvalues are ``w`` and ``a - b e^{-u}(1 - 2u)``,
+    ``u = r^2/c``, which lie in ``[a - b, a + 2b e^{-3/2}]``.
+    """
+    return max(abs(a - b), a + 2.0 * b * math.exp(-1.5))
+
+
+def gain_bounds(
+    cfg: SwarmConfig, *, j_bar: float | None = None, j_bar_s: float | None = None
+) -> tuple[list[GainBound], dict[str, float]]:
+    """The u0 bounds of eq. 29, 37 and 43 for ``cfg``, printed and corrected.
+
+    Without ``j_bar`` / ``j_bar_s`` they are estimated a priori (conservatively): with
+    ``L = k_N + 2 (n-1) k_f H`` (H from :func:`pair_hessian_bound`) a Lipschitz bound of
+    ``grad_i J`` and ``V`` a tracker speed bound, ``||d/dt grad_i J|| <= L V + k_N v_N``;
+    outside the layer ``V = alpha g0 + sqrt(3) beta`` with g0 the largest initial gradient, so
+    ``J_bar = alpha (L V + k_N v_N)``; inside the layer ``V = alpha gamma + beta`` and
+    ``J_bar_s = (alpha + beta/gamma)(L V + k_N v_N)``. ``J_bar_sign = 2 beta / lambda`` (eq. 35).
+    """
+    from .simulator import initial_positions
+
+    n, vn = cfg.n_trackers, cfg.target_speed_bound
+    lip = cfg.k_n + 2.0 * max(0, n - 1) * cfg.k_f * pair_hessian_bound(cfg.a, cfg.b)
+    g0 = float(
+        np.linalg.norm(
+            gradient(
+                initial_positions(cfg), np.asarray(cfg.target_start), **cfg.potential_params()
+            ),
+            axis=-1,
+        ).max()
+    )
+    if j_bar is None:
+        j_bar = cfg.alpha * (lip * (cfg.alpha * g0 + math.sqrt(3.0) * cfg.beta) + cfg.k_n * vn)
+    if j_bar_s is None:
+        j_bar_s = (cfg.alpha + cfg.beta / cfg.gamma) * (
+            lip * (cfg.alpha * cfg.gamma + cfg.beta) + cfg.k_n * vn
+        )
+    j_sign = 2.0 * cfg.beta / cfg.lambda_filter
+    m_lo, m_hi, f = cfg.mass_lo, cfg.mass_hi, cfg.f_bar
+
+    def bound(name: str, regime: str, m_printed: float, *terms: float) -> GainBound:
+        """``M_hi (-f_bar/m_printed + terms)`` as printed, ``M_hi (f_bar/M_lo + terms)``
+        corrected (the terms summed in the order given, as the equation writes them)."""
+        printed, corrected = -f / m_printed, f / m_lo
+        for term in terms:
+            printed, corrected = printed + term, corrected + term
+        return GainBound(name, regime, m_hi * printed, m_hi * corrected, cfg.u0)
+
+    bounds = [
+        bound(
+            'theorem1_eq29',
+            'outside the layer (and the traditional law)',
+            m_lo,
+            j_bar,
+            j_sign,
+            cfg.epsilon,
+        ),
+        bound('eq37', 'outside the layer, proof of Theorem 1', m_hi, j_sign, j_bar, cfg.epsilon),
+        bound('eq43', 'inside the layer (proposed law only)', m_hi, j_bar_s, cfg.mu),
+    ]
+    return bounds, {
+        'J_bar': j_bar,
+        'J_bar_sign': j_sign,
+        'J_bar_s': j_bar_s,
+        'lipschitz_grad': lip,
+        'initial_gradient_max': g0,
+    }
+
+
+def gain_bounds_from_run(
+    cfg: SwarmConfig,
+    t: ArrayLike,
+    x: ArrayLike,
+    target_x: ArrayLike,
+    steady_fraction: float | None = None,
+) -> tuple[list[GainBound], dict[str, float]]:
+    """The u0 bounds with ``J_bar`` and ``J_bar_s`` measured along a run.
+
+    The rate ``||d/dt grad_i J||`` is taken by first differences of the gradient recomputed
+    from the recorded positions. ``J_bar = alpha max rate`` over the samples where tracker i is
+    outside the boundary layer (the regime of eq. 29 / 37), ``J_bar_s = (alpha + beta/gamma)
+    max rate`` over the samples inside it (the regime of eq. 43); a regime never visited gives 0.
+    Only the last ``steady_fraction`` of the run is used (default ``cfg.steady_fraction``): the
+    bounds are the conditions for staying on the manifold once it has been reached, and the
+    reaching transient would otherwise dominate the maximum.
+    """
+    frac = cfg.steady_fraction if steady_fraction is None else steady_fraction
+    t = np.asarray(t, dtype=float)
+    g = gradient(
+        np.asarray(x, dtype=float), np.asarray(target_x, dtype=float), **cfg.potential_params()
+    )
+    start = min(len(t) - 2, int(len(t) * (1.0 - frac))) if len(t) > 1 else 0
+    t, g = t[max(0, start) :], g[max(0, start) :]
+    if len(t) < 2:
+        return gain_bounds(cfg, j_bar=0.0, j_bar_s=0.0)
+    rate = np.linalg.norm(np.diff(g, axis=0), axis=-1) / np.diff(t)[:, None]  # (T-1, n)
+    outside = np.linalg.norm(g[:-1], axis=-1) >= cfg.gamma
+    r_out = float(rate[outside].max()) if outside.any() else 0.0
+    r_in = float(rate[~outside].max()) if (~outside).any() else 0.0
+    bounds, est = gain_bounds(
+        cfg, j_bar=cfg.alpha * r_out, j_bar_s=(cfg.alpha + cfg.beta / cfg.gamma) * r_in
+    )
+    est['fraction_inside_layer'] = float(np.mean(~outside))
+    return bounds, est
