@@ -1,5 +1,6 @@
-"""Real time in the core: the sampled-data prediction (apf_swarm_core.sampled), the emulation
-(sample and hold, delay) and the flight criteria, each against an independent truth."""
+"""Real time in the core: the sampled-data prediction (apf_swarm_core.sampled, its linear model
+apf_swarm_core.modes), the emulation (sample and hold, delay) and the flight criteria, each
+against an independent truth."""
 
 from __future__ import annotations
 
@@ -12,14 +13,9 @@ from apf_swarm_core.errors import ConfigError
 from apf_swarm_core.gradients import gradient
 from apf_swarm_core.laws import layer_switching_force
 from apf_swarm_core.metrics import flight
+from apf_swarm_core.modes import design_hessian_spectrum, mode_radius
 from apf_swarm_core.newton import hessian, newton_basis, newton_direction
-from apf_swarm_core.sampled import (
-    RELAY_LIMIT,
-    design_hessian_spectrum,
-    mode_radius,
-    predict,
-    propose_gains,
-)
+from apf_swarm_core.sampled import RELAY_LIMIT, predict, propose_gains
 from apf_swarm_core.simulator import CommandHold, expected_pairs, simulate
 
 

@@ -35,7 +35,7 @@ def hessian(
     the tracking term adds ``k_N I`` to every diagonal block. Row-major: entry
     ``(3i + k, 3j + l)`` is ``d^2 J / dx_ik dx_jl``. It does not depend on ``x_target``
     (taken for symmetry with :func:`gradient`). Its eigenvalues at an equilibrium are the
-    rates of the formation's linearized modes (:mod:`apf_swarm_core.sampled`).
+    rates of the formation's linearized modes (:mod:`apf_swarm_core.modes`).
 
     Parameters
     ----------

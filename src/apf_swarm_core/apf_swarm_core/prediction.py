@@ -47,7 +47,7 @@ def compensation_horizon(latency: float) -> float:
     for on average is left to the loop (predicting over it as well, with the last command
     held, makes the emulation worse: 16 trackers at 20 Hz with 20 ms of latency fly with
     ``h = tau`` and collide with ``h = tau + T/2``, and in the linear model of
-    :func:`~apf_swarm_core.sampled.mode_matrix` the boundary layer's loop decays more slowly).
+    :func:`~apf_swarm_core.modes.mode_matrix` the boundary layer's loop decays more slowly).
 
     Parameters
     ----------

@@ -1,0 +1,155 @@
+"""The linear model of the formation under sampled, delayed control: its modes and how much
+each decays per control period (derivation in docs/THEORY.md, "Sampled-data control").
+
+A real-time loop samples the state every T seconds, and the command computed from a sample
+acts tau seconds later and is held until the next one arrives.
+
+1. **Modes.** Near the design equilibrium x* (positions relative to the target), inside the
+   boundary layer of eq. 8, the manifold of eq. 31 is linear, ``s = v_rel + K H e`` with
+   ``e = x - x*``, ``K = alpha + beta/gamma`` (the layer gain) and H the Hessian of J at x*
+   (:func:`apf_swarm_core.newton.hessian`). H is symmetric: in its eigenvectors the
+   swarm splits into independent modes, one per eigenvalue lambda, ``s_l = e_l' + K lambda
+   e_l``; the rigid rotations have lambda = 0, the centroid lambda = k_N, and the stiffest
+   mode ``lambda_max`` grows with the number of trackers.
+2. **Inner loop.** With the boundary-layer switching (:func:`apf_swarm_core.laws.
+   layer_switching_force`) the force inside the layer is ``u = -(u0/phi) s``: per mode
+   ``M e'' = -(u0/phi)(e' + K lambda e)``, a linear loop with velocity rate
+   ``g = u0/(phi M)``. The sign law of eq. 24 held over T changes the velocity by
+   ``u0 T / M`` per period (the ripple) and so corrects a velocity error within about one
+   period: its equivalent rate is ``g = 1/T`` (the relay's gain at its own ripple).
+3. **Sampling and delay.** A mode is a double integrator driven by a held command: over a
+   hold of h seconds with force u, ``e += e' h + u h^2/(2M)``, ``e' += u h / M``. With
+   ``tau = m T + r`` (0 <= r < T), period k applies the command of sample ``k - m - 1`` for r
+   seconds and that of ``k - m`` for the rest, so the state ``(e_k, e'_k, u_{k-1}, ...,
+   u_{k-m-1})`` advances by a constant matrix (:func:`mode_matrix`). Its spectral radius
+   rho is the mode's decay per period; the loop is stable when every mode has rho < 1.
+
+:mod:`apf_swarm_core.sampled` turns the model into a verdict on a configuration.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import SwarmConfig
+from .newton import hessian
+
+__all__ = [
+    'design_hessian_spectrum',
+    'effective_spectrum',
+    'inner_rate',
+    'mode_matrix',
+    'mode_radius',
+]
+
+
+def _hold(h: float, mass: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Exact double-integrator step over h seconds with a held force: (Phi, Gamma)."""
+    return np.array([[1.0, h], [0.0, 1.0]]), np.array([h * h / (2.0 * mass), h / mass])
+
+
+def mode_matrix(
+    lam: float,
+    *,
+    layer_gain: float,
+    inner_rate: float,
+    period: float,
+    latency: float,
+    mass: float = 1.0,
+    horizon: float = 0.0,
+) -> NDArray[np.float64]:
+    """Transition matrix of one formation mode over one control period (step 3 above).
+
+    State ``(e_k, e'_k, u_{k-1}, ..., u_{k-m-1})`` with ``latency = m T + r``; the command
+    of sample k is ``u_k = -g M (e'_k + K lambda e_k)``, or with delay compensation
+    (``horizon`` h > 0, :mod:`apf_swarm_core.prediction`) the same of the predicted state
+    ``e_k + h e'_k`` and ``e'_k + h u_{k-1} / M``.
+
+    Parameters
+    ----------
+    lam : float
+        Eigenvalue of the Hessian of J [1 with unit gains].
+    layer_gain : float
+        K = alpha + beta/gamma [1/s].
+    inner_rate : float
+        g [1/s]: u0/(phi M) for the layer switching, 1/T for the sign law.
+    period : float
+        T [s], > 0.
+    latency : float
+        tau [s], >= 0.
+    mass : float
+        M [kg] (the force enters as u/M).
+    horizon : float
+        h [s] of the prediction (0: none).
+
+    Returns
+    -------
+    array, shape (3 + m, 3 + m)
+    """
+    T, tau = float(period), float(latency)
+    m = int(math.floor(tau / T + 1e-12))
+    r = tau - m * T
+    size = 3 + m
+    A = np.zeros((size, size))
+    gain = -inner_rate * mass * np.array([layer_gain * lam, 1.0])  # u_k = gain . (e, e')
+    h = float(horizon)
+    # the predicted state (e + h e', e' + h u_{k-1} / M): u_k = gain . pred . (e, e') + held
+    # u_{k-1} (slot 2)
+    held = gain[1] * h / mass
+    gain = np.array([gain[0], gain[0] * h + gain[1]])
+    phi_T, _ = _hold(T, mass)
+    phi_rest, gam_rest = _hold(T - r, mass)
+    _, gam_r = _hold(r, mass)
+    # the command of sample k - m - 1 for r seconds, then that of k - m for T - r
+    early = phi_rest @ gam_r  # effect of u_{k-m-1}
+    late = gam_rest  # effect of u_{k-m}
+    A[:2, :2] = phi_T
+    # index of u_{k-j} in the state: 1 + j (j = 1 .. m + 1); u_k itself is a function of x_k
+    if m == 0:
+        A[:2, :2] += np.outer(late, gain)  # u_k acts after r
+        A[:2, 2] += late * held
+    else:
+        A[:2, 1 + m] += late  # u_{k-m}
+    A[:2, 2 + m] += early  # u_{k-m-1}
+    # shift the history: new u_{k} enters slot 2 (u_{(k+1)-1}), u_{k-j} moves to slot 2 + j
+    A[2, :2] = gain
+    A[2, 2] += held
+    for j in range(3, size):
+        A[j, j - 1] = 1.0
+    return A
+
+
+def mode_radius(lam: float, **kwargs: Any) -> float:
+    """Spectral radius of :func:`mode_matrix`: the mode's decay per period (< 1: stable)."""
+    return float(np.max(np.abs(np.linalg.eigvals(mode_matrix(lam, **kwargs)))))
+
+
+def design_hessian_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
+    """Eigenvalues of the Hessian of J at the design equilibrium of ``cfg.n_trackers``
+    trackers, ascending (the rotations' zeros included); shape (3n,)."""
+    from .simulator import design_formation
+
+    f = design_formation(cfg)
+    h = hessian(f.relative_positions, np.zeros(3), **cfg.potential_params())
+    return np.linalg.eigvalsh(h).astype(np.float64, copy=False)
+
+
+def effective_spectrum(cfg: SwarmConfig, eigs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The curvatures the manifold descends: the Hessian's eigenvalues ``lambda`` along the
+    gradient (the paper), ``lambda / max(|lambda|, mu)`` along the Newton direction
+    (``precondition = newton``, :func:`apf_swarm_core.newton.newton_direction`): 1 for every
+    mode at least as stiff as ``mu``."""
+    eigs = np.asarray(eigs, dtype=float)
+    if cfg.precondition != 'newton':
+        return eigs
+    return eigs / np.maximum(np.abs(eigs), cfg.newton_mu)
+
+
+def inner_rate(cfg: SwarmConfig, period: float, mass: float) -> float:
+    """The inner loop's rate g of step 2 [1/s]: ``u0 / (phi M)`` for the boundary layer,
+    ``1 / T`` for the sign law."""
+    return cfg.u0 / (cfg.phi * mass) if cfg.switching == 'layer' else 1.0 / period
