@@ -37,9 +37,10 @@ except ImportError:  # run from the workspace root without PYTHONPATH
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'apf_swarm_core'))
 
 from apf_swarm_core.config import apply_overrides, load_preset, parse_set
+from apf_swarm_core.formation import design_pair_sets
 from apf_swarm_core.metrics import flight
 from apf_swarm_core.sampled import schedule_gains
-from apf_swarm_core.simulator import design_pair_sets, simulate_batch
+from apf_swarm_core.simulator import simulate_batch
 from bench_simulator import machine
 
 #: the variants of docs/PERFORMANCE.md, "Real-time flight": keys over the realtime preset

@@ -38,7 +38,7 @@ def test_trackers_and_plant_reproduce_the_simulator_bit_for_bit(cfg) -> None:
     plant = PlantModel(cfg)
     assert np.array_equal(plant.x, sim.x[0])
     for k in range(300):
-        tx, tv = sim.target_state(k)
+        tx, tv = sim.target.state(k)
         for a in agents:
             feed(a, k, plant.x, plant.v, tx[0], tv[0])
             assert a.ready(k)
@@ -357,7 +357,7 @@ def test_limited_neighbour_sets_agents_equal_the_simulator(cfg, rule) -> None:
     plant = PlantModel(c)
     used = set()
     for k in range(200):
-        tx, tv = sim.target_state(k)
+        tx, tv = sim.target.state(k)
         for a in agents:
             feed(a, k, plant.x, plant.v, tx[0], tv[0])
         outs = [a.command(k) for a in agents]

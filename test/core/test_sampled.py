@@ -8,15 +8,17 @@ import math
 
 import numpy as np
 import pytest
+from apf_swarm_core.command_hold import CommandHold
 from apf_swarm_core.config import load_preset
 from apf_swarm_core.errors import ConfigError
+from apf_swarm_core.formation import expected_pairs
 from apf_swarm_core.gradients import gradient
 from apf_swarm_core.laws import layer_switching_force
 from apf_swarm_core.metrics import flight
 from apf_swarm_core.modes import design_hessian_spectrum, mode_radius
 from apf_swarm_core.newton import hessian, newton_basis, newton_direction
 from apf_swarm_core.sampled import RELAY_LIMIT, predict, propose_gains
-from apf_swarm_core.simulator import CommandHold, expected_pairs, simulate
+from apf_swarm_core.simulator import simulate
 
 
 def test_hessian_equals_finite_differences_of_the_gradient() -> None:
@@ -396,7 +398,7 @@ def test_each_tracker_descends_its_row_of_the_simulators_newton_direction(rate) 
     """Bit for bit, with the trust region; at 50 Hz also with the delay compensation (the
     same predicted state in the tracker as in the simulator)."""
     from apf_swarm_core.agents import TrackerAgent
-    from apf_swarm_core.simulator import (
+    from apf_swarm_core.control import (
         control_step,
         make_controller,
         make_preconditioner,
@@ -437,7 +439,7 @@ def test_each_tracker_descends_its_row_of_the_simulators_newton_direction(rate) 
 
 
 def test_trackers_of_one_process_share_the_newton_basis() -> None:
-    from apf_swarm_core.simulator import Preconditioner
+    from apf_swarm_core.control import Preconditioner
 
     p = load_preset('realtime').potential_params()
     x = np.random.default_rng(5).normal(size=(6, 3))

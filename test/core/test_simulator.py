@@ -4,6 +4,7 @@
 import numpy as np
 import pytest
 from apf_swarm_core.checks import check_config
+from apf_swarm_core.control import control_step, make_controller
 from apf_swarm_core.design import triangle_spacing
 from apf_swarm_core.metrics import (
     centroid_error,
@@ -16,10 +17,8 @@ from apf_swarm_core.plant import DisturbanceSource
 from apf_swarm_core.simulator import (
     TRAJECTORY_KEYS,
     BatchSimulator,
-    control_step,
     initial_positions,
     integrate,
-    make_controller,
 )
 
 from apf_swarm_core import load_preset, simulate, simulate_batch

@@ -23,8 +23,9 @@ import numpy as np
 import pytest
 import yaml
 from apf_swarm_core.config_files import load_preset
+from apf_swarm_core.formation import design_pair_sets
 from apf_swarm_core.metrics import formation_edges
-from apf_swarm_core.simulator import design_pair_sets, simulate
+from apf_swarm_core.simulator import simulate
 from apf_swarm_nodes.analysis.animate import animate, frame_indices
 from apf_swarm_nodes.analysis.style import EDGE_BAD, EDGE_GOOD, edge_colour
 from apf_swarm_nodes.conversions import SwarmSample

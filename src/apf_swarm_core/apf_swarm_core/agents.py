@@ -37,16 +37,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .config import DEFAULT_LATENCY, SwarmConfig
-from .controller import ControlOutput
-from .laws import switching_force
-from .neighbours import neighbour_mask
-from .prediction import LatencyEstimate, compensation_horizon
-from .simulator import (
+from .control import (
+    CONTROLLER_GAINS,
     control_step,
     make_controller,
     make_preconditioner,
     make_predictor,
 )
+from .controller import ControlOutput
+from .laws import switching_force
+from .neighbours import neighbour_mask
+from .potential import POTENTIAL_KEYS
+from .prediction import LatencyEstimate, compensation_horizon
 
 __all__ = [
     'MAX_FORCE',
@@ -156,21 +158,7 @@ class TrackerAgent:
 
     #: configuration keys a running tracker takes over at once (:meth:`retune`): the
     #: controller's gains (eq. 22-28, 31, 24, 26) and the potential (eq. 2 / 44)
-    RETUNABLE = (
-        'alpha',
-        'beta',
-        'gamma',
-        'lambda_filter',
-        'u0',
-        'drag',
-        'phi',
-        'feedforward',
-        'k_n',
-        'k_f',
-        'a',
-        'b',
-        'c',
-    )
+    RETUNABLE = (*CONTROLLER_GAINS, *POTENTIAL_KEYS)
 
     def retune(self, cfg: SwarmConfig) -> list[str]:
         """Take over the gains and potential of ``cfg``; returns the keys that changed.
@@ -186,7 +174,7 @@ class TrackerAgent:
         ]
         if others:
             raise ValueError(f'{", ".join(others)} cannot change while the tracker runs')
-        for key in ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'phi', 'feedforward'):
+        for key in CONTROLLER_GAINS:
             setattr(self.controller, key, getattr(cfg, key))
         self.cfg = cfg
         self.params = cfg.potential_params()

@@ -108,9 +108,9 @@ def sampled_findings(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> lis
     and ``cfg.latency`` in words (its warnings as warnings), and, with ``run`` (the emulation
     at that rate and latency), whether it flew by :data:`~apf_swarm_core.metrics.
     FLIGHT_CRITERIA`."""
+    from .formation import design_pair_sets
     from .metrics import flight
     from .sampled import predict
-    from .simulator import design_pair_sets
 
     pred = predict(cfg)
     T = pred.control_period

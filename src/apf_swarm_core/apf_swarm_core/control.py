@@ -19,6 +19,7 @@ from .potential import PotentialParams, Rows
 from .prediction import Predictor, compensation_horizon
 
 __all__ = [
+    'CONTROLLER_GAINS',
     'Preconditioner',
     'control_step',
     'make_controller',
@@ -27,29 +28,27 @@ __all__ = [
 ]
 
 
+#: the configuration keys of the controller's gains (eq. 22-28, 31, 24, 26): one value per
+#: run of a batch, and a running tracker takes them over (:meth:`~apf_swarm_core.agents.
+#: TrackerAgent.retune`)
+CONTROLLER_GAINS = ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'phi', 'feedforward')
+
+
 def make_controller(
     cfg: SwarmConfig | Sequence[SwarmConfig], shape: tuple[int, ...]
 ) -> SlidingModeController:
     """A controller with the gains of one configuration, or per-run gains of a batch."""
     cfgs = [cfg] if isinstance(cfg, SwarmConfig) else list(cfg)
-
-    def gain(name: str) -> NDArray[np.float64]:
-        return per_run(getattr(c, name) for c in cfgs)
-
+    gains: dict[str, Any] = {
+        key: per_run(getattr(c, key) for c in cfgs) for key in CONTROLLER_GAINS
+    }
     return SlidingModeController(
         law=cfgs[0].law,
-        alpha=gain('alpha'),
-        beta=gain('beta'),
-        gamma=gain('gamma'),
-        lambda_filter=gain('lambda_filter'),
-        u0=gain('u0'),
-        drag=gain('drag'),
         dt=cfgs[0].control_period,
         shape=shape,
         saturation=cfgs[0].saturation,
         switching=cfgs[0].switching,
-        phi=gain('phi'),
-        feedforward=gain('feedforward'),
+        **gains,
     )
 
 

@@ -202,7 +202,7 @@ def flight(
     design spacing), ``closest_pair`` (relative to the design's closest),
     ``centroid_error_rms`` [m] and ``converged``. Without a design (``expected_pairs``
     None or empty) nothing flies. ``expected_pairs`` may be a list of designs (the minima
-    of J a larger swarm may settle in, :func:`~apf_swarm_core.simulator.design_pair_sets`):
+    of J a larger swarm may settle in, :func:`~apf_swarm_core.formation.design_pair_sets`):
     the run is judged against the one its pair distances are nearest to.
     """
     if isinstance(expected_pairs, list):

@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .config import SwarmConfig
+from .formation import design_formation
 from .newton import hessian
 
 __all__ = [
@@ -131,8 +132,6 @@ def mode_radius(lam: float, **kwargs: Any) -> float:
 def design_hessian_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
     """Eigenvalues of the Hessian of J at the design equilibrium of ``cfg.n_trackers``
     trackers, ascending (the rotations' zeros included); shape (3n,)."""
-    from .simulator import design_formation
-
     f = design_formation(cfg)
     h = hessian(f.relative_positions, np.zeros(3), **cfg.potential_params())
     return np.linalg.eigvalsh(h).astype(np.float64, copy=False)

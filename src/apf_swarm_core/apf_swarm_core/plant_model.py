@@ -14,14 +14,11 @@ from numpy.typing import NDArray
 
 from .agents import PLANT_FORMATION_METRIC_MAX, Sample, input_problem
 from .config import SwarmConfig
+from .formation import expected_pairs
 from .metrics import centroid_error, formation_error
 from .plant import DisturbanceSource
 from .potential import potential
-from .simulator import (
-    expected_pairs,
-    initial_positions,
-    integrate,
-)
+from .simulator import initial_positions, integrate
 
 __all__ = ['PlantModel']
 
@@ -197,7 +194,7 @@ class PlantModel:
         the start contain and that are not integrated yet (at most ``most``), with the held
         commands. Called before a new command is stored too, so that each command acts
         from its arrival on (a zero-order hold with the loop's true delay), as the
-        emulation's :class:`~apf_swarm_core.simulator.CommandHold` assumes."""
+        emulation's :class:`~apf_swarm_core.command_hold.CommandHold` assumes."""
         due = int(elapsed / self.cfg.dt) - self.k
         if due > 0:
             self.advance(min(due, most))

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
 
-__all__ = ['PotentialParams', 'Rows', 'pair_weight', 'potential']
+__all__ = ['POTENTIAL_KEYS', 'PotentialParams', 'Rows', 'pair_weight', 'potential']
 
 
 class PotentialParams(TypedDict):
@@ -42,6 +42,9 @@ class PotentialParams(TypedDict):
     b: float
     c: float
 
+
+#: the configuration keys of J's gains and shape, in the order of :class:`PotentialParams`
+POTENTIAL_KEYS: tuple[str, ...] = tuple(PotentialParams.__annotations__)
 
 #: which trackers' rows a function computes: all (None), an index array, a list or a slice
 Rows: TypeAlias = 'NDArray[np.integer[Any]] | list[int] | slice | int | None'

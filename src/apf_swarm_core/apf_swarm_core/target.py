@@ -4,6 +4,7 @@ Every trajectory gives the target's speed ``v``, yaw ``chi`` and pitch ``delta``
 time; the velocity is always formed by :func:`target_velocity` (eq. 1), and the position is the
 closed-form integral of that velocity, so that the target is exact and deterministic at any
 time (no integration drift, identical in the simulator and in the ROS target node).
+:class:`BatchTarget` evaluates the trajectories of a batch of runs step by step.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     'TRAJECTORIES',
+    'BatchTarget',
     'Circle',
     'FigureEight',
     'Helix',
@@ -269,3 +271,65 @@ def make_trajectory(
     if kind == 'waypoints':
         return Waypoints(start_t, speed, points=tuple(_point(p) for p in waypoints))
     raise ValueError(f'target trajectory must be one of {TRAJECTORIES}, got {kind!r}')
+
+
+class BatchTarget:
+    """The target states of R runs at the steps ``k`` of a fixed-step run (``t = k dt``).
+
+    Evaluated for blocks of :attr:`BLOCK` steps at once (vectorized over ``t``), once per
+    distinct trajectory; runs that share a trajectory gather its row at each step.
+
+    Parameters
+    ----------
+    trajectories : sequence of Trajectory, one per run
+    dt : float [s]
+    """
+
+    #: steps evaluated at once
+    BLOCK = 1024
+
+    def __init__(self, trajectories: Sequence[Trajectory], dt: float) -> None:
+        self.dt = dt
+        self.runs = len(trajectories)
+        #: the distinct trajectories, and which one each run flies
+        self.distinct: list[Trajectory] = []
+        self.index = np.empty(self.runs, dtype=int)
+        for r, tr in enumerate(trajectories):
+            if tr not in self.distinct:
+                self.distinct.append(tr)
+            self.index[r] = self.distinct.index(tr)
+        # every run its own trajectory, in order: index the block directly (no gather)
+        self.identity = len(self.distinct) == self.runs
+        #: the current block: its first step, positions and velocities
+        #: (BLOCK, distinct trajectories, 3)
+        self.block: tuple[int, NDArray[np.float64], NDArray[np.float64]] = (
+            -1,
+            np.empty((0, 0, 3)),
+            np.empty((0, 0, 3)),
+        )
+
+    def state(self, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Target position and velocity of every run at step k, shapes (R, 3)."""
+        base, pos, vel = self.block
+        if base < 0 or not base <= k < base + self.BLOCK:
+            base = k
+            t = np.arange(k, k + self.BLOCK) * self.dt
+            states = [tr.state(t) for tr in self.distinct]
+            pos = np.stack([s[0] for s in states], axis=1)  # (BLOCK, trajectories, 3)
+            vel = np.stack([s[1] for s in states], axis=1)
+            self.block = (base, pos, vel)
+        if self.identity:
+            return pos[k - base], vel[k - base]
+        if len(self.distinct) == 1:  # one trajectory for every run: a read-only view
+            shape = (self.runs, 3)
+            return np.broadcast_to(pos[k - base, 0], shape), np.broadcast_to(
+                vel[k - base, 0], shape
+            )
+        return pos[k - base][self.index], vel[k - base][self.index]
+
+    def gather(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Rows of a block, shape (m, trajectories, 3), for every run: (m, R, 3) or
+        (m, 1, 3) when one trajectory serves every run (broadcast on assignment)."""
+        if self.identity or len(self.distinct) == 1:
+            return rows
+        return rows[:, self.index]

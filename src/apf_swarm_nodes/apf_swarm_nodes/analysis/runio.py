@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import yaml
 from apf_swarm_core.config import SwarmConfig, to_ros_params
-from apf_swarm_core.simulator import TRAJECTORY_KEYS
+from apf_swarm_core.simulator import TRAJECTORY_KEYS, summarize_run
 
 from ..errors import CliError
 
@@ -143,8 +143,6 @@ def run_summary(
     the configuration's, then an incomplete run (``status``), lost samples, respawns.
     """
     from apf_swarm_core.checks import check_config
-    from apf_swarm_core.metrics import summarize
-    from apf_swarm_core.simulator import design_pair_sets
 
     warnings = list(check_config(cfg).warnings)
     if status != 'completed':
@@ -160,15 +158,8 @@ def run_summary(
     faults, fault_warnings = fault_report(
         traj['t'], traj.get('active'), traj.get('target_age'), traj.get('stale_inputs')
     )
-    summary = summarize(
-        {k: traj[k] for k in TRAJECTORY_KEYS},
-        law=cfg.law,
-        dt=cfg.dt,
-        seed=cfg.seed,
-        potential_params=cfg.potential_params(),
-        expected_pairs=design_pair_sets(cfg),
-        steady_fraction=cfg.steady_fraction,
-        warnings=warnings + fault_warnings,
+    summary = summarize_run(
+        {k: traj[k] for k in TRAJECTORY_KEYS}, cfg, warnings=warnings + fault_warnings
     )
     summary['faults'] = faults
     return summary

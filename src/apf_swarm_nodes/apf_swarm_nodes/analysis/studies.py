@@ -10,7 +10,8 @@ from typing import Any
 
 from apf_swarm_core.checks import check_config
 from apf_swarm_core.config import SwarmConfig, apply_overrides
-from apf_swarm_core.simulator import BATCHABLE, design_pair_sets, simulate, simulate_batch
+from apf_swarm_core.formation import design_pair_sets
+from apf_swarm_core.simulator import BATCHABLE, simulate, simulate_batch
 
 from ..errors import CliError
 from .plots import paper_figures, plot_tradeoff

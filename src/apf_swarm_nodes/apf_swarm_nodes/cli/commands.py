@@ -20,7 +20,8 @@ from apf_swarm_core.config import (
 )
 from apf_swarm_core.design import b_for_spacing, equilibrium_formation, triangle_c_for_spacing
 from apf_swarm_core.errors import ApfSwarmError
-from apf_swarm_core.simulator import design_pair_sets, simulate
+from apf_swarm_core.formation import design_pair_sets
+from apf_swarm_core.simulator import simulate
 
 from ..analysis.runio import format_summary, write_run
 from ..argtypes import nonneg_float

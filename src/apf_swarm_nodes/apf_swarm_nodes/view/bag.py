@@ -45,7 +45,7 @@ def serve_bag(
     ``wait_client``: wait this long [s] (None: without limit) for a client to subscribe
     before playing, so the run is seen from its start; ``loop``: play again until ``stop``
     is set (or Ctrl-C)."""
-    from apf_swarm_core.simulator import design_pair_sets
+    from apf_swarm_core.formation import design_pair_sets
 
     from ..bags import bag_config, open_bag
 
