@@ -36,7 +36,7 @@ try:
 except ImportError:  # run from the workspace root without PYTHONPATH
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'apf_swarm_core'))
 
-from apf_swarm_core.config import apply_overrides, load_preset, parse_set
+from apf_swarm_core.config_files import apply_overrides, load_preset, parse_set
 from apf_swarm_core.formation import design_pair_sets
 from apf_swarm_core.metrics import flight
 from apf_swarm_core.sampled import schedule_gains

@@ -194,7 +194,7 @@ class Graph:
     ) -> None:
         import rclpy
         import yaml
-        from apf_swarm_core.config import apply_overrides, load_preset, to_ros_params
+        from apf_swarm_core.config_files import apply_overrides, load_preset, to_ros_params
         from apf_swarm_nodes.bringup import Child, ProcessGroup, node_commands, package_prefix
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor

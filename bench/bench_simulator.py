@@ -41,7 +41,8 @@ try:
 except ImportError:  # run from the workspace root without PYTHONPATH
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'apf_swarm_core'))
 
-from apf_swarm_core.config import SwarmConfig, load_preset
+from apf_swarm_core.config import SwarmConfig
+from apf_swarm_core.config_files import load_preset
 from apf_swarm_core.plant import DisturbanceSource
 from apf_swarm_core.simulator import BatchSimulator, initial_positions
 from apf_swarm_nodes.machine import cpu_model

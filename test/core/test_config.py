@@ -1,14 +1,13 @@
-"""Unit tests of apf_swarm_core.config: presets, validation errors, --set, round trips."""
+"""Unit tests of apf_swarm_core.config, config_schema and config_files: presets, validation
+errors, --set, round trips."""
 
 import math
 
 import numpy as np
 import pytest
 import yaml
-from apf_swarm_core.config import (
-    KEYS,
-    REQUIRED_KEYS,
-    SwarmConfig,
+from apf_swarm_core.config import KEYS, REQUIRED_KEYS, SwarmConfig
+from apf_swarm_core.config_files import (
     apply_overrides,
     config_from_mapping,
     load_config,
@@ -302,3 +301,21 @@ def test_keys_and_to_dict_are_consistent():
     assert set(d) == set(KEYS) | {'uav_overrides'}
     assert d['mass'] == [1.0] and d['target_start'] == [0.0, 0.0, 5.0]
     assert cfg.potential_params() == {'k_n': 1.0, 'k_f': 1.0, 'a': 1.0, 'b': 6.0, 'c': 1.7}
+
+
+def test_key_bounds_are_intervals():
+    from apf_swarm_core.config_schema import key
+
+    def bounds(text):
+        meta = key(0.0, 'a key', 'm', text).metadata
+        return meta['lo'], meta['lo_open'], meta['hi']
+
+    assert bounds('(0, inf)') == (0.0, True, None)
+    assert bounds('[0, inf)') == (0.0, False, None)
+    assert bounds('(0, 1]') == (0.0, True, 1.0)
+    assert bounds('[-90, 90]') == (-90.0, False, 90.0)
+    assert bounds('(-inf, 1e6]') == (None, False, 1.0e6)
+    assert bounds('') == (None, False, None)
+    for bad in ('0, 1', '[0, 1)', '(0, inf]', '[0 1]'):
+        with pytest.raises(ValueError, match='expected an interval'):
+            bounds(bad)

@@ -4,7 +4,7 @@ at the end."""
 import numpy as np
 import pytest
 from apf_swarm_core.agents import TrackerAgent
-from apf_swarm_core.config import load_preset
+from apf_swarm_core.config_files import load_preset
 from apf_swarm_core.lockstep import LOOKAHEAD, LockstepBarrier
 from apf_swarm_core.plant_model import PlantModel
 from apf_swarm_core.simulator import simulate

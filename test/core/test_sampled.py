@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 from apf_swarm_core.command_hold import CommandHold
-from apf_swarm_core.config import load_preset
+from apf_swarm_core.config_files import load_preset
 from apf_swarm_core.errors import ConfigError
 from apf_swarm_core.formation import expected_pairs
 from apf_swarm_core.gradients import gradient

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 import pytest
-from apf_swarm_core.config import load_config
+from apf_swarm_core.config_files import load_config
 from apf_swarm_core.metrics import hf_velocity_rms
 from apf_swarm_core.simulator import TRAJECTORY_KEYS, simulate
 from apf_swarm_nodes.analysis.runio import RUN_ARRAYS

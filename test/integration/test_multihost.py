@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from apf_swarm_core.config import load_config
+from apf_swarm_core.config_files import load_config
 from apf_swarm_core.simulator import simulate
 from apf_swarm_nodes.bringup import pick_domain_id
 

@@ -3,7 +3,8 @@
 numpy (and scipy for formation design) only; no ROS import anywhere in this package.
 """
 
-from .config import SwarmConfig, load_config, load_preset
+from .config import SwarmConfig
+from .config_files import load_config, load_preset
 from .errors import ApfSwarmError, ConfigError, UnknownPresetError
 from .simulator import simulate, simulate_batch
 

@@ -1,4 +1,5 @@
-"""Typed, validated configuration, read from ROS 2 parameter files.
+"""The configuration of a run: :class:`SwarmConfig`, every key with its meaning, unit and
+range, and what follows from the keys.
 
 A configuration file is a ROS 2 parameter file, so that the nodes read the very same file::
 
@@ -7,24 +8,25 @@ A configuration file is a ROS 2 parameter file, so that the nodes read the very 
         n_trackers: 3
         law: proposed
         ...
-    /uav_2/tracker:          # per-UAV overrides (keys in PER_UAV_KEYS only)
+    /uav_2/tracker:          # per-UAV overrides (keys in config_schema.PER_UAV_KEYS only)
       ros__parameters:
         mass: 1.2
 
-Every key of :class:`SwarmConfig` is described by its field metadata (type, range, unit,
-help); validation, the ``--set`` parser and the nodes' parameter descriptors all read it.
+Every key of :class:`SwarmConfig` is declared once here with :func:`~apf_swarm_core.
+config_schema.key` (type, range, unit, help) and validated on construction by
+:func:`~apf_swarm_core.config_schema.validate`; files, presets and ``--set`` overrides are
+read by :mod:`apf_swarm_core.config_files`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from .errors import ConfigError
+from .config_schema import NON_NEGATIVE, POSITIVE, key, validate
 from .laws import LAWS, SWITCHINGS
 from .neighbours import NEIGHBOUR_RULES
 from .plant import NOISE_KINDS
@@ -35,18 +37,14 @@ from .target import TRAJECTORIES, Trajectory, make_trajectory
 
 __all__ = [
     'DEFAULT_LATENCY',
-    'PER_UAV_KEYS',
+    'KEYS',
     'REALTIME_RATE',
     'REQUIRED_KEYS',
     'SwarmConfig',
-    'apply_overrides',
+    # re-exported until params.py, probe.py, bringup/cli.py and bringup/session.py import
+    # them from .config_files
     'config_from_mapping',
-    'load_config',
     'load_preset',
-    'parse_set',
-    'preset_dirs',
-    'preset_names',
-    'preset_path',
     'resolve',
     'to_ros_params',
 ]
@@ -59,286 +57,194 @@ REALTIME_RATE = 100.0
 #: probe``) gives one
 DEFAULT_LATENCY = 0.005
 
-#: keys a ``/uav_<i>/...`` section may override for one tracker
-PER_UAV_KEYS = ('mass', 'initial_position')
-
-
-def _p(
-    default: Any,
-    *,
-    unit: str = '',
-    help: str,
-    lo: float | None = None,
-    lo_open: bool = False,
-    hi: float | None = None,
-    choices: tuple[str, ...] | None = None,
-    length: tuple[int, ...] | None = None,
-    required: bool = False,
-    read_only: bool = False,
-) -> Any:
-    meta = {
-        'unit': unit,
-        'help': help,
-        'lo': lo,
-        'lo_open': lo_open,
-        'hi': hi,
-        'choices': choices,
-        'length': length,
-        'required': required,
-        'read_only': read_only,
-    }
-    if isinstance(default, (list, tuple)):
-        return field(default_factory=lambda: tuple(default), metadata=meta)
-    return field(default=default, metadata=meta)
-
 
 @dataclass(frozen=True)
 class SwarmConfig:
     """All parameters of a run. Units are SI; angles in degrees where the name says ``_deg``."""
 
     # swarm and laws
-    n_trackers: int = _p(
-        3, lo=1, hi=10000, help='number of tracking UAVs n = N - 1', read_only=True
-    )
-    law: str = _p(
+    n_trackers: int = key(3, 'number of tracking UAVs n = N - 1', '', '[1, 10000]', read_only=True)
+    law: str = key(
         'proposed',
+        'proposed (saturated, eq. 22-31) or traditional (sign law of Yao et al.)',
         choices=LAWS,
         required=True,
-        help='proposed (saturated, eq. 22-31) or traditional (sign law of Yao et al.)',
     )
-    saturation: str = _p(
-        'paper',
-        choices=SATURATIONS,
-        help='paper: eq. 8 as printed; continuous: g / max(|g|, gamma)',
+    saturation: str = key(
+        'paper', 'paper: eq. 8 as printed; continuous: g / max(|g|, gamma)', choices=SATURATIONS
     )
     # potential, eq. 2 / 44
-    k_n: float = _p(1.0, lo=0.0, lo_open=True, required=True, help='weight of the tracking term')
-    k_f: float = _p(1.0, lo=0.0, lo_open=True, required=True, help='weight of the formation term')
-    a: float = _p(1.0, lo=0.0, lo_open=True, required=True, help='attraction gain of eq. 44')
-    b: float = _p(6.0, lo=0.0, required=True, help='repulsion gain of eq. 44')
-    c: float = _p(
-        1.7, unit='m^2', lo=0.0, lo_open=True, required=True, help='repulsion range of eq. 44'
-    )
+    k_n: float = key(1.0, 'weight of the tracking term', '', POSITIVE, required=True)
+    k_f: float = key(1.0, 'weight of the formation term', '', POSITIVE, required=True)
+    a: float = key(1.0, 'attraction gain of eq. 44', '', POSITIVE, required=True)
+    b: float = key(6.0, 'repulsion gain of eq. 44', '', NON_NEGATIVE, required=True)
+    c: float = key(1.7, 'repulsion range of eq. 44', 'm^2', POSITIVE, required=True)
     # neighbour set of each tracker's potential (not in the paper: the paper's is all-to-all)
-    neighbours: str = _p(
+    neighbours: str = key(
         'all',
+        "which trackers enter a tracker's formation term: all (eq. 2), nearest (the "
+        'neighbour_count nearest) or radius (those within sensing_radius)',
         choices=NEIGHBOUR_RULES,
-        help="which trackers enter a tracker's formation term: all (eq. 2), "
-        'nearest (the neighbour_count nearest) or radius (those within '
-        'sensing_radius)',
     )
-    neighbour_count: int = _p(2, lo=1, help='neighbours = nearest: how many')
-    sensing_radius: float = _p(
-        5.0, unit='m', lo=0.0, lo_open=True, help='neighbours = radius: the sensing range'
-    )
+    neighbour_count: int = key(2, 'neighbours = nearest: how many', '', '[1, inf)')
+    sensing_radius: float = key(5.0, 'neighbours = radius: the sensing range', 'm', POSITIVE)
     # sliding-mode controller
-    alpha: float = _p(0.01, unit='1/s', lo=0.0, required=True, help='linear gain of eq. 7 / 22')
-    beta: float = _p(
+    alpha: float = key(0.01, 'linear gain of eq. 7 / 22', '1/s', NON_NEGATIVE, required=True)
+    beta: float = key(
         2.0,
-        unit='m/s',
-        lo=0.0,
-        lo_open=True,
+        'switching gain of eq. 7 / 22; the proof needs beta >= v_N',
+        'm/s',
+        POSITIVE,
         required=True,
-        help='switching gain of eq. 7 / 22; the proof needs beta >= v_N',
     )
-    gamma: float = _p(
-        0.5,
-        unit='m',
-        lo=0.0,
-        lo_open=True,
-        required=True,
-        help='boundary-layer thickness of eq. 8',
+    gamma: float = key(0.5, 'boundary-layer thickness of eq. 8', 'm', POSITIVE, required=True)
+    lambda_filter: float = key(
+        0.1, 'time constant of the low-pass filter of eq. 26', 's', POSITIVE, required=True
     )
-    lambda_filter: float = _p(
-        0.1,
-        unit='s',
-        lo=0.0,
-        lo_open=True,
-        required=True,
-        help='time constant of the low-pass filter of eq. 26',
-    )
-    u0: float = _p(
-        125.0, unit='N', lo=0.0, lo_open=True, required=True, help='switching force gain of eq. 24'
-    )
-    switching: str = _p(
+    u0: float = key(125.0, 'switching force gain of eq. 24', 'N', POSITIVE, required=True)
+    switching: str = key(
         'sign',
+        'switching force of eq. 24: sign (the paper) or layer, -u0 sat(s/phi) with a '
+        'continuous boundary layer (Slotine & Li; not in the paper, for sampled control)',
         choices=SWITCHINGS,
-        help='switching force of eq. 24: sign (the paper) or layer, '
-        '-u0 sat(s/phi) with a continuous boundary layer (Slotine & Li; '
-        'not in the paper, for sampled control)',
     )
-    phi: float = _p(
-        0.15,
-        unit='m/s',
-        lo=0.0,
-        lo_open=True,
-        help='switching = layer: boundary-layer width of the sliding surface',
+    phi: float = key(
+        0.15, 'switching = layer: boundary-layer width of the sliding surface', 'm/s', POSITIVE
     )
-    feedforward: float = _p(
+    feedforward: float = key(
         0.0,
-        lo=0.0,
-        hi=1.0,
-        help='weight of the target velocity in the sliding surface, '
-        's = v - w v_N + ... (0: the paper; 1 removes the lag of a '
-        'moving target; not in the paper)',
+        'weight of the target velocity in the sliding surface, s = v - w v_N + ... (0: the '
+        'paper; 1 removes the lag of a moving target; not in the paper)',
+        '',
+        '[0, 1]',
     )
-    precondition: str = _p(
+    precondition: str = key(
         'none',
+        'direction the manifold descends: none, the gradient of J (the paper); newton, the '
+        'saddle-free Newton direction |H|_mu^-1 grad J, which descends every mode of J at '
+        'one rate (not in the paper, for large swarms under sampling)',
         choices=('none', 'newton'),
-        help='direction the manifold descends: none, the gradient of J '
-        '(the paper); newton, the saddle-free Newton direction '
-        '|H|_mu^-1 grad J, which descends every mode of J at one rate '
-        '(not in the paper, for large swarms under sampling)',
     )
-    newton_mu: float = _p(
+    newton_mu: float = key(
         0.1,
-        lo=0.0,
-        lo_open=True,
-        help='precondition = newton: the smallest curvature of |H|_mu '
-        '(same unit as the Hessian of J)',
+        'precondition = newton: the smallest curvature of |H|_mu (same unit as the Hessian of J)',
+        '',
+        POSITIVE,
     )
-    newton_every: int = _p(
+    newton_every: int = key(
         1,
-        lo=1,
-        help="precondition = newton: recompute the Hessian's "
-        'eigendecomposition every this many control '
-        'samples (it costs most)',
+        "precondition = newton: recompute the Hessian's eigendecomposition every this many "
+        'control samples (it costs most)',
+        '',
+        '[1, inf)',
     )
-    newton_trust: float = _p(
+    newton_trust: float = key(
         0.0,
-        unit='m',
-        lo=0.0,
-        help='precondition = newton: trust radius of the Newton step '
-        '(RMS per tracker); where the step would be longer the '
-        'curvature floor rises above newton_mu (0: the floor is '
+        'precondition = newton: trust radius of the Newton step (RMS per tracker); where the '
+        'step would be longer the curvature floor rises above newton_mu (0: the floor is '
         'newton_mu)',
+        'm',
+        NON_NEGATIVE,
     )
-    compensation: str = _p(
+    compensation: str = key(
         'none',
+        'sampled control (control_rate > 0): none, or predict, the state predicted forward '
+        'by the latency (the age it has when its command reaches the plant), with each '
+        "tracker's own held command (not in the paper)",
         choices=COMPENSATIONS,
-        help='sampled control (control_rate > 0): none, or predict, the '
-        'state predicted forward by the latency (the age it has when '
-        "its command reaches the plant), with each tracker's own "
-        'held command (not in the paper)',
     )
-    epsilon: float = _p(
-        1.0, unit='m/s^2', lo=0.0, lo_open=True, help='reaching margin of Theorem 1 / eq. 37'
-    )
-    mu: float = _p(0.1, unit='m/s^2', lo=0.0, lo_open=True, help='reaching margin of eq. 43')
+    epsilon: float = key(1.0, 'reaching margin of Theorem 1 / eq. 37', 'm/s^2', POSITIVE)
+    mu: float = key(0.1, 'reaching margin of eq. 43', 'm/s^2', POSITIVE)
     # plant, eq. 19-21
-    mass: tuple[float, ...] = _p(
+    mass: tuple[float, ...] = key(
         (1.0,),
-        unit='kg',
-        lo=0.0,
-        lo_open=True,
+        'mass M, scalar or diagonal of M (eq. 19)',
+        'kg',
+        POSITIVE,
         length=(1, 3),
         required=True,
-        help='mass M, scalar or diagonal of M (eq. 19)',
     )
-    mass_lo: float = _p(0.5, unit='kg', lo=0.0, lo_open=True, help='lower mass bound of eq. 21')
-    mass_hi: float = _p(1.5, unit='kg', lo=0.0, lo_open=True, help='upper mass bound of eq. 21')
-    drag: float = _p(0.0, unit='N s/m', lo=0.0, help='known disturbance f_known = drag * v')
-    f_bar: float = _p(
+    mass_lo: float = key(0.5, 'lower mass bound of eq. 21', 'kg', POSITIVE)
+    mass_hi: float = key(1.5, 'upper mass bound of eq. 21', 'kg', POSITIVE)
+    drag: float = key(0.0, 'known disturbance f_known = drag * v', 'N s/m', NON_NEGATIVE)
+    f_bar: float = key(
         1.0,
-        unit='N',
-        lo=0.0,
+        'bound of the unknown disturbance |f_unknown| <= f_bar',
+        'N',
+        NON_NEGATIVE,
         required=True,
-        help='bound of the unknown disturbance |f_unknown| <= f_bar',
     )
-    noise: str = _p(
+    noise: str = key(
         'uniform_ball',
+        'distribution of f_unknown: uniform in the ball of radius f_bar, or none',
         choices=NOISE_KINDS,
-        help='distribution of f_unknown: uniform in the ball of radius f_bar, or none',
     )
     # target, eq. 1
-    target_trajectory: str = _p('circle', choices=TRAJECTORIES, help='shape of the target path')
-    target_speed: float = _p(
-        1.5, unit='m/s', lo=0.0, help='target speed v (peak for figure_eight)'
+    target_trajectory: str = key('circle', 'shape of the target path', choices=TRAJECTORIES)
+    target_speed: float = key(1.5, 'target speed v (peak for figure_eight)', 'm/s', NON_NEGATIVE)
+    target_yaw_deg: float = key(0.0, 'initial yaw chi of the target (eq. 1)', 'deg')
+    target_pitch_deg: float = key(
+        0.0, 'pitch delta of the target (eq. 1), straight and helix', 'deg', '[-90, 90]'
     )
-    target_yaw_deg: float = _p(0.0, unit='deg', help='initial yaw chi of the target (eq. 1)')
-    target_pitch_deg: float = _p(
+    target_radius: float = key(
+        20.0, 'turn radius of circle / helix, half-width of figure_eight', 'm', POSITIVE
+    )
+    target_start: tuple[float, ...] = key(
+        (0.0, 0.0, 5.0), 'initial target position', 'm', length=(3,)
+    )
+    target_waypoints: tuple[float, ...] = key(
+        (), 'waypoint offsets from target_start, flat x,y,z list', 'm'
+    )
+    v_n: float = key(
         0.0,
-        unit='deg',
-        lo=-90.0,
-        hi=90.0,
-        help='pitch delta of the target (eq. 1), straight and helix',
-    )
-    target_radius: float = _p(
-        20.0,
-        unit='m',
-        lo=0.0,
-        lo_open=True,
-        help='turn radius of circle / helix, half-width of figure_eight',
-    )
-    target_start: tuple[float, ...] = _p(
-        (0.0, 0.0, 5.0), unit='m', length=(3,), help='initial target position'
-    )
-    target_waypoints: tuple[float, ...] = _p(
-        (), unit='m', help='waypoint offsets from target_start, flat x,y,z list'
-    )
-    v_n: float = _p(
-        0.0,
-        unit='m/s',
-        lo=0.0,
-        help='bound v_N on the target speed; 0 means the trajectory peak speed',
+        'bound v_N on the target speed; 0 means the trajectory peak speed',
+        'm/s',
+        NON_NEGATIVE,
     )
     # initial conditions
-    init_center: tuple[float, ...] = _p(
-        (0.0, 0.0, 0.0),
-        unit='m',
-        length=(3,),
-        help='centre of the random initial tracker positions',
+    init_center: tuple[float, ...] = key(
+        (0.0, 0.0, 0.0), 'centre of the random initial tracker positions', 'm', length=(3,)
     )
-    init_spread: float = _p(
-        1.0, unit='m', lo=0.0, help='trackers start uniformly in a ball of this radius'
+    init_spread: float = key(
+        1.0, 'trackers start uniformly in a ball of this radius', 'm', NON_NEGATIVE
     )
     # run
-    seed: int = _p(0, lo=0, help='seed of initial positions and noise', read_only=True)
-    dt: float = _p(
+    seed: int = key(0, 'seed of initial positions and noise', '', NON_NEGATIVE, read_only=True)
+    dt: float = key(
         0.001,
-        unit='s',
-        lo=0.0,
-        lo_open=True,
-        hi=1.0,
+        'fixed step of plant and controller',
+        's',
+        '(0, 1]',
         required=True,
-        help='fixed step of plant and controller',
         read_only=True,
     )
-    duration: float = _p(30.0, unit='s', lo=0.0, lo_open=True, help='simulated time')
-    control_rate: float = _p(
+    duration: float = key(30.0, 'simulated time', 's', POSITIVE)
+    control_rate: float = key(
         0.0,
-        unit='Hz',
-        lo=0.0,
-        hi=1.0e6,
-        help='rate of the controller: 0 commands every step of dt '
-        '(lockstep); > 0 samples the state and holds each command '
-        'for 1/control_rate s (real time; the realtime plant '
-        'publishes at this rate); 1/(control_rate dt) must be a '
-        'whole number of steps',
+        'rate of the controller: 0 commands every step of dt (lockstep); > 0 samples the '
+        'state and holds each command for 1/control_rate s (real time; the realtime plant '
+        'publishes at this rate); 1/(control_rate dt) must be a whole number of steps',
+        'Hz',
+        '[0, 1e6]',
     )
-    latency: float = _p(
+    latency: float = key(
         0.0,
-        unit='s',
-        lo=0.0,
-        hi=10.0,
-        help='headless emulation of real time: delay from a state sample to '
-        'its command taking effect (control-loop latency)',
+        'headless emulation of real time: delay from a state sample to its command taking '
+        'effect (control-loop latency)',
+        's',
+        '[0, 10]',
     )
-    steady_fraction: float = _p(
-        0.25,
-        lo=0.0,
-        lo_open=True,
-        hi=1.0,
-        help='the last fraction of a run that metrics call steady',
+    steady_fraction: float = key(
+        0.25, 'the last fraction of a run that metrics call steady', '', '(0, 1]'
     )
-    record_every: int = _p(1, lo=1, help='keep every k-th step in trajectory.npz')
+    record_every: int = key(1, 'keep every k-th step in trajectory.npz', '', '[1, inf)')
     # per-UAV overrides, from /uav_<i>/... sections: {i: {key: value}}
     uav_overrides: Mapping[int, Mapping[str, Any]] = field(
         default_factory=dict, metadata={'internal': True}
     )
 
     def __post_init__(self) -> None:
-        _validate(self)
+        validate(self)
 
     # --- derived quantities ---------------------------------------------------------------
     @property
@@ -415,207 +321,16 @@ class SwarmConfig:
         return out
 
 
-def _describe(meta: Mapping[str, Any]) -> str:
-    parts = []
-    if meta.get('choices'):
-        parts.append('one of ' + ', '.join(meta['choices']))
-    lo, hi = meta.get('lo'), meta.get('hi')
-    if lo is not None and hi is not None:
-        parts.append(f'{">" if meta.get("lo_open") else ">="} {lo:g} and <= {hi:g}')
-    elif lo is not None:
-        parts.append(f'{">" if meta.get("lo_open") else ">="} {lo:g}')
-    elif hi is not None:
-        parts.append(f'<= {hi:g}')
-    return ' '.join(parts) if parts else 'any value'
+#: every key of a configuration (what files, ``--set`` and the nodes' parameters may set)
+KEYS = tuple(f.name for f in fields(SwarmConfig) if not f.metadata.get('internal'))
+#: the keys a configuration file must set
+REQUIRED_KEYS = tuple(f.name for f in fields(SwarmConfig) if f.metadata.get('required'))
 
 
-def _check_number(name: str, value: float, meta: Mapping[str, Any]) -> None:
-    if not math.isfinite(value):
-        raise ConfigError(f'{name} = {value!r}: must be a finite number ({_describe(meta)})')
-    lo, hi = meta.get('lo'), meta.get('hi')
-    if lo is not None and (value < lo or (meta.get('lo_open') and value == lo)):
-        raise ConfigError(
-            f'{name} = {value!r}: must be {_describe(meta)}'
-            + (f' [{meta["unit"]}]' if meta.get('unit') else '')
-        )
-    if hi is not None and value > hi:
-        raise ConfigError(f'{name} = {value!r}: must be {_describe(meta)}')
-
-
-def _coerce(name: str, value: Any, ftype: Any, meta: Mapping[str, Any]) -> Any:
-    """Return ``value`` converted to the field's type, or raise ConfigError naming the key."""
-    tname = ftype if isinstance(ftype, str) else getattr(ftype, '__name__', str(ftype))
-    if tname == 'int':
-        if isinstance(value, bool) or not isinstance(value, int):
-            if isinstance(value, float) and value.is_integer():
-                value = int(value)
-            else:
-                raise ConfigError(f'{name} = {value!r}: expected an integer ({_describe(meta)})')
-        _check_number(name, value, meta)
-        return value
-    if tname == 'float':
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f'{name} = {value!r}: expected a number ({_describe(meta)})')
-        value = float(value)
-        _check_number(name, value, meta)
-        return value
-    if tname == 'str':
-        if not isinstance(value, str):
-            raise ConfigError(f'{name} = {value!r}: expected a string ({_describe(meta)})')
-        if meta.get('choices') and value not in meta['choices']:
-            raise ConfigError(f'{name} = {value!r}: must be {_describe(meta)}')
-        return value
-    if tname.startswith('tuple'):
-        seq = [value] if isinstance(value, (int, float)) and not isinstance(value, bool) else value
-        if not isinstance(seq, (list, tuple)) or any(
-            isinstance(v, bool) or not isinstance(v, (int, float)) for v in seq
-        ):
-            raise ConfigError(f'{name} = {value!r}: expected a list of numbers')
-        seq = tuple(float(v) for v in seq)
-        length = meta.get('length')
-        if length and len(seq) not in length:
-            raise ConfigError(
-                f'{name} = {value!r}: expected a list of '
-                f'{" or ".join(map(str, length))} numbers, got {len(seq)}'
-            )
-        for v in seq:
-            _check_number(name, v, meta)
-        return seq
-    return value
-
-
-def _validate(cfg: SwarmConfig) -> None:
-    for f in fields(cfg):
-        if f.metadata.get('internal'):
-            continue
-        value = _coerce(f.name, getattr(cfg, f.name), f.type, f.metadata)
-        object.__setattr__(cfg, f.name, value)
-    if cfg.control_rate > 0:
-        hold = 1.0 / (cfg.control_rate * cfg.dt)
-        if round(hold) < 1 or abs(hold - round(hold)) > 1e-6 * hold:
-            raise ConfigError(
-                f'control_rate = {cfg.control_rate:g} Hz with dt = {cfg.dt:g} s holds each '
-                f'command for {hold:.4g} steps: 1/(control_rate dt) must be a whole number '
-                f'>= 1 (e.g. control_rate = {1.0 / (max(1, round(hold)) * cfg.dt):g})'
-            )
-    if cfg.precondition == 'newton' and cfg.neighbours != 'all':
-        raise ConfigError(
-            f'precondition = newton needs neighbours = all (the Newton '
-            f"direction mixes every tracker's gradient); got neighbours = "
-            f'{cfg.neighbours}'
-        )
-    if cfg.mass_lo > cfg.mass_hi:
-        raise ConfigError(
-            f'mass_lo = {cfg.mass_lo} > mass_hi = {cfg.mass_hi}: '
-            'the bounds of eq. 21 must satisfy mass_lo <= mass_hi'
-        )
-    if len(cfg.target_waypoints) % 3:
-        raise ConfigError(
-            f'target_waypoints has {len(cfg.target_waypoints)} numbers: '
-            'expected a flat list x1, y1, z1, x2, ... (a multiple of 3)'
-        )
-    if cfg.target_speed == 0.0 and cfg.target_trajectory in (
-        'waypoints',
-        'circle',
-        'helix',
-        'figure_eight',
-    ):
-        raise ConfigError(
-            f'target_speed = 0 with target_trajectory = {cfg.target_trajectory}: '
-            'a moving trajectory needs target_speed > 0 (use hover for a '
-            'stationary target)'
-        )
-    if cfg.target_trajectory == 'waypoints' and not cfg.target_waypoints:
-        raise ConfigError(
-            'target_trajectory = waypoints needs target_waypoints (a flat list of x, y, z offsets)'
-        )
-    normalized: dict[int, dict[str, Any]] = {}
-    for i, over in cfg.uav_overrides.items():
-        if not 1 <= int(i) <= cfg.n_trackers:
-            raise ConfigError(
-                f'override section for uav_{i}: there are only '
-                f'{cfg.n_trackers} trackers (uav_1 .. uav_{cfg.n_trackers})'
-            )
-        for key, val in over.items():
-            if key not in PER_UAV_KEYS:
-                raise ConfigError(
-                    f'uav_{i} overrides {key!r}: only {", ".join(PER_UAV_KEYS)} can differ per UAV'
-                )
-            meta = (
-                {'length': (3,), 'lo': None}
-                if key == 'initial_position'
-                else _FIELDS['mass'].metadata
-            )
-            normalized.setdefault(int(i), {})[key] = _coerce(f'uav_{i}.{key}', val, 'tuple', meta)
-    object.__setattr__(cfg, 'uav_overrides', normalized)
-    for m_row in cfg.mass_matrix_diag():
-        for m in m_row:
-            if not cfg.mass_lo <= m <= cfg.mass_hi:
-                raise ConfigError(
-                    f'mass {m:g} is outside [mass_lo, mass_hi] = '
-                    f'[{cfg.mass_lo:g}, {cfg.mass_hi:g}] (eq. 21)'
-                )
-
-
-_FIELDS = {f.name: f for f in fields(SwarmConfig)}
-REQUIRED_KEYS = tuple(name for name, f in _FIELDS.items() if f.metadata.get('required'))
-KEYS = tuple(name for name, f in _FIELDS.items() if not f.metadata.get('internal'))
-
-
-def _unknown(key: str, where: str) -> ConfigError:
-    close = difflib.get_close_matches(key, KEYS, n=3)
-    hint = f' (did you mean {", ".join(close)}?)' if close else ''
-    return ConfigError(f'unknown key {key!r} in {where}{hint}; known keys: {", ".join(KEYS)}')
-
-
-# keys the ROS nodes declare that are not part of the swarm configuration
-_NODE_KEYS = ('uav_id', 'mode', 'use_sim_time')
-
-
-def config_from_mapping(
-    params: Mapping[str, Any],
-    *,
-    source: str = 'configuration',
-    overrides: Mapping[int, Mapping[str, Any]] | None = None,
-    require_all: bool = True,
-) -> SwarmConfig:
-    """Build a validated :class:`SwarmConfig` from a flat ``{key: value}`` mapping.
-
-    Raises
-    ------
-    ConfigError
-        For an unknown key, a missing required key (``require_all``), a wrong type or an
-        out-of-range value; the message names the key, the value and what is allowed.
-    """
-    kwargs: dict[str, Any] = {}
-    for key, val in params.items():
-        if key in _NODE_KEYS or key.startswith('node.'):
-            continue
-        if key not in _FIELDS or _FIELDS[key].metadata.get('internal'):
-            raise _unknown(key, source)
-        kwargs[key] = val
-    if require_all:
-        missing = [k for k in REQUIRED_KEYS if k not in kwargs]
-        if missing:
-            raise ConfigError(f'{source} is missing required keys: {", ".join(missing)}')
-    if (
-        'mass' in kwargs
-        and isinstance(kwargs['mass'], (int, float))
-        and not isinstance(kwargs['mass'], bool)
-    ):
-        kwargs['mass'] = (kwargs['mass'],)
-    return SwarmConfig(**kwargs, uav_overrides=dict(overrides or {}))
-
-
-# the file side of a configuration, one import away for every user of this module
-from .config_files import (  # noqa: E402 (needs SwarmConfig above)
-    apply_overrides,
-    load_config,
+# the file side of a configuration, for the importers named in __all__ (it needs SwarmConfig)
+from .config_files import (  # noqa: E402
+    config_from_mapping,
     load_preset,
-    parse_set,
-    preset_dirs,
-    preset_names,
-    preset_path,
     resolve,
     to_ros_params,
 )

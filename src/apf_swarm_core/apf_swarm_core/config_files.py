@@ -1,9 +1,11 @@
-"""Configurations in files: ROS 2 parameter files (with per-UAV sections), the named presets
-of ``config/``, ``--set KEY=VALUE`` overrides, and the parameter file a run writes for its
-nodes (:func:`to_ros_params`). :mod:`.config` re-exports all of it."""
+"""Configurations from outside: flat mappings of keys (a node's parameters,
+:func:`config_from_mapping`), ROS 2 parameter files (with per-UAV sections), the named
+presets of ``config/``, ``--set KEY=VALUE`` overrides, and the parameter file a run writes
+for its nodes (:func:`to_ros_params`)."""
 
 from __future__ import annotations
 
+import difflib
 import os
 import re
 from collections.abc import Mapping, Sequence
@@ -12,17 +14,12 @@ from typing import Any
 
 import yaml
 
-from .config import (
-    _NODE_KEYS,
-    KEYS,
-    SwarmConfig,
-    _unknown,
-    config_from_mapping,
-)
+from .config import KEYS, REQUIRED_KEYS, SwarmConfig
 from .errors import ConfigError, UnknownPresetError
 
 __all__ = [
     'apply_overrides',
+    'config_from_mapping',
     'load_config',
     'load_preset',
     'parse_set',
@@ -34,6 +31,51 @@ __all__ = [
 ]
 
 _UAV_SECTION = re.compile(r'^/?uav_(\d+)(/.*)?$')
+
+
+def _unknown(name: str, where: str) -> ConfigError:
+    close = difflib.get_close_matches(name, KEYS, n=3)
+    hint = f' (did you mean {", ".join(close)}?)' if close else ''
+    return ConfigError(f'unknown key {name!r} in {where}{hint}; known keys: {", ".join(KEYS)}')
+
+
+# keys the ROS nodes declare that are not part of the swarm configuration
+_NODE_KEYS = ('uav_id', 'mode', 'use_sim_time')
+
+
+def config_from_mapping(
+    params: Mapping[str, Any],
+    *,
+    source: str = 'configuration',
+    overrides: Mapping[int, Mapping[str, Any]] | None = None,
+    require_all: bool = True,
+) -> SwarmConfig:
+    """Build a validated :class:`SwarmConfig` from a flat ``{key: value}`` mapping.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown key, a missing required key (``require_all``), a wrong type or an
+        out-of-range value; the message names the key, the value and what is allowed.
+    """
+    kwargs: dict[str, Any] = {}
+    for name, val in params.items():
+        if name in _NODE_KEYS or name.startswith('node.'):
+            continue
+        if name not in KEYS:
+            raise _unknown(name, source)
+        kwargs[name] = val
+    if require_all:
+        missing = [k for k in REQUIRED_KEYS if k not in kwargs]
+        if missing:
+            raise ConfigError(f'{source} is missing required keys: {", ".join(missing)}')
+    if (
+        'mass' in kwargs
+        and isinstance(kwargs['mass'], (int, float))
+        and not isinstance(kwargs['mass'], bool)
+    ):
+        kwargs['mass'] = (kwargs['mass'],)
+    return SwarmConfig(**kwargs, uav_overrides=dict(overrides or {}))
 
 
 def load_config(path: str | os.PathLike[str]) -> SwarmConfig:

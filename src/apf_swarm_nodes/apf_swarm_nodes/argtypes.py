@@ -8,7 +8,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from apf_swarm_core.config import preset_names
+from apf_swarm_core.config_files import preset_names
 
 __all__ = [
     'add_animation_args',
@@ -63,7 +63,7 @@ def add_config_args(
     p: argparse.ArgumentParser, *, required: bool = True, default_preset: str | None = None
 ) -> None:
     """``--preset NAME | --config FILE`` and ``--set KEY=VALUE``: the configuration options of
-    every command (resolved by :func:`apf_swarm_core.config.resolve`)."""
+    every command (resolved by :func:`apf_swarm_core.config_files.resolve`)."""
     g = p.add_mutually_exclusive_group(required=required)
     g.add_argument(
         '--preset',

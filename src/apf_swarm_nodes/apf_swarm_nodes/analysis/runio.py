@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 import yaml
-from apf_swarm_core.config import SwarmConfig, to_ros_params
+from apf_swarm_core.config import SwarmConfig
+from apf_swarm_core.config_files import to_ros_params
 from apf_swarm_core.simulator import TRAJECTORY_KEYS, summarize_run
 
 from ..errors import CliError

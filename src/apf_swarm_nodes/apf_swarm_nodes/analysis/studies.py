@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from apf_swarm_core.checks import check_config
-from apf_swarm_core.config import SwarmConfig, apply_overrides
+from apf_swarm_core.config import SwarmConfig
+from apf_swarm_core.config_files import apply_overrides
 from apf_swarm_core.formation import design_pair_sets
 from apf_swarm_core.simulator import BATCHABLE, simulate, simulate_batch
 

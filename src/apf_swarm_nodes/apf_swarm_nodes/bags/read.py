@@ -70,7 +70,7 @@ def bag_config(info: BagInfo, config: Path | None = None) -> tuple[Any, str]:
     bag's ``custom_data`` (the bring-up's recorder stores both)."""
     import tempfile
 
-    from apf_swarm_core.config import load_config
+    from apf_swarm_core.config_files import load_config
 
     mode = info.custom_data.get(CUSTOM_MODE, 'lockstep')
     if config is not None:

@@ -11,13 +11,8 @@ from typing import Any
 
 import numpy as np
 from apf_swarm_core.checks import check_config
-from apf_swarm_core.config import (
-    DEFAULT_LATENCY,
-    REALTIME_RATE,
-    SwarmConfig,
-    load_preset,
-    resolve,
-)
+from apf_swarm_core.config import DEFAULT_LATENCY, REALTIME_RATE, SwarmConfig
+from apf_swarm_core.config_files import load_preset, resolve
 from apf_swarm_core.design import b_for_spacing, equilibrium_formation, triangle_c_for_spacing
 from apf_swarm_core.errors import ApfSwarmError
 from apf_swarm_core.formation import design_pair_sets
