@@ -140,7 +140,7 @@ def newton_direction(
     modes the full rate; far from it, where the Hessian turns with the state and a small
     curvature would turn a modest gradient into a long step, the floor rises and delta
     leans towards the gradient. The floor stops at ``ceiling``: :class:`~apf_swarm_core.
-    simulator.Preconditioner` passes k_N, the curvature of the centroid's mode (the pair
+    control.Preconditioner` passes k_N, the curvature of the centroid's mode (the pair
     terms of eq. 2 cancel in it), so however far the swarm is from its formation, it still
     closes on the target at the manifold's full rate (a higher floor, up to lambda_max,
     slows every mode with it: the emulation's 32 trackers at 50 Hz then collide). ``trust``
