@@ -2,7 +2,13 @@
 
 import numpy as np
 import pytest
-from apf_swarm_core.plant import DisturbanceSource, plant_step, uniform_ball
+from apf_swarm_core.plant import (
+    DisturbanceSource,
+    acceleration_setpoint,
+    plant_step,
+    uniform_ball,
+    velocity_setpoint,
+)
 from scipy import stats
 
 
@@ -125,3 +131,18 @@ def test_batched_disturbance_source_equals_single_sources():
             np.testing.assert_array_equal(fb[r], src.next())
     none = DisturbanceSource([1, 2], n=2, f_bar=[1.0, 1.0], kind='none')
     np.testing.assert_array_equal(none.next(), np.zeros((2, 2, 3)))
+
+
+def test_setpoints_move_a_vehicle_as_the_model_moves_under_the_force():
+    # a vehicle that flies the acceleration setpoint, or reaches the velocity setpoint, over
+    # one step ends where eq. 19 (without the unknown term) takes it under the force
+    rng = np.random.default_rng(5)
+    x, v, u = rng.normal(size=(3, 4, 3))
+    mass, drag, dt = 1.7, 0.3, 0.02
+    a = acceleration_setpoint(u, v, mass=mass, drag=drag)
+    x1, v1 = plant_step(x, v, u, mass=mass, dt=dt, drag=drag)
+    np.testing.assert_allclose(v + a * dt, v1, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(x + v * dt + a * dt * dt / 2, x1, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(velocity_setpoint(v, a, dt), v1, rtol=1e-13, atol=1e-15)
+    # by hand: no drag, unit mass: the force is the acceleration
+    np.testing.assert_array_equal(acceleration_setpoint(u, v, mass=1.0), u)

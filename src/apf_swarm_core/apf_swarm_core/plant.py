@@ -33,7 +33,14 @@ from numpy.typing import ArrayLike, NDArray
 from .gains import shaped
 from .laws import _known
 
-__all__ = ['NOISE_KINDS', 'DisturbanceSource', 'plant_step', 'uniform_ball']
+__all__ = [
+    'NOISE_KINDS',
+    'DisturbanceSource',
+    'acceleration_setpoint',
+    'plant_step',
+    'uniform_ball',
+    'velocity_setpoint',
+]
 
 NOISE_KINDS = ('uniform_ball', 'none')
 
@@ -236,3 +243,36 @@ def plant_step(
     np.add(x_next, half_h2 * acc, x_next)  # ... + acc dt^2 / 2
     np.multiply(acc, h, acc)
     return x_next, np.add(v, acc, acc)  # v + acc dt
+
+
+def acceleration_setpoint(
+    force: ArrayLike, v: ArrayLike, *, mass: ArrayLike, drag: ArrayLike = 0.0
+) -> NDArray[np.float64]:
+    """Eq. 19 solved for the acceleration, without the unknown term it cannot know:
+    ``a = (u - f_known(v)) / M`` -- the acceleration a flight stack that tracks acceleration
+    setpoints flies so that the vehicle moves as the model does under the force ``u``.
+
+    Parameters
+    ----------
+    force, v : array, shape (..., n, 3)
+        Control input u_i [N] (eq. 24) and velocity [m/s], world frame.
+    mass : float or array broadcastable to (..., n, 3)
+        Mass M [kg].
+    drag : float or array [N s/m]
+        Coefficient of the known disturbance ``f_known = drag * v`` (eq. 20).
+
+    Returns
+    -------
+    a : array, shape (..., n, 3) [m/s^2]
+    """
+    v = np.asarray(v, dtype=float)
+    return (np.asarray(force, dtype=float) - _known(v, shaped(drag))) / np.asarray(
+        mass, dtype=float
+    )
+
+
+def velocity_setpoint(v: ArrayLike, acceleration: ArrayLike, period: float) -> NDArray[np.float64]:
+    """The velocity at the end of one control period ``period`` [s] flown at the held
+    ``acceleration`` (the zero-order hold of eq. 19): ``v + a T`` [m/s], for a flight stack
+    that tracks velocity setpoints."""
+    return np.asarray(v, dtype=float) + np.asarray(acceleration, dtype=float) * float(period)
