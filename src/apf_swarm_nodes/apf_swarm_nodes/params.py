@@ -3,7 +3,10 @@
 Every configuration key becomes a parameter with its unit, range and help text in the
 descriptor (read-only where a change at run time makes no sense). :func:`read_config` builds
 the validated :class:`~apf_swarm_core.config.SwarmConfig` from the node's parameters, and
-:func:`install_validator` rejects a bad value set at run time with the core's reason.
+:func:`install_validator` rejects a bad value set at run time with the core's reason. The
+node-only parameters (:class:`NodeParam`) are declared here too: those of every swarm node
+once (:data:`SWARM_NODE_PARAMS`, :func:`declare_swarm_node`), string lists
+(:func:`declare_str_array`).
 """
 
 from __future__ import annotations
@@ -29,10 +32,14 @@ from rclpy.parameter import Parameter
 __all__ = [
     'EXECUTOR_PARAM',
     'MODES',
+    'MODE_PARAM',
     'QOS_DEPTH_PARAM',
+    'SWARM_NODE_PARAMS',
     'NodeParam',
     'declare_config',
     'declare_node_params',
+    'declare_str_array',
+    'declare_swarm_node',
     'install_validator',
     'read_config',
 ]
@@ -134,6 +141,9 @@ QOS_DEPTH_PARAM = NodeParam(
     lo=1,
     hi=1000,
 )
+MODE_PARAM = NodeParam('mode', 'lockstep', 'timing mode', choices=MODES)
+#: what every node of the swarm (plant, target, tracker) declares before its own parameters
+SWARM_NODE_PARAMS = (EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODE_PARAM)
 
 
 def declare_node_params(node: Node, params: tuple[NodeParam, ...]) -> dict[str, Any]:
@@ -156,6 +166,27 @@ def declare_node_params(node: Node, params: tuple[NodeParam, ...]) -> dict[str, 
             raise ConfigError(f'{p.name} = {val!r}: must be within [{p.lo}, {p.hi}]')
         out[p.name] = val
     return out
+
+
+def declare_swarm_node(
+    node: Node, params: tuple[NodeParam, ...], *, writable: tuple[str, ...] = ()
+) -> tuple[SwarmConfig, dict[str, Any]]:
+    """The parameters of a swarm node: every configuration key (:func:`declare_config`,
+    ``writable`` as there), :data:`SWARM_NODE_PARAMS` and its own ``params``; returns the
+    validated configuration and the node parameters' values (ConfigError if bad)."""
+    declare_config(node, writable=writable)
+    values = declare_node_params(node, SWARM_NODE_PARAMS + params)
+    return read_config(node), values
+
+
+def declare_str_array(node: Node, name: str, text: str) -> list[str]:
+    """Declare a read-only string-list parameter (default: empty) described by ``text``;
+    returns its non-empty values."""
+    desc = ParameterDescriptor(
+        name=name, type=ParameterType.PARAMETER_STRING_ARRAY, description=text, read_only=True
+    )
+    node.declare_parameter(name, [''], desc)
+    return [t for t in node.get_parameter(name).value if t]
 
 
 def _values(node: Node, changed: Mapping[str, Any] | None = None) -> dict[str, Any]:

@@ -31,22 +31,11 @@ from .node_common import (
     control_qos,
     run_node,
 )
-from .params import (
-    EXECUTOR_PARAM,
-    MODES,
-    QOS_DEPTH_PARAM,
-    NodeParam,
-    declare_config,
-    declare_node_params,
-    read_config,
-)
+from .params import NodeParam, declare_swarm_node
 
 __all__ = ['TargetNode', 'main']
 
 NODE_PARAMS = (
-    EXECUTOR_PARAM,
-    QOS_DEPTH_PARAM,
-    NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
     NodeParam('publish_rate', 100.0, 'realtime publish rate [Hz]', lo=1.0, hi=2000.0),
     NodeParam('wait_for_start', False, 'realtime: wait for /swarm/start before t = 0'),
 )
@@ -57,9 +46,7 @@ class TargetNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('target', **kwargs)
-        declare_config(self)
-        p = declare_node_params(self, NODE_PARAMS)
-        self.cfg = read_config(self)
+        self.cfg, p = declare_swarm_node(self, NODE_PARAMS)
         self.mode = p['mode']
         self.traj = self.cfg.target_trajectory_obj
         self.dt_ns = dt_to_ns(self.cfg.dt)

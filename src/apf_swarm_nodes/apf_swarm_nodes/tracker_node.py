@@ -50,22 +50,11 @@ from .node_common import (
     run_node,
     run_nodes,
 )
-from .params import (
-    EXECUTOR_PARAM,
-    MODES,
-    QOS_DEPTH_PARAM,
-    NodeParam,
-    declare_config,
-    declare_node_params,
-    install_validator,
-    read_config,
-)
+from .params import NodeParam, declare_swarm_node, install_validator
 
 __all__ = ['TrackerNode', 'group_main', 'main', 'parse_uav_ids']
 
 NODE_PARAMS = (
-    EXECUTOR_PARAM,
-    QOS_DEPTH_PARAM,
     NodeParam(
         'inputs',
         'aggregate',
@@ -74,7 +63,6 @@ NODE_PARAMS = (
         choices=INPUTS,
     ),
     NodeParam('uav_id', 1, 'id i of this tracker (namespace /uav_<i>)', lo=1, hi=10000),
-    NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
     NodeParam(
         'trigger',
         'odom',
@@ -109,9 +97,7 @@ class TrackerNode(Node):
 
     def __init__(self, swarm_odom: bool = True, **kwargs: Any) -> None:
         super().__init__('tracker', **kwargs)
-        declare_config(self, writable=TrackerAgent.RETUNABLE)
-        p = declare_node_params(self, NODE_PARAMS)
-        self.cfg = read_config(self)
+        self.cfg, p = declare_swarm_node(self, NODE_PARAMS, writable=TrackerAgent.RETUNABLE)
         self.mode = p['mode']
         self.uav_id = int(p['uav_id'])
         self.timeout = float(p['input_timeout'])
