@@ -16,8 +16,6 @@ reliable subscribers acknowledged everything. ``apf-swarm bag play`` runs this n
 
 from __future__ import annotations
 
-import gc
-import importlib
 import sys
 import time
 from pathlib import Path
@@ -31,11 +29,11 @@ from rosgraph_msgs.msg import Clock
 
 from .bags import BagInfo, iter_raw, open_bag
 from .errors import CliError
-from .node_common import CLOCK, CLOCK_QOS, run_node, running
-from .params import EXECUTOR_PARAM, NodeParam, declare_node_params
+from .node_common import CLOCK, CLOCK_QOS, freeze_startup_heap, msg_class, run_node, running
+from .params import EXECUTOR_PARAM, NodeParam, declare_node_params, declare_str_array
 from .qos import replay_profile
 
-__all__ = ['PRELOAD_BYTES', 'PlayerNode', 'main', 'msg_class']
+__all__ = ['PRELOAD_BYTES', 'PlayerNode', 'main']
 
 #: bags up to this size are read into memory before the start (no reading on the schedule)
 PRELOAD_BYTES = 256 << 20
@@ -68,32 +66,6 @@ NODE_PARAMS = (
 )
 
 
-def msg_class(msgtype: str) -> Any:
-    """The rclpy message class of ``pkg/msg/Name`` (CliError when it is not installed)."""
-    pkg, _, name = msgtype.partition('/msg/')
-    try:
-        return getattr(importlib.import_module(f'{pkg}.msg'), name)
-    except (ImportError, AttributeError, ValueError):
-        raise CliError(
-            f'message type {msgtype} is not installed here (no Python module '
-            f'{pkg}.msg with {name or "?"}); source the workspace that defines it, '
-            'or leave its topic out with --topics'
-        ) from None
-
-
-def _str_array(node: Node, name: str, text: str) -> list[str]:
-    from rcl_interfaces.msg import ParameterDescriptor, ParameterType
-
-    node.declare_parameter(
-        name,
-        [''],
-        ParameterDescriptor(
-            name=name, type=ParameterType.PARAMETER_STRING_ARRAY, description=text, read_only=True
-        ),
-    )
-    return [t for t in node.get_parameter(name).value if t]
-
-
 class PlayerNode(Node):
     """Publishers for the bag's topics and the timed replay (:meth:`play`)."""
 
@@ -101,8 +73,10 @@ class PlayerNode(Node):
         super().__init__('player', **kwargs)
         p = declare_node_params(self, NODE_PARAMS)
         self.p = p
-        self.topic_filter = _str_array(self, 'topics', 'play only these topics (empty: all)')
-        self.wait_for = _str_array(
+        self.topic_filter = declare_str_array(
+            self, 'topics', 'play only these topics (empty: all)'
+        )
+        self.wait_for = declare_str_array(
             self,
             'wait_for',
             'before the start, wait until each of these '
@@ -198,11 +172,7 @@ class PlayerNode(Node):
         self.wait_subscribers()
         preload = self.info.size <= PRELOAD_BYTES
         cached = list(self.messages()) if preload else None
-        # the start-up heap (the rosbags type store alone is thousands of classes) out of the
-        # collector's reach: a full collection of it stalled the schedule by ~0.3 s in 3 of 5
-        # runs under load; none in 3 runs with it frozen
-        gc.collect()
-        gc.freeze()
+        freeze_startup_heap()
         t0 = time.monotonic_ns()
         self._next_clock = t0
         started = False

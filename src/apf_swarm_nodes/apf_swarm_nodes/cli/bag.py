@@ -71,7 +71,7 @@ def cmd_bag_view(args: argparse.Namespace) -> int:
 
     frames = serve_bag(
         args.bag,
-        host=args.host,
+        host=args.view_host,
         port=args.port,
         rate=args.rate,
         loop=args.loop,
@@ -115,7 +115,7 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
     from ..bags import open_bag
 
     info = open_bag(args.bag)  # bad input: one line and exit 2, before ROS starts
-    from ..player_node import msg_class
+    from ..node_common import msg_class
 
     for t in args.topics or [t.name for t in info.topics]:
         msg_class(info.topic(t).type)  # a type that is not installed: one line, exit 2
