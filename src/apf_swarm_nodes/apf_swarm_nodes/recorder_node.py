@@ -10,21 +10,14 @@ chunk is flushed every ``flush_period`` so that a recorder killed by SIGKILL los
 that much (``apf-swarm bag reindex`` recovers the rest).
 
 ``~/status`` (std_msgs/String, JSON, reliable, transient local) says which topics are
-recorded and whether every one of their publishers is matched (``ready``), and the counts;
-the bring-up waits on it before it starts the clock. Counts: ``received`` (callbacks),
-``written``, ``lost`` (gaps in the publication sequence numbers of single-publisher topics:
-lost before the recorder took them, e.g. overwritten in a keep-last publisher history while
-the recorder was starved) and ``dropped`` = received - written + lost; they go
-into metadata.yaml ``custom_data`` (``apf_swarm.recorder``) and the last log line.
+recorded and whether every one of their publishers is matched (``ready``), and the counts
+(:mod:`.recording`: ``received``, ``written``, ``lost`` in transport, ``dropped``); the
+bring-up waits on it before it starts the clock. The counts go into metadata.yaml
+``custom_data`` (``apf_swarm.recorder``) and the last log line.
 
-Spinning: no executor. The recorder waits on an rclpy wait set of its subscriptions (as
-``rclpy.wait_for_message`` does) and takes every ready message with its MessageInfo: the stamp
-is the DDS reception time (taken by the middleware when the sample arrived, not when the
-recorder got the CPU), and the publication sequence number shows losses. The events
-executor cannot hand a callback the MessageInfo (measured: SystemError in ``spin_once``) and
-the single-threaded executor costs ~170 us per message (measured: a recorder on it lost 7 %
-of a lockstep run's messages); the take loop costs less than either. Its periodic work
-(discovery, flush, status) runs between waits.
+Spinning: no executor; a take loop on a wait set (:mod:`.recorder_take`) takes every message
+with its reception time and publication sequence number, and runs the periodic work
+(discovery, flush, status) between waits.
 
 SIGINT / SIGTERM: stop, take what is still queued (bounded ``drain_timeout``), close the bag
 (summary, metadata.yaml), exit 0.
@@ -32,9 +25,7 @@ SIGINT / SIGTERM: stop, take what is still queued (bounded ``drain_timeout``), c
 
 from __future__ import annotations
 
-import importlib
 import json
-import re
 import signal
 import sys
 import time
@@ -48,9 +39,11 @@ from std_msgs.msg import String
 
 from .bags import CUSTOM_CONFIG, CUSTOM_MODE, CUSTOM_RECORDER, BagWriter
 from .errors import CliError
-from .node_common import START_QOS
-from .params import MODES, NodeParam, declare_node_params
+from .node_common import START_QOS, freeze_startup_heap, msg_class
+from .params import MODES, NodeParam, declare_node_params, declare_str_array
 from .qos import profile_to_dict, qos_from_dict, recording_profile
+from .recorder_take import never_called, spin
+from .recording import RecordedTopic, TopicSelection, recording_counts, recording_status
 
 __all__ = ['RecorderNode', 'main', 'spin']
 
@@ -107,56 +100,19 @@ NODE_PARAMS = (
 )
 
 
-def _msg_class(msgtype: str) -> Any:
-    pkg, _, name = msgtype.partition('/msg/')
-    try:
-        return getattr(importlib.import_module(f'{pkg}.msg'), name)
-    except (ImportError, AttributeError):
-        return None
-
-
-class _Topic:
-    __slots__ = (
-        'conn',
-        'last_seq',
-        'lost',
-        'name',
-        'received',
-        'single_pub',
-        'sub',
-        'type',
-        'written',
-    )
-
-    def __init__(self, name: str, msgtype: str, conn: Any) -> None:
-        self.name, self.type, self.conn = name, msgtype, conn
-        self.sub: Any = None
-        self.received = self.written = self.lost = 0
-        self.last_seq = 0
-        self.single_pub = False
-
-
 class RecorderNode(Node):
     """Raw subscriptions to the selected topics, written as received into a bag."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('recorder', **kwargs)
-        self.declare_parameter(
+        wanted = declare_str_array(
+            self,
             'topics',
-            [''],
-            descriptor=_str_array_descriptor(
-                'topics',
-                'record exactly these topics (empty list: all, subject to regex and exclude)',
-            ),
+            'record exactly these topics (empty list: all, subject to regex and exclude)',
         )
         p = declare_node_params(self, NODE_PARAMS)
         self.p = p
-        self.wanted = [t for t in self.get_parameter('topics').value if t]
-        try:
-            self.regex = re.compile(p['regex']) if p['regex'] else None
-            self.exclude = re.compile(p['exclude']) if p['exclude'] else None
-        except re.error as exc:
-            raise CliError(f'regex / exclude: not a regular expression ({exc})') from None
+        self.selected = TopicSelection(wanted, p['regex'], p['exclude'])
         out = p['output'] or time.strftime('rosbag2_%Y_%m_%d-%H_%M_%S')
         self.output = Path(out).expanduser().resolve()
         self.writer = BagWriter(
@@ -174,13 +130,13 @@ class RecorderNode(Node):
             except OSError as exc:
                 raise CliError(f'config_file {p["config_file"]}: {exc.strerror}') from None
             self.writer.set_custom_data(CUSTOM_CONFIG, text, early=True)
-        self.topics: dict[str, _Topic] = {}
+        self.topics: dict[str, RecordedTopic] = {}
         self.skipped: dict[str, str] = {}
         self.closed = False
         self.status_pub = self.create_publisher(String, '~/status', START_QOS)
-        self.own = {self.status_pub.topic_name}
+        self.selected.own.add(self.status_pub.topic_name)
         self._last_status = ''
-        #: [period, next due (monotonic), what]: run by :meth:`spin` between waits
+        #: [period, next due (monotonic), what]: run by :func:`~.recorder_take.spin` between waits
         now = time.monotonic()
         self.periodic: list[list[Any]] = [
             [float(p['discovery_period']), now, self._discover],
@@ -188,25 +144,13 @@ class RecorderNode(Node):
             [0.5, now + 0.5, self._publish_status],
         ]
         self.get_logger().info(
-            f'recording into {self.output} ('
-            + ('topics ' + ', '.join(self.wanted) if self.wanted else 'all topics')
-            + (f', regex {p["regex"]!r}' if self.regex else '')
-            + (f', exclude {p["exclude"]!r}' if self.exclude else '')
+            f'recording into {self.output} ({self.selected.describe()}'
             + (', zstd' if p['compress'] else '')
             + ')'
         )
         self._discover()
 
-    # --- selection and subscriptions ------------------------------------------------------
-    def selected(self, topic: str) -> bool:
-        if topic in self.own:
-            return False
-        if self.wanted and topic not in self.wanted:
-            return False
-        if self.regex is not None and not self.regex.search(topic):
-            return False
-        return not (self.exclude is not None and self.exclude.search(topic))
-
+    # --- subscriptions ---------------------------------------------------------------------
     def _skip(self, topic: str, why: str) -> None:
         if self.skipped.get(topic) != why:
             self.skipped[topic] = why
@@ -232,8 +176,9 @@ class RecorderNode(Node):
                 self._skip(topic, f'several types {types}')
                 continue
             msgtype = types[0]
-            cls = _msg_class(msgtype)
-            if cls is None:
+            try:
+                cls = msg_class(msgtype)
+            except CliError:
                 self._skip(
                     topic,
                     f'type {msgtype} is not installed (no Python module); build '
@@ -251,10 +196,10 @@ class RecorderNode(Node):
             qos = recording_profile(offered, int(self.p['queue_depth']))
             rel = qos.reliability == ReliabilityPolicy.RELIABLE
             tl = qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
-            t = _Topic(topic, msgtype, conn)
+            t = RecordedTopic(topic, msgtype, conn)
             t.single_pub = len(pubs) == 1
             # taken by spin(), never by an executor
-            t.sub = self.create_subscription(cls, topic, _never_called, qos, raw=True)
+            t.sub = self.create_subscription(cls, topic, never_called, qos, raw=True)
             self.topics[topic] = t
             changed = True
             self.get_logger().info(
@@ -268,13 +213,10 @@ class RecorderNode(Node):
         if changed:
             self._publish_status()
 
-    def _on_msg(self, t: _Topic, raw: bytes, info: dict[str, Any]) -> None:
-        t.received += 1
-        seq = info.get('publication_sequence_number')
-        if seq:
-            if t.single_pub and t.last_seq and seq > t.last_seq + 1:
-                t.lost += seq - t.last_seq - 1
-            t.last_seq = seq
+    def on_message(self, t: RecordedTopic, raw: bytes, info: dict[str, Any]) -> None:
+        """A message taken from ``t`` with its MessageInfo: counted, and written with its
+        reception time."""
+        t.take(info.get('publication_sequence_number'))
         ts = info.get('received_timestamp') or time.time_ns()
         if self.closed:
             return
@@ -287,38 +229,14 @@ class RecorderNode(Node):
 
     # --- status and counts ----------------------------------------------------------------
     def counts(self) -> dict[str, Any]:
-        rec = sum(t.received for t in self.topics.values())
-        wr = sum(t.written for t in self.topics.values())
-        lost = sum(t.lost for t in self.topics.values())
-        return {
-            'received': rec,
-            'written': wr,
-            'lost': lost,
-            'dropped': rec - wr + lost,
-            'topics': {
-                t.name: {'received': t.received, 'written': t.written, 'lost': t.lost}
-                for t in self.topics.values()
-            },
-            'skipped': dict(self.skipped),
-        }
+        return recording_counts(self.topics.values(), self.skipped)
 
     def status(self) -> dict[str, Any]:
-        topics = {}
-        for t in self.topics.values():
-            topics[t.name] = {
-                'matched': t.sub.get_publisher_count(),
-                'publishers': self.count_publishers(t.name),
-            }
-        ready = all(v['matched'] >= v['publishers'] for v in topics.values())
-        c = self.counts()
-        return {
-            'bag': str(self.output),
-            'ready': ready,
-            'topics': topics,
-            'received': c['received'],
-            'written': c['written'],
-            'dropped': c['dropped'],
+        links = {
+            t.name: (t.sub.get_publisher_count(), self.count_publishers(t.name))
+            for t in self.topics.values()
         }
+        return recording_status(self.output, links, self.counts())
 
     def _publish_status(self) -> None:
         if self.closed:
@@ -339,69 +257,6 @@ class RecorderNode(Node):
         return c
 
 
-def _str_array_descriptor(name: str, text: str) -> Any:
-    from rcl_interfaces.msg import ParameterDescriptor, ParameterType
-
-    return ParameterDescriptor(
-        name=name, type=ParameterType.PARAMETER_STRING_ARRAY, description=text, read_only=True
-    )
-
-
-def _never_called(_msg: Any) -> None:  # pragma: no cover -- no executor spins the recorder
-    raise AssertionError('the recorder takes its messages in RecorderNode.spin')
-
-
-def _take_all(node: RecorderNode, t: _Topic) -> int:
-    """Take every message queued on ``t`` (with its MessageInfo); returns how many."""
-    n = 0
-    handle = t.sub.handle
-    with handle:
-        while True:
-            got = handle.take_message(t.sub.msg_type, True)
-            if got is None:
-                return n
-            node._on_msg(t, got[0], got[1])
-            n += 1
-
-
-def spin(node: RecorderNode, stop: list[int], drain: float) -> None:
-    """Wait on the subscriptions, take what is ready, run the periodic work; after a signal
-    (``stop`` not empty) take what is still queued until 0.2 s pass without a message (at
-    most ``drain`` seconds)."""
-    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-
-    ws, ws_topics = None, -1
-    by_ptr: dict[int, _Topic] = {}
-    while not stop and node.context.ok():
-        now = time.monotonic()
-        for job in node.periodic:
-            if now >= job[1]:
-                job[2]()
-                job[1] = max(job[1] + job[0], now)
-        topics = list(node.topics.values())
-        if len(topics) != ws_topics:
-            ws_topics = len(topics)
-            ws = _rclpy.WaitSet(ws_topics, 0, 0, 0, 0, 0, node.context.handle) if topics else None
-            by_ptr = {t.sub.handle.pointer: t for t in topics}
-        timeout = min(0.05, max(0.0, min(job[1] for job in node.periodic) - time.monotonic()))
-        if ws is None:
-            time.sleep(timeout)
-            continue
-        ws.clear_entities()
-        for t in topics:
-            ws.add_subscription(t.sub.handle)
-        ws.wait(int(timeout * 1e9))
-        for ptr in ws.get_ready_entities('subscription'):
-            _take_all(node, by_ptr[ptr])
-    end = time.monotonic() + drain
-    quiet_since = time.monotonic()
-    while time.monotonic() < end and time.monotonic() - quiet_since < 0.2:
-        if sum(_take_all(node, t) for t in list(node.topics.values())):
-            quiet_since = time.monotonic()
-        else:
-            time.sleep(0.01)
-
-
 def main(args: list[str] | None = None) -> None:
     """Jazzy main: own SIGINT / SIGTERM handling so that the bag is closed after a drain."""
     from apf_swarm_core.errors import ApfSwarmError
@@ -416,13 +271,7 @@ def main(args: list[str] | None = None) -> None:
     code = 0
     try:
         node = RecorderNode()
-        # the start-up heap (rosbags' type store: thousands of classes) out of the collector's
-        # reach, so that a full collection does not stall the take loop (the player measured
-        # ~0.3 s stalls from it)
-        import gc
-
-        gc.collect()
-        gc.freeze()
+        freeze_startup_heap()
         spin(node, stop, float(node.p['drain_timeout']))
     except (ApfSwarmError, ValueError) as exc:
         print(f'recorder: error: {exc}', file=sys.stderr)
