@@ -1,31 +1,23 @@
-"""The run itself (:class:`Bringup`): start, wait for the graph, publish the start,
-accumulate, supervise, stop, write."""
+"""One run (:class:`Bringup`): its parts in order (:meth:`Bringup.execute`: set up, launch,
+wait for the graph, run, stop, write) and the run loop between ``/swarm/start`` and the end,
+with its progress line. The parts: :mod:`.startup` (before the run), :mod:`.graph_watch` (the
+bring-up's node on the graph), :mod:`.supervision` (signals and children), :mod:`.prediction`
+(realtime) and :mod:`.outputs` (the files at the end)."""
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
-import os
-import signal
 import sys
 import time
 from pathlib import Path
 from typing import Any, TextIO
 
-from apf_swarm_core.config import (
-    SwarmConfig,
-    to_ros_params,
-)
+from apf_swarm_core.config import SwarmConfig
 
 from ..analysis.samples import StateAccumulator
-from ..errors import CliError
-from .commands import executable_path, node_commands, node_netns, package_prefix
-from .graph import (
-    RECORDER_STOP_SEQUENCE,
-)
+from .graph import RECORDER_STOP_SEQUENCE
 from .graph_watch import GraphWatch
-from .isolation import env_domain, pick_domain_id
 from .outputs import RunOutputs
 from .prediction import RealtimePrediction
 from .processes import (
@@ -34,44 +26,19 @@ from .processes import (
     EXIT_LOST_SAMPLES,
     EXIT_OK,
     EXIT_STALLED,
-    Child,
     ProcessGroup,
     StopRun,
-    describe_rc,
 )
+from .startup import Startup
+from .supervision import Signals, Supervision
 
-# --------------------------------------------------------------------------------------------
-# the bring-up itself
-# --------------------------------------------------------------------------------------------
-
-
-class _Signals:
-    """SIGINT / SIGTERM set a flag (the loops poll it); restored on exit."""
-
-    def __init__(self) -> None:
-        self.received: list[int] = []
-        self._old: dict[int, Any] = {}
-
-    def _handler(self, signum: int, frame: Any) -> None:
-        self.received.append(signum)
-
-    def install(self) -> None:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            with contextlib.suppress(ValueError):  # not the main thread: nothing to install
-                self._old[sig] = signal.signal(sig, self._handler)
-
-    def restore(self) -> None:
-        for sig, old in self._old.items():
-            signal.signal(sig, old)
-        self._old.clear()
-
-    @property
-    def first(self) -> int | None:
-        return self.received[0] if self.received else None
+__all__ = ['Bringup']
 
 
-class Bringup(GraphWatch, RealtimePrediction, RunOutputs):
-    """One run; see the module docstring. :meth:`execute` returns the exit code."""
+class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
+    """One run; see the module docstring. :meth:`execute` returns the exit code.
+
+    Supervision comes before GraphWatch, whose stubs of its methods it replaces."""
 
     def __init__(
         self,
@@ -96,7 +63,7 @@ class Bringup(GraphWatch, RealtimePrediction, RunOutputs):
         self.rec_group = ProcessGroup(RECORDER_STOP_SEQUENCE)
         self.recorder_lost: dict[str, int] = {}  # recorder died, run went on: its exit code
         self.rec_status: dict[str, Any] | None = None
-        self.signals = _Signals()
+        self.signals = Signals()
         self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
         self.domain_id: int | None = None
         # rclpy objects, made by run() once rclpy is imported (this module does not import it)
@@ -123,181 +90,6 @@ class Bringup(GraphWatch, RealtimePrediction, RunOutputs):
             self.warned.add(key)
             self.say(f'warning: {text}')
 
-    # --- set-up ---------------------------------------------------------------------------
-    def prepare(self) -> None:
-        """Checks that need no process: executables, recorder, output directory, config."""
-        import yaml
-
-        if self.mode == 'realtime':
-            self.realtime_check()
-        elif self.cfg.control_rate > 0:
-            raise CliError(
-                f'control_rate = {self.cfg.control_rate:g} Hz: lockstep commands '
-                'every step of dt; use --mode realtime, or --set control_rate=0'
-            )
-        prefix = package_prefix()
-        names = [
-            'target',
-            'plant',
-            'tracker' if self.args.trackers_per_process == 1 else 'trackers',
-        ]
-        if self.args.record:
-            names.append('recorder')
-            if (self.out / 'bag').exists():
-                raise CliError(
-                    f'--record: {self.out / "bag"} exists already; a bag is never '
-                    'overwritten: choose a new --out directory'
-                )
-        for name in names:
-            path = executable_path(prefix, name)
-            if not (path.is_file() and os.access(path, os.X_OK)):
-                raise CliError(
-                    f'node executable {path} not found; build the workspace with `make setup`'
-                )
-        self.prefix = prefix
-        (self.out / 'logs').mkdir(parents=True, exist_ok=True)
-        self.config_file = self.out / 'config.yaml'
-        self.config_file.write_text(yaml.safe_dump(to_ros_params(self.cfg), sort_keys=False))
-
-    def isolate(self) -> None:
-        """Domain id and discovery range into os.environ (before rclpy.init; children inherit)."""
-        if self.args.domain_id is not None:
-            self.domain_id = self.args.domain_id
-        else:
-            own = env_domain()
-            self.domain_id = pick_domain_id(exclude=[own] if own is not None else [])
-        os.environ['ROS_DOMAIN_ID'] = str(self.domain_id)
-        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = self.args.discovery_range
-        os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated; would fight the range
-        # every ROS log file of the run (this node's and the children's) under DIR/logs/ros
-        os.environ['ROS_LOG_DIR'] = str((self.out / 'logs' / 'ros').resolve())
-
-    def child_env(self) -> dict[str, str]:
-        env = dict(os.environ)
-        env.setdefault('PYTHONUNBUFFERED', '1')
-        env.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
-        return env
-
-    def launch(self) -> None:
-        env = self.child_env()
-        cmds = node_commands(
-            self.prefix,
-            self.config_file.resolve(),
-            self.n,
-            self.mode,
-            self.node_params,
-            per_process=self.args.trackers_per_process,
-        )
-        self.t_launch = time.monotonic()
-        if self.args.record:
-            # first, so that it subscribes to every topic as soon as its publisher appears
-            rec = Child(
-                'recorder',
-                [
-                    str(executable_path(self.prefix, 'recorder')),
-                    '--ros-args',
-                    '-r',
-                    '__node:=recorder',
-                    '-p',
-                    f'mode:={self.mode}',
-                    '-p',
-                    f'output:={(self.out / "bag").resolve()}',
-                    '-p',
-                    f'config_file:={self.config_file.resolve()}',
-                    *[a for p in self.node_params for a in ('-p', p)],
-                ],
-                self.out / 'logs' / 'recorder.log',
-                env,
-            )
-            self.rec_group.add(rec)
-            self.rec_group.start_all()
-        for name, cmd in cmds:
-            ns = node_netns(name, self.args.node_netns)
-            # a simulated host (scripts/multihost.py)
-            argv = cmd if ns is None else ['ip', 'netns', 'exec', ns, *cmd]
-            self.group.add(Child(name, argv, self.out / 'logs' / f'{name}.log', env))
-        self.group.start_all()
-        self.say(
-            f'started {len(cmds) + len(self.rec_group.children)} processes '
-            f'on ROS_DOMAIN_ID={self.domain_id} '
-            f'({self.args.discovery_range}), {self.mode}, {self.n} trackers, '
-            f'logs in {self.out / "logs"}'
-        )
-
-    # --- supervision ----------------------------------------------------------------------
-    def check_signals(self) -> None:
-        sig = self.signals.first
-        if sig is not None:
-            raise StopRun(
-                EXIT_INTERRUPTED, 'interrupted', f'interrupted by {signal.Signals(sig).name}'
-            )
-
-    def supervise(self) -> None:
-        for child, rc in self.rec_group.poll():
-            if child.name in self.recorder_lost:
-                continue
-            self.say(child.death_report(rc))
-            self.recorder_lost[child.name] = rc
-            if self.args.on_recorder_death == 'continue':
-                self.say(
-                    f'{child.name} died ({describe_rc(rc)}); the run continues without '
-                    f'recording (--on-recorder-death continue); `apf-swarm bag reindex '
-                    f'{self.out / "bag"}` recovers what it flushed'
-                )
-                continue
-            raise StopRun(
-                EXIT_CHILD_DIED,
-                'child_died',
-                f'{child.name} died ({describe_rc(rc)}); stopping the run (a restarted '
-                f'recorder could not continue the bag; `apf-swarm bag reindex '
-                f'{self.out / "bag"}` recovers what it flushed; --on-recorder-death '
-                f'continue keeps the swarm flying)',
-            )
-        for child, rc in self.group.poll():
-            self.say(child.death_report(rc))
-            if not self.args.respawn:
-                raise StopRun(
-                    EXIT_CHILD_DIED,
-                    'child_died',
-                    f'{child.name} died ({describe_rc(rc)}); stopping the run',
-                )
-            why_not = self.not_respawnable(child.name)
-            if why_not:
-                raise StopRun(
-                    EXIT_CHILD_DIED,
-                    'child_died',
-                    f'{child.name} died ({describe_rc(rc)}); stopping the run: {why_not}',
-                )
-            if child.respawns >= self.args.max_respawns:
-                raise StopRun(
-                    EXIT_CHILD_DIED,
-                    'child_died',
-                    f'{child.name} died ({describe_rc(rc)}) after '
-                    f'{child.respawns} respawns (--max-respawns {self.args.max_respawns}); '
-                    'stopping the run',
-                )
-            child.start()
-            self.say(
-                f'respawned {child.name} (pid {child.pid}, respawn {child.respawns} of at '
-                f'most {self.args.max_respawns})'
-            )
-
-    def not_respawnable(self, name: str) -> str:
-        """Why a dead node must not be restarted ('' when it may be): the plant holds the
-        state of the whole swarm, and a realtime target restarts its trajectory from t = 0."""
-        if name == 'plant':
-            return (
-                'the plant holds the state of every UAV; a restarted plant would start '
-                'the world over, so it is never respawned'
-            )
-        if name == 'target' and self.mode == 'realtime':
-            return (
-                'a restarted realtime target would fly its trajectory again from t = 0; '
-                "only lockstep targets (driven by the plant's requests) are respawned"
-            )
-        return ''
-
-    # --- the graph ------------------------------------------------------------------------
     # --- the run --------------------------------------------------------------------------
     def progress_line(self, rate: float) -> str:
         s = self.acc.last
@@ -364,28 +156,6 @@ class Bringup(GraphWatch, RealtimePrediction, RunOutputs):
                     prev_recv = self.acc.received
                 last_progress = now
                 self.say(self.progress_line(rate))
-
-    # --- shutdown and outputs -------------------------------------------------------------
-    def stop_children(self) -> None:
-        t0 = time.monotonic()
-        self.stop_how = self.group.stop_all(hurry=lambda: len(self.signals.received))
-        # the recorder last: it takes what is still queued and closes the bag
-        self.stop_how.update(self.rec_group.stop_all(hurry=lambda: len(self.signals.received)))
-        self.stop_seconds = time.monotonic() - t0
-        self.leftovers = self.group.leftovers() + self.rec_group.leftovers()
-        by: dict[str, list[str]] = {}
-        for name, how in self.stop_how.items():
-            by.setdefault(how, []).append(name)
-        detail = ', '.join(f'{len(v)} {k}' for k, v in by.items())
-        self.say(f'stopped {len(self.stop_how)} processes in {self.stop_seconds:.2f} s ({detail})')
-        for how in ('SIGTERM', 'SIGKILL', 'not stopped'):
-            if how in by:
-                self.say(f'warning: needed {how} for: {", ".join(by[how])}')
-        if self.leftovers:
-            self.say(
-                'error: processes left behind: '
-                + ', '.join(f'{n} pid {p}' for n, p in self.leftovers)
-            )
 
     # --- everything -----------------------------------------------------------------------
     def execute(self) -> int:

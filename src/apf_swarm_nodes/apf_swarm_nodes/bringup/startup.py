@@ -1,0 +1,143 @@
+"""Before the run: the checks that need no process (executables, recorder, output directory,
+configuration), the run's isolation (domain id, discovery range, log directory) and the
+node processes started, the recorder first."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from apf_swarm_core.config import SwarmConfig, to_ros_params
+
+from ..errors import CliError
+from .commands import executable_path, node_commands, node_netns, package_prefix
+from .isolation import env_domain, pick_domain_id
+from .processes import Child, ProcessGroup
+
+__all__ = ['Startup']
+
+
+class Startup:
+    """What :class:`~.session.Bringup` does before the run (a mixin)."""
+
+    args: argparse.Namespace
+    cfg: SwarmConfig
+    mode: str
+    n: int
+    node_params: list[str]
+    out: Path
+    group: ProcessGroup
+    rec_group: ProcessGroup
+    domain_id: int | None
+    t_launch: Any
+    prefix: Path
+    config_file: Path
+
+    if TYPE_CHECKING:  # the other parts of Bringup
+
+        def say(self, text: str) -> None: ...
+
+        def realtime_check(self) -> None: ...
+
+    def prepare(self) -> None:
+        """Checks that need no process: executables, recorder, output directory, config."""
+        import yaml
+
+        if self.mode == 'realtime':
+            self.realtime_check()
+        elif self.cfg.control_rate > 0:
+            raise CliError(
+                f'control_rate = {self.cfg.control_rate:g} Hz: lockstep commands '
+                'every step of dt; use --mode realtime, or --set control_rate=0'
+            )
+        prefix = package_prefix()
+        names = [
+            'target',
+            'plant',
+            'tracker' if self.args.trackers_per_process == 1 else 'trackers',
+        ]
+        if self.args.record:
+            names.append('recorder')
+            if (self.out / 'bag').exists():
+                raise CliError(
+                    f'--record: {self.out / "bag"} exists already; a bag is never '
+                    'overwritten: choose a new --out directory'
+                )
+        for name in names:
+            path = executable_path(prefix, name)
+            if not (path.is_file() and os.access(path, os.X_OK)):
+                raise CliError(
+                    f'node executable {path} not found; build the workspace with `make setup`'
+                )
+        self.prefix = prefix
+        (self.out / 'logs').mkdir(parents=True, exist_ok=True)
+        self.config_file = self.out / 'config.yaml'
+        self.config_file.write_text(yaml.safe_dump(to_ros_params(self.cfg), sort_keys=False))
+
+    def isolate(self) -> None:
+        """Domain id and discovery range into os.environ (before rclpy.init; children inherit)."""
+        if self.args.domain_id is not None:
+            self.domain_id = self.args.domain_id
+        else:
+            own = env_domain()
+            self.domain_id = pick_domain_id(exclude=[own] if own is not None else [])
+        os.environ['ROS_DOMAIN_ID'] = str(self.domain_id)
+        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = self.args.discovery_range
+        os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated; would fight the range
+        # every ROS log file of the run (this node's and the children's) under DIR/logs/ros
+        os.environ['ROS_LOG_DIR'] = str((self.out / 'logs' / 'ros').resolve())
+
+    def child_env(self) -> dict[str, str]:
+        env = dict(os.environ)
+        env.setdefault('PYTHONUNBUFFERED', '1')
+        env.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
+        return env
+
+    def launch(self) -> None:
+        env = self.child_env()
+        cmds = node_commands(
+            self.prefix,
+            self.config_file.resolve(),
+            self.n,
+            self.mode,
+            self.node_params,
+            per_process=self.args.trackers_per_process,
+        )
+        self.t_launch = time.monotonic()
+        if self.args.record:
+            # first, so that it subscribes to every topic as soon as its publisher appears
+            rec = Child(
+                'recorder',
+                [
+                    str(executable_path(self.prefix, 'recorder')),
+                    '--ros-args',
+                    '-r',
+                    '__node:=recorder',
+                    '-p',
+                    f'mode:={self.mode}',
+                    '-p',
+                    f'output:={(self.out / "bag").resolve()}',
+                    '-p',
+                    f'config_file:={self.config_file.resolve()}',
+                    *[a for p in self.node_params for a in ('-p', p)],
+                ],
+                self.out / 'logs' / 'recorder.log',
+                env,
+            )
+            self.rec_group.add(rec)
+            self.rec_group.start_all()
+        for name, cmd in cmds:
+            ns = node_netns(name, self.args.node_netns)
+            # a simulated host (scripts/multihost.py)
+            argv = cmd if ns is None else ['ip', 'netns', 'exec', ns, *cmd]
+            self.group.add(Child(name, argv, self.out / 'logs' / f'{name}.log', env))
+        self.group.start_all()
+        self.say(
+            f'started {len(cmds) + len(self.rec_group.children)} processes '
+            f'on ROS_DOMAIN_ID={self.domain_id} '
+            f'({self.args.discovery_range}), {self.mode}, {self.n} trackers, '
+            f'logs in {self.out / "logs"}'
+        )

@@ -1,0 +1,153 @@
+"""The node processes while the run lasts and at its end: SIGINT / SIGTERM to the bring-up
+(:class:`Signals`), a child's death (respawned, or the run stopped, by the rules of
+:meth:`Supervision.supervise`), and every child stopped, the recorder last."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import signal
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from .processes import EXIT_CHILD_DIED, EXIT_INTERRUPTED, ProcessGroup, StopRun, describe_rc
+
+__all__ = ['Signals', 'Supervision']
+
+
+class Signals:
+    """SIGINT / SIGTERM set a flag (the loops poll it); restored on exit."""
+
+    def __init__(self) -> None:
+        self.received: list[int] = []
+        self._old: dict[int, Any] = {}
+
+    def _handler(self, signum: int, frame: Any) -> None:
+        self.received.append(signum)
+
+    def install(self) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(ValueError):  # not the main thread: nothing to install
+                self._old[sig] = signal.signal(sig, self._handler)
+
+    def restore(self) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        self._old.clear()
+
+    @property
+    def first(self) -> int | None:
+        return self.received[0] if self.received else None
+
+
+class Supervision:
+    """What :class:`~.session.Bringup` does with its children (a mixin)."""
+
+    args: argparse.Namespace
+    mode: str
+    out: Path
+    group: ProcessGroup
+    rec_group: ProcessGroup
+    recorder_lost: dict[str, int]
+    signals: Signals
+    stop_how: dict[str, str]
+    stop_seconds: float
+    leftovers: list[tuple[str, int]]
+
+    if TYPE_CHECKING:  # the other parts of Bringup
+
+        def say(self, text: str) -> None: ...
+
+    def check_signals(self) -> None:
+        sig = self.signals.first
+        if sig is not None:
+            raise StopRun(
+                EXIT_INTERRUPTED, 'interrupted', f'interrupted by {signal.Signals(sig).name}'
+            )
+
+    def supervise(self) -> None:
+        for child, rc in self.rec_group.poll():
+            if child.name in self.recorder_lost:
+                continue
+            self.say(child.death_report(rc))
+            self.recorder_lost[child.name] = rc
+            if self.args.on_recorder_death == 'continue':
+                self.say(
+                    f'{child.name} died ({describe_rc(rc)}); the run continues without '
+                    f'recording (--on-recorder-death continue); `apf-swarm bag reindex '
+                    f'{self.out / "bag"}` recovers what it flushed'
+                )
+                continue
+            raise StopRun(
+                EXIT_CHILD_DIED,
+                'child_died',
+                f'{child.name} died ({describe_rc(rc)}); stopping the run (a restarted '
+                f'recorder could not continue the bag; `apf-swarm bag reindex '
+                f'{self.out / "bag"}` recovers what it flushed; --on-recorder-death '
+                f'continue keeps the swarm flying)',
+            )
+        for child, rc in self.group.poll():
+            self.say(child.death_report(rc))
+            if not self.args.respawn:
+                raise StopRun(
+                    EXIT_CHILD_DIED,
+                    'child_died',
+                    f'{child.name} died ({describe_rc(rc)}); stopping the run',
+                )
+            why_not = self.not_respawnable(child.name)
+            if why_not:
+                raise StopRun(
+                    EXIT_CHILD_DIED,
+                    'child_died',
+                    f'{child.name} died ({describe_rc(rc)}); stopping the run: {why_not}',
+                )
+            if child.respawns >= self.args.max_respawns:
+                raise StopRun(
+                    EXIT_CHILD_DIED,
+                    'child_died',
+                    f'{child.name} died ({describe_rc(rc)}) after '
+                    f'{child.respawns} respawns (--max-respawns {self.args.max_respawns}); '
+                    'stopping the run',
+                )
+            child.start()
+            self.say(
+                f'respawned {child.name} (pid {child.pid}, respawn {child.respawns} of at '
+                f'most {self.args.max_respawns})'
+            )
+
+    def not_respawnable(self, name: str) -> str:
+        """Why a dead node must not be restarted ('' when it may be): the plant holds the
+        state of the whole swarm, and a realtime target restarts its trajectory from t = 0."""
+        if name == 'plant':
+            return (
+                'the plant holds the state of every UAV; a restarted plant would start '
+                'the world over, so it is never respawned'
+            )
+        if name == 'target' and self.mode == 'realtime':
+            return (
+                'a restarted realtime target would fly its trajectory again from t = 0; '
+                "only lockstep targets (driven by the plant's requests) are respawned"
+            )
+        return ''
+
+    def stop_children(self) -> None:
+        t0 = time.monotonic()
+        self.stop_how = self.group.stop_all(hurry=lambda: len(self.signals.received))
+        # the recorder last: it takes what is still queued and closes the bag
+        self.stop_how.update(self.rec_group.stop_all(hurry=lambda: len(self.signals.received)))
+        self.stop_seconds = time.monotonic() - t0
+        self.leftovers = self.group.leftovers() + self.rec_group.leftovers()
+        by: dict[str, list[str]] = {}
+        for name, how in self.stop_how.items():
+            by.setdefault(how, []).append(name)
+        detail = ', '.join(f'{len(v)} {k}' for k, v in by.items())
+        self.say(f'stopped {len(self.stop_how)} processes in {self.stop_seconds:.2f} s ({detail})')
+        for how in ('SIGTERM', 'SIGKILL', 'not stopped'):
+            if how in by:
+                self.say(f'warning: needed {how} for: {", ".join(by[how])}')
+        if self.leftovers:
+            self.say(
+                'error: processes left behind: '
+                + ', '.join(f'{n} pid {p}' for n, p in self.leftovers)
+            )
