@@ -1,0 +1,82 @@
+"""Force commands as arrays and back: ``apf_swarm_msgs/ForceCommand`` from one tracker's
+controller output, and its numbers (:class:`ForceArrays`) at the plant."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from numpy.typing import NDArray
+
+from apf_swarm_msgs.msg import ForceCommand
+
+from .fields import WORLD, set_vec, vec
+from .stamps import stamp_ns
+
+__all__ = ['LAW_CODES', 'ForceArrays', 'force_arrays', 'force_msg']
+
+LAW_CODES = {'proposed': ForceCommand.LAW_PROPOSED, 'traditional': ForceCommand.LAW_TRADITIONAL}
+
+
+def force_msg(
+    *,
+    uav_id: int,
+    step: int,
+    law: str,
+    stamp: Time,
+    force: NDArray[np.float64],
+    sliding_surface: NDArray[np.float64],
+    gradient: NDArray[np.float64],
+    filter_state: NDArray[np.float64],
+    saturated: bool,
+    stale: bool = False,
+    rejected_inputs: int = 0,
+    instance: int = 0,
+    out: ForceCommand | None = None,
+) -> ForceCommand:
+    """``apf_swarm_msgs/ForceCommand`` from one tracker's controller output (vectors (3,));
+    ``out``: a previous message to update in place."""
+    msg = out if out is not None else ForceCommand()
+    msg.header.stamp = stamp
+    msg.header.frame_id = WORLD
+    msg.uav_id = int(uav_id)
+    msg.step = int(step)
+    msg.law = LAW_CODES[law]
+    set_vec(msg.force, force)
+    set_vec(msg.sliding_surface, sliding_surface)
+    set_vec(msg.gradient, gradient)
+    set_vec(msg.filter_state, filter_state)
+    msg.saturated = bool(saturated)
+    msg.stale = bool(stale)
+    msg.rejected_inputs = int(rejected_inputs)
+    msg.instance = int(instance)
+    return msg
+
+
+@dataclass(frozen=True)
+class ForceArrays:
+    """The numeric content of a ForceCommand."""
+
+    uav_id: int
+    step: int
+    force: NDArray[np.float64]
+    sliding_surface: NDArray[np.float64]
+    stale: bool
+    rejected_inputs: int = 0
+    stamp_ns: int = 0
+    instance: int = 0
+
+
+def force_arrays(msg: ForceCommand) -> ForceArrays:
+    """Numbers of a ``ForceCommand``."""
+    return ForceArrays(
+        int(msg.uav_id),
+        int(msg.step),
+        vec(msg.force),
+        vec(msg.sliding_surface),
+        bool(msg.stale),
+        int(msg.rejected_inputs),
+        stamp_ns(msg.header.stamp),
+        int(msg.instance),
+    )
