@@ -1,0 +1,69 @@
+"""The realtime plant without ROS (apf_swarm_nodes.plant_realtime): the clock's start, the
+target's refusals, the physics step and the end of the run."""
+
+from __future__ import annotations
+
+import numpy as np
+from apf_swarm_core.config import SwarmConfig
+from apf_swarm_core.plant_model import PlantModel
+from apf_swarm_nodes.plant_realtime import RealtimePlant
+
+
+def make(duration: float = 0.05) -> RealtimePlant:
+    cfg = SwarmConfig().replace(n_trackers=3, dt=0.01, duration=duration)
+    return RealtimePlant(PlantModel(cfg), timeout=1.0, stale_after=0.1, arm_timeout=10.0)
+
+
+def command(rt: RealtimePlant, uav_id: int, now: float) -> None:
+    assert rt.model.offer_command(uav_id, -1, np.zeros(3), np.zeros(3), now=now, instance=1)
+
+
+def test_the_clock_starts_once_every_tracker_commands() -> None:
+    rt = make()
+    assert rt.start(100.0) == [] and not rt.clock_started
+    for i in (1, 2, 3):
+        command(rt, i, 100.5)
+    (said,) = rt.arm(101.0)
+    assert said.kind == 'info' and rt.clock_started and rt.wall0 == 101.0
+    assert rt.arm(102.0) == []  # once
+
+
+def test_the_clock_starts_at_arm_timeout_without_the_silent_ones() -> None:
+    rt = make()
+    rt.start(100.0)
+    command(rt, 2, 100.5)
+    assert rt.arm(109.9) == [] and not rt.clock_started
+    (said,) = rt.arm(110.0)
+    assert said.kind == 'warn' and "['uav_1', 'uav_3']" in said.text and rt.clock_started
+
+
+def test_stale_and_out_of_order_inputs_are_refused() -> None:
+    rt = make()
+    x, v = np.ones(3), np.zeros(3)
+    assert rt.stale_command(1, 1.5) == (
+        'command of uav_1 is stale: stamped 1.500 s ago (command_timeout 1 s)'
+    )
+    assert rt.stale_command(1, 0.5) is None
+    assert rt.offer_target(x, v, seq=10, age=1.5, now=0.0) is not None and rt.target is None
+    assert rt.offer_target(x, v, seq=10, age=0.0, now=5.0) is None
+    assert rt.offer_target(x, v, seq=9, age=0.0, now=5.1) == (
+        'target state out of order (stamp 9 ns after 10)'
+    )
+    assert rt.target is not None and rt.target.received == 5.0
+    assert rt.target_age(5.25) == 0.25
+
+
+def test_the_physics_runs_the_configurations_steps_then_is_done() -> None:
+    rt = make(duration=0.05)
+    rt.start(0.0)
+    for i in (1, 2, 3):
+        command(rt, i, 0.0)
+    rt.arm(0.0)
+    rt.offer_target(np.zeros(3), np.zeros(3), seq=0, age=0.0, now=0.0)
+    assert rt.physics(0.02) == [] and rt.model.k == 2 and not rt.done
+    assert rt.command_arrives(0.035) and rt.model.k == 3
+    said = rt.physics(0.2)
+    assert rt.done and [a.kind for a in said] == ['info'] and said[0].text.startswith('done: 5')
+    assert not rt.command_arrives(0.3)
+    sample = rt.state_sample(0.3)
+    assert sample['step'] == rt.model.k and rt.final_published
