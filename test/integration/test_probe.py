@@ -1,5 +1,5 @@
-"""The capacity probe (apf_swarm_nodes.probe): a real ping-pong between two rclpy processes,
-cached; and what follows from a probe (ROS-free)."""
+"""The capacity probe (apf_swarm_nodes.probe and probe_measure): a real ping-pong between two
+rclpy processes, cached; and what follows from a probe (ROS-free)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 from apf_swarm_nodes.bringup import pick_domain_id
 from apf_swarm_nodes.machine import identity
 
-from apf_swarm_nodes import probe
+from apf_swarm_nodes import probe, probe_measure
 
 APF = shutil.which('apf-swarm')
 
@@ -43,7 +43,7 @@ def test_probe_measures_caches_and_rereads(tmp_path: Path) -> None:
     assert 0.0 < p['cpu_per_message'] < 0.01
     # one command cost per size, each well under a control period (no ordering by size:
     # that would be a timed assertion between close figures)
-    assert sorted(p['command_cost'], key=int) == [str(k) for k in probe.COMMAND_SIZES]
+    assert sorted(p['command_cost'], key=int) == [str(k) for k in probe_measure.COMMAND_SIZES]
     assert all(0.0 < c < 0.01 for c in p['command_cost'].values()), p['command_cost']
     assert d['latency'] > p['rtt']['p90'] and d['rate'] in probe.RATES
     # an rclpy node process holds tens of MiB: more than the interpreter, less than a GiB

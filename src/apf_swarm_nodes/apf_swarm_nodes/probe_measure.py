@@ -1,0 +1,199 @@
+"""How the capacity probe measures this machine (:func:`measure`, JSON for :mod:`.probe`):
+
+* **round trip**: a raw rclpy ping-pong between this process and an echo process (the echo
+  takes the CDR bytes and publishes them back, as little work as a message can cost) with a
+  ``SwarmOdometry`` of 16 trackers at the realtime rate: p50 / p90 / p99 [s];
+* **CPU per message**: the echo process's CPU time (:mod:`.machine`) over the messages
+  it took and sent [s];
+* **command cost**: the core's :class:`~apf_swarm_core.agents.TrackerAgent` command of the
+  ``realtime`` preset for 3, 16 and 32 trackers, in this process [s];
+* **memory per process**: the echo node process's resident set [bytes], what every node
+  process costs at least.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from .machine import identity, process_cpu_seconds, process_rss
+
+__all__ = ['COMMAND_SIZES', 'command_cost', 'echo', 'measure']
+
+#: tracker counts whose command cost is measured (others are interpolated)
+COMMAND_SIZES = (3, 16, 32)
+PING, PONG = '/apf_probe/ping', '/apf_probe/pong'
+
+
+def command_cost(n: int, repeats: int = 200) -> float:
+    """Median seconds of one :meth:`TrackerAgent.command` of the realtime preset, n trackers."""
+    from apf_swarm_core.agents import TrackerAgent
+    from apf_swarm_core.config import load_preset
+
+    cfg = load_preset('realtime').replace(n_trackers=n)
+    agent = TrackerAgent(cfg, 1)
+    rng = np.random.default_rng(0)
+    x = rng.normal(scale=2.0, size=(n, 3))
+    ids = list(range(1, n + 1))
+    times = []
+    for k in range(repeats):
+        agent.offer_swarm(
+            -1,
+            ids,
+            x + 1e-3 * k,
+            np.zeros((n, 3)),
+            [True] * n,
+            np.zeros(3),
+            np.zeros(3),
+            0.0,
+            0.0,
+            seq=k,
+        )
+        t0 = time.perf_counter()
+        agent.command(-1)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def echo() -> int:
+    """The echo process: every ping's bytes back as a pong, on the nodes' default executor
+    (the events executor driven by spin_once, :func:`apf_swarm_nodes.node_common.spin`), so
+    that its CPU per message is a node's."""
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+    from rclpy.qos import qos_profile_sensor_data
+
+    from apf_swarm_msgs.msg import SwarmOdometry
+
+    rclpy.init()
+    node = rclpy.create_node('apf_probe_echo')
+    pub = node.create_publisher(SwarmOdometry, PONG, qos_profile_sensor_data)
+    node.create_subscription(SwarmOdometry, PING, pub.publish, qos_profile_sensor_data, raw=True)
+    executor = EventsExecutor()
+    executor.add_node(node)
+    try:
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
+    """Round trips and the echo's CPU per message; rclpy initialized by the caller."""
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+
+    from apf_swarm_msgs.msg import SwarmOdometry
+
+    from .bringup.processes import stop_process
+    from .conversions import swarm_odom_msg
+
+    echo = subprocess.Popen(
+        [sys.executable, '-m', 'apf_swarm_nodes.probe', '--echo'],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
+    node = rclpy.create_node('apf_probe')
+    sent: dict[int, float] = {}
+    rtt: list[float] = []
+    try:
+        pub = node.create_publisher(SwarmOdometry, PING, qos_profile_sensor_data)
+
+        def pong(msg: Any) -> None:
+            t0 = sent.pop(int(msg.step), None)
+            if t0 is not None:
+                rtt.append(time.monotonic() - t0)
+
+        node.create_subscription(SwarmOdometry, PONG, pong, qos_profile_sensor_data)
+        msg = swarm_odom_msg(
+            step=0,
+            stamp=node.get_clock().now().to_msg(),
+            uav_ids=list(range(1, n + 1)),
+            x=np.zeros((n, 3)),
+            v=np.zeros((n, 3)),
+            target_x=np.zeros(3),
+            target_v=np.zeros(3),
+        )
+        deadline = time.monotonic() + 30.0
+        while (
+            pub.get_subscription_count() < 1 or node.count_publishers(PONG) < 1
+        ) and time.monotonic() < deadline:
+            if echo.poll() is not None:
+                err = (echo.stderr.read() if echo.stderr else b'').decode(errors='replace')
+                raise RuntimeError(
+                    f"the probe's echo process exited {echo.returncode}: {err[-500:]}"
+                )
+            rclpy.spin_once(node, timeout_sec=0.05)
+        step, period = 0, 1.0 / rate
+
+        def ping() -> None:
+            nonlocal step
+            msg.step = step
+            sent[step] = time.monotonic()
+            pub.publish(msg)
+            step += 1
+
+        # until the first pong: both sides of the best-effort topics are matched
+        while not rtt and time.monotonic() < deadline:
+            ping()
+            rclpy.spin_once(node, timeout_sec=period)
+        rtt.clear()
+        cpu0, count0 = process_cpu_seconds(echo.pid), step
+        end = time.monotonic() + seconds
+        nxt = time.monotonic()
+        while time.monotonic() < end:
+            now = time.monotonic()
+            if now >= nxt:
+                ping()
+                nxt += period
+            rclpy.spin_once(node, timeout_sec=max(0.0, min(nxt - time.monotonic(), 0.05)))
+        count = step - count0
+        cpu1, rss = process_cpu_seconds(echo.pid), process_rss(echo.pid)
+    finally:
+        node.destroy_node()
+        stop_process(echo)
+    if cpu0 is None or cpu1 is None or rss is None:
+        raise RuntimeError("the probe's echo process exited during the measurement")
+    cpu = cpu1 - cpu0
+    if len(rtt) < 10:
+        raise RuntimeError(f'the probe got {len(rtt)} round trips back in {seconds:g} s')
+    arr = np.asarray(rtt)
+    return {
+        'rate': rate,
+        'messages': count,
+        'round_trips': int(arr.size),
+        'rtt': {
+            q: round(float(np.quantile(arr, v)), 6)
+            for q, v in (('p50', 0.5), ('p90', 0.9), ('p99', 0.99))
+        },
+        'cpu_per_message': round(cpu / max(1, 2 * count), 7),
+        'process_rss': int(rss),
+    }
+
+
+def measure(seconds: float = 4.0, rate: float = 100.0, n: int = 16) -> dict[str, Any]:
+    """Run the probe in this process (``python -m apf_swarm_nodes.probe --measure`` does it
+    in a process of its own, on a free domain, localhost only: :func:`.probe.ensure`)."""
+    import rclpy
+
+    costs = {str(k): round(command_cost(k), 7) for k in COMMAND_SIZES}
+    rclpy.init()
+    try:
+        pp = _ping_pong(seconds, rate, n)
+    finally:
+        rclpy.try_shutdown()
+    return {
+        'machine': identity(),
+        'measured_at': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
+        **pp,
+        'command_cost': costs,
+    }
