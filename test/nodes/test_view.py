@@ -4,18 +4,15 @@ with the protobuf schema the server advertises, independently of the SDK that en
 
 from __future__ import annotations
 
-import base64
 import io
 import json
 import math
 import os
 import re
 import shutil
-import struct
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -32,12 +29,10 @@ from apf_swarm_nodes.conversions import SwarmSample
 from apf_swarm_nodes.progress import PIPE_INTERVAL, Progress, progress_iter
 from apf_swarm_nodes.view.scene import RESPAWN_SHOWN, UavStates
 from apf_swarm_nodes.view.server import LiveView
-from websockets.exceptions import ConnectionClosed
 
 from apf_swarm_nodes import bags
 
 APF = shutil.which('apf-swarm')
-SUBPROTOCOL = 'foxglove.sdk.v1'
 D = 1.6  # side of the test triangle [m]
 TRI = np.array([[0.0, 0.0, 0.0], [D, 0.0, 0.0], [D / 2, D * math.sqrt(3) / 2, 0.0]])
 
@@ -65,61 +60,6 @@ def sample(x: np.ndarray, step: int = 0, **kw: Any) -> SwarmSample:
     }
     fields.update(kw)
     return SwarmSample(**fields)
-
-
-# --- a Foxglove WebSocket client ------------------------------------------------------------
-
-
-class Client:
-    """The client side of the Foxglove WebSocket protocol: advertise, subscribe, decode."""
-
-    def __init__(self, url: str, timeout: float = 10.0) -> None:
-        from websockets.sync.client import connect
-
-        self._conn = connect(url, subprotocols=[SUBPROTOCOL], open_timeout=timeout)
-        self.ws = self._conn.__enter__()
-        self.channels: dict[str, dict[str, Any]] = {}
-        self.info: dict[str, Any] = {}
-        deadline = time.monotonic() + timeout
-        while len(self.channels) < 3 and time.monotonic() < deadline:
-            msg = json.loads(self.ws.recv(timeout=max(0.01, deadline - time.monotonic())))
-            if msg['op'] == 'serverInfo':
-                self.info = msg
-            elif msg['op'] == 'advertise':
-                self.channels.update({c['topic']: c for c in msg['channels']})
-        self.subs: dict[int, str] = {}
-
-    def subscribe(self, *topics: str) -> None:
-        subs = []
-        for k, topic in enumerate(topics, start=len(self.subs) + 1):
-            self.subs[k] = topic
-            subs.append({'id': k, 'channelId': self.channels[topic]['id']})
-        self.ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
-
-    def decoder(self, topic: str) -> Any:
-        from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-
-        c = self.channels[topic]
-        fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(c['schema']))
-        pool = descriptor_pool.DescriptorPool()
-        for f in fds.file:
-            pool.Add(f)
-        return message_factory.GetMessageClass(pool.FindMessageTypeByName(c['schemaName']))
-
-    def messages(self, timeout: float) -> Iterator[tuple[str, int, bytes]]:
-        """``(topic, log_time_ns, payload)`` of each message data frame until ``timeout``."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            try:
-                m = self.ws.recv(timeout=max(0.01, deadline - time.monotonic()))
-            except (TimeoutError, ConnectionClosed):
-                return
-            if isinstance(m, bytes) and m[0] == 1:
-                sub, ts = struct.unpack_from('<IQ', m, 1)
-                yield self.subs[sub], ts, m[13:]
-
-    def close(self) -> None:
-        self._conn.__exit__(None, None, None)
 
 
 def wait_watched(view: LiveView, timeout: float = 10.0) -> None:
@@ -153,11 +93,13 @@ def test_uav_states_inactive_respawned_stale() -> None:
     assert st.update(2.0 + RESPAWN_SHOWN + 0.01, ids, (True,) * 3, (0.0,) * 3)[2] == 'active'
 
 
-def test_server_sends_scene_frames_and_metrics_that_decode_to_the_sample() -> None:
+def test_server_sends_scene_frames_and_metrics_that_decode_to_the_sample(
+    foxglove_client: Any,
+) -> None:
     view = LiveView(port=0, designs=[np.full(3, D)])
     try:
         assert not view.show(sample(TRI)), 'nothing is built without a client'
-        c = Client(view.url)
+        c = foxglove_client(view.url)
         assert set(c.channels) == {'/swarm/scene', '/swarm/frames', '/swarm/metrics'}
         assert c.channels['/swarm/scene']['schemaName'] == 'foxglove.SceneUpdate'
         assert c.channels['/swarm/frames']['schemaName'] == 'foxglove.FrameTransform'
@@ -251,7 +193,7 @@ def swarm_bag(path: Path, duration: float = 2.0) -> tuple[Path, dict[str, Any], 
 
 
 @pytest.mark.skipif(APF is None, reason='apf-swarm is not on PATH: source scripts/activate.sh')
-def test_bag_view_serves_the_recorded_positions(tmp_path: Path) -> None:
+def test_bag_view_serves_the_recorded_positions(tmp_path: Path, foxglove_client: Any) -> None:
     bag, traj, _cfg = swarm_bag(tmp_path / 'bag')
     proc = subprocess.Popen(
         [APF, 'bag', 'view', str(bag), '--port', '0', '--rate', '2', '--wait-client', '60'],
@@ -265,7 +207,7 @@ def test_bag_view_serves_the_recorded_positions(tmp_path: Path) -> None:
         found = re.search(r'ws://127\.0\.0\.1:\d+', line)
         assert found, line
         url = found.group(0)
-        c = Client(url)
+        c = foxglove_client(url)
         c.subscribe('/swarm/scene')
         decode = c.decoder('/swarm/scene')
         seen = 0

@@ -129,7 +129,7 @@ def add_view_args(
         )
     p.add_argument(
         '--view-host',
-        dest='host',
+        dest='view_host',
         default='127.0.0.1',
         metavar='ADDR',
         help='address the view binds to (default 127.0.0.1: this machine only)',

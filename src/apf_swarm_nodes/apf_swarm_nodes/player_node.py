@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +74,8 @@ class PlayerNode(Node):
         super().__init__('player', **kwargs)
         p = declare_node_params(self, NODE_PARAMS)
         self.p = p
+        #: called with ``(topic, raw)`` after each message is out (``bag play --view``)
+        self.on_published: Callable[[str, bytes], None] | None = None
         self.topic_filter = declare_str_array(
             self, 'topics', 'play only these topics (empty: all)'
         )
@@ -167,6 +170,11 @@ class PlayerNode(Node):
                 time.sleep((rem - 200_000) / 1e9)
             # else: the last 0.3 ms without sleeping (a sleep overshoots its request)
 
+    def _publish(self, topic: str, raw: bytes) -> None:
+        self.pubs[topic].publish(raw)
+        if self.on_published is not None:
+            self.on_published(topic, raw)
+
     def play(self) -> int:
         """Play (``loop``: forever); returns the number of messages published."""
         self.wait_subscribers()
@@ -188,7 +196,7 @@ class PlayerNode(Node):
                         # write to a newly matched reader can take tens of ms (measured:
                         # up to 0.2 s under load), which would make every later one late
                         started = True
-                        self.pubs[topic].publish(raw)
+                        self._publish(topic, raw)
                         t0 = time.monotonic_ns()
                         self._next_clock = t0
                         self.lateness_ns.append(0)
@@ -202,7 +210,7 @@ class PlayerNode(Node):
                 due = t0 + int((ts - first) / self.rate)
                 if not self._wait_until(due, bag_at):
                     return self.published
-                self.pubs[topic].publish(raw)
+                self._publish(topic, raw)
                 self.lateness_ns.append(time.monotonic_ns() - due)
                 self.published += 1
                 last_due = due

@@ -12,7 +12,14 @@ from pathlib import Path
 from apf_swarm_core.config import SwarmConfig, resolve
 from apf_swarm_core.errors import ApfSwarmError
 
-from ..argtypes import add_config_args, domain_id, nonneg_int, positive_float, positive_int
+from ..argtypes import (
+    add_config_args,
+    add_view_args,
+    domain_id,
+    nonneg_int,
+    positive_float,
+    positive_int,
+)
 from .isolation import check_capacity
 from .processes import DISCOVERY_RANGES, EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from .session import Bringup
@@ -141,6 +148,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         'at this size and rate; config flies them as given (warned)',
     )
     p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+    add_view_args(p)
     p.add_argument(
         '--node-param',
         action='append',

@@ -34,6 +34,9 @@ from .supervision import Signals, Supervision
 
 __all__ = ['Bringup']
 
+#: the view's stale threshold: the plant's default ``stale_after`` [s]
+VIEW_STALE_AFTER = 0.1
+
 
 class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
     """One run; see the module docstring. :meth:`execute` returns the exit code.
@@ -79,6 +82,8 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         self.stop_seconds = 0.0
         self.leftovers: list[tuple[str, int]] = []
         self.warned: set[str] = set()
+        #: ``--view``: the live view (:class:`~apf_swarm_nodes.view.LiveView`)
+        self.view: Any = None
 
     # --- messages -------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -158,9 +163,30 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
                 self.say(self.progress_line(rate))
 
     # --- everything -----------------------------------------------------------------------
+    def start_view(self) -> None:
+        """``--view``: serve the newest ``/swarm/state`` sample to Foxglove (a busy port is
+        bad input, found before any process starts). A UAV is drawn stale when its latest
+        command answers a state older than the plant's ``stale_after`` (realtime)."""
+        port = getattr(self.args, 'view', None)
+        if port is None:
+            return
+        from apf_swarm_core.formation import design_pair_sets
+
+        from ..view import LiveView
+
+        self.view = LiveView(
+            host=getattr(self.args, 'view_host', '127.0.0.1'),
+            port=port,
+            designs=design_pair_sets(self.cfg),
+            stale_after=VIEW_STALE_AFTER,
+        )
+        self.view.follow(lambda: self.acc.last)
+        self.say(f'view: {self.view.url} (Foxglove: Open connection, Foxglove WebSocket)')
+
     def execute(self) -> int:
         self.prepare()
         self.isolate()
+        self.start_view()
         code, status, message = EXIT_OK, 'completed', ''
         self.signals.install()
         try:
@@ -186,6 +212,8 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
                     self.shutdown_ros()
         finally:
             self.signals.restore()
+            if self.view is not None:
+                self.view.close()
         if self.leftovers and code == EXIT_OK:
             code, status = EXIT_CHILD_DIED, 'leftover_processes'
         if code == EXIT_OK and self.mode == 'lockstep' and self.acc.dropped:

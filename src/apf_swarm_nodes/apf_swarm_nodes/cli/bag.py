@@ -144,7 +144,22 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
     from ..node_common import run_node
     from ..player_node import PlayerNode, _run
 
-    return run_node(PROG, PlayerNode, [PROG, *ros], run=_run)
+    if args.view is None:
+        return run_node(PROG, PlayerNode, [PROG, *ros], run=_run)
+    from ..view.bag import live_view_of_bag
+
+    view, observe = live_view_of_bag(info, host=args.view_host, port=args.view)
+    print(f'{PROG} bag play: view: {view.url}', file=sys.stderr, flush=True)
+
+    def player() -> PlayerNode:
+        node = PlayerNode()
+        node.on_published = observe
+        return node
+
+    try:
+        return run_node(PROG, player, [PROG, *ros], run=_run)
+    finally:
+        view.close()
 
 
 def _add_bag_parser(sub: Any) -> None:
@@ -246,4 +261,5 @@ def _add_bag_parser(sub: Any) -> None:
     q.add_argument(
         '--wait-for', nargs='+', metavar='T', help='start only when these topics have a subscriber'
     )
+    add_view_args(q)
     q.set_defaults(func=cmd_bag_play)

@@ -11,7 +11,7 @@ from typing import Any
 
 from .server import VIEW_RATE, LiveView
 
-__all__ = ['bag_samples', 'serve_bag']
+__all__ = ['bag_samples', 'live_view_of_bag', 'serve_bag']
 
 
 def bag_samples(info: Any) -> Iterator[tuple[int, Any]]:
@@ -25,6 +25,35 @@ def bag_samples(info: Any) -> Iterator[tuple[int, Any]]:
     store = typestore()
     for _topic, _type, ts, raw in iter_raw(info.path, [SWARM_STATE_TOPIC], info=info):
         yield ts, swarm_state_arrays(store.deserialize_cdr(raw, SWARM_STATE_TYPE))
+
+
+def live_view_of_bag(
+    info: Any, *, host: str, port: int
+) -> tuple[LiveView, Callable[[str, bytes], None]]:
+    """A live view of a bag being played (``apf-swarm bag play --view``) and the observer to
+    hand each played message to: it keeps the newest ``/swarm/state``, which the view shows
+    (decoded only while a client watches)."""
+    from apf_swarm_core.formation import design_pair_sets
+
+    from ..analysis.samples import RawSample
+    from ..bags import bag_config
+    from ..bags.types import SWARM_STATE_TOPIC, SWARM_STATE_TYPE, typestore
+    from ..conversions import swarm_state_step
+
+    cfg, _mode = bag_config(info)
+    store = typestore()
+    view = LiveView(host=host, port=port, designs=design_pair_sets(cfg))
+    newest: list[Any] = [None]
+
+    def decode(raw: bytes) -> Any:
+        return store.deserialize_cdr(raw, SWARM_STATE_TYPE)
+
+    def observe(topic: str, raw: bytes) -> None:
+        if topic == SWARM_STATE_TOPIC:
+            newest[0] = RawSample(swarm_state_step(raw), raw, decode)
+
+    view.follow(lambda: None if newest[0] is None else newest[0].sample)
+    return view, observe
 
 
 def serve_bag(
