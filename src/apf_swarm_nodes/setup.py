@@ -24,7 +24,7 @@ setup(
         'console_scripts': [
             'apf-swarm = apf_swarm_nodes.cli:main',
             'tracker = apf_swarm_nodes.tracker_node:main',
-            'trackers = apf_swarm_nodes.tracker_node:group_main',
+            'trackers = apf_swarm_nodes.trackers_node:group_main',
             'plant = apf_swarm_nodes.plant_node:main',
             'target = apf_swarm_nodes.target_node:main',
             'recorder = apf_swarm_nodes.recorder_node:main',

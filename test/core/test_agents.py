@@ -407,3 +407,20 @@ def test_simulate_honours_the_neighbour_rule_like_step(cfg) -> None:
     assert np.array_equal(traj['x'][0], np.array(xs))
     other = BatchSimulator([c.replace(neighbours='all')]).run()
     assert np.max(np.abs(other['x'][0, -1] - traj['x'][0, -1])) > 1e-4
+
+
+def test_setpoints_take_the_vehicle_where_the_plant_takes_it(cfg) -> None:
+    """Flown at the acceleration setpoint (or reaching the velocity setpoint) for one step,
+    a vehicle ends where the plant model, without its unknown disturbance, takes it."""
+    from apf_swarm_core.plant import plant_step
+
+    cfg = cfg.replace(drag=0.4, uav_overrides={2: {'mass': 1.3}})
+    rng = np.random.default_rng(11)
+    x, v = rng.normal(size=(2, 3, 3))
+    agent = TrackerAgent(cfg, 2)
+    feed(agent, 0, x, v, np.zeros(3), np.zeros(3))
+    force = agent.command(0).force[0]
+    a, vsp = agent.setpoints(force)
+    _, v1 = plant_step(x[1], v[1], force, mass=1.3, dt=cfg.dt, drag=0.4)
+    np.testing.assert_allclose(v[1] + a * cfg.dt, v1, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(vsp, v1, rtol=1e-13, atol=1e-15)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 from apf_swarm_nodes.bringup import node_commands
-from apf_swarm_nodes.tracker_node import parse_uav_ids
+from apf_swarm_nodes.trackers_node import parse_uav_ids
 
 
 @pytest.mark.parametrize(
@@ -38,3 +38,13 @@ def test_node_commands_group_the_trackers(tmp_path) -> None:
     assert '__ns:=' not in ' '.join(argv)  # each node gets its own namespace
     single = dict(node_commands(tmp_path, tmp_path / 'c.yaml', 2, 'lockstep'))
     assert sorted(single) == ['plant', 'target', 'tracker_1', 'tracker_2']
+
+
+def test_outputs_parameter() -> None:
+    from apf_swarm_core.errors import ConfigError
+    from apf_swarm_nodes.tracker_node import parse_outputs
+
+    assert parse_outputs('force') == {'force'}
+    assert parse_outputs('accel, velocity') == {'force', 'accel', 'velocity'}
+    with pytest.raises(ConfigError, match="outputs = 'accel,thrust': expected"):
+        parse_outputs('accel,thrust')

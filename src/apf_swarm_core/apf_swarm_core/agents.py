@@ -47,6 +47,7 @@ from .control import (
 from .controller import ControlOutput
 from .laws import switching_force
 from .neighbours import neighbour_mask
+from .plant import acceleration_setpoint, velocity_setpoint
 from .potential import POTENTIAL_KEYS
 from .prediction import LatencyEstimate, compensation_horizon
 
@@ -138,6 +139,8 @@ class TrackerAgent:
     neighbours_used: int = -1  # neighbours in the formation term of the last command
     active_neighbours: int = -1  # neighbours the plant reported active then
     _last_step: int = -1
+    #: the own velocity the last command was computed from [m/s] (zero before any)
+    own_velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self) -> None:
         if not 1 <= self.uav_id <= self.cfg.n_trackers:
@@ -355,6 +358,7 @@ class TrackerAgent:
         )
         self.neighbours_used = len(ids) - 1 if mask is None else int(np.count_nonzero(mask))
         self.active_neighbours = len(ids) - 1
+        self.own_velocity = src[self.uav_id].v
         self._last_step = step
         return out
 
@@ -373,9 +377,20 @@ class TrackerAgent:
             if src not in self.inputs or now - self.inputs[src].received > timeout
         ]
 
+    def setpoints(self, force: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The acceleration and velocity setpoints of ``force`` for a flight stack
+        (:func:`~apf_swarm_core.plant.acceleration_setpoint`,
+        :func:`~apf_swarm_core.plant.velocity_setpoint` over one control period,
+        ``controller.dt``), from the own velocity the command was computed from."""
+        mass = np.asarray(self.cfg.mass_matrix_diag()[self.uav_id - 1])
+        a = acceleration_setpoint(force, self.own_velocity, mass=mass, drag=self.cfg.drag)
+        return a, velocity_setpoint(self.own_velocity, a, float(self.controller.dt))
+
     def safe_command(self) -> NDArray[np.float64]:
         """:func:`brake_force` from the last own velocity (zero force if none is known)."""
         own = self.inputs.get(self.uav_id)
+        if own is not None:
+            self.own_velocity = own.v
         force = (
             np.zeros(3) if own is None else brake_force(own.v, u0=self.cfg.u0, drag=self.cfg.drag)
         )

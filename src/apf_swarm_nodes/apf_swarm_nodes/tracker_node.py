@@ -4,7 +4,10 @@ Inputs (``inputs`` parameter): ``aggregate`` (default) reads ``/swarm/odom``
 (SwarmOdometry), one message per
 step with every tracker's odometry and the target's state; ``odom`` subscribes its own
 odometry (relative ``odom``), its neighbours' (``/uav_<j>/odom``) and the target's
-(``/target/odom``). Publishes ``force_cmd`` (relative). Lockstep: answers step k as soon
+(``/target/odom``). Publishes ``force_cmd`` (relative) and, as the ``outputs`` parameter
+selects, the same command as standard setpoints for a flight-stack bridge: ``accel_cmd``
+(geometry_msgs/AccelStamped) and ``velocity_cmd`` (geometry_msgs/TwistStamped), world frame
+(:func:`apf_swarm_core.agents.TrackerAgent.setpoints`). Lockstep: answers step k as soon
 as every input of step k has arrived. Realtime: with ``trigger:=odom`` (default)
 it commands on every new own odometry, with ``trigger:=timer`` at the configuration's
 ``control_rate`` on the
@@ -32,13 +35,24 @@ from typing import Any
 
 from apf_swarm_core.agents import TrackerAgent
 from apf_swarm_core.config import SwarmConfig
+from apf_swarm_core.errors import ConfigError
 from builtin_interfaces.msg import Time
+from geometry_msgs.msg import AccelStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry
 
-from .conversions import dt_to_ns, force_msg, odom_arrays, stamp_ns, step_of, swarm_odom_arrays
+from .conversions import (
+    accel_msg,
+    dt_to_ns,
+    force_msg,
+    odom_arrays,
+    stamp_ns,
+    step_of,
+    swarm_odom_arrays,
+    twist_msg,
+)
 from .node_common import (
     INPUTS,
     REALTIME_RATE,
@@ -48,11 +62,10 @@ from .node_common import (
     control_qos,
     odom_topic,
     run_node,
-    run_nodes,
 )
 from .params import NodeParam, declare_swarm_node, install_validator
 
-__all__ = ['TrackerNode', 'group_main', 'main', 'parse_uav_ids']
+__all__ = ['OUTPUTS', 'TrackerNode', 'main', 'parse_outputs']
 
 NODE_PARAMS = (
     NodeParam(
@@ -71,6 +84,14 @@ NODE_PARAMS = (
         choices=('odom', 'timer'),
     ),
     NodeParam(
+        'outputs',
+        'force',
+        'what the tracker publishes, comma-separated: force (force_cmd, '
+        'apf_swarm_msgs/ForceCommand, always: the plant and the bring-up read it), accel '
+        '(accel_cmd, geometry_msgs/AccelStamped), velocity (velocity_cmd, '
+        'geometry_msgs/TwistStamped): setpoints in the world frame for a flight-stack bridge',
+    ),
+    NodeParam(
         'input_timeout',
         0.5,
         'an input older than this is stale and the safe brake '
@@ -82,6 +103,9 @@ NODE_PARAMS = (
 )
 
 
+#: what a tracker can publish (the ``outputs`` parameter)
+OUTPUTS = ('force', 'accel', 'velocity')
+
 #: realtime with ``trigger:=odom``: the stale-input watchdog's rate [Hz] (at most the control
 #: rate): staleness is judged against input_timeout (0.5 s), and the brakes it sends while
 #: inputs are stale must come faster than the plant's stale_after (0.1 s)
@@ -92,7 +116,7 @@ class TrackerNode(Node):
     """The controller of one UAV; no algorithm here, the core's TrackerAgent computes.
 
     ``swarm_odom``: False leaves the ``/swarm/odom`` subscription to another node of the
-    process, which hands each message on (:func:`group_main`, realtime).
+    process, which hands each message on (``trackers_node.group_main``, realtime).
     """
 
     def __init__(self, swarm_odom: bool = True, **kwargs: Any) -> None:
@@ -111,7 +135,16 @@ class TrackerNode(Node):
         install_validator(self, self._retune)
         self.dt_ns = dt_to_ns(self.cfg.dt)
         qos = control_qos(self.mode, p['qos_depth'])
+        outputs = parse_outputs(p['outputs'])
         self.pub = self.create_publisher(ForceCommand, 'force_cmd', qos)
+        self.accel_pub = (
+            self.create_publisher(AccelStamped, 'accel_cmd', qos) if 'accel' in outputs else None
+        )
+        self.velocity_pub = (
+            self.create_publisher(TwistStamped, 'velocity_cmd', qos)
+            if 'velocity' in outputs
+            else None
+        )
         if p['inputs'] == 'odom':
             self.create_subscription(
                 Odometry, 'odom', lambda m: self._on_odom(self.uav_id, m), qos
@@ -239,7 +272,7 @@ class TrackerNode(Node):
             rejected_inputs=self.agent.rejected,
             instance=self.instance,
         )
-        self.pub.publish(self._msg)
+        self._send(self._msg, stamp, out.force[0])
         self._stale_reported = False
         if self.agent.active_neighbours != self._neighbours:
             if self._neighbours >= 0:
@@ -293,7 +326,7 @@ class TrackerNode(Node):
             self._stale_reported = True
         u = self.agent.safe_command()
         zero = u * 0.0
-        self.pub.publish(
+        self._send(
             force_msg(
                 uav_id=self.uav_id,
                 step=step,
@@ -307,71 +340,36 @@ class TrackerNode(Node):
                 stale=True,
                 rejected_inputs=self.agent.rejected,
                 instance=self.instance,
-            )
+            ),
+            stamp,
+            u,
         )
+
+    def _send(self, msg: ForceCommand, stamp: Time, force: Any) -> None:
+        """Publish a command on every output the ``outputs`` parameter selected."""
+        self.pub.publish(msg)
+        if self.accel_pub is None and self.velocity_pub is None:
+            return
+        a, v = self.agent.setpoints(force)
+        if self.accel_pub is not None:
+            self.accel_pub.publish(accel_msg(stamp, a))
+        if self.velocity_pub is not None:
+            self.velocity_pub.publish(twist_msg(stamp, v))
+
+
+def parse_outputs(text: str) -> set[str]:
+    """The ``outputs`` parameter as a set, ``force`` always in it (ConfigError naming what
+    is wrong)."""
+    got = {part.strip() for part in str(text).split(',') if part.strip()}
+    if got - set(OUTPUTS):
+        raise ConfigError(
+            f'outputs = {text!r}: expected a comma-separated subset of {", ".join(OUTPUTS)}'
+        )
+    return got | {'force'}
 
 
 def main(args: list[str] | None = None) -> None:
     sys.exit(run_node('tracker', TrackerNode, args))
-
-
-def parse_uav_ids(text: str) -> list[int]:
-    """``1,2,3`` or ``4-6`` or a mix: the ids a ``trackers`` process hosts (ValueError if bad)."""
-    ids: list[int] = []
-    for part in text.split(','):
-        lo, _, hi = part.strip().partition('-')
-        try:
-            a, b = int(lo), int(hi or lo)
-        except ValueError:
-            raise ValueError(f'--uav-ids {text!r}: expected ids like 1,2,3 or 1-3') from None
-        if a < 1 or b < a:
-            raise ValueError(f'--uav-ids {text!r}: ids are 1-based, ranges ascending')
-        ids.extend(range(a, b + 1))
-    if len(set(ids)) != len(ids):
-        raise ValueError(f'--uav-ids {text!r}: an id appears twice')
-    return ids
-
-
-def group_main(args: list[str] | None = None) -> None:
-    """``trackers --uav-ids 1,2,3 --ros-args ...``: several tracker nodes in one process.
-
-    Each is its own node ``/uav_<i>/tracker`` with its own parameters (the params file's
-    ``/**`` and ``/uav_<i>/tracker`` sections, ``uav_id`` = i), spun on one executor. Do not
-    remap ``__ns`` or ``__node`` here: that would rename every node of the process.
-    """
-    from rclpy.parameter import Parameter
-    from rclpy.utilities import remove_ros_args
-
-    argv = sys.argv if args is None else args
-    own = remove_ros_args(argv)[1:]
-    usage = 'usage: trackers --uav-ids IDS [--ros-args ...]'
-    if len(own) != 2 or own[0] != '--uav-ids':
-        print(f'trackers: error: {usage}', file=sys.stderr)
-        sys.exit(2)
-    try:
-        ids = parse_uav_ids(own[1])
-    except ValueError as exc:
-        print(f'trackers: error: {exc}', file=sys.stderr)
-        sys.exit(2)
-    # realtime with the aggregated inputs: one /swarm/odom subscription for the process, whose
-    # node hands each message to the others (one delivery and one conversion per state
-    # instead of one per tracker); lockstep keeps one per node, the readers the plant counts
-    lead: list[TrackerNode] = []  # the node that subscribes for the process, if any
-
-    def make(i: int) -> TrackerNode:
-        node = TrackerNode(
-            namespace=f'/uav_{i}',
-            parameter_overrides=[Parameter('uav_id', value=i)],
-            swarm_odom=not lead,
-        )
-        if lead:
-            lead[0].fanout.append(node)
-        elif node.mode == 'realtime' and node.inputs == 'aggregate':
-            lead.append(node)
-        return node
-
-    factories = [lambda i=i: make(i) for i in ids]
-    sys.exit(run_nodes('trackers', factories, argv))
 
 
 if __name__ == '__main__':

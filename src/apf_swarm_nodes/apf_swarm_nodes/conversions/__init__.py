@@ -5,8 +5,9 @@ lockstep run stamps step k with the simulated time ``k * dt_ns`` nanoseconds (``
 step in integer nanoseconds), so the step of a message is ``stamp_ns // dt_ns`` exactly.
 
 By message: :mod:`.stamps` (stamps, steps, ``/clock``), :mod:`.odometry` (Odometry and
-SwarmOdometry), :mod:`.commands` (ForceCommand), :mod:`.state` (SwarmState), :mod:`.markers`
-(MarkerArray); :mod:`.fields` holds what they share. Import the names from here.
+SwarmOdometry), :mod:`.commands` (ForceCommand), :mod:`.setpoints` (AccelStamped,
+TwistStamped), :mod:`.state` (SwarmState), :mod:`.markers` (MarkerArray); :mod:`.fields`
+holds what they share. Import the names from here.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from .commands import LAW_CODES, ForceArrays, force_arrays, force_msg
 from .fields import WORLD, is_finite
 from .markers import markers_msg
 from .odometry import SwarmOdom, odom_arrays, odom_msg, swarm_odom_arrays, swarm_odom_msg
+from .setpoints import accel_msg, accel_of, twist_msg, velocity_of
 from .stamps import clock_msg, dt_to_ns, stamp_ns, step_of, step_stamp
 from .state import SwarmSample, swarm_state_arrays, swarm_state_msg, swarm_state_step
 
@@ -24,6 +26,8 @@ __all__ = [
     'ForceArrays',
     'SwarmOdom',
     'SwarmSample',
+    'accel_msg',
+    'accel_of',
     'clock_msg',
     'dt_to_ns',
     'force_arrays',
@@ -40,4 +44,6 @@ __all__ = [
     'swarm_state_arrays',
     'swarm_state_msg',
     'swarm_state_step',
+    'twist_msg',
+    'velocity_of',
 ]

@@ -1,0 +1,74 @@
+"""The ``trackers`` executable: several tracker nodes in one process
+(:func:`group_main`), with the ids it hosts (:func:`parse_uav_ids`)."""
+
+from __future__ import annotations
+
+import sys
+
+from .node_common import run_nodes
+from .tracker_node import TrackerNode
+
+__all__ = ['group_main', 'parse_uav_ids']
+
+
+def parse_uav_ids(text: str) -> list[int]:
+    """``1,2,3`` or ``4-6`` or a mix: the ids a ``trackers`` process hosts (ValueError if bad)."""
+    ids: list[int] = []
+    for part in text.split(','):
+        lo, _, hi = part.strip().partition('-')
+        try:
+            a, b = int(lo), int(hi or lo)
+        except ValueError:
+            raise ValueError(f'--uav-ids {text!r}: expected ids like 1,2,3 or 1-3') from None
+        if a < 1 or b < a:
+            raise ValueError(f'--uav-ids {text!r}: ids are 1-based, ranges ascending')
+        ids.extend(range(a, b + 1))
+    if len(set(ids)) != len(ids):
+        raise ValueError(f'--uav-ids {text!r}: an id appears twice')
+    return ids
+
+
+def group_main(args: list[str] | None = None) -> None:
+    """``trackers --uav-ids 1,2,3 --ros-args ...``: several tracker nodes in one process.
+
+    Each is its own node ``/uav_<i>/tracker`` with its own parameters (the params file's
+    ``/**`` and ``/uav_<i>/tracker`` sections, ``uav_id`` = i), spun on one executor. Do not
+    remap ``__ns`` or ``__node`` here: that would rename every node of the process.
+    """
+    from rclpy.parameter import Parameter
+    from rclpy.utilities import remove_ros_args
+
+    argv = sys.argv if args is None else args
+    own = remove_ros_args(argv)[1:]
+    usage = 'usage: trackers --uav-ids IDS [--ros-args ...]'
+    if len(own) != 2 or own[0] != '--uav-ids':
+        print(f'trackers: error: {usage}', file=sys.stderr)
+        sys.exit(2)
+    try:
+        ids = parse_uav_ids(own[1])
+    except ValueError as exc:
+        print(f'trackers: error: {exc}', file=sys.stderr)
+        sys.exit(2)
+    # realtime with the aggregated inputs: one /swarm/odom subscription for the process, whose
+    # node hands each message to the others (one delivery and one conversion per state
+    # instead of one per tracker); lockstep keeps one per node, the readers the plant counts
+    lead: list[TrackerNode] = []  # the node that subscribes for the process, if any
+
+    def make(i: int) -> TrackerNode:
+        node = TrackerNode(
+            namespace=f'/uav_{i}',
+            parameter_overrides=[Parameter('uav_id', value=i)],
+            swarm_odom=not lead,
+        )
+        if lead:
+            lead[0].fanout.append(node)
+        elif node.mode == 'realtime' and node.inputs == 'aggregate':
+            lead.append(node)
+        return node
+
+    factories = [lambda i=i: make(i) for i in ids]
+    sys.exit(run_nodes('trackers', factories, argv))
+
+
+if __name__ == '__main__':
+    group_main()
