@@ -41,12 +41,6 @@ __all__ = [
     'REALTIME_RATE',
     'REQUIRED_KEYS',
     'SwarmConfig',
-    # re-exported until params.py, probe.py, bringup/cli.py and bringup/session.py import
-    # them from .config_files
-    'config_from_mapping',
-    'load_preset',
-    'resolve',
-    'to_ros_params',
 ]
 
 #: realtime rate of the plant's publications and the trackers' control [Hz] when
@@ -325,12 +319,3 @@ class SwarmConfig:
 KEYS = tuple(f.name for f in fields(SwarmConfig) if not f.metadata.get('internal'))
 #: the keys a configuration file must set
 REQUIRED_KEYS = tuple(f.name for f in fields(SwarmConfig) if f.metadata.get('required'))
-
-
-# the file side of a configuration, for the importers named in __all__ (it needs SwarmConfig)
-from .config_files import (  # noqa: E402
-    config_from_mapping,
-    load_preset,
-    resolve,
-    to_ros_params,
-)

@@ -56,8 +56,6 @@ __all__ = [
     'TRAJECTORY_KEYS',
     'BatchSimulator',
     'SimResult',
-    # re-exported until apf_swarm_nodes/bringup/prediction.py imports it from .formation
-    'design_pair_sets',
     'initial_positions',
     'integrate',
     'simulate',

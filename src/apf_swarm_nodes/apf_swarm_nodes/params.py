@@ -16,7 +16,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from apf_swarm_core.config import SwarmConfig, config_from_mapping
+from apf_swarm_core.config import SwarmConfig
+from apf_swarm_core.config_files import config_from_mapping
 from apf_swarm_core.errors import ConfigError
 from rcl_interfaces.msg import (
     FloatingPointRange,

@@ -32,7 +32,7 @@ PING, PONG = '/apf_probe/ping', '/apf_probe/pong'
 def command_cost(n: int, repeats: int = 200) -> float:
     """Median seconds of one :meth:`TrackerAgent.command` of the realtime preset, n trackers."""
     from apf_swarm_core.agents import TrackerAgent
-    from apf_swarm_core.config import load_preset
+    from apf_swarm_core.config_files import load_preset
 
     cfg = load_preset('realtime').replace(n_trackers=n)
     agent = TrackerAgent(cfg, 1)

@@ -9,7 +9,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from apf_swarm_core.config import SwarmConfig, resolve
+from apf_swarm_core.config import SwarmConfig
+from apf_swarm_core.config_files import resolve
 from apf_swarm_core.errors import ApfSwarmError
 
 from ..argtypes import (

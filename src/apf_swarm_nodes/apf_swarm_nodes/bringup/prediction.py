@@ -94,8 +94,9 @@ class RealtimePrediction:
         """Realtime: the run judged by flight next to its headless emulation at the same
         rate with the latencies the plant measured (and the prediction before the run)."""
         import numpy as np
+        from apf_swarm_core.formation import design_pair_sets
         from apf_swarm_core.metrics import flight
-        from apf_swarm_core.simulator import design_pair_sets, simulate
+        from apf_swarm_core.simulator import simulate
 
         pairs = design_pair_sets(self.cfg)
         lat = np.asarray(traj.get('command_latency', np.zeros((0,))), dtype=float).ravel()

@@ -10,7 +10,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from apf_swarm_core.config import SwarmConfig, to_ros_params
+from apf_swarm_core.config import SwarmConfig
+from apf_swarm_core.config_files import to_ros_params
 
 from ..errors import CliError
 from .commands import executable_path, node_commands, node_netns, package_prefix
