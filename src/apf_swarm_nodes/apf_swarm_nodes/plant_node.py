@@ -12,10 +12,11 @@ re-sent past ``command_timeout``, then its late inputs missed: a silent tracker 
 silent target's last state held, its age growing in ``/swarm/odom``); this node carries out
 the actions it returns.
 
-Realtime (:class:`~.plant_realtime.RealtimePlant`): a physics timer integrates the steps of
-dt that wall time has advanced (held commands; a tracker whose latest command is older than
-``stale_after`` gets zero force, older than ``command_timeout`` it becomes inactive, counted
-in ``missed_deadlines``); a publish timer publishes odometry and
+Realtime (:class:`~apf_swarm_core.realtime_plant.RealtimePlant`): a physics timer
+integrates the steps of dt that wall time has advanced (held commands; a tracker whose
+latest command is older than ``stale_after`` gets zero force, older than
+``command_timeout`` it becomes inactive, counted in ``missed_deadlines``); a publish timer
+publishes odometry and
 ``/swarm/state`` at ``publish_rate``; commands and target states whose stamp is older than
 ``command_timeout``, or older than the one held, are refused.
 
@@ -38,6 +39,7 @@ from typing import Any
 from apf_swarm_core.agents import Sample, input_problem
 from apf_swarm_core.lockstep import Action, LockstepBarrier
 from apf_swarm_core.plant_model import PlantModel
+from apf_swarm_core.realtime_plant import RealtimePlant
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -59,7 +61,6 @@ from .node_common import (
 )
 from .params import NodeParam, declare_swarm_node
 from .plant_outputs import PlantOutputs
-from .plant_realtime import RealtimePlant
 
 __all__ = ['PlantNode', 'main']
 

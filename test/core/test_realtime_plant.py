@@ -1,4 +1,4 @@
-"""The realtime plant without ROS (apf_swarm_nodes.plant_realtime): the clock's start, the
+"""The realtime plant without ROS (apf_swarm_core.realtime_plant): the clock's start, the
 target's refusals, the physics step and the end of the run."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.plant_model import PlantModel
-from apf_swarm_nodes.plant_realtime import RealtimePlant
+from apf_swarm_core.realtime_plant import RealtimePlant
 
 
 def make(duration: float = 0.05) -> RealtimePlant:

@@ -18,10 +18,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from apf_swarm_core.agents import Sample
-from apf_swarm_core.lockstep import Action
-from apf_swarm_core.plant_model import PlantModel
 from numpy.typing import NDArray
+
+from .agents import Sample
+from .lockstep import Action
+from .plant_model import PlantModel
 
 __all__ = ['RealtimePlant']
 
