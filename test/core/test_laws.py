@@ -193,3 +193,16 @@ def test_controller_batched_gains_equal_single_controllers():
             np.testing.assert_allclose(ob.force[r], o.force, rtol=1e-15)
             np.testing.assert_allclose(ob.sliding_surface[r], o.sliding_surface, rtol=1e-15)
             np.testing.assert_array_equal(ob.saturated[r], o.saturated)
+
+
+def test_realtime_sample_is_the_elapsed_time_within_bounds():
+    c = _controller('proposed')
+    c.sample_elapsed(None, 0.01)
+    assert c.dt == 0.01  # before the first command: the nominal period
+    c.sample_elapsed(0.013, 0.01)
+    assert c.dt == 0.013
+    lo, hi = c.SAMPLE_BOUNDS
+    c.sample_elapsed(2.5, 0.01)  # a stall: one bounded sample
+    assert c.dt == hi
+    c.sample_elapsed(0.0, 0.01)
+    assert c.dt == lo

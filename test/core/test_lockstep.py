@@ -99,3 +99,14 @@ def test_a_silent_target_is_held_and_its_age_grows():
     back = bar.on_target(1, *target_state(cfg, 1), 2.1)
     assert any(a.kind == 'info' and 'publishes again' in a.text for a in back)
     assert not bar.target_absent and bar.target_age() == 0.0
+
+
+def test_target_window_sends_new_states_and_repeats_a_late_window():
+    from apf_swarm_core.lockstep import target_window
+
+    assert list(target_window(63, 0)) == list(range(64))  # the first request
+    assert list(target_window(95, 64)) == list(range(64, 96))  # only what is new
+    assert list(target_window(200, 64, lookahead=64)) == list(range(137, 201))  # at most 64
+    # the plant repeats a request for states already out: that window again
+    assert list(target_window(95, 96)) == list(range(32, 96))
+    assert list(target_window(10, 11)) == list(range(11))

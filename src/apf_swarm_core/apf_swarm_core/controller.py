@@ -197,6 +197,17 @@ class SlidingModeController:
             np.zeros(self.shape) if z is None else np.array(z, dtype=float).reshape(self.shape)
         )
 
+    #: the bounds of a realtime sample's length [s] (:meth:`sample_elapsed`): a stall longer
+    #: than the upper one does not throw the filter of eq. 26 far off in one step
+    SAMPLE_BOUNDS = (1e-4, 0.1)
+
+    def sample_elapsed(self, elapsed: float | None, nominal: float) -> None:
+        """Realtime: the next sample of the filter of eq. 26 is as long as the time that
+        actually elapsed since the previous command (``elapsed`` [s], clamped to
+        :attr:`SAMPLE_BOUNDS`), or ``nominal`` [s] before the first command."""
+        lo, hi = self.SAMPLE_BOUNDS
+        self.dt = nominal if elapsed is None else min(hi, max(lo, float(elapsed)))
+
     def step(self, v: ArrayLike, grad: ArrayLike, v_ref: ArrayLike | None = None) -> ControlOutput:
         """Compute the command for velocities ``v`` and gradients ``grad`` (shape
         ``(..., m, 3)``); ``v_ref`` (shape ``(..., 3)``), the target velocity, enters the

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from .agents import Sample
 from .plant_model import PlantModel
 
-__all__ = ['LOOKAHEAD', 'Action', 'LockstepBarrier']
+__all__ = ['LOOKAHEAD', 'Action', 'LockstepBarrier', 'target_window']
 
 #: how many steps ahead the plant asks for the target's states
 LOOKAHEAD = 64
@@ -235,3 +235,14 @@ class LockstepBarrier:
         out += self._publish_step(now)
         out.append(state)
         return out
+
+
+def target_window(last: int, next_step: int, lookahead: int = LOOKAHEAD) -> range:
+    """The target's answer to a request for its states up to step ``last``, having published
+    every step before ``next_step``: the steps not yet published, at most the last
+    ``lookahead`` (``last - lookahead + 1 .. last``); a request for states already published
+    (the plant repeating itself because a step is late) gets that window again."""
+    first = max(0, last + 1 - lookahead)
+    if last >= next_step:
+        first = max(first, next_step)
+    return range(first, last + 1)

@@ -17,6 +17,7 @@ import sys
 import time
 from typing import Any
 
+from apf_swarm_core.lockstep import target_window
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -72,15 +73,11 @@ class TargetNode(Node):
         self.pub.publish(self._msg)
 
     def _on_request(self, msg: UInt64) -> None:
-        """The plant wants the states up to step K: publish those not yet published, at most
-        the last ``TARGET_LOOKAHEAD`` (K - 63 .. K). A request for states already published
-        (the plant repeating itself because a step is late) sends that window again. The
-        state of step k is exactly ``trajectory.state(k dt)`` whenever it is published."""
+        """The plant wants the states up to step K: publish the core's window of them
+        (:func:`~apf_swarm_core.lockstep.target_window`). The state of step k is exactly
+        ``trajectory.state(k dt)`` whenever it is published."""
         last = int(msg.data)
-        first = max(0, last + 1 - TARGET_LOOKAHEAD)
-        if last >= self.next_step:
-            first = max(first, self.next_step)
-        for j in range(first, last + 1):
+        for j in target_window(last, self.next_step, TARGET_LOOKAHEAD):
             self._publish(j * self.cfg.dt, step_stamp(j, self.dt_ns))
         self.next_step = max(self.next_step, last + 1)
 

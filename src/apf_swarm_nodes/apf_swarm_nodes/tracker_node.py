@@ -300,11 +300,8 @@ class TrackerNode(Node):
         """
         self._tick += 1
         now = time.monotonic()
-        # the filter of eq. 26 advances by the time actually elapsed between commands
-        self.agent.controller.dt = (
-            min(0.1, max(1e-4, now - self._last_command))
-            if self._last_command
-            else 1.0 / self.control_rate
+        self.agent.controller.sample_elapsed(
+            now - self._last_command if self._last_command else None, 1.0 / self.control_rate
         )
         self._last_command = now
         stale = self.agent.stale_sources(now, self.timeout)
