@@ -6,11 +6,10 @@ import base64
 import json
 import struct
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
-from websockets.exceptions import ConnectionClosed
 
 SUBPROTOCOL = 'foxglove.sdk.v1'
 
@@ -21,7 +20,7 @@ class Client:
     def __init__(self, url: str, timeout: float = 10.0) -> None:
         from websockets.sync.client import connect
 
-        self._conn = connect(url, subprotocols=[SUBPROTOCOL], open_timeout=timeout)
+        self._conn: Any = connect(url, subprotocols=[SUBPROTOCOL], open_timeout=timeout)
         self.ws = self._conn.__enter__()
         self.channels: dict[str, dict[str, Any]] = {}
         self.info: dict[str, Any] = {}
@@ -32,6 +31,9 @@ class Client:
                 self.info = msg
             elif msg['op'] == 'advertise':
                 self.channels.update({c['topic']: c for c in msg['channels']})
+        if len(self.channels) < 3:
+            self.close()
+            raise AssertionError(f'{url} advertised {sorted(self.channels)} within {timeout} s')
         self.subs: dict[int, str] = {}
 
     def subscribe(self, *topics: str) -> None:
@@ -55,6 +57,8 @@ class Client:
         """``(topic, log_time_ns, payload)`` of each message data frame until ``timeout``."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
+            from websockets.exceptions import ConnectionClosed
+
             try:
                 m = self.ws.recv(timeout=max(0.01, deadline - time.monotonic()))
             except (TimeoutError, ConnectionClosed):
@@ -64,10 +68,21 @@ class Client:
                 yield self.subs[sub], ts, m[13:]
 
     def close(self) -> None:
-        self._conn.__exit__(None, None, None)
+        if self._conn is not None:
+            self._conn.__exit__(None, None, None)
+            self._conn = None
 
 
 @pytest.fixture
-def foxglove_client() -> type[Client]:
-    """The client class of the Foxglove WebSocket protocol (:class:`Client`)."""
-    return Client
+def foxglove_client() -> Iterator[Callable[[str], Client]]:
+    """Opens :class:`Client` connections to a Foxglove WebSocket server; every one is
+    closed after the test, passed or failed."""
+    opened: list[Client] = []
+
+    def connect(url: str, timeout: float = 10.0) -> Client:
+        opened.append(Client(url, timeout))
+        return opened[-1]
+
+    yield connect
+    for c in opened:
+        c.close()

@@ -420,7 +420,7 @@ def test_setpoints_take_the_vehicle_where_the_plant_takes_it(cfg) -> None:
     agent = TrackerAgent(cfg, 2)
     feed(agent, 0, x, v, np.zeros(3), np.zeros(3))
     force = agent.command(0).force[0]
-    a, vsp = agent.setpoints(force)
+    a, vsp = agent.setpoints(force, cfg.dt)
     _, v1 = plant_step(x[1], v[1], force, mass=1.3, dt=cfg.dt, drag=0.4)
     np.testing.assert_allclose(v[1] + a * cfg.dt, v1, rtol=1e-13, atol=1e-15)
     np.testing.assert_allclose(vsp, v1, rtol=1e-13, atol=1e-15)

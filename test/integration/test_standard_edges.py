@@ -1,9 +1,11 @@
 """Trackers against a vehicle that speaks only standard messages: a stand-in plant, written
 here with geometry_msgs and nav_msgs alone, publishes ``nav_msgs/Odometry`` per UAV and for
 the target, and flies each UAV by its tracker's ``geometry_msgs/AccelStamped`` (the
-tracker's ``outputs:=accel,velocity``). No apf_swarm message is involved; the swarm must
-still hold its formation, and each velocity setpoint must be the velocity the acceleration
-reaches in one step."""
+tracker's ``outputs:=accel,velocity``). The plant reads no apf_swarm message (the test reads
+each ForceCommand only to check the setpoints against it); the swarm must still hold its
+formation, each acceleration setpoint must be eq. 19's acceleration under the force, without
+the unknown term, and each velocity setpoint the velocity that acceleration reaches in one
+step."""
 
 from __future__ import annotations
 
@@ -19,11 +21,14 @@ from apf_swarm_nodes.node_common import control_qos
 from geometry_msgs.msg import AccelStamped, TwistStamped
 from nav_msgs.msg import Odometry
 
+from apf_swarm_msgs.msg import ForceCommand
+
 CONFIG = Path(__file__).resolve().parents[2] / 'config'
 N = 3
 RESEND = 0.2  # [s]
 SECONDS = 6.0  # of simulated time: at DT the triangle converges in about 3 s
 DT = 0.01  # [s]: 600 steps (the preset's 1 ms would be 6000 round trips)
+MASS, DRAG = 1.4, 0.5  # off the preset's 1 and 0.1, so that a wrong M or f_known shows
 
 
 def odometry(stamp_ns: int, x: np.ndarray, v: np.ndarray, child: str) -> Odometry:
@@ -39,7 +44,7 @@ def odometry(stamp_ns: int, x: np.ndarray, v: np.ndarray, child: str) -> Odometr
 
 
 def test_three_trackers_fly_a_plant_of_standard_messages(graph: Any) -> None:
-    cfg = load_preset('triangle').replace(duration=SECONDS, dt=DT)
+    cfg = load_preset('triangle').replace(duration=SECONDS, dt=DT, mass=(MASS,), drag=DRAG)
     # the target's path as the headless simulator flies it (no control involved)
     ref = simulate(cfg).trajectory
     dt_ns = round(cfg.dt * 1e9)
@@ -58,6 +63,10 @@ def test_three_trackers_fly_a_plant_of_standard_messages(graph: Any) -> None:
             'outputs:=accel,velocity',
             '-p',
             f'dt:={DT}',
+            '-p',
+            f'mass:=[{MASS}]',
+            '-p',
+            f'drag:={DRAG}',
             '-r',
             f'__ns:=/uav_{i}',
         )
@@ -67,6 +76,7 @@ def test_three_trackers_fly_a_plant_of_standard_messages(graph: Any) -> None:
     target = node.create_publisher(Odometry, '/target/odom', qos)
     accel: dict[int, dict[int, np.ndarray]] = {i: {} for i in range(1, N + 1)}
     vel: dict[int, dict[int, np.ndarray]] = {i: {} for i in range(1, N + 1)}
+    force: dict[int, dict[int, np.ndarray]] = {i: {} for i in range(1, N + 1)}
 
     def stamp_step(msg) -> int:
         return round((msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec) / dt_ns)
@@ -81,8 +91,17 @@ def test_three_trackers_fly_a_plant_of_standard_messages(graph: Any) -> None:
         v = msg.twist.linear
         vel[i][stamp_step(msg)] = np.array([v.x, v.y, v.z])
 
+    def on_force(i: int, msg: ForceCommand) -> None:
+        f = msg.force
+        force[i][int(msg.step)] = np.array([f.x, f.y, f.z])
+
     subs = []
     for i in range(1, N + 1):
+        subs.append(
+            node.create_subscription(
+                ForceCommand, f'/uav_{i}/force_cmd', lambda m, i=i: on_force(i, m), qos
+            )
+        )
         subs.append(
             node.create_subscription(
                 AccelStamped, f'/uav_{i}/accel_cmd', lambda m, i=i: on_accel(i, m), qos
@@ -120,7 +139,7 @@ def test_three_trackers_fly_a_plant_of_standard_messages(graph: Any) -> None:
         for _ in range(round(30 / RESEND)):
             publish(k)
             if graph.spin_until(
-                lambda k=k: all(k in accel[i] and k in vel[i] for i in accel),
+                lambda k=k: all(k in accel[i] and k in vel[i] and k in force[i] for i in accel),
                 RESEND,
                 f'every tracker commanding step {k}',
                 fail=False,
@@ -129,6 +148,9 @@ def test_three_trackers_fly_a_plant_of_standard_messages(graph: Any) -> None:
         else:
             raise AssertionError(f'no command of every tracker for step {k} in 30 s')
         a = np.stack([accel[i][k] for i in range(1, N + 1)])
+        # the acceleration setpoint is eq. 19 under the tracker's force, without f_unknown
+        u = np.stack([force[i][k] for i in range(1, N + 1)])
+        np.testing.assert_allclose(a, (u - DRAG * v) / MASS, rtol=1e-12, atol=1e-12)
         # the velocity setpoint is where the acceleration takes the velocity in one step
         vsp = np.stack([vel[i][k] for i in range(1, N + 1)])
         np.testing.assert_allclose(vsp, v + a * dt, rtol=1e-12, atol=1e-12)
@@ -138,7 +160,6 @@ def test_three_trackers_fly_a_plant_of_standard_messages(graph: Any) -> None:
     traj = {
         't': ref['t'],
         'x': np.stack(xs),
-        'v': np.zeros_like(np.stack(xs)),
         'target_x': ref['target_x'],
         'target_v': ref['target_v'],
     }

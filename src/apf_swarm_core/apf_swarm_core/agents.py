@@ -377,14 +377,16 @@ class TrackerAgent:
             if src not in self.inputs or now - self.inputs[src].received > timeout
         ]
 
-    def setpoints(self, force: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def setpoints(
+        self, force: ArrayLike, period: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The acceleration and velocity setpoints of ``force`` for a flight stack
-        (:func:`~apf_swarm_core.plant.acceleration_setpoint`,
-        :func:`~apf_swarm_core.plant.velocity_setpoint` over one control period,
-        ``controller.dt``), from the own velocity the command was computed from."""
-        mass = np.asarray(self.cfg.mass_matrix_diag()[self.uav_id - 1])
+        (:func:`~apf_swarm_core.plant.acceleration_setpoint`, and
+        :func:`~apf_swarm_core.plant.velocity_setpoint` over the coming control ``period``
+        [s]), from the own velocity the last input gave (the measured one)."""
+        mass = self.cfg.mass_matrix_diag()[self.uav_id - 1]
         a = acceleration_setpoint(force, self.own_velocity, mass=mass, drag=self.cfg.drag)
-        return a, velocity_setpoint(self.own_velocity, a, float(self.controller.dt))
+        return a, velocity_setpoint(self.own_velocity, a, period)
 
     def safe_command(self) -> NDArray[np.float64]:
         """:func:`brake_force` from the last own velocity (zero force if none is known)."""

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
-from .laws import _known
+from .laws import _known, known_force
 
 __all__ = [
     'NOISE_KINDS',
@@ -265,10 +265,7 @@ def acceleration_setpoint(
     -------
     a : array, shape (..., n, 3) [m/s^2]
     """
-    v = np.asarray(v, dtype=float)
-    return (np.asarray(force, dtype=float) - _known(v, shaped(drag))) / np.asarray(
-        mass, dtype=float
-    )
+    return (np.asarray(force, dtype=float) - known_force(v, drag)) / np.asarray(mass, dtype=float)
 
 
 def velocity_setpoint(v: ArrayLike, acceleration: ArrayLike, period: float) -> NDArray[np.float64]:

@@ -24,7 +24,11 @@ from .agents import Sample
 from .lockstep import Action
 from .plant_model import PlantModel
 
-__all__ = ['RealtimePlant']
+__all__ = ['STALE_AFTER', 'RealtimePlant']
+
+#: the plant's default ``stale_after`` [s]: a tracker whose latest command is older gets zero
+#: force; the live view draws a UAV whose command answered an older state as stale
+STALE_AFTER = 0.1
 
 
 @dataclass

@@ -39,7 +39,7 @@ from typing import Any
 from apf_swarm_core.agents import Sample, input_problem
 from apf_swarm_core.lockstep import Action, LockstepBarrier
 from apf_swarm_core.plant_model import PlantModel
-from apf_swarm_core.realtime_plant import RealtimePlant
+from apf_swarm_core.realtime_plant import STALE_AFTER, RealtimePlant
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -84,7 +84,7 @@ NODE_PARAMS = (
     ),
     NodeParam(
         'stale_after',
-        0.1,
+        STALE_AFTER,
         'realtime: a tracker whose latest command arrived longer '
         'ago than this gets zero force instead of its held bang-bang command (25 N held '
         'for 1 s would fling a 1 kg UAV 12 m) [s of wall time]',

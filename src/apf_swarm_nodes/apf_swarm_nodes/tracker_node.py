@@ -131,6 +131,8 @@ class TrackerNode(Node):
         # (trigger timer) or the stale-input watchdog (trigger odom)
         self.control_rate = self.cfg.control_rate or REALTIME_RATE
         self._last_command = 0.0
+        #: the control period the setpoints hold for [s]
+        self.period = self.cfg.dt if self.mode == 'lockstep' else 1.0 / self.control_rate
         self.agent = TrackerAgent(self.cfg, self.uav_id)
         install_validator(self, self._retune)
         self.dt_ns = dt_to_ns(self.cfg.dt)
@@ -347,7 +349,7 @@ class TrackerNode(Node):
         self.pub.publish(msg)
         if self.accel_pub is None and self.velocity_pub is None:
             return
-        a, v = self.agent.setpoints(force)
+        a, v = self.agent.setpoints(force, self.period)
         if self.accel_pub is not None:
             self.accel_pub.publish(accel_msg(stamp, a))
         if self.velocity_pub is not None:

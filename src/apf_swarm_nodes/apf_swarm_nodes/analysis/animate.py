@@ -94,7 +94,7 @@ def animate(
     from matplotlib import animation
 
     if view not in ('3d', 'top'):
-        raise CliError(f'--view {view!r}: expected 3d or top')
+        raise CliError(f'--projection {view!r}: expected 3d or top')
     writer = _writer(path, fps)
     t = np.asarray(traj['t'], dtype=float)
     x = np.asarray(traj['x'], dtype=float)

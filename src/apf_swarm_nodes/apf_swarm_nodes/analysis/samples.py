@@ -112,6 +112,11 @@ class StateAccumulator:
         return s.sample if isinstance(s, RawSample) else s
 
     @property
+    def newest(self) -> Any:
+        """The newest sample as it was added (a RawSample is not decoded), or None."""
+        return self._last
+
+    @property
     def complete(self) -> bool:
         """The plant's last state arrived: lockstep step ``steps - 1``; realtime the state
         at the end of the run (its physics step reaches ``steps``)."""

@@ -4,7 +4,7 @@ summary (``apf-swarm bag metrics``)."""
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -87,6 +87,16 @@ def bag_config(info: BagInfo, config: Path | None = None) -> tuple[Any, str]:
         return load_config(p), mode
 
 
+def swarm_state_decoder() -> Callable[[bytes], Any]:
+    """A function that deserializes ``/swarm/state`` CDR bytes with rosbags (no rclpy)."""
+    store = typestore()
+
+    def decode(raw: bytes) -> Any:
+        return store.deserialize_cdr(raw, SWARM_STATE_TYPE)
+
+    return decode
+
+
 def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str, *, quiet: bool = True) -> Any:
     """Every ``/swarm/state`` message of the bag through the bring-up's StateAccumulator
     (the live run's raw-bytes path and conversion; the CDR decoded by rosbags, so that the
@@ -95,12 +105,7 @@ def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str, *, quiet: bool =
     from ..progress import progress_iter
 
     count = info.topic(SWARM_STATE_TOPIC).count
-    store = typestore()
-
-    def decode(raw: bytes) -> Any:
-        return store.deserialize_cdr(raw, SWARM_STATE_TYPE)
-
-    acc = StateAccumulator(mode, cfg.steps, cfg.record_every, decode)
+    acc = StateAccumulator(mode, cfg.steps, cfg.record_every, swarm_state_decoder())
     messages = iter_raw(info.path, [SWARM_STATE_TOPIC], info=info)
     for _topic, _type, _ts, raw in progress_iter(
         messages, SWARM_STATE_TOPIC, total=count, quiet=quiet

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from apf_swarm_core.config import SwarmConfig
+from apf_swarm_core.realtime_plant import STALE_AFTER
 
 from ..analysis.samples import StateAccumulator
 from .graph import RECORDER_STOP_SEQUENCE
@@ -33,9 +34,6 @@ from .startup import Startup
 from .supervision import Signals, Supervision
 
 __all__ = ['Bringup']
-
-#: the view's stale threshold: the plant's default ``stale_after`` [s]
-VIEW_STALE_AFTER = 0.1
 
 
 class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
@@ -166,7 +164,8 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
     def start_view(self) -> None:
         """``--view``: serve the newest ``/swarm/state`` sample to Foxglove (a busy port is
         bad input, found before any process starts). A UAV is drawn stale when its latest
-        command answers a state older than the plant's ``stale_after`` (realtime)."""
+        command answered a state older than the plant's ``stale_after`` (realtime; a
+        ``--node-param stale_after:=S`` counts)."""
         port = getattr(self.args, 'view', None)
         if port is None:
             return
@@ -178,18 +177,24 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
             host=getattr(self.args, 'view_host', '127.0.0.1'),
             port=port,
             designs=design_pair_sets(self.cfg),
-            stale_after=VIEW_STALE_AFTER,
-        )
-        self.view.follow(lambda: self.acc.last)
+            stale_after=float(
+                next(
+                    (p.split(':=', 1)[1] for p in reversed(self.node_params)
+                     if p.startswith('stale_after:=')),
+                    STALE_AFTER,
+                )
+            ),
+        )  # fmt: skip
+        self.view.follow(lambda: self.acc.newest)
         self.say(f'view: {self.view.url} (Foxglove: Open connection, Foxglove WebSocket)')
 
     def execute(self) -> int:
         self.prepare()
         self.isolate()
-        self.start_view()
         code, status, message = EXIT_OK, 'completed', ''
-        self.signals.install()
+        self.start_view()
         try:
+            self.signals.install()
             try:
                 self.init_ros()
                 self.launch()
@@ -211,9 +216,9 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
                 finally:
                     self.shutdown_ros()
         finally:
-            self.signals.restore()
             if self.view is not None:
                 self.view.close()
+            self.signals.restore()
         if self.leftovers and code == EXIT_OK:
             code, status = EXIT_CHILD_DIED, 'leftover_processes'
         if code == EXIT_OK and self.mode == 'lockstep' and self.acc.dropped:

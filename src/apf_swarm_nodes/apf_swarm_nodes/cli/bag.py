@@ -1,5 +1,5 @@
-"""The ``apf-swarm bag`` commands (info, metrics, plot, export, reindex, play) and their
-parser."""
+"""The ``apf-swarm bag`` commands (info, metrics, plot, animate, view, export, reindex, play)
+and their parser."""
 
 from __future__ import annotations
 
@@ -148,7 +148,7 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
         return run_node(PROG, PlayerNode, [PROG, *ros], run=_run)
     from ..view.bag import live_view_of_bag
 
-    view, observe = live_view_of_bag(info, host=args.view_host, port=args.view)
+    view, observe = live_view_of_bag(info, host=args.view_host, port=args.view, config=args.config)
     print(f'{PROG} bag play: view: {view.url}', file=sys.stderr, flush=True)
 
     def player() -> PlayerNode:
@@ -260,6 +260,9 @@ def _add_bag_parser(sub: Any) -> None:
     q.add_argument('--remap', nargs='+', default=[], metavar='FROM:=TO')
     q.add_argument(
         '--wait-for', nargs='+', metavar='T', help='start only when these topics have a subscriber'
+    )
+    q.add_argument(
+        '--config', type=Path, metavar='FILE', help="with --view: the run's parameter file"
     )
     add_view_args(q)
     q.set_defaults(func=cmd_bag_play)

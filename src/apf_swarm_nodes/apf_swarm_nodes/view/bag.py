@@ -1,58 +1,74 @@
-"""A bag in the live view (``apf-swarm bag view``): its ``/swarm/state`` shown as a live run
-is shown, with the recorded timing, without a ROS graph."""
+"""A bag in the live view: served with its recorded timing and no ROS graph
+(:func:`serve_bag`, ``apf-swarm bag view``), or shown while the player replays it
+(:func:`live_view_of_bag`, ``apf-swarm bag play --view``)."""
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ..analysis.samples import RawSample
+from ..errors import CliError
 from .server import VIEW_RATE, LiveView
 
 __all__ = ['bag_samples', 'live_view_of_bag', 'serve_bag']
 
 
-def bag_samples(info: Any) -> Iterator[tuple[int, Any]]:
-    """``(timestamp_ns, SwarmSample)`` of every ``/swarm/state`` message of a bag, decoded
-    by rosbags."""
+def bag_samples(info: Any) -> list[tuple[int, RawSample]]:
+    """``(timestamp_ns, RawSample)`` of every ``/swarm/state`` message of a bag: the CDR
+    bytes, decoded by rosbags only when a frame shows them."""
     from ..bags import iter_raw
-    from ..bags.types import SWARM_STATE_TOPIC, SWARM_STATE_TYPE, typestore
-    from ..conversions import swarm_state_arrays
+    from ..bags.read import swarm_state_decoder
+    from ..bags.types import SWARM_STATE_TOPIC
+    from ..conversions import swarm_state_step
 
     info.topic(SWARM_STATE_TOPIC)  # CliError naming the topic when the bag has none
-    store = typestore()
-    for _topic, _type, ts, raw in iter_raw(info.path, [SWARM_STATE_TOPIC], info=info):
-        yield ts, swarm_state_arrays(store.deserialize_cdr(raw, SWARM_STATE_TYPE))
+    decode = swarm_state_decoder()
+    return [
+        (ts, RawSample(swarm_state_step(raw), raw, decode))
+        for _topic, _type, ts, raw in iter_raw(info.path, [SWARM_STATE_TOPIC], info=info)
+    ]
+
+
+def _designs(info: Any, config: Path | None, say: Callable[[str], None]) -> list[Any]:
+    """The design minima of the bag's run (its stored configuration or ``config``); none,
+    with a warning, for a bag that stores none (the edges are then not drawn)."""
+    from apf_swarm_core.formation import design_pair_sets
+
+    from ..bags import bag_config
+
+    try:
+        cfg, _mode = bag_config(info, config)
+    except CliError as exc:
+        say(f'warning: {exc}; the formation edges are not drawn')
+        return []
+    return design_pair_sets(cfg)
 
 
 def live_view_of_bag(
-    info: Any, *, host: str, port: int
+    info: Any, *, host: str, port: int, config: Path | None = None
 ) -> tuple[LiveView, Callable[[str, bytes], None]]:
-    """A live view of a bag being played (``apf-swarm bag play --view``) and the observer to
-    hand each played message to: it keeps the newest ``/swarm/state``, which the view shows
-    (decoded only while a client watches)."""
-    from apf_swarm_core.formation import design_pair_sets
-
-    from ..analysis.samples import RawSample
-    from ..bags import bag_config
-    from ..bags.types import SWARM_STATE_TOPIC, SWARM_STATE_TYPE, typestore
+    """A live view of a bag being played and the observer to hand each played message to:
+    it keeps the newest ``/swarm/state``, which the view shows (decoded only while a
+    client watches)."""
+    from ..bags.read import swarm_state_decoder
+    from ..bags.types import SWARM_STATE_TOPIC
     from ..conversions import swarm_state_step
 
-    cfg, _mode = bag_config(info)
-    store = typestore()
-    view = LiveView(host=host, port=port, designs=design_pair_sets(cfg))
-    newest: list[Any] = [None]
-
-    def decode(raw: bytes) -> Any:
-        return store.deserialize_cdr(raw, SWARM_STATE_TYPE)
+    view = LiveView(host=host, port=port)
+    view.builder.designs = _designs(info, config, lambda m: print(m, file=sys.stderr))
+    decode = swarm_state_decoder()
+    newest: list[RawSample | None] = [None]
 
     def observe(topic: str, raw: bytes) -> None:
         if topic == SWARM_STATE_TOPIC:
             newest[0] = RawSample(swarm_state_step(raw), raw, decode)
 
-    view.follow(lambda: None if newest[0] is None else newest[0].sample)
+    view.follow(lambda: newest[0])
     return view, observe
 
 
@@ -72,18 +88,16 @@ def serve_bag(
     returns the number of frames sent.
 
     ``wait_client``: wait this long [s] (None: without limit) for a client to subscribe
-    before playing, so the run is seen from its start; ``loop``: play again until ``stop``
-    is set (or Ctrl-C)."""
-    from apf_swarm_core.formation import design_pair_sets
-
-    from ..bags import bag_config, open_bag
+    before playing, so the run is seen from its start (CliError when none came); ``loop``:
+    play again until ``stop`` is set (or Ctrl-C)."""
+    from ..bags import open_bag
 
     info = open_bag(path)
-    cfg, _mode = bag_config(info, config)
-    samples = list(bag_samples(info))
+    view = LiveView(host=host, port=port)  # a busy port is found before the bag is read
     stop = stop or threading.Event()
-    view = LiveView(host=host, port=port, designs=design_pair_sets(cfg))
     try:
+        view.builder.designs = _designs(info, config, say)
+        samples = bag_samples(info)
         say(f'serving {view.url} (Foxglove: Open connection, Foxglove WebSocket)')
         if not samples:
             say(f'{info.path}: /swarm/state has no message; nothing to show')
@@ -92,8 +106,13 @@ def serve_bag(
         if not view.watched():
             say('waiting for a client to subscribe')
         while not view.watched():
-            if stop.wait(0.05) or (deadline is not None and time.monotonic() > deadline):
+            if stop.wait(0.05):
                 return 0
+            if deadline is not None and time.monotonic() > deadline:
+                raise CliError(
+                    f'no client subscribed within {wait_client:g} s; open {view.url} in '
+                    'Foxglove, or give --wait-client more time'
+                )
         while True:
             _play(view, samples, rate, stop)
             if not loop or stop.is_set():
@@ -103,17 +122,17 @@ def serve_bag(
         view.close()
 
 
-def _play(view: LiveView, samples: list[tuple[int, Any]], rate: float, stop: Any) -> None:
+def _play(view: LiveView, samples: list[tuple[int, RawSample]], rate: float, stop: Any) -> None:
     """One pass: sample i shown at ``t0 + (ts_i - ts_0) / rate`` (an absolute schedule), at
-    most :data:`VIEW_RATE` frames per second of wall time."""
+    most :data:`VIEW_RATE` frames per second of wall time, the last sample always."""
     first = samples[0][0]
     t0 = time.monotonic()
     next_frame = 0.0
-    for ts, sample in samples:
+    for k, (ts, raw) in enumerate(samples):
         due = t0 + (ts - first) / 1e9 / rate
-        if due < next_frame:
+        if due < next_frame and k < len(samples) - 1:
             continue
         if stop.wait(max(0.0, due - time.monotonic())):
             return
         next_frame = due + 1.0 / VIEW_RATE
-        view.show(sample, ts)
+        view.show(raw.sample, ts)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from apf_swarm_core.realtime_plant import STALE_AFTER
 from numpy.typing import NDArray
 
 from ..analysis.style import STATE_COLOURS, TARGET_COLOUR, edge_colour
@@ -32,14 +33,16 @@ RESPAWN_SHOWN = 3.0
 
 @dataclass
 class UavStates:
-    """Each UAV's state for the picture, from the plant's flags: ``inactive`` (the plant left
-    it out: missing or stale commands past the deadline), ``stale`` (active, but its latest
-    command is older than ``stale_after``), ``respawned`` (active again after being inactive,
-    for :data:`RESPAWN_SHOWN` seconds), else ``active``."""
+    """Each UAV's state for the picture, from what ``/swarm/state`` says of it: ``inactive``
+    (the plant left it out: its commands missing past the deadline), ``stale`` (active, but
+    its latest command answered a state older than ``stale_after``: its ``command_latency``,
+    realtime), ``respawned`` (active again after being inactive, for :data:`RESPAWN_SHOWN`
+    seconds), else ``active``. Time going back (a looped bag) starts afresh."""
 
     stale_after: float
     _was_inactive: dict[int, bool] = field(default_factory=dict)
     _back_at: dict[int, float] = field(default_factory=dict)
+    _t: float = -np.inf
 
     def update(
         self,
@@ -48,6 +51,10 @@ class UavStates:
         active: Sequence[bool],
         latency: Sequence[float],
     ) -> list[str]:
+        if t < self._t:
+            self._was_inactive.clear()
+            self._back_at.clear()
+        self._t = t
         out = []
         for j, uid in enumerate(uav_ids):
             on = bool(active[j]) if j < len(active) else True
@@ -79,7 +86,7 @@ class SceneBuilder:
         designs: Sequence[NDArray[np.float64]] = (),
         *,
         trail: float = 5.0,
-        stale_after: float = 0.5,
+        stale_after: float = STALE_AFTER,
         radius: float = 0.15,
     ) -> None:
         self.designs = [np.asarray(d, dtype=float) for d in designs]
@@ -230,7 +237,7 @@ class SceneBuilder:
 
     def metrics(self, sample: Any) -> dict[str, Any]:
         """The time series of one frame (JSON): the plant's measures and the UAV counts by
-        state (after :meth:`scene` of the same sample)."""
+        state (the states :meth:`scene` found for the same sample, which comes first)."""
         counts = {k: self.last_states.count(k) for k in STATE_COLOURS}
         return {
             'step': int(sample.step),

@@ -15,8 +15,10 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from apf_swarm_core.realtime_plant import STALE_AFTER
 from numpy.typing import NDArray
 
+from ..analysis.samples import RawSample
 from ..errors import CliError
 from .scene import SceneBuilder
 
@@ -51,7 +53,7 @@ class LiveView:
         host: str = '127.0.0.1',
         port: int = DEFAULT_PORT,
         designs: Sequence[NDArray[np.float64]] = (),
-        stale_after: float = 0.5,
+        stale_after: float = STALE_AFTER,
         name: str = 'apf_swarm',
     ) -> None:
         import foxglove
@@ -98,26 +100,32 @@ class LiveView:
         return True
 
     def follow(self, latest: Callable[[], Any], rate: float = VIEW_RATE) -> None:
-        """Show ``latest()`` (the newest sample or None) whenever it changed, at most
-        ``rate`` times a second, from a daemon thread, until :meth:`close`. ``latest`` is
-        called only while a client watches (it may decode a message)."""
+        """Show the newest sample, ``latest()`` (a SwarmSample, a not yet decoded
+        :class:`~apf_swarm_nodes.analysis.samples.RawSample`, or None), whenever its step
+        changed, at most ``rate`` times a second, from a daemon thread, until :meth:`close`.
+        ``latest`` is called from that thread, only while a client watches: it must return
+        an object nobody changes afterwards (the bring-up's accumulator replaces its newest
+        sample by reference; a RawSample is decoded here, once per frame shown)."""
+        if self._thread is not None:
+            raise RuntimeError('the view already follows a source')
 
         def loop() -> None:
             period = 1.0 / rate
             while not self._stop.wait(period):
                 if not self.watched():
                     continue
-                sample = latest()
-                if sample is None or int(sample.step) == self._last_step:
+                item = latest()
+                if item is None or int(item.step) == self._last_step:
                     continue
-                self._last_step = int(sample.step)
-                self.show(sample)
+                self._last_step = int(item.step)
+                self.show(item.sample if isinstance(item, RawSample) else item)
 
         self._thread = threading.Thread(target=loop, name='apf_swarm-view', daemon=True)
         self._thread.start()
 
     def close(self) -> None:
+        """Stop the thread (it ends within one frame period and one frame) and the server."""
         self._stop.set()
         if self._thread is not None:
-            self._thread.join(timeout=2.0)
+            self._thread.join()
         self.server.stop()
