@@ -71,13 +71,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         '--domain-id',
         type=domain_id,
         metavar='N',
-        help='ROS_DOMAIN_ID of the run (default: a random unused-looking one, 1..101)',
+        help='ROS_DOMAIN_ID of the run (default: a random unused-looking one, 1..101); a '
+        'domain that already carries a swarm (a publisher of its topics) is refused',
     )
     p.add_argument(
         '--discovery-range',
         choices=DISCOVERY_RANGES,
         default='LOCALHOST',
-        help='ROS_AUTOMATIC_DISCOVERY_RANGE (default LOCALHOST)',
+        help='LOCALHOST (default): nothing from outside this machine reaches the run (a '
+        'Fast DDS profile, DIR/dds/, binds every socket to 127.0.0.1; docs/RELIABILITY.md, '
+        '"Isolation"); SUBNET or SYSTEM_DEFAULT: the run is open to the network, for '
+        'nodes on several hosts (scripts/multihost.py); OFF: no discovery',
     )
     p.add_argument(
         '--record', action='store_true', help='also record a rosbag2 (MCAP) with the recorder node'

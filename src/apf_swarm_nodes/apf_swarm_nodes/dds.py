@@ -1,0 +1,487 @@
+"""The DDS side of a run's isolation: a Fast DDS profile that keeps a run on this machine,
+the discovery timing that makes its graph ready as soon as its nodes are up, and the
+refusal of a domain that already carries a swarm. The bring-up calls :func:`isolate_dds`.
+
+**Localhost only.** ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` alone does not keep a run on
+the machine: rmw_fastrtps (Jazzy) then sends its own discovery only to 127.0.0.1, but it adds
+a UDP transport of its own whose sockets bind ``0.0.0.0``, so a node on another host that
+names this one as a static peer (``ROS_STATIC_PEERS``) is discovered, sees every topic and
+exchanges data. A localhost run therefore gets :func:`profile_xml`'s profile: one UDPv4
+transport whose interface allowlist is 127.0.0.1 (every socket, discovery, data and
+sending, binds 127.0.0.1), shared memory, discovery by unicast to 127.0.0.1 only (no
+multicast), and ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``: the one range in which rmw adds
+nothing to the profile's transports (LOCALHOST adds its socket, SUBNET only the static
+peers, which the loopback transport cannot reach). Fast DDS 2.14 reads the profile from
+``FASTRTPS_DEFAULT_PROFILES_FILE`` (3.x from ``FASTDDS_DEFAULT_PROFILES_FILE``; both are
+set). A network run (``--discovery-range SUBNET`` or ``SYSTEM_DEFAULT``: several hosts,
+``scripts/multihost.py``) gets the discovery timing only, with the middleware's transports.
+
+**A graph ready at once.** Fast DDS enables a new participant's discovery, and sends its
+first announcement, *before* it registers its receivers (``RTPSParticipantImpl::enable``);
+a datagram that arrives in between is dropped. A participant that already runs answers a
+newcomer's first announcement at once, with its own, sent to the newcomer alone, and never
+again until its next periodic announcement. When the newcomer's process is starved of CPU
+in that window (a bring-up starting its nodes on two cores), the answer is lost, and the
+pair does not see each other until the older one announces again, ``leaseAnnouncement``
+later (3 s by default); the newcomer's own later announcements do not help, the older
+participant already knows it. The bring-up's own participant is always the oldest, so its
+graph waited about 4 s whenever any answer was lost, which the more processes start at
+once the likelier. The profile lets every participant repeat its announcement every
+``period`` for the first ``window`` seconds of its life (:func:`discovery_timing`: the
+start-up of the whole run), so that a lost answer costs one period. docs/PERFORMANCE.md,
+"Discovery", has the measurements.
+
+**One swarm per domain.** :func:`refuse_other_swarm` looks at the domain before a run
+starts: a publisher of a topic only a swarm publishes (:data:`SWARM_PUBLISHED`), whatever
+its process (another bring-up, nodes started by hand, a bag being played), refuses the run
+with a :class:`~apf_swarm_nodes.errors.CliError` that names the domain and the topics;
+subscribers (a viewer, ``ros2 topic echo``, a recorder) do not. On a localhost run the
+domain's ports tell whether anything runs there at all, so a free domain costs no wait.
+
+``python -m apf_swarm_nodes.dds`` writes the localhost profile for nodes started by hand and
+prints the environment they need (docs/RELIABILITY.md, "Isolation").
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import re
+import sys
+import time
+from collections.abc import Callable, Iterable, MutableMapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from .errors import CliError
+
+__all__ = [
+    'LEASE_ANNOUNCEMENT',
+    'PROFILE_VARIABLES',
+    'SWARM_PUBLISHED',
+    'check_rmw',
+    'discovery_timing',
+    'domain_participant_ports',
+    'isolate_dds',
+    'localhost_environment',
+    'max_participants',
+    'profile_xml',
+    'refuse_other_swarm',
+    'swarm_publishers',
+    'write_profile',
+]
+
+#: the variables Fast DDS reads its XML profile from: 2.14 (these wheels) the first, 3.x
+#: the second
+PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+#: the discovery ranges that reach other hosts
+NETWORK_RANGES = ('SUBNET', 'SYSTEM_DEFAULT')
+#: what a localhost run does not take from the environment: it would name other hosts
+#: (peers the loopback transport cannot reach, a discovery server elsewhere)
+NOT_LOCAL = ('ROS_STATIC_PEERS', 'ROS_DISCOVERY_SERVER', 'ROS_SUPER_CLIENT')
+#: a participant repeats its announcement every ``participants`` x this [s], within
+#: [PERIOD_MIN, PERIOD_MAX], ...
+PERIOD_PER_PARTICIPANT, PERIOD_MIN, PERIOD_MAX = 0.02, 0.1, 0.5
+#: ... for ``participants`` x this [s] after its creation, within [WINDOW_MIN, WINDOW_MAX]
+#: (Fast DDS ``initialAnnouncements``: period and count) ...
+WINDOW_PER_PARTICIPANT, WINDOW_MIN, WINDOW_MAX = 0.5, 5.0, 30.0
+#: ... and then this often [s] (Fast DDS ``leaseAnnouncement``; its default: every
+#: announcement reaches every participant, so a shorter one costs CPU all the run long)
+LEASE_ANNOUNCEMENT = 3.0
+#: a remote participant silent this long is removed [s] (Fast DDS ``leaseDuration``; its
+#: default)
+LEASE_DURATION = 20.0
+#: participants on this machine beyond a run's own, for the 127.0.0.1 ports a localhost
+#: participant announces to: viewers, ``ros2 topic``, tests' observers, the domain probe
+SPARE_PARTICIPANTS = 16
+#: Fast DDS's port mapping (RTPS 9.6.1.1): on domain d, participant i listens for
+#: discovery on PB + DG d + 10 + 2 i and for data on the next port
+_PORT_BASE, _DOMAIN_GAIN, _META_OFFSET = 7400, 250, 10
+#: the most participants whose ports stay inside one domain's range
+_MAX_PARTICIPANTS = (_DOMAIN_GAIN - _META_OFFSET) // 2
+#: how long a network run's domain is watched for a swarm [s] (no local port tells
+#: whether a remote participant is there)
+NETWORK_WATCH = 2.0
+#: how long the domain probe waits at most [s]: longer than LEASE_ANNOUNCEMENT, after which
+#: every participant there has announced itself again, whatever was lost
+PROBE_TIMEOUT = 4.0
+
+#: topics only a swarm publishes (its nodes, a bring-up, a bag played into the domain):
+#: a publisher of one of them means another swarm; ``/uav_<i>/force_cmd``, ``accel_cmd``,
+#: ``velocity_cmd`` and ``odom`` are matched by pattern
+SWARM_PUBLISHED = (
+    '/swarm/state',
+    '/swarm/odom',
+    '/swarm/start',
+    '/swarm/markers',
+    '/target/odom',
+    '/target/request',
+)
+_UAV_TOPIC = re.compile(r'^/uav_\d+/(force_cmd|accel_cmd|velocity_cmd|odom)$')
+_UNKNOWN_NAME = '_NODE_NAME_UNKNOWN_'
+
+
+# --------------------------------------------------------------------------------------------
+# the profile
+# --------------------------------------------------------------------------------------------
+
+
+def max_participants(participants: int) -> int:
+    """How many participants of this machine a localhost participant announces itself to
+    (Fast DDS ``maxInitialPeersRange``: the ports of participants 0..N-1 on 127.0.0.1): a
+    run's ``participants`` and :data:`SPARE_PARTICIPANTS`, at least rmw's 32, at most what
+    one domain's ports hold. Two participants whose indices both lie past it never
+    discover each other."""
+    return max(32, min(_MAX_PARTICIPANTS, participants + SPARE_PARTICIPANTS))
+
+
+def discovery_timing(participants: int) -> tuple[float, float, float]:
+    """(period, window, lease announcement) [s] of a participant's announcements in a run
+    of ``participants``: every ``period`` for its first ``window`` seconds, then every
+    ``lease announcement``. The window covers the run's start-up (about half a second of
+    CPU per node process, on two cores), the period grows with the run so that the
+    announcements each participant receives while it starts (participants / period a
+    second, from each of them) stay a small share of the start-up's CPU: with 35
+    participants a period of 0.1 s made the start-up slower, not the graph faster."""
+    period = min(PERIOD_MAX, max(PERIOD_MIN, participants * PERIOD_PER_PARTICIPANT))
+    window = min(WINDOW_MAX, max(WINDOW_MIN, participants * WINDOW_PER_PARTICIPANT))
+    return period, window, LEASE_ANNOUNCEMENT
+
+
+def _duration(seconds: float) -> str:
+    sec = int(seconds)
+    return f'<sec>{sec}</sec><nanosec>{round((seconds - sec) * 1e9)}</nanosec>'
+
+
+def profile_xml(
+    *,
+    localhost: bool = True,
+    participants: int = 32,
+    peers: int | None = None,
+    period: float | None = None,
+    window: float | None = None,
+    lease_announcement: float | None = None,
+) -> str:
+    """The Fast DDS XML profile of a run of ``participants`` (the default participant
+    profile: every participant of a process that reads it gets it).
+
+    ``localhost``: UDPv4 on 127.0.0.1 only (``interfaces/allowlist``) and shared memory, no
+    builtin transport, discovery traffic on 127.0.0.1 only (a unicast metatraffic locator,
+    hence no multicast one), sent to the ports of ``peers`` participants there
+    (``initialPeersList`` 127.0.0.1, ``maxInitialPeersRange``; default
+    :func:`max_participants`); use it with ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``.
+    Otherwise the middleware's transports and discovery (multicast, ``ROS_STATIC_PEERS``,
+    ``ROS_DISCOVERY_SERVER``, ``FASTDDS_BUILTIN_TRANSPORTS``). Both: the announcements of
+    :func:`discovery_timing`, unless given."""
+    p, w, lease = discovery_timing(participants)
+    period = p if period is None else period
+    window = w if window is None else window
+    lease = lease if lease_announcement is None else lease_announcement
+    peers = max_participants(participants) if peers is None else peers
+    if not (period > 0 and window >= period and LEASE_DURATION > lease > 0):
+        raise ValueError(f'bad discovery timing: period {period}, window {window}, lease {lease}')
+    discovery = [
+        '<discovery_config>',
+        f'  <leaseDuration>{_duration(LEASE_DURATION)}</leaseDuration>',
+        f'  <leaseAnnouncement>{_duration(lease)}</leaseAnnouncement>',
+        '  <initialAnnouncements>',
+        f'    <count>{round(window / period)}</count>',
+        f'    <period>{_duration(period)}</period>',
+        '  </initialAnnouncements>',
+        '</discovery_config>',
+    ]
+    loopback = '<locator><udpv4><address>127.0.0.1</address></udpv4></locator>'
+    if localhost:
+        what = 'localhost only: UDPv4 on 127.0.0.1 and shared memory'
+        transports = [
+            '<transport_descriptors>',
+            '  <transport_descriptor>',
+            '    <transport_id>apf_swarm_udp_loopback</transport_id>',
+            '    <type>UDPv4</type>',
+            f'    <maxInitialPeersRange>{peers}</maxInitialPeersRange>',
+            '    <interfaces><allowlist><interface name="127.0.0.1"/></allowlist></interfaces>',
+            '  </transport_descriptor>',
+            '  <transport_descriptor>',
+            '    <transport_id>apf_swarm_shm</transport_id>',
+            '    <type>SHM</type>',
+            '  </transport_descriptor>',
+            '</transport_descriptors>',
+        ]
+        rtps = [
+            '<userTransports>',
+            '  <transport_id>apf_swarm_udp_loopback</transport_id>',
+            '  <transport_id>apf_swarm_shm</transport_id>',
+            '</userTransports>',
+            '<useBuiltinTransports>false</useBuiltinTransports>',
+            '<builtin>',
+            *(f'  {line}' for line in discovery),
+            f'  <metatrafficUnicastLocatorList>{loopback}</metatrafficUnicastLocatorList>',
+            f'  <initialPeersList>{loopback}</initialPeersList>',
+            '</builtin>',
+        ]
+    else:
+        what = "the network: the middleware's transports and discovery"
+        transports = []
+        rtps = ['<builtin>', *(f'  {line}' for line in discovery), '</builtin>']
+    lines = [
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        f'<!-- apf_swarm, {what}; written by apf_swarm_nodes.dds -->',
+        '<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">',
+        '  <profiles>',
+        *(f'    {line}' for line in transports),
+        '    <participant profile_name="apf_swarm" is_default_profile="true">',
+        '      <rtps>',
+        *(f'        {line}' for line in rtps),
+        '      </rtps>',
+        '    </participant>',
+        '  </profiles>',
+        '</dds>',
+    ]
+    return '\n'.join(lines) + '\n'
+
+
+def write_profile(path: Path, **kwargs: Any) -> Path:
+    """Write :func:`profile_xml` (``kwargs``) to ``path``; returns its absolute path."""
+    path = Path(path).resolve()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(profile_xml(**kwargs))
+    return path
+
+
+def localhost_environment(profile: Path) -> dict[str, str]:
+    """The variables a process needs to run localhost only with the ``profile`` written by
+    :func:`write_profile` (and :data:`NOT_LOCAL` unset)."""
+    env = dict.fromkeys(PROFILE_VARIABLES, str(profile))
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'  # LOCALHOST adds rmw's own 0.0.0.0 socket
+    return env
+
+
+def check_rmw(environ: MutableMapping[str, str]) -> None:
+    """The profile is Fast DDS's: refuse another middleware (CliError)."""
+    rmw = environ.get('RMW_IMPLEMENTATION', '')
+    if rmw and not rmw.startswith('rmw_fastrtps'):
+        raise CliError(
+            f'RMW_IMPLEMENTATION={rmw}: a localhost run is kept on this machine by a Fast DDS '
+            'profile, which another middleware ignores; unset RMW_IMPLEMENTATION (the '
+            'wheels ship rmw_fastrtps_cpp), or run with --discovery-range SUBNET knowing '
+            'that the run is then open to the network'
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# one swarm per domain
+# --------------------------------------------------------------------------------------------
+
+
+def domain_participant_ports(domain: int, ports: Iterable[int] | None = None) -> set[int]:
+    """The discovery ports of ``domain``'s participants bound in this network namespace
+    (UDP, Fast DDS's port mapping): one per participant running here on that domain."""
+    if ports is None:
+        ports = _bound_udp_ports()
+    lo = _PORT_BASE + _DOMAIN_GAIN * domain + _META_OFFSET
+    return {p for p in ports if lo <= p < lo + 2 * _MAX_PARTICIPANTS and (p - lo) % 2 == 0}
+
+
+def _bound_udp_ports(pid: int | None = None) -> set[int]:
+    import psutil
+
+    with contextlib.suppress(psutil.Error, OSError):
+        if pid is not None:
+            conns = psutil.Process(pid).net_connections('udp')
+        else:
+            conns = psutil.net_connections('udp')
+        return {c.laddr.port for c in conns if c.laddr}
+    return set()
+
+
+def swarm_publishers(
+    domain: int,
+    *,
+    network: bool = False,
+    timeout: float = PROBE_TIMEOUT,
+    settle: float = 0.3,
+    poll: float = 0.05,
+) -> list[str]:
+    """The swarm topics (:data:`SWARM_PUBLISHED`, ``/uav_<i>/force_cmd``, ``.../odom``, the
+    setpoints ``.../accel_cmd`` and ``.../velocity_cmd``) with a publisher on ``domain``,
+    each as ``'topic (N publishers: /node, ...)'``.
+
+    An rclpy participant of its own, made with this process's environment (call it once the
+    run's profile is set), watches the graph until a swarm publisher shows (then ``settle``
+    s more, for the names), or ``timeout`` s. Localhost (``network`` False): nothing bound
+    on the domain's ports here means nothing to see, [] at once; otherwise the watch also
+    ends ``settle`` s after every participant on those ports has shown its
+    ``ros_discovery_info`` writer. Network: :data:`NETWORK_WATCH` s at least."""
+    others = domain_participant_ports(domain)
+    if not others and not network:
+        return []
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = None
+    try:
+        node = rclpy.create_node(
+            'apf_swarm_domain_probe',
+            context=ctx,
+            enable_rosout=False,
+            start_parameter_services=False,
+        )
+        others -= _bound_udp_ports(os.getpid())
+        t0 = time.monotonic()
+        found: list[str] = []
+        found_at: float | None = None  # the first swarm publisher seen
+        all_seen_at: float | None = None  # every local participant seen, none a swarm's
+        while True:
+            now = time.monotonic()
+            found = _swarm_topics(node) or found
+            if found:
+                found_at = now if found_at is None else found_at
+                if now >= found_at + settle:
+                    break
+            elif network:
+                if now >= t0 + NETWORK_WATCH:
+                    break
+            else:
+                seen = node.get_publishers_info_by_topic('ros_discovery_info', no_mangle=True)
+                if len(seen) - 1 >= len(others):  # every participant, minus this probe
+                    all_seen_at = now if all_seen_at is None else all_seen_at
+                    if now >= all_seen_at + settle:
+                        break
+            if now >= t0 + timeout:
+                break
+            time.sleep(poll)
+        return found
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def _swarm_topics(node: Any) -> list[str]:
+    order = {t: k for k, t in enumerate(SWARM_PUBLISHED)}
+    found = []
+    for topic, _types in node.get_topic_names_and_types():
+        if topic not in order and not _UAV_TOPIC.match(topic):
+            continue
+        pubs = node.get_publishers_info_by_topic(topic)
+        if pubs:
+            names = sorted(
+                'a node not yet named'
+                if p.node_name == _UNKNOWN_NAME
+                else f'{p.node_namespace.rstrip("/")}/{p.node_name}'
+                for p in pubs
+            )
+            who = f'{len(pubs)} publishers: {", ".join(names)}'
+            found.append((order.get(topic, len(order)), topic, who))
+    return [f'{topic} ({who})' for _, topic, who in sorted(found)]
+
+
+def refuse_other_swarm(domain: int, *, network: bool = False) -> None:
+    """CliError when ``domain`` already carries a swarm (:func:`swarm_publishers`)."""
+    found = swarm_publishers(domain, network=network)
+    if found:
+        shown = '; '.join(found[:3]) + (f'; and {len(found) - 3} more' if len(found) > 3 else '')
+        raise CliError(
+            f'ROS_DOMAIN_ID={domain} already carries a swarm: {shown}. Two swarms on one '
+            "domain take each other's states and commands: choose another --domain-id (or "
+            'none: the bring-up picks a free one), or stop that swarm first'
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# the bring-up's hook
+# --------------------------------------------------------------------------------------------
+
+
+def isolate_dds(
+    directory: Path,
+    domain: int,
+    discovery_range: str,
+    *,
+    processes: int,
+    environ: MutableMapping[str, str] | None = None,
+    say: Callable[[str], None] | None = None,
+) -> Path | None:
+    """Set a run's DDS up in ``environ`` (default ``os.environ``, which the bring-up's own
+    node and every child inherit): write its profile into ``directory``, point Fast DDS at
+    it, then refuse ``domain`` if it already carries a swarm (CliError). Call it once
+    ``ROS_DOMAIN_ID`` and ``ROS_AUTOMATIC_DISCOVERY_RANGE`` are set, before ``rclpy.init``.
+
+    ``LOCALHOST``: the localhost profile (nothing from outside this machine); a profile file
+    of the user's is replaced and :data:`NOT_LOCAL` variables are dropped, each warned.
+    ``SUBNET`` / ``SYSTEM_DEFAULT``: the discovery timing only, unless the user set a profile
+    file, which is kept. ``OFF``: nothing. ``processes``: the run's participants (node
+    processes, the bring-up, the recorder). Returns the profile written, or None."""
+    env = os.environ if environ is None else environ
+    if discovery_range == 'OFF':
+        return None
+    own = next((env[v] for v in PROFILE_VARIABLES if env.get(v)), None)
+    path: Path | None = None
+    if discovery_range == 'LOCALHOST':
+        check_rmw(env)
+        if own is not None and say is not None:
+            say(
+                f'warning: the Fast DDS profile {own} is replaced for this run by the '
+                'localhost one (--discovery-range SUBNET keeps yours)'
+            )
+        for var in NOT_LOCAL:
+            if env.pop(var, None) is not None and say is not None:
+                say(f'warning: {var} ignored: a localhost run reaches no other host')
+        path = write_profile(
+            Path(directory) / 'fastdds_localhost.xml', localhost=True, participants=processes
+        )
+        env.update(localhost_environment(path))
+    elif discovery_range in NETWORK_RANGES:
+        if own is None:
+            path = write_profile(
+                Path(directory) / 'fastdds_network.xml', localhost=False, participants=processes
+            )
+            env.update(dict.fromkeys(PROFILE_VARIABLES, str(path)))
+    else:
+        raise CliError(f'unknown discovery range {discovery_range!r}')
+    refuse_other_swarm(domain, network=discovery_range != 'LOCALHOST')
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# python -m apf_swarm_nodes.dds
+# --------------------------------------------------------------------------------------------
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Write the localhost profile and print the shell lines that put it in effect."""
+    cache = Path(os.environ.get('XDG_CACHE_HOME') or Path.home() / '.cache') / 'apf_swarm'
+    p = argparse.ArgumentParser(
+        prog='python -m apf_swarm_nodes.dds',
+        description='Write the Fast DDS profile of a localhost run (the one the bring-up '
+        'writes into DIR/dds/) for nodes started by hand, and print the environment they '
+        'need: eval "$(python -m apf_swarm_nodes.dds)"',
+    )
+    p.add_argument(
+        '--out',
+        type=Path,
+        default=cache / 'fastdds_localhost.xml',
+        help=f'the profile to write (default {cache / "fastdds_localhost.xml"})',
+    )
+    p.add_argument(
+        '--processes',
+        type=int,
+        default=32,
+        metavar='N',
+        help='ROS processes this machine runs on the domain (default 32)',
+    )
+    args = p.parse_args(argv)
+    if args.processes < 1:
+        p.error('--processes: at least 1')
+    path = write_profile(args.out, localhost=True, participants=args.processes)
+    for key, value in localhost_environment(path).items():
+        print(f'export {key}={value}')
+    print(f'unset ROS_LOCALHOST_ONLY {" ".join(NOT_LOCAL)}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
