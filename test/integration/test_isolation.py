@@ -334,7 +334,7 @@ def test_a_participant_of_a_run_keeps_announcing_itself_while_the_run_starts() -
         try:
             times = spdp_announcements(sock, 3.0)
         finally:
-            stop_process(proc, ((signal.SIGKILL, 5.0),))
+            stop_process(proc, ((signal.SIGINT, 10.0), (signal.SIGKILL, 5.0)))
             profile.unlink()
     finally:
         sock.close()
