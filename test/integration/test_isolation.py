@@ -28,7 +28,7 @@ import psutil
 import pytest
 from apf_swarm_nodes.bringup import pick_domain_id, stop_process
 
-from apf_swarm_nodes import dds
+from apf_swarm_nodes import dds, swarm_domain
 
 ROOT = Path(__file__).resolve().parents[2]
 SWARM_UP = ROOT / 'scripts' / 'swarm_up.py'
@@ -266,7 +266,9 @@ def test_a_viewer_alone_leaves_the_domain_free_and_sees_the_localhost_run(
     stop = tmp_path / 'stop-viewer'
     viewer = start_looker(looker_env(d), 150.0, stop, steer=False)
     try:
-        wait_for(lambda: dds.domain_participant_ports(d), 30.0, "the viewer's participant")
+        wait_for(
+            lambda: swarm_domain.domain_participant_ports(d), 30.0, "the viewer's participant"
+        )
         run = runs('alone', d, '--duration', '3')
         assert run.popen.wait(120) == 0, run.stderr()
         flew(run)

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import pytest
 from apf_swarm_nodes.errors import CliError
 
-from apf_swarm_nodes import dds
+from apf_swarm_nodes import dds, swarm_domain
 
 NS = {'f': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
 
@@ -137,23 +137,23 @@ def test_the_refusal_names_the_domain_the_topics_and_what_to_do(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     found = [f'/uav_{i}/force_cmd (1 publishers: /uav_{i}/tracker)' for i in range(1, 5)]
-    monkeypatch.setattr(dds, 'swarm_publishers', lambda domain, network=False: found)
+    monkeypatch.setattr(swarm_domain, 'swarm_publishers', lambda domain, network=False: found)
     with pytest.raises(CliError) as err:
-        dds.refuse_other_swarm(42)
+        swarm_domain.refuse_other_swarm(42)
     text = str(err.value)
     assert text.startswith('ROS_DOMAIN_ID=42 already carries a swarm: /uav_1/force_cmd')
     assert 'and 1 more' in text and '--domain-id' in text and '\n' not in text
-    monkeypatch.setattr(dds, 'swarm_publishers', lambda domain, network=False: [])
-    dds.refuse_other_swarm(42)
+    monkeypatch.setattr(swarm_domain, 'swarm_publishers', lambda domain, network=False: [])
+    swarm_domain.refuse_other_swarm(42)
 
 
 def test_the_domain_ports_are_one_per_participant() -> None:
     base = 7400 + 250 * 5 + 10
     # domain 5's participants 0 and 2 (discovery and data ports), domain 6's 0, domain 4's 0
     ports = {base, base + 1, base + 4, base + 5, base + 250, base - 250, 7000}
-    assert dds.domain_participant_ports(5, ports) == {base, base + 4}
-    assert dds.domain_participant_ports(6, ports) == {base + 250}
-    assert dds.domain_participant_ports(7, ports) == set()
+    assert swarm_domain.domain_participant_ports(5, ports) == {base, base + 4}
+    assert swarm_domain.domain_participant_ports(6, ports) == {base + 250}
+    assert swarm_domain.domain_participant_ports(7, ports) == set()
 
 
 def test_the_command_writes_the_profile_and_prints_the_environment(
@@ -185,7 +185,7 @@ class FakeGraph:
 
 def test_a_swarm_is_told_from_a_viewer_by_its_publishers() -> None:
     viewer = FakeGraph({'/swarm/state': [], '/rosout': [('/', 'viewer')], '/uav_1/odom': []})
-    assert dds._swarm_topics(viewer) == []  # subscribers only, and topics of every node
+    assert swarm_domain._swarm_topics(viewer) == []  # subscribers only, and topics of every node
     swarm = FakeGraph(
         {
             '/uav_12/velocity_cmd': [('/uav_12', 'tracker')],
@@ -195,7 +195,7 @@ def test_a_swarm_is_told_from_a_viewer_by_its_publishers() -> None:
             '/clock': [('/', 'sim')],
         }
     )
-    assert dds._swarm_topics(swarm) == [
+    assert swarm_domain._swarm_topics(swarm) == [
         '/swarm/state (1 publishers: /plant)',
         '/swarm/start (1 publishers: a node not yet named)',
         '/uav_12/velocity_cmd (1 publishers: /uav_12/tracker)',

@@ -31,13 +31,6 @@ once the likelier. The profile lets every participant repeat its announcement ev
 start-up of the whole run), so that a lost answer costs one period. docs/PERFORMANCE.md,
 "Discovery", has the measurements.
 
-**One swarm per domain.** :func:`refuse_other_swarm` looks at the domain before a run
-starts: a publisher of a topic only a swarm publishes (:data:`SWARM_PUBLISHED`), whatever
-its process (another bring-up, nodes started by hand, a bag being played), refuses the run
-with a :class:`~apf_swarm_nodes.errors.CliError` that names the domain and the topics;
-subscribers (a viewer, ``ros2 topic echo``, a recorder) do not. On a localhost run the
-domain's ports tell whether anything runs there at all, so a free domain costs no wait.
-
 ``python -m apf_swarm_nodes.dds`` writes the localhost profile for nodes started by hand and
 prints the environment they need (docs/RELIABILITY.md, "Isolation").
 """
@@ -45,30 +38,24 @@ prints the environment they need (docs/RELIABILITY.md, "Isolation").
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
-import re
 import sys
-import time
-from collections.abc import Callable, Iterable, MutableMapping, Sequence
+from collections.abc import Callable, MutableMapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from .errors import CliError
+from .swarm_domain import MAX_PARTICIPANTS, refuse_other_swarm
 
 __all__ = [
     'LEASE_ANNOUNCEMENT',
     'PROFILE_VARIABLES',
-    'SWARM_PUBLISHED',
     'check_rmw',
     'discovery_timing',
-    'domain_participant_ports',
     'isolate_dds',
     'localhost_environment',
     'max_participants',
     'profile_xml',
-    'refuse_other_swarm',
-    'swarm_publishers',
     'write_profile',
 ]
 
@@ -95,33 +82,6 @@ LEASE_DURATION = 20.0
 #: participants on this machine beyond a run's own, for the 127.0.0.1 ports a localhost
 #: participant announces to: viewers, ``ros2 topic``, tests' observers, the domain probe
 SPARE_PARTICIPANTS = 16
-#: Fast DDS's port mapping (RTPS 9.6.1.1): on domain d, participant i listens for
-#: discovery on PB + DG d + 10 + 2 i and for data on the next port
-_PORT_BASE, _DOMAIN_GAIN, _META_OFFSET = 7400, 250, 10
-#: the most participants whose ports stay inside one domain's range
-_MAX_PARTICIPANTS = (_DOMAIN_GAIN - _META_OFFSET) // 2
-#: how long a network run's domain is watched for a swarm [s] (no local port tells
-#: whether a remote participant is there)
-NETWORK_WATCH = 2.0
-#: how long the domain probe waits at most [s]: longer than LEASE_ANNOUNCEMENT, after which
-#: every participant there has announced itself again, whatever was lost
-PROBE_TIMEOUT = 4.0
-
-#: topics only a swarm publishes (its nodes, a bring-up, a bag played into the domain):
-#: a publisher of one of them means another swarm; ``/uav_<i>/force_cmd``, ``accel_cmd``,
-#: ``velocity_cmd`` and ``odom`` are matched by pattern
-SWARM_PUBLISHED = (
-    '/swarm/state',
-    '/swarm/odom',
-    '/swarm/start',
-    '/swarm/markers',
-    '/target/odom',
-    '/target/request',
-)
-_UAV_TOPIC = re.compile(r'^/uav_\d+/(force_cmd|accel_cmd|velocity_cmd|odom)$')
-_UNKNOWN_NAME = '_NODE_NAME_UNKNOWN_'
-
-
 # --------------------------------------------------------------------------------------------
 # the profile
 # --------------------------------------------------------------------------------------------
@@ -133,7 +93,7 @@ def max_participants(participants: int) -> int:
     run's ``participants`` and :data:`SPARE_PARTICIPANTS`, at least rmw's 32, at most what
     one domain's ports hold. Two participants whose indices both lie past it never
     discover each other."""
-    return max(32, min(_MAX_PARTICIPANTS, participants + SPARE_PARTICIPANTS))
+    return max(32, min(MAX_PARTICIPANTS, participants + SPARE_PARTICIPANTS))
 
 
 def discovery_timing(participants: int) -> tuple[float, float, float]:
@@ -266,128 +226,6 @@ def check_rmw(environ: MutableMapping[str, str]) -> None:
             'profile, which another middleware ignores; unset RMW_IMPLEMENTATION (the '
             'wheels ship rmw_fastrtps_cpp), or run with --discovery-range SUBNET knowing '
             'that the run is then open to the network'
-        )
-
-
-# --------------------------------------------------------------------------------------------
-# one swarm per domain
-# --------------------------------------------------------------------------------------------
-
-
-def domain_participant_ports(domain: int, ports: Iterable[int] | None = None) -> set[int]:
-    """The discovery ports of ``domain``'s participants bound in this network namespace
-    (UDP, Fast DDS's port mapping): one per participant running here on that domain."""
-    if ports is None:
-        ports = _bound_udp_ports()
-    lo = _PORT_BASE + _DOMAIN_GAIN * domain + _META_OFFSET
-    return {p for p in ports if lo <= p < lo + 2 * _MAX_PARTICIPANTS and (p - lo) % 2 == 0}
-
-
-def _bound_udp_ports(pid: int | None = None) -> set[int]:
-    import psutil
-
-    with contextlib.suppress(psutil.Error, OSError):
-        if pid is not None:
-            conns = psutil.Process(pid).net_connections('udp')
-        else:
-            conns = psutil.net_connections('udp')
-        return {c.laddr.port for c in conns if c.laddr}
-    return set()
-
-
-def swarm_publishers(
-    domain: int,
-    *,
-    network: bool = False,
-    timeout: float = PROBE_TIMEOUT,
-    settle: float = 0.3,
-    poll: float = 0.05,
-) -> list[str]:
-    """The swarm topics (:data:`SWARM_PUBLISHED`, ``/uav_<i>/force_cmd``, ``.../odom``, the
-    setpoints ``.../accel_cmd`` and ``.../velocity_cmd``) with a publisher on ``domain``,
-    each as ``'topic (N publishers: /node, ...)'``.
-
-    An rclpy participant of its own, made with this process's environment (call it once the
-    run's profile is set), watches the graph until a swarm publisher shows (then ``settle``
-    s more, for the names), or ``timeout`` s. Localhost (``network`` False): nothing bound
-    on the domain's ports here means nothing to see, [] at once; otherwise the watch also
-    ends ``settle`` s after every participant on those ports has shown its
-    ``ros_discovery_info`` writer. Network: :data:`NETWORK_WATCH` s at least."""
-    others = domain_participant_ports(domain)
-    if not others and not network:
-        return []
-    import rclpy
-    from rclpy.context import Context
-
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    node = None
-    try:
-        node = rclpy.create_node(
-            'apf_swarm_domain_probe',
-            context=ctx,
-            enable_rosout=False,
-            start_parameter_services=False,
-        )
-        others -= _bound_udp_ports(os.getpid())
-        t0 = time.monotonic()
-        found: list[str] = []
-        found_at: float | None = None  # the first swarm publisher seen
-        all_seen_at: float | None = None  # every local participant seen, none a swarm's
-        while True:
-            now = time.monotonic()
-            found = _swarm_topics(node) or found
-            if found:
-                found_at = now if found_at is None else found_at
-                if now >= found_at + settle:
-                    break
-            elif network:
-                if now >= t0 + NETWORK_WATCH:
-                    break
-            else:
-                seen = node.get_publishers_info_by_topic('ros_discovery_info', no_mangle=True)
-                if len(seen) - 1 >= len(others):  # every participant, minus this probe
-                    all_seen_at = now if all_seen_at is None else all_seen_at
-                    if now >= all_seen_at + settle:
-                        break
-            if now >= t0 + timeout:
-                break
-            time.sleep(poll)
-        return found
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
-
-
-def _swarm_topics(node: Any) -> list[str]:
-    order = {t: k for k, t in enumerate(SWARM_PUBLISHED)}
-    found = []
-    for topic, _types in node.get_topic_names_and_types():
-        if topic not in order and not _UAV_TOPIC.match(topic):
-            continue
-        pubs = node.get_publishers_info_by_topic(topic)
-        if pubs:
-            names = sorted(
-                'a node not yet named'
-                if p.node_name == _UNKNOWN_NAME
-                else f'{p.node_namespace.rstrip("/")}/{p.node_name}'
-                for p in pubs
-            )
-            who = f'{len(pubs)} publishers: {", ".join(names)}'
-            found.append((order.get(topic, len(order)), topic, who))
-    return [f'{topic} ({who})' for _, topic, who in sorted(found)]
-
-
-def refuse_other_swarm(domain: int, *, network: bool = False) -> None:
-    """CliError when ``domain`` already carries a swarm (:func:`swarm_publishers`)."""
-    found = swarm_publishers(domain, network=network)
-    if found:
-        shown = '; '.join(found[:3]) + (f'; and {len(found) - 3} more' if len(found) > 3 else '')
-        raise CliError(
-            f'ROS_DOMAIN_ID={domain} already carries a swarm: {shown}. Two swarms on one '
-            "domain take each other's states and commands: choose another --domain-id (or "
-            'none: the bring-up picks a free one), or stop that swarm first'
         )
 
 

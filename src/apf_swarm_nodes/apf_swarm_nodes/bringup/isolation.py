@@ -3,7 +3,6 @@ a lock), and the capacity check before it starts."""
 
 from __future__ import annotations
 
-import contextlib
 import fcntl
 import os
 import random
@@ -14,9 +13,8 @@ import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-import psutil
-
 from ..errors import CliError
+from ..swarm_domain import bound_udp_ports, domain_port_range
 
 # --------------------------------------------------------------------------------------------
 # configuration, isolation, command lines
@@ -59,13 +57,9 @@ def check_capacity(
         )
 
 
-_FASTDDS_PORT_BASE, _FASTDDS_DOMAIN_GAIN = 7400, 250
-
-
 def _bound_udp_ports() -> set[int]:
-    ports: set[int] = set()
-    with contextlib.suppress(psutil.Error, OSError):
-        ports.update(c.laddr.port for c in psutil.net_connections('udp') if c.laddr)
+    """Bound UDP ports, and the ports of Fast DDS's shared-memory segments."""
+    ports = bound_udp_ports()
     try:
         for entry in os.listdir('/dev/shm'):
             m = re.match(r'fastrtps_port(\d+)$', entry)
@@ -79,8 +73,7 @@ def _bound_udp_ports() -> set[int]:
 def domain_looks_busy(domain: int, ports: set[int] | None = None) -> bool:
     """True when a UDP port (or Fast DDS shared-memory port) of the domain's range is in use."""
     ports = _bound_udp_ports() if ports is None else ports
-    lo = _FASTDDS_PORT_BASE + _FASTDDS_DOMAIN_GAIN * domain
-    return any(lo <= p < lo + _FASTDDS_DOMAIN_GAIN for p in ports)
+    return any(p in domain_port_range(domain) for p in ports)
 
 
 #: how long a picked domain stays reserved for its picker [s]: long enough for the run it

@@ -90,6 +90,17 @@ class Startup:
         os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated; would fight the range
         # every ROS log file of the run (this node's and the children's) under DIR/logs/ros
         os.environ['ROS_LOG_DIR'] = str((self.out / 'logs' / 'ros').resolve())
+        # DDS: in LOCALHOST nothing from outside this machine (a Fast DDS profile that binds
+        # 127.0.0.1), the discovery timing, and no second swarm on the domain (CliError)
+        from ..dds import isolate_dds
+
+        isolate_dds(
+            self.out / 'dds',
+            self.domain_id,
+            self.args.discovery_range,
+            processes=3 + -(-self.n // self.args.trackers_per_process) + int(self.args.record),
+            say=self.say,
+        )
 
     def child_env(self) -> dict[str, str]:
         env = dict(os.environ)
