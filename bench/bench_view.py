@@ -72,7 +72,7 @@ def run_case(case: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
     ]  # fmt: skip
     if case != 'no view':
         cmd += ['--view', '0']
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     me = psutil.Process(proc.pid)
     cpu: dict[int, float] = {}
     stop, counts = threading.Event(), {'frames': 0}
@@ -81,7 +81,9 @@ def run_case(case: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
     for line in proc.stderr:
         found = re.search(r'view: (ws://\S+)', line)
         if found and case == 'view, watched' and client is None:
-            client = threading.Thread(target=watch, args=(found.group(1), stop, counts))
+            client = threading.Thread(
+                target=watch, args=(found.group(1), stop, counts), daemon=True
+            )
             client.start()
         for p in [me, *me.children(recursive=True)]:
             try:
