@@ -6,14 +6,8 @@ import math
 
 import numpy as np
 import pytest
-from apf_swarm_core.agents import (
-    MAX_FORCE,
-    MAX_POSITION,
-    MAX_SPEED,
-    TrackerAgent,
-    brake_force,
-    input_problem,
-)
+from apf_swarm_core.agents import TrackerAgent, brake_force
+from apf_swarm_core.inputs import MAX_FORCE, MAX_POSITION, MAX_SPEED, input_problem
 from apf_swarm_core.plant_model import PlantModel
 from apf_swarm_core.simulator import BatchSimulator
 
@@ -424,3 +418,27 @@ def test_setpoints_take_the_vehicle_where_the_plant_takes_it(cfg) -> None:
     _, v1 = plant_step(x[1], v[1], force, mass=1.3, dt=cfg.dt, drag=0.4)
     np.testing.assert_allclose(v[1] + a * cfg.dt, v1, rtol=1e-13, atol=1e-15)
     np.testing.assert_allclose(vsp, v1, rtol=1e-13, atol=1e-15)
+
+
+def test_messages_of_another_run_are_refused_and_counted(cfg) -> None:
+    """A tracker and a plant of run 5 refuse /swarm/odom and commands of run 6, counted with
+    the reason; run 0 (no identity) accepts any."""
+    rng = np.random.default_rng(2)
+    x, v = rng.normal(size=(2, 3, 3))
+    tx, tv = np.zeros(3), np.zeros(3)
+    ids, act = [1, 2, 3], [True] * 3
+    agent = TrackerAgent(cfg, 1, run=5)
+    assert not agent.offer_swarm(0, ids, x, v, act, tx, tv, 0.0, 0.0, run=6)
+    assert agent.rejected == 1 and 'another run (6; this run: 5)' in agent.last_rejection
+    assert not agent.ready(0)
+    assert agent.offer_swarm(0, ids, x, v, act, tx, tv, 0.0, 0.0, run=5)
+    assert agent.ready(0)
+    assert TrackerAgent(cfg, 1).offer_swarm(0, ids, x, v, act, tx, tv, 0.0, 0.0, run=6)
+    plant = PlantModel(cfg, run=5)
+    f, s = np.zeros(3), np.zeros(3)
+    assert not plant.offer_command(1, 0, f, s, run=6)
+    assert plant.rejected == 1 and 'from another run (6; this run: 5)' in plant.last_rejection
+    assert plant.missing(0) == [1, 2, 3]
+    assert plant.offer_command(1, 0, f, s, run=5)
+    assert plant.missing(0) == [2, 3]
+    assert PlantModel(cfg).offer_command(1, 0, f, s, run=6)

@@ -45,6 +45,7 @@ from .control import (
     make_predictor,
 )
 from .controller import ControlOutput
+from .inputs import input_problem
 from .laws import switching_force
 from .neighbours import neighbour_mask
 from .plant import acceleration_setpoint, velocity_setpoint
@@ -52,48 +53,13 @@ from .potential import POTENTIAL_KEYS
 from .prediction import LatencyEstimate, compensation_horizon
 
 __all__ = [
-    'MAX_FORCE',
-    'MAX_POSITION',
-    'MAX_SPEED',
     'Sample',
     'TrackerAgent',
     'brake_force',
-    'input_problem',
 ]
 
 #: the plant computes the formation error of /swarm/state up to this many trackers
 PLANT_FORMATION_METRIC_MAX = 12
-
-#: inputs beyond these magnitudes are refused as not physical (componentwise) [m, m/s, N]
-MAX_POSITION = 1.0e6
-MAX_SPEED = 1.0e4
-MAX_FORCE = 1.0e6
-
-
-_LIMITS = {
-    'x': MAX_POSITION,
-    'target_x': MAX_POSITION,
-    'v': MAX_SPEED,
-    'force': MAX_FORCE,
-    's': MAX_SPEED,
-}
-
-
-def input_problem(**arrays: NDArray[np.float64]) -> str | None:
-    """Why an input is refused, or ``None``: ``x``/``target_x`` positions, ``v`` speeds,
-    ``force`` and ``s`` forces and surfaces, each checked for finite values and magnitude."""
-    for name, arr in arrays.items():
-        a = np.asarray(arr, dtype=float)
-        lim = _LIMITS[name]
-        # one reduction for the common case: the largest magnitude is NaN when any value is
-        # NaN, so a finite, in-range input is exactly one whose maximum is <= the limit
-        if a.size and np.abs(a).max() <= lim:
-            continue
-        if not np.all(np.isfinite(a)):
-            return f'{name} is not finite ({a.tolist()})'
-        if np.any(np.abs(a) > lim):
-            return f'{name} = {a.tolist()} exceeds {lim:g} in magnitude'
-    return None
 
 
 def brake_force(v: NDArray[np.float64], *, u0: float, drag: float) -> NDArray[np.float64]:
@@ -133,6 +99,7 @@ class TrackerAgent:
     neighbour_ids: Sequence[int] | None = None
     rejected: int = 0
     stale: int = 0
+    run: int = 0  # the run's identity: /swarm/odom of another run is refused (0: any)
     inputs: dict[int, Sample] = field(default_factory=dict)  # latest per source, 0 = target
     pending: dict[int, dict[int, Sample]] = field(default_factory=dict)  # lockstep: by step
     last_rejection: str = ''
@@ -263,13 +230,17 @@ class TrackerAgent:
         target_time: float,
         *,
         seq: int | None = None,
+        run: int = 0,
     ) -> bool:
         """Store one aggregated message (every tracker's state and the target's) as a whole:
-        if any part would be refused, nothing is stored and it counts as one rejection.
+        if any part would be refused, nothing is stored and it counts as one rejection; so is
+        a message of another ``run`` than this tracker's (:attr:`run`, when not 0).
 
         ``now`` / ``target_time``: when the trackers' and the target's states were produced.
         Rows of trackers that are not neighbours of this one are ignored.
         """
+        if self.run and run != self.run:
+            return self._reject(f'/swarm/odom of another run ({run:x}; this run: {self.run:x})')
         seq = step if seq is None else int(seq)
         rows = [(j, x[r], v[r], bool(active[r])) for r, j in enumerate(ids) if j in self.ids]
         missing = sorted(set(self.ids) - {j for j, *_ in rows})

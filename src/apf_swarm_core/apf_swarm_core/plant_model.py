@@ -12,9 +12,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .agents import PLANT_FORMATION_METRIC_MAX, Sample, input_problem
+from .agents import PLANT_FORMATION_METRIC_MAX, Sample
 from .config import SwarmConfig
 from .formation import expected_pairs
+from .inputs import input_problem
 from .metrics import centroid_error, formation_error
 from .plant import DisturbanceSource
 from .potential import potential
@@ -41,6 +42,7 @@ class PlantModel:
     rejected: int = 0
     zeroed: int = 0  # realtime: held commands zeroed because their tracker was late
     last_rejection: str = ''
+    run: int = 0  # the run's identity: commands of another run are refused (0: any)
 
     def __post_init__(self) -> None:
         n = self.cfg.n_trackers
@@ -72,6 +74,14 @@ class PlantModel:
         self.last_rejection = why
         return False
 
+    def _foreign(self, uav_id: int, run: int) -> str | None:
+        """Why a command is not this swarm's, or None: another run, or an unknown id."""
+        if self.run and run != self.run:
+            return f'command of uav_{uav_id} from another run ({run:x}; this run: {self.run:x})'
+        if uav_id not in self.ids:
+            return f'uav_id {uav_id} is not in this swarm (ids 1..{len(self.ids)})'
+        return None
+
     def offer_command(
         self,
         uav_id: int,
@@ -82,6 +92,7 @@ class PlantModel:
         now: float = 0.0,
         instance: int = 0,
         latency: float = 0.0,
+        run: int = 0,
     ) -> bool:
         """Store the command of one tracker; False (counted, ``last_rejection`` says why) if
         the id is unknown, a value is not finite or out of range, the command comes from
@@ -90,9 +101,11 @@ class PlantModel:
         was answered already. An accepted command makes its tracker active; an inactive
         tracker follows the next instance that commands (a respawned tracker). A ``stale``
         command (the tracker's safe brake) counts in ``stale`` only once its process has
-        commanded from its inputs: the brakes before its first inputs are its start-up."""
-        if uav_id not in self.ids:
-            return self.refuse(f'uav_id {uav_id} is not in this swarm (ids 1..{len(self.ids)})')
+        commanded from its inputs: the brakes before its first inputs are its start-up. A
+        command of another ``run`` than the plant's (:attr:`run`, when not 0) is refused."""
+        foreign = self._foreign(uav_id, run)
+        if foreign is not None:
+            return self.refuse(foreign)
         problem = input_problem(force=force, s=s)
         if problem is not None:
             return self.refuse(f'command of uav_{uav_id}: {problem}')

@@ -35,6 +35,7 @@ __all__ = [
     'MODES',
     'MODE_PARAM',
     'QOS_DEPTH_PARAM',
+    'RUN_PARAM',
     'SWARM_NODE_PARAMS',
     'NodeParam',
     'declare_config',
@@ -143,8 +144,16 @@ QOS_DEPTH_PARAM = NodeParam(
     hi=1000,
 )
 MODE_PARAM = NodeParam('mode', 'lockstep', 'timing mode', choices=MODES)
+RUN_PARAM = NodeParam(
+    'run',
+    0,
+    "the run's identity (the bring-up sets a random one for every node): the plant refuses "
+    'commands, a tracker /swarm/odom messages, of another run (0: no identity, accept any)',
+    lo=0,
+    hi=2**63 - 1,
+)
 #: what every node of the swarm (plant, target, tracker) declares before its own parameters
-SWARM_NODE_PARAMS = (EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODE_PARAM)
+SWARM_NODE_PARAMS = (EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODE_PARAM, RUN_PARAM)
 
 
 def declare_node_params(node: Node, params: tuple[NodeParam, ...]) -> dict[str, Any]:

@@ -36,7 +36,8 @@ import time
 from functools import partial
 from typing import Any
 
-from apf_swarm_core.agents import Sample, input_problem
+from apf_swarm_core.agents import Sample
+from apf_swarm_core.inputs import input_problem
 from apf_swarm_core.lockstep import Action, LockstepBarrier
 from apf_swarm_core.plant_model import PlantModel
 from apf_swarm_core.realtime_plant import STALE_AFTER, RealtimePlant
@@ -131,7 +132,7 @@ class PlantNode(Node):
         self.timeout = float(p['command_timeout'])
         self.inputs = p['inputs']
         self.waiting_for_match = False
-        self.model = PlantModel(self.cfg)
+        self.model = PlantModel(self.cfg, run=int(p['run']))
         self.dt_ns = dt_to_ns(self.cfg.dt)
         qos = control_qos(self.mode, p['qos_depth'])
         publish_rate = float(p['publish_rate']) or self.cfg.control_rate or REALTIME_RATE
@@ -280,6 +281,7 @@ class PlantNode(Node):
             now=now,
             instance=f.instance,
             latency=latency,
+            run=f.run,
         ):
             self._log_rejection(self.model.last_rejection, self.model.rejected)
             return

@@ -113,6 +113,7 @@ class PlantOutputs:
                 active=m.active,
                 target_age=target_age,
                 command_latency=m.latency if latency else None,
+                run=m.run,
             )
         )
 

@@ -133,7 +133,7 @@ class TrackerNode(Node):
         self._last_command = 0.0
         #: the control period the setpoints hold for [s]
         self.period = self.cfg.dt if self.mode == 'lockstep' else 1.0 / self.control_rate
-        self.agent = TrackerAgent(self.cfg, self.uav_id)
+        self.agent = TrackerAgent(self.cfg, self.uav_id, run=int(p['run']))
         install_validator(self, self._retune)
         self.dt_ns = dt_to_ns(self.cfg.dt)
         qos = control_qos(self.mode, p['qos_depth'])
@@ -237,6 +237,7 @@ class TrackerNode(Node):
             now - age,
             now - age - m.target_age,
             seq=seq,
+            run=m.run,
         ):
             self._warn_rejected()
             return
@@ -273,6 +274,7 @@ class TrackerNode(Node):
             saturated=bool(out.saturated[0]),
             rejected_inputs=self.agent.rejected,
             instance=self.instance,
+            run=self.agent.run,
         )
         self._send(self._msg, stamp, out.force[0])
         self._stale_reported = False
@@ -339,6 +341,7 @@ class TrackerNode(Node):
                 stale=True,
                 rejected_inputs=self.agent.rejected,
                 instance=self.instance,
+                run=self.agent.run,
             ),
             stamp,
             u,

@@ -31,6 +31,7 @@ class RunOutputs:
     acc: StateAccumulator
     group: ProcessGroup
     domain_id: int | None
+    run_id: int
     t_launch: Any
     t_start: Any
     t_end: Any
@@ -52,6 +53,7 @@ class RunOutputs:
             'status': status,
             'mode': self.mode,
             'domain_id': self.domain_id,
+            'run_id': f'{self.run_id:x}',
             'wall_time': round(run_s, 3),
             'missed_deadlines': int(last.missed_deadlines) if last is not None else 0,
             'stale_inputs': int(last.stale_inputs) if last is not None else 0,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import random
 import sys
 import time
 from pathlib import Path
@@ -67,6 +68,8 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         self.signals = Signals()
         self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
         self.domain_id: int | None = None
+        #: the run's identity (the nodes' ``run`` parameter), random, never 0
+        self.run_id = random.getrandbits(62) + 1
         # rclpy objects, made by run() once rclpy is imported (this module does not import it)
         self.node: Any = None
         self.executor: Any = None

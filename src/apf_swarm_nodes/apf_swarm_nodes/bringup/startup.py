@@ -33,6 +33,7 @@ class Startup:
     group: ProcessGroup
     rec_group: ProcessGroup
     domain_id: int | None
+    run_id: int
     t_launch: Any
     prefix: Path
     config_file: Path
@@ -115,7 +116,8 @@ class Startup:
             self.config_file.resolve(),
             self.n,
             self.mode,
-            self.node_params,
+            # the run's identity: its nodes refuse the commands and states of another run
+            [*self.node_params, f'run:={self.run_id}'],
             per_process=self.args.trackers_per_process,
         )
         self.t_launch = time.monotonic()

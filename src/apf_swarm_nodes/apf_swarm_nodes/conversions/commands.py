@@ -33,6 +33,7 @@ def force_msg(
     stale: bool = False,
     rejected_inputs: int = 0,
     instance: int = 0,
+    run: int = 0,
     out: ForceCommand | None = None,
 ) -> ForceCommand:
     """``apf_swarm_msgs/ForceCommand`` from one tracker's controller output (vectors (3,));
@@ -51,6 +52,7 @@ def force_msg(
     msg.stale = bool(stale)
     msg.rejected_inputs = int(rejected_inputs)
     msg.instance = int(instance)
+    msg.run = int(run)
     return msg
 
 
@@ -66,6 +68,7 @@ class ForceArrays:
     rejected_inputs: int = 0
     stamp_ns: int = 0
     instance: int = 0
+    run: int = 0
 
 
 def force_arrays(msg: ForceCommand) -> ForceArrays:
@@ -79,4 +82,5 @@ def force_arrays(msg: ForceCommand) -> ForceArrays:
         int(msg.rejected_inputs),
         stamp_ns(msg.header.stamp),
         int(msg.instance),
+        int(msg.run),
     )

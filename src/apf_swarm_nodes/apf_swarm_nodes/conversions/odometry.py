@@ -60,6 +60,7 @@ def swarm_odom_msg(
     active: Sequence[bool] | NDArray[np.bool_] | None = None,
     target_age: float = 0.0,
     command_latency: NDArray[np.float64] | None = None,
+    run: int = 0,
 ) -> SwarmOdometry:
     """``apf_swarm_msgs/SwarmOdometry`` from arrays x, v (n, 3) and the target (3,);
     ``active`` defaults to every tracker active, ``command_latency`` (n,) [s] to none."""
@@ -76,6 +77,7 @@ def swarm_odom_msg(
     msg.target_age = float(target_age)
     if command_latency is not None:
         msg.command_latency = np.asarray(command_latency, dtype=float).tolist()
+    msg.run = int(run)
     return msg
 
 
@@ -93,6 +95,7 @@ class SwarmOdom:
     active: list[bool]
     target_age: float
     command_latency: NDArray[np.float64]
+    run: int = 0
 
 
 def swarm_odom_arrays(msg: SwarmOdometry) -> SwarmOdom:
@@ -131,4 +134,5 @@ def swarm_odom_arrays(msg: SwarmOdometry) -> SwarmOdom:
         active,
         float(msg.target_age),
         latency,
+        int(getattr(msg, 'run', 0)),
     )
