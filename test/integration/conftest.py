@@ -111,6 +111,30 @@ class Graph:
             self.procs.pop(name), ((signal.SIGINT, timeout), (signal.SIGKILL, timeout))
         )
 
+    def lone_tracker(self, *params: str) -> tuple[list[Any], Any]:
+        """A tracker process ``/uav_2/tracker`` of the triangle preset (lockstep) with the
+        extra ``params`` (``NAME:=VALUE``), and a reader of its commands: the list the
+        commands arrive in and the subscription (wait on its publisher count)."""
+        from apf_swarm_nodes.node_common import control_qos
+
+        from apf_swarm_msgs.msg import ForceCommand
+
+        args = [a for p in ('uav_id:=2', *params) for a in ('-p', p)]
+        self.start(
+            'tracker',
+            'tracker',
+            '--params-file',
+            str(CONFIG / 'triangle.yaml'),
+            *args,
+            '-r',
+            '__ns:=/uav_2',
+        )
+        forces: list[ForceCommand] = []
+        sub = self.node.create_subscription(
+            ForceCommand, '/uav_2/force_cmd', forces.append, control_qos('lockstep')
+        )
+        return forces, sub
+
     def close(self) -> None:
         for name in list(self.procs):
             self.stop(name)

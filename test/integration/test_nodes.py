@@ -156,21 +156,8 @@ def test_lockstep_target_answers_requests_ahead_with_the_exact_trajectory(graph)
 @pytest.mark.parametrize('inputs', ['odom', 'aggregate'])
 def test_lone_tracker_publishes_the_core_force_and_rejects_nan(graph, inputs: str) -> None:
     cfg = load_preset('triangle')
-    graph.start(
-        'tracker',
-        'tracker',
-        '--params-file',
-        str(CONFIG / 'triangle.yaml'),
-        '-p',
-        'uav_id:=2',
-        '-p',
-        f'inputs:={inputs}',
-        '-r',
-        '__ns:=/uav_2',
-    )
+    forces, sub = graph.lone_tracker(f'inputs:={inputs}')
     qos = control_qos('lockstep')
-    forces: list[ForceCommand] = []
-    sub = graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
     rng = np.random.default_rng(7)
     x = rng.normal(scale=2.0, size=(3, 3))
     v = rng.normal(size=(3, 3))

@@ -18,7 +18,7 @@ from apf_swarm_nodes.conversions import dt_to_ns, step_stamp, swarm_odom_msg
 from apf_swarm_nodes.node_common import control_qos
 
 from apf_swarm_core import load_preset
-from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry
+from apf_swarm_msgs.msg import SwarmOdometry
 
 CONFIG = Path(__file__).resolve().parents[2] / 'config'
 APF = shutil.which('apf-swarm')
@@ -26,21 +26,8 @@ APF = shutil.which('apf-swarm')
 
 def test_a_tracker_refuses_the_states_of_another_run(graph: Any) -> None:
     cfg = load_preset('triangle')
-    graph.start(
-        'tracker',
-        'tracker',
-        '--params-file',
-        str(CONFIG / 'triangle.yaml'),
-        '-p',
-        'uav_id:=2',
-        '-p',
-        'run:=5',
-        '-r',
-        '__ns:=/uav_2',
-    )
+    forces, sub = graph.lone_tracker('run:=5')
     qos = control_qos('lockstep')
-    forces: list[ForceCommand] = []
-    sub = graph.node.create_subscription(ForceCommand, '/uav_2/force_cmd', forces.append, qos)
     pub = graph.node.create_publisher(SwarmOdometry, '/swarm/odom', qos)
     graph.spin_until(
         lambda: pub.get_subscription_count() == 1 and sub.get_publisher_count() == 1,
