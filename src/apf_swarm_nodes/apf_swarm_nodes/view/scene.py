@@ -21,10 +21,11 @@ from apf_swarm_core.realtime_plant import STALE_AFTER
 from numpy.typing import NDArray
 
 from ..analysis.style import STATE_COLOURS, TARGET_COLOUR, edge_colour
+from ..conversions.fields import WORLD
 
 __all__ = ['SceneBuilder', 'UavStates']
 
-WORLD = 'world'
+#: the frame that follows the target (``/swarm/frames``)
 TARGET_FRAME = 'target'
 
 #: how long a UAV that came back is shown as respawned [s]
