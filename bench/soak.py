@@ -36,7 +36,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
-from apf_swarm_nodes.machine import process_cpu_seconds  # noqa: E402
+from apf_swarm_nodes.machine import process_args, process_cpu_seconds  # noqa: E402
 from bench_graph import machine, rss_mb  # noqa: E402
 
 GROWTH_LIMIT = 5.0  # percent
@@ -63,10 +63,8 @@ def node_pids(config: str) -> dict[int, str]:
     for entry in os.listdir('/proc'):
         if not entry.isdigit():
             continue
-        try:
-            with open(f'/proc/{entry}/cmdline', 'rb') as f:
-                args = [a.decode(errors='replace') for a in f.read().split(b'\0') if a]
-        except OSError:
+        args = process_args(int(entry))
+        if args is None:
             continue
         if any(config in a for a in args) and not any('swarm_up.py' in a for a in args):
             out[int(entry)] = node_name(args)

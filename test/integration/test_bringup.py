@@ -248,12 +248,19 @@ def triangle_side(cfg) -> float:
 # --------------------------------------------------------------------------------------------
 
 
-def test_lockstep_bringup_forms_the_triangle_and_equals_the_simulator(bringup) -> None:
-    """3 trackers, triangle preset, 4 s simulated: exit 0, the triangle, the simulator's run."""
-    run = bringup('tri', '--preset', 'triangle', '--n-trackers', '3', '--duration', '4')
+@pytest.mark.parametrize('spawn', ['fork', 'exec'])
+def test_lockstep_bringup_forms_the_triangle_and_equals_the_simulator(bringup, spawn) -> None:
+    """3 trackers, triangle preset, 4 s simulated: exit 0, the triangle, the simulator's run;
+    the same whether the node processes are forked from the zygote or execute their
+    executables."""
+    run = bringup(
+        f'tri_{spawn}', '--preset', 'triangle', '--n-trackers', '3', '--duration', '4',
+        '--spawn', spawn,
+    )  # fmt: skip
     rc = run.wait(240)
     assert rc == 0, run.stderr()
     assert 'Traceback' not in run.stderr()
+    assert ('(forked)' in run.stderr()) == (spawn == 'fork')
     assert run.left_behind() == []
 
     summary = run.summary()

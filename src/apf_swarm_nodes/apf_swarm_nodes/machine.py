@@ -21,6 +21,7 @@ __all__ = [
     'group_members',
     'identity',
     'machine_busy_seconds',
+    'process_args',
     'process_cpu_seconds',
     'process_rss',
 ]
@@ -51,6 +52,21 @@ def process_cpu_seconds(pid: int) -> float | None:
     except (psutil.NoSuchProcess, psutil.AccessDenied):
         return None
     return float(t.user + t.system)
+
+
+def process_args(pid: int) -> list[str] | None:
+    """A process's command line as a list of arguments; None when it is gone.
+
+    A node process forked by the bring-up's zygote shows its executable's command line as
+    one title (``setproctitle``: the arguments joined by spaces, padded with NULs); it is
+    split on whitespace here, so both kinds read alike."""
+    try:
+        with open(f'/proc/{pid}/cmdline', 'rb') as f:
+            raw = f.read()
+    except OSError:
+        return None
+    args = [a.decode(errors='replace') for a in raw.split(b'\0') if a]
+    return args[0].split() if len(args) == 1 else args
 
 
 def process_rss(pid: int) -> int | None:

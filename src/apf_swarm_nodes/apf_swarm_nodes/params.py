@@ -82,6 +82,14 @@ def _descriptor(
     return d
 
 
+_PARAMETER_TYPES = {
+    bool: ParameterType.PARAMETER_BOOL,
+    int: ParameterType.PARAMETER_INTEGER,
+    float: ParameterType.PARAMETER_DOUBLE,
+    str: ParameterType.PARAMETER_STRING,
+}
+
+
 def declare_config(node: Node, *, writable: tuple[str, ...] = ()) -> None:
     """Declare every SwarmConfig key as a parameter with the preset-independent default.
 
@@ -90,26 +98,23 @@ def declare_config(node: Node, *, writable: tuple[str, ...] = ()) -> None:
     ``target_start``, ...) accept a number or a list (dynamic typing); the core validates
     the length.
     """
+    batch: list[tuple[str] | tuple[str, Parameter.Type] | tuple[str, Any, Any]] = []
     for name, f in _FIELDS.items():
         default = getattr(_DEFAULTS, name)
         ro = name not in writable or bool(f.metadata.get('read_only'))
         if isinstance(default, tuple):
+            array = ParameterType.PARAMETER_DOUBLE_ARRAY
             if default:
-                desc = _descriptor(
-                    name, ParameterType.PARAMETER_DOUBLE_ARRAY, f.metadata, ro, True
-                )
-                node.declare_parameter(name, [float(v) for v in default], desc)
+                desc = _descriptor(name, array, f.metadata, ro, True)
+                batch.append((name, [float(v) for v in default], desc))
             else:
-                desc = _descriptor(name, ParameterType.PARAMETER_DOUBLE_ARRAY, f.metadata, ro)
-                node.declare_parameter(name, Parameter.Type.DOUBLE_ARRAY, desc)
+                desc = _descriptor(name, array, f.metadata, ro)
+                batch.append((name, Parameter.Type.DOUBLE_ARRAY, desc))
         else:
-            ptype = {
-                bool: ParameterType.PARAMETER_BOOL,
-                int: ParameterType.PARAMETER_INTEGER,
-                float: ParameterType.PARAMETER_DOUBLE,
-                str: ParameterType.PARAMETER_STRING,
-            }[type(default)]
-            node.declare_parameter(name, default, _descriptor(name, ptype, f.metadata, ro))
+            ptype = _PARAMETER_TYPES[type(default)]
+            batch.append((name, default, _descriptor(name, ptype, f.metadata, ro)))
+    # one call: one /parameter_events message for all of them, not one per parameter
+    node.declare_parameters('', batch)
 
 
 @dataclass(frozen=True)
@@ -158,16 +163,24 @@ SWARM_NODE_PARAMS = (EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODE_PARAM, RUN_PARAM)
 
 def declare_node_params(node: Node, params: tuple[NodeParam, ...]) -> dict[str, Any]:
     """Declare node-only parameters and return their values, validated (ConfigError if bad)."""
+    node.declare_parameters(
+        '',
+        [
+            (
+                p.name,
+                p.default,
+                _descriptor(
+                    p.name,
+                    _PARAMETER_TYPES[type(p.default)],
+                    {'help': p.help, 'lo': p.lo, 'hi': p.hi, 'choices': p.choices},
+                    p.read_only,
+                ),
+            )
+            for p in params
+        ],
+    )
     out = {}
     for p in params:
-        ptype = {
-            bool: ParameterType.PARAMETER_BOOL,
-            int: ParameterType.PARAMETER_INTEGER,
-            float: ParameterType.PARAMETER_DOUBLE,
-            str: ParameterType.PARAMETER_STRING,
-        }[type(p.default)]
-        meta = {'help': p.help, 'lo': p.lo, 'hi': p.hi, 'choices': p.choices}
-        node.declare_parameter(p.name, p.default, _descriptor(p.name, ptype, meta, p.read_only))
         val = node.get_parameter(p.name).value
         if p.choices and val not in p.choices:
             raise ConfigError(f'{p.name} = {val!r}: must be one of {", ".join(p.choices)}')

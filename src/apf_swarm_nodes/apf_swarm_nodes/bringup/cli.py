@@ -95,6 +95,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         'its own node with its own namespace and parameters); default 1',
     )
     p.add_argument(
+        '--spawn',
+        choices=('fork', 'exec'),
+        default='fork',
+        help='how node processes start: fork (default) from a zygote that imported rclpy, '
+        'numpy and the nodes once, the same main() and command line as the executable; '
+        'exec: each runs its executable, as ros2 run does (slower start)',
+    )
+    p.add_argument(
         '--node-netns',
         type=_netns_rule,
         action='append',

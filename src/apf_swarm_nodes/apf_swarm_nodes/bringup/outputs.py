@@ -32,6 +32,7 @@ class RunOutputs:
     group: ProcessGroup
     domain_id: int | None
     run_id: int
+    t_begin: float
     t_launch: Any
     t_start: Any
     t_end: Any
@@ -64,6 +65,10 @@ class RunOutputs:
             'timing': {
                 'ready': round(self.t_start - self.t_launch, 3)
                 if self.t_start is not None and self.t_launch is not None
+                else None,
+                # the bring-up's own start to graph ready (preparation, isolation included)
+                'startup': round(self.t_start - self.t_begin, 3)
+                if self.t_start is not None
                 else None,
                 'run': round(run_s, 3),
                 'shutdown': round(self.stop_seconds, 3),

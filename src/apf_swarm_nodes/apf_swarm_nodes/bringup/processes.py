@@ -12,8 +12,12 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
 
 from ..machine import group_members
+
+if TYPE_CHECKING:
+    from .zygote import Zygote
 
 PACKAGE = 'apf_swarm_nodes'
 EXIT_OK = 0
@@ -34,6 +38,17 @@ DISCOVERY_RANGES = ('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF')
 # --------------------------------------------------------------------------------------------
 
 
+class Process(Protocol):
+    """What supervision needs of a started process: a :class:`subprocess.Popen`, or a
+    :class:`~.zygote.ForkedProcess`."""
+
+    pid: int
+
+    def poll(self) -> int | None: ...
+
+    def wait(self, timeout: float | None = None) -> int: ...
+
+
 def describe_rc(rc: int) -> str:
     if rc < 0:
         try:
@@ -44,7 +59,7 @@ def describe_rc(rc: int) -> str:
 
 
 def stop_process(
-    popen: subprocess.Popen[bytes],
+    popen: Process,
     sequence: Sequence[tuple[int, float]] = ((signal.SIGINT, 30.0), (signal.SIGKILL, 5.0)),
 ) -> int | None:
     """Stop one process started with ``start_new_session=True``: each signal of ``sequence``
@@ -91,20 +106,25 @@ def tail_lines(path: Path, n: int = 10, max_bytes: int = 16384) -> list[str]:
 
 @dataclass
 class Child:
-    """One supervised OS process: its own process group, output appended to ``log_path``."""
+    """One supervised OS process: its own process group, output appended to ``log_path``.
+
+    With a ``zygote``, a node executable of the package is forked from it (the same
+    ``main()``, argv, environment and log; see :mod:`.zygote`), else executed."""
 
     name: str
     argv: list[str]
     log_path: Path
     env: Mapping[str, str] | None = None
     cwd: Path | None = None
-    popen: subprocess.Popen[bytes] | None = None
+    zygote: Zygote | None = None
+    popen: Process | None = None
     starts: int = 0
     stopping: bool = False
     pids: list[int] = field(default_factory=list)
 
-    def start(self) -> None:
-        """Start (or restart) the process; the log is appended to, with a header on restarts."""
+    def start(self, forked: Process | None = None) -> None:
+        """Start (or restart) the process; the log is appended to, with a header on restarts.
+        ``forked``: the process, already forked by the zygote in a batch."""
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.log_path, 'ab') as log:
             if self.starts:
@@ -113,16 +133,22 @@ class Child:
                     f'{time.strftime("%H:%M:%S")} =====\n'.encode()
                 )
                 log.flush()
-            self.popen = subprocess.Popen(
-                self.argv,
-                stdin=subprocess.DEVNULL,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                env=dict(self.env) if self.env is not None else None,
-                cwd=self.cwd,
-                start_new_session=True,
-                close_fds=True,
-            )
+        if forked is None and self.zygote is not None:
+            forked = self.zygote.spawn(self.argv, self.log_path, self.env, self.cwd)
+        if forked is not None:
+            self.popen = forked
+        else:
+            with open(self.log_path, 'ab') as log:
+                self.popen = subprocess.Popen(
+                    self.argv,
+                    stdin=subprocess.DEVNULL,
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                    env=dict(self.env) if self.env is not None else None,
+                    cwd=self.cwd,
+                    start_new_session=True,
+                    close_fds=True,
+                )
         self.starts += 1
         self.stopping = False
         self.pids.append(self.popen.pid)
@@ -185,8 +211,19 @@ class ProcessGroup:
         return iter(self.children)
 
     def start_all(self) -> None:
-        for c in self.children:
-            c.start()
+        """Start every child; those with a zygote forked from it in one batch."""
+        forked: list[Process | None] = [None] * len(self.children)
+        zygote = next((c.zygote for c in self.children if c.zygote is not None), None)
+        if zygote is not None:
+            from .zygote import Spawn
+
+            mine = [i for i, c in enumerate(self.children) if c.zygote is zygote]
+            spawns = [self.children[i] for i in mine]
+            batch = zygote.spawn_all([Spawn(c.argv, c.log_path, c.env, c.cwd) for c in spawns])
+            for i, f in zip(mine, batch, strict=True):
+                forked[i] = f
+        for c, f in zip(self.children, forked, strict=True):
+            c.start(f)
 
     def poll(self) -> list[tuple[Child, int]]:
         """Children that exited since they were (re)started and were not asked to stop."""

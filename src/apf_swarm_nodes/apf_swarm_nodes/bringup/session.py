@@ -75,7 +75,9 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         self.executor: Any = None
         self.state_sub: Any = None
         self.start_pub: Any = None
-        # monotonic times of the launch, the start and the end of the run [s]
+        # monotonic times of this bring-up's start, the launch, the start and the end of the
+        # run [s]
+        self.t_begin = time.monotonic()
         self.t_launch: Any = None
         self.t_start: Any = None
         self.t_end: Any = None
@@ -85,6 +87,7 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         self.warned: set[str] = set()
         #: ``--view``: the live view (:class:`~apf_swarm_nodes.view.LiveView`)
         self.view: Any = None
+        self.zygote: Any = None
 
     # --- messages -------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -192,7 +195,15 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         self.say(f'view: {self.view.url} (Foxglove: Open connection, Foxglove WebSocket)')
 
     def execute(self) -> int:
-        self.prepare()
+        self.start_zygote()  # its imports overlap the preparation
+        try:
+            self.prepare()
+            return self.execute_prepared()
+        finally:
+            if self.zygote is not None:
+                self.zygote.close()
+
+    def execute_prepared(self) -> int:
         self.isolate()
         code, status, message = EXIT_OK, 'completed', ''
         self.start_view()

@@ -18,6 +18,9 @@ from .commands import executable_path, node_commands, node_netns, package_prefix
 from .isolation import env_domain, pick_domain_id
 from .processes import Child, ProcessGroup
 
+if TYPE_CHECKING:
+    from .zygote import Zygote
+
 __all__ = ['Startup']
 
 
@@ -34,6 +37,7 @@ class Startup:
     rec_group: ProcessGroup
     domain_id: int | None
     run_id: int
+    zygote: Zygote | None
     t_launch: Any
     prefix: Path
     config_file: Path
@@ -103,6 +107,18 @@ class Startup:
             say=self.say,
         )
 
+    def start_zygote(self) -> None:
+        """``--spawn fork``: start the zygote first, so that its imports overlap the
+        preparation (the node processes are forked from it at the launch)."""
+        if getattr(self.args, 'spawn', 'exec') != 'fork':
+            return
+        from .zygote import Zygote
+
+        self.zygote = Zygote()
+        if not self.zygote.usable:
+            self.say(f'--spawn fork unavailable ({self.zygote.error}); executing the nodes')
+            self.zygote = None
+
     def child_env(self) -> dict[str, str]:
         env = dict(os.environ)
         env.setdefault('PYTHONUNBUFFERED', '1')
@@ -140,6 +156,7 @@ class Startup:
                 ],
                 self.out / 'logs' / 'recorder.log',
                 env,
+                zygote=self.zygote,
             )
             self.rec_group.add(rec)
             self.rec_group.start_all()
@@ -147,11 +164,15 @@ class Startup:
             ns = node_netns(name, self.args.node_netns)
             # a simulated host (scripts/multihost.py)
             argv = cmd if ns is None else ['ip', 'netns', 'exec', ns, *cmd]
-            self.group.add(Child(name, argv, self.out / 'logs' / f'{name}.log', env))
+            self.group.add(
+                Child(name, argv, self.out / 'logs' / f'{name}.log', env, zygote=self.zygote)
+            )
         self.group.start_all()
+        if self.zygote is not None and self.zygote.error:
+            self.say(f'warning: the zygote failed ({self.zygote.error}); nodes executed instead')
         self.say(
             f'started {len(cmds) + len(self.rec_group.children)} processes '
-            f'on ROS_DOMAIN_ID={self.domain_id} '
+            f'{"(forked) " if self.zygote is not None else ""}on ROS_DOMAIN_ID={self.domain_id} '
             f'({self.args.discovery_range}), {self.mode}, {self.n} trackers, '
             f'logs in {self.out / "logs"}'
         )

@@ -1,0 +1,396 @@
+"""Fast start of a run's node processes: a zygote.
+
+Each node process of a run spends about 0.3 s of CPU importing Python, rclpy, numpy and the
+project before it creates its node; 34 of them starting together on two cores wait seconds
+for each other before discovery can even begin. The zygote is one process that imports all
+of that once and then forks each node process on request: the child runs the very ``main()``
+of the executable that ``ros2 run apf_swarm_nodes <node>`` runs, with the same argv,
+environment, working directory and log file, and the same command line in ``ps``. It never
+initialises ROS itself (a process whose DDS threads already run must not fork), so it can
+also fork the respawn of a crashed node.
+
+Each node is a child of the bring-up, not of the zygote: the zygote forks twice and the first
+child exits at once, so that the node is re-parented to the bring-up, which has made itself
+a child subreaper (``PR_SET_CHILD_SUBREAPER``). The bring-up then waits for it, signals its
+process group and reads its exit code as it does for a process it started itself
+(:class:`ForkedProcess` has the part of :class:`subprocess.Popen` the supervision uses).
+
+A whole graph is forked as one batch, and no node of a batch runs before the last is forked:
+forks requested one at a time, each waiting for a zygote that competes for the CPU with the
+nodes already running, took seconds for 34 nodes.
+
+Protocol: a JSON list of requests a line on the zygote's stdin (each with ``entry``,
+``argv``, ``env``, ``cwd``, ``log``), the list of replies a line on its stdout (each
+``{"pid": N}`` or ``{"error": "..."}``); end of input ends it. Run as
+``python -m apf_swarm_nodes.bringup.zygote``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import importlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+__all__ = [
+    'DIST',
+    'ForkedProcess',
+    'Spawn',
+    'Zygote',
+    'become_subreaper',
+    'main',
+    'node_entry_points',
+]
+
+#: the distribution whose console scripts are the node executables
+DIST = 'apf-swarm-nodes'
+#: console scripts that are not nodes (never preloaded or forked)
+NOT_NODES = frozenset({'apf-swarm'})
+PR_SET_CHILD_SUBREAPER = 36
+
+
+def node_entry_points() -> dict[str, str]:
+    """``{executable: 'module:function'}`` of the package's node executables (its console
+    scripts, as installed)."""
+    from importlib.metadata import PackageNotFoundError, distribution
+
+    try:
+        eps = distribution(DIST).entry_points
+    except PackageNotFoundError:
+        return {}
+    return {
+        ep.name: ep.value
+        for ep in eps
+        if ep.group == 'console_scripts' and ep.name not in NOT_NODES
+    }
+
+
+def become_subreaper() -> bool:
+    """Make this process the reaper of its orphaned descendants (Linux ``prctl``); False
+    where that is not possible."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return bool(libc.prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) == 0)
+    except (OSError, AttributeError):
+        return False
+
+
+# --------------------------------------------------------------------------------------------
+# the bring-up's side
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Spawn:
+    """What to start: argv (its first element a node executable of the package), log file,
+    environment (None: this process's), working directory (None: this one)."""
+
+    argv: Sequence[str]
+    log_path: Path
+    env: Mapping[str, str] | None = None
+    cwd: Path | None = None
+
+
+class ForkedProcess:
+    """A node process forked by the zygote and re-parented to this process: the part of
+    :class:`subprocess.Popen` that :class:`~.processes.Child` uses (``pid``, ``returncode``,
+    :meth:`poll`, :meth:`wait`)."""
+
+    def __init__(self, pid: int, args: Sequence[str]) -> None:
+        self.pid = pid
+        self.args = list(args)
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG)
+            except ChildProcessError:
+                # not (or no longer) our child: only a liveness check is left
+                if not _alive(self.pid):
+                    self.returncode = -signal.SIGKILL
+                return self.returncode
+            if pid == self.pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while (rc := self.poll()) is None:
+            if deadline is not None and time.monotonic() >= deadline:
+                raise subprocess.TimeoutExpired(self.args, timeout or 0.0)
+            time.sleep(0.01)
+        return rc
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class Zygote:
+    """The bring-up's handle on a zygote process.
+
+    Started early (its imports overlap the bring-up's own preparation); :meth:`spawn` forks a
+    node process and returns it, or None when this zygote cannot (not a node executable of
+    the package, or the zygote is gone), in which case the caller starts the executable
+    itself. :meth:`close` ends the zygote; the node processes live on.
+    """
+
+    def __init__(self, env: Mapping[str, str] | None = None) -> None:
+        self.entries = node_entry_points()
+        self.usable = bool(self.entries) and become_subreaper()
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.error: str | None = None if self.usable else 'no child subreaper or no entry points'
+        if not self.usable:
+            return
+        # its stderr is this process's: a zygote that fails says so where the bring-up talks
+        self.proc = subprocess.Popen(
+            [sys.executable, '-m', __name__],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=dict(env) if env is not None else None,
+            start_new_session=True,
+            close_fds=True,
+        )
+
+    def entry_of(self, argv: Sequence[str]) -> str | None:
+        """The entry point of ``argv`` when it runs a node executable of the package."""
+        if not argv:
+            return None
+        return self.entries.get(Path(argv[0]).name)
+
+    def spawn(
+        self,
+        argv: Sequence[str],
+        log_path: Path,
+        env: Mapping[str, str] | None = None,
+        cwd: Path | None = None,
+    ) -> ForkedProcess | None:
+        """Fork one node process (None: start it otherwise)."""
+        return self.spawn_all([Spawn(argv, log_path, env, cwd)])[0]
+
+    def spawn_all(self, spawns: Sequence[Spawn]) -> list[ForkedProcess | None]:
+        """Fork node processes as one batch (None for each that this zygote cannot fork)."""
+        out: list[ForkedProcess | None] = [None] * len(spawns)
+        batch = [(i, entry) for i, s in enumerate(spawns) if (entry := self.entry_of(s.argv))]
+        proc = self.proc
+        if not batch or proc is None or proc.stdin is None or proc.stdout is None:
+            return out
+        requests = [
+            {
+                'entry': entry,
+                'argv': list(spawn.argv),
+                'env': dict(os.environ) if spawn.env is None else dict(spawn.env),
+                'cwd': str(spawn.cwd) if spawn.cwd is not None else None,
+                'log': str(spawn.log_path),
+            }
+            for spawn, entry in ((spawns[i], entry) for i, entry in batch)
+        ]
+        try:
+            proc.stdin.write(json.dumps(requests).encode() + b'\n')
+            proc.stdin.flush()
+            line = proc.stdout.readline()
+        except OSError as exc:
+            line = b''
+            self.error = f'zygote pipe: {exc}'
+        if not line:
+            self.error = self.error or f'zygote ended ({proc.poll()})'
+            self.close()
+            return out
+        for (i, _), reply in zip(batch, json.loads(line), strict=True):
+            if 'pid' in reply:
+                out[i] = ForkedProcess(int(reply['pid']), spawns[i].argv)
+            else:
+                self.error = str(reply.get('error'))
+        return out
+
+    def close(self) -> None:
+        proc, self.proc = self.proc, None
+        if proc is None:
+            return
+        with contextlib.suppress(OSError):
+            if proc.stdin is not None:
+                proc.stdin.close()
+        try:
+            proc.wait(5.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
+
+
+# --------------------------------------------------------------------------------------------
+# the zygote's side
+# --------------------------------------------------------------------------------------------
+
+
+def preload(entries: Mapping[str, str]) -> None:
+    """Import every node module, and do once what each node process would otherwise do
+    while it creates its node: load the type support of every message and service
+    (``create_publisher`` and rclpy's own services; what a service loads can bring more),
+    and fill the caches :mod:`inspect` reads for rclpy's logger (the caller's module and
+    source line of each log call)."""
+    import inspect
+    import linecache
+
+    from rclpy.type_support import check_for_type_support
+
+    for value in entries.values():
+        importlib.import_module(value.partition(':')[0])
+    done: set[str] = set()
+    while todo := [
+        name
+        for name, module in list(sys.modules.items())
+        if module is not None
+        and name not in done
+        and name.rpartition('.')[2] in ('msg', 'srv', 'action')
+    ]:
+        for name in todo:
+            done.add(name)
+            for attr in list(vars(sys.modules[name]).values()):
+                if isinstance(attr, type) and hasattr(attr, '__import_type_support__'):
+                    with contextlib.suppress(Exception):
+                        check_for_type_support(attr)
+    frame = inspect.currentframe()
+    if frame is not None:
+        inspect.getframeinfo(frame)  # builds inspect's module cache
+    for name, module in list(sys.modules.items()):
+        file = getattr(module, '__file__', None)
+        if name.startswith(('apf_swarm', 'rclpy')) and file and file.endswith('.py'):
+            linecache.getlines(file)
+
+
+def fork_node() -> int:
+    """Fork a node process that is not this process's child: like :func:`os.fork`, 0 in the
+    node process, its pid here (the intermediate process has exited and been reaped)."""
+    r, w = os.pipe()
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    first = os.fork()
+    if first == 0:
+        os.close(r)
+        try:
+            second = os.fork()
+        except OSError:
+            os._exit(1)
+        if second == 0:
+            os.close(w)
+            return 0
+        os.write(w, b'%d' % second)
+        os._exit(0)
+    os.close(w)
+    with os.fdopen(r, 'rb') as f:
+        data = f.read()
+    os.waitpid(first, 0)
+    if not data:
+        raise OSError('the intermediate process could not fork')
+    return int(data)
+
+
+def become_node(request: Mapping[str, Any]) -> None:
+    """In the forked node process: what starting the executable would have given it (own
+    session, default signals, its log on stdout and stderr, its environment, working
+    directory, argv and command line)."""
+    os.setsid()
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD, signal.SIGUSR1):
+        signal.signal(sig, signal.SIG_DFL)
+    log = os.open(request['log'], os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    null = os.open(os.devnull, os.O_RDONLY)
+    os.dup2(null, 0)
+    os.dup2(log, 1)
+    os.dup2(log, 2)
+    os.close(log)
+    os.close(null)
+    # unbuffered text streams, as PYTHONUNBUFFERED gives an executed node
+    sys.stdin = open(0, closefd=False)  # noqa: SIM115 (the process's stdin, never closed)
+    sys.stdout = open(1, 'w', buffering=1, closefd=False)  # noqa: SIM115
+    sys.stderr = open(2, 'w', buffering=1, errors='backslashreplace', closefd=False)  # noqa: SIM115
+    os.environ.clear()
+    os.environ.update(request['env'])
+    if request.get('cwd'):
+        os.chdir(request['cwd'])
+    sys.argv = list(request['argv'])
+    with contextlib.suppress(ImportError):
+        import setproctitle
+
+        setproctitle.setproctitle(' '.join([sys.executable, *sys.argv]))
+        setproctitle.setthreadtitle(Path(sys.argv[0]).name)  # what top shows
+
+
+def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
+    """Answer batches of requests until end of input (returns None); in a forked node
+    process, return its request once the whole batch is forked."""
+    for line in requests:
+        try:
+            batch = json.loads(line)
+        except ValueError as exc:
+            batch, bad = [], f'ValueError: {exc}'
+        else:
+            bad = None if isinstance(batch, list) else 'expected a JSON list of requests'
+        if bad is not None:
+            replies.write(json.dumps([{'error': bad}]).encode() + b'\n')
+            replies.flush()
+            continue
+        gate_r, gate_w = os.pipe()  # its end of file lets the batch run
+        results: list[dict[str, Any]] = []
+        for request in batch:
+            try:
+                pid = fork_node()
+            except OSError as exc:
+                results.append({'error': f'{type(exc).__name__}: {exc}'})
+                continue
+            if pid == 0:
+                os.close(gate_w)
+                os.read(gate_r, 1)
+                os.close(gate_r)
+                return dict(request)
+            results.append({'pid': pid})
+        os.close(gate_w)
+        os.close(gate_r)
+        replies.write(json.dumps(results).encode() + b'\n')
+        replies.flush()
+    return None
+
+
+def main() -> None:
+    # Ctrl-C in a terminal is the bring-up's to handle; the zygote ends with its input
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    requests, replies = sys.stdin.buffer, sys.stdout.buffer
+    entries = node_entry_points()
+    preload(entries)
+    with contextlib.suppress(ImportError):
+        import setproctitle
+
+        # set up here, once, while the environment still lies behind argv (where it finds it)
+        setproctitle.setproctitle(setproctitle.getproctitle())
+    import gc
+
+    gc.collect()
+    gc.freeze()  # the preloaded objects stay shared with every node process
+    request = serve(requests, replies)
+    if request is None:
+        return
+    become_node(request)
+    module, _, func = request['entry'].partition(':')
+    sys.exit(getattr(importlib.import_module(module), func)())
+
+
+if __name__ == '__main__':
+    main()

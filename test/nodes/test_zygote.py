@@ -1,0 +1,156 @@
+"""The bring-up's zygote (apf_swarm_nodes.bringup.zygote) with real processes: a forked node
+is the executable it stands for (argv, command line, log, environment, session, exit code),
+it is the caller's child, and it is stopped by its own PID.
+
+The zygote makes its caller a child subreaper; so that pytest does not become one, each case
+runs its caller in a subprocess of its own (``DRIVER``), which reports what it saw as JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+from apf_swarm_nodes.bringup.commands import executable_path, package_prefix
+from apf_swarm_nodes.bringup.zygote import ForkedProcess, node_entry_points, serve
+
+DRIVER = r"""
+import json, os, signal, sys, time
+from pathlib import Path
+from apf_swarm_nodes.bringup.processes import Child, ProcessGroup
+from apf_swarm_nodes.bringup.zygote import Zygote
+from apf_swarm_nodes.machine import process_args
+
+tmp, exe = Path(sys.argv[1]), sys.argv[2]
+zygote = Zygote()
+env = dict(os.environ, ROS_LOG_DIR=str(tmp / 'node_logs'))
+group = ProcessGroup()
+bad = group.add(Child('bad', [exe, '--ros-args', '-p', 'qos_depth:=0'], tmp / 'bad.log', env,
+                      zygote=zygote))
+live = group.add(Child('live', [exe, '--ros-args', '-r', '__node:=zygote_target'],
+                       tmp / 'live.log', env, cwd=tmp, zygote=zygote))
+other = group.add(Child('other', [sys.executable, '-c', 'import time; time.sleep(60)'],
+                        tmp / 'other.log', env, zygote=zygote))
+t0 = time.monotonic()
+group.start_all()
+out = {'kinds': [type(c.popen).__name__ for c in group], 'ppid': {}, 'error': zygote.error}
+deadline = time.monotonic() + 60
+while bad.poll() is None and time.monotonic() < deadline:
+    time.sleep(0.02)
+out['bad_rc'] = bad.poll()
+pid = live.pid
+out['live_pid'] = pid
+with open(f'/proc/{pid}/stat') as f:
+    out['ppid'] = int(f.read().rsplit(')', 1)[1].split()[1])
+out['me'] = os.getpid()
+out['sid'] = os.getsid(pid)
+out['args'] = process_args(pid)
+out['comm'] = Path(f'/proc/{pid}/comm').read_text().strip()
+out['cwd'] = os.readlink(f'/proc/{pid}/cwd')
+while 'target:' not in (tmp / 'live.log').read_text() and time.monotonic() < deadline:
+    time.sleep(0.05)
+out['ros_logs'] = sorted(p.name for p in (tmp / 'node_logs').glob('*'))
+out['how'] = group.stop_all()
+out['live_rc'] = live.poll()
+out['left'] = group.leftovers()
+# a respawn after the batch is forked too
+live.start()
+out['respawn_kind'] = type(live.popen).__name__
+while (tmp / 'live.log').read_text().count('target:') < 2 and time.monotonic() < deadline:
+    time.sleep(0.05)
+out['how2'] = group.stop_all()
+zygote.close()
+print(json.dumps(out))
+"""
+
+
+@pytest.fixture
+def ros_env(tmp_path: Path) -> dict[str, str]:
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(random.randint(140, 160))
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['ROS_LOG_DIR'] = str(tmp_path / 'ros')
+    return env
+
+
+def drive(tmp_path: Path, env: dict[str, str]) -> dict[str, Any]:
+    exe = str(executable_path(package_prefix(), 'target'))
+    done = subprocess.run(
+        [sys.executable, '-c', DRIVER, str(tmp_path), exe],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return dict(json.loads(done.stdout.strip().splitlines()[-1]))
+
+
+def test_a_forked_node_is_its_executable_and_the_callers_child(
+    tmp_path: Path, ros_env: dict[str, str]
+) -> None:
+    out = drive(tmp_path, ros_env)
+    assert out['error'] is None
+    # the node executables were forked, the other command executed
+    assert out['kinds'] == ['ForkedProcess', 'ForkedProcess', 'Popen']
+    # a bad parameter: the node's own error line in its log, and its exit code through waitpid
+    assert out['bad_rc'] == 2
+    bad_log = (tmp_path / 'bad.log').read_text()
+    assert 'qos_depth' in bad_log and 'Traceback' not in bad_log
+    # re-parented to the caller (the subreaper), in a session of its own
+    assert out['ppid'] == out['me']
+    assert out['sid'] == out['live_pid']
+    # the command line and name of the executable, its environment and working directory
+    assert out['args'][1:] == [out['args'][1], '--ros-args', '-r', '__node:=zygote_target']
+    assert out['args'][1].endswith('/lib/apf_swarm_nodes/target')
+    assert out['comm'] == 'target'
+    # its environment: rcl wrote the node's ROS log where the child's ROS_LOG_DIR says
+    assert out['ros_logs'], 'no ROS log file in the ROS_LOG_DIR of the child'
+    assert out['cwd'] == str(tmp_path)
+    # stopped by its own PID on the first signal, cleanly; nothing left
+    assert out['how']['live'] == 'SIGINT' and out['live_rc'] == 0
+    assert out['left'] == []
+    assert out['respawn_kind'] == 'ForkedProcess'
+    assert out['how2']['live'] == 'SIGINT'
+    assert 'Traceback' not in (tmp_path / 'live.log').read_text()
+
+
+def test_the_zygote_answers_bad_requests_and_ends_with_its_input(tmp_path: Path) -> None:
+    """The protocol without forking a node: a line that is not a list of requests gets an
+    error reply, the end of input ends the loop."""
+    requests = tmp_path / 'in'
+    requests.write_bytes(b'{"not": "a list"}\nnot json\n')
+    replies = tmp_path / 'out'
+    with open(requests, 'rb') as rin, open(replies, 'wb') as rout:
+        assert serve(rin, rout) is None
+    lines = [json.loads(x) for x in replies.read_text().splitlines()]
+    assert lines[0] == [{'error': 'expected a JSON list of requests'}]
+    assert lines[1][0]['error'].startswith('ValueError')
+
+
+def test_the_node_executables_are_the_packages_console_scripts() -> None:
+    entries = node_entry_points()
+    assert {'tracker', 'trackers', 'plant', 'target', 'recorder', 'player'} <= set(entries)
+    assert 'apf-swarm' not in entries
+    assert entries['tracker'] == 'apf_swarm_nodes.tracker_node:main'
+
+
+def test_a_forked_process_that_is_not_a_child_is_judged_by_liveness() -> None:
+    """poll() on a PID this process cannot wait for: alive -> None, gone -> killed."""
+    p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(30)'])
+    try:
+        other = ForkedProcess(os.getppid(), ['parent'])  # alive, not our child
+        assert other.poll() is None
+    finally:
+        p.kill()
+        p.wait()
+    gone = ForkedProcess(p.pid, ['gone'])  # reaped already: not a child, not alive
+    assert gone.poll() is not None
+    with pytest.raises(subprocess.TimeoutExpired):
+        ForkedProcess(os.getppid(), ['parent']).wait(0.05)
