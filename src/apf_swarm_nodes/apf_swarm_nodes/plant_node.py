@@ -138,12 +138,14 @@ class PlantNode(Node):
         publish_rate = float(p['publish_rate']) or self.cfg.control_rate or REALTIME_RATE
         period = self.cfg.dt if self.mode == 'lockstep' else 1.0 / publish_rate
         self.out = PlantOutputs(self, self.model, self.mode, qos, p['markers_rate'], period)
-        for i in self.model.ids:
+        self.force_subs = [
             self.create_subscription(ForceCommand, force_topic(i), partial(self._on_force, i), qos)
+            for i in self.model.ids
+        ]
         self.tracker_rejected: dict[int, int] = {}
         self._log_rejection = RejectionLog(self)
         self.create_timer(1.0, self._check_duplicates)
-        self.create_subscription(Odometry, TARGET_ODOM, self._on_target, qos)
+        self.target_sub = self.create_subscription(Odometry, TARGET_ODOM, self._on_target, qos)
         self.barrier = LockstepBarrier(self.model, self.timeout)
         self.rt = RealtimePlant(
             self.model, self.timeout, float(p['stale_after']), float(p['arm_timeout'])
@@ -201,10 +203,12 @@ class PlantNode(Node):
         return self.rt.clock_started
 
     def _matched(self) -> bool:
-        """Lockstep: every tracker's command has a publisher and every step-k reader a match."""
-        if self.count_publishers(TARGET_ODOM) < 1:
+        """Lockstep: every tracker's command publisher matched to this plant's subscription
+        (the graph showing it is not enough: the plant's own reader may not have matched it
+        yet, and a command sent before that is lost) and every step-k reader a match."""
+        if self.target_sub.get_publisher_count() < 1:
             return False
-        if any(self.count_publishers(force_topic(i)) < 1 for i in self.model.ids):
+        if any(sub.get_publisher_count() < 1 for sub in self.force_subs):
             return False
         return self.out.readers_matched(self.inputs)
 
