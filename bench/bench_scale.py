@@ -28,7 +28,10 @@ LOCALHOST``, reads its ``summary.json`` and samples the case's processes from ``
   ping-pong running in the same graph at the same time, and the ping-pong once alone.
 * **discovery**: the bring-up's "graph ready" time (``timing.ready``: process start to every
   node seen and every subscription matched) against n, K = 1 and 4, realtime 50 Hz events /
-  aggregate; a ladder case of that configuration is reused, else a 1 s flight is run.
+  aggregate, with the node processes forked from the bring-up's zygote (``--spawn fork``, the
+  default) and, the baseline of the same run, executed (``--spawn exec``); a ladder case of
+  that configuration is reused, else a 1 s flight is run. The zygote's CPU counts as the
+  nodes'.
 * **lockstep** steps/s (``triangle``, dt = 1 ms) for 3 (K = 1 and 3), 10 and 30 (K = 1, 5)
   trackers.
 * **RSS per tracker** per hosting mode: the tracker processes' RSS (max sampled) summed and
@@ -50,6 +53,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -64,6 +68,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import psutil
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -107,6 +113,7 @@ class UpCase:
     inputs: str = 'aggregate'
     part: str = 'ladder'
     depth: int = 1  # realtime qos_depth of the control topics
+    spawn: str = 'fork'  # the bring-up's --spawn: forked from its zygote, or executed
     result: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -115,14 +122,14 @@ class UpCase:
             return f'lockstep n={self.n} K={self.k} ({self.flight:g} s simulated)'
         return (
             f'realtime {self.rate:g} Hz n={self.n} K={self.k} executor={self.executor} '
-            f'inputs={self.inputs} depth={self.depth} ({self.flight:g} s)'
+            f'inputs={self.inputs} depth={self.depth} spawn={self.spawn} ({self.flight:g} s)'
         )
 
     @property
     def slug(self) -> str:
         return (
             f'{self.part}_{self.mode}_{self.rate:g}hz_{self.executor}_{self.inputs}'
-            f'_d{self.depth}_n{self.n}_k{self.k}'
+            f'_d{self.depth}_n{self.n}_k{self.k}_{self.spawn}'
         )
 
     @property
@@ -158,6 +165,8 @@ def bringup_argv(case: UpCase, out: Path, domain: int) -> list[str]:
         '--allow-overload',
         '--ready-timeout',
         str(READY_TIMEOUT),
+        '--spawn',
+        case.spawn,
     ]
     params = [f'executor:={case.executor}', f'inputs:={case.inputs}', f'qos_depth:={case.depth}']
     if case.mode == 'realtime':
@@ -187,6 +196,8 @@ class CaseSampler:
     def __init__(self, config: str, bringup_pid: int, expected: int) -> None:
         self.config, self.expected = config, expected
         self.harness = [bringup_pid, os.getpid()]
+        self.bringup_pid = bringup_pid
+        self.zygote: list[int] = []  # the bring-up's zygote: node start-up work, counted as nodes
         self.names: dict[int, str] = {}
         self.rss: dict[int, float] = {}
         self.start = self.snapshot()
@@ -196,9 +207,11 @@ class CaseSampler:
     def snapshot(self) -> Snapshot:
         if len(self.names) < self.expected:
             self.names.update(node_pids(self.config))
+        if not self.zygote:
+            self.zygote = zygote_pids(self.bringup_pid)
         ticks: dict[int, float] = {}
         alive: set[int] = set()
-        for pid in [*self.names, *self.harness]:
+        for pid in [*self.names, *self.harness, *self.zygote]:
             t = process_cpu_seconds(pid)
             if t is not None:
                 ticks[pid] = t
@@ -232,7 +245,7 @@ class CaseSampler:
         def pct(ticks: float) -> float:
             return 100.0 * ticks / dt
 
-        nodes = [p for p in self.names if p in b.ticks]
+        nodes = [p for p in [*self.names, *self.zygote] if p in b.ticks]
         node = pct(sum(b.ticks[p] - a.ticks.get(p, 0) for p in nodes))
         harness = pct(sum(b.ticks[p] - a.ticks.get(p, 0) for p in self.harness if p in b.ticks))
         total = pct(b.busy - a.busy)
@@ -254,6 +267,20 @@ class CaseSampler:
         trackers = [v for p, v in self.rss.items() if self.names[p].startswith('tracker')]
         plant = [v for p, v in self.rss.items() if self.names[p].startswith('plant')]
         return trackers, (max(plant) if plant else None)
+
+
+def zygote_pids(parent: int) -> list[int]:
+    """The bring-up's zygote (``--spawn fork``), a child of ``parent``; [] before it starts."""
+    try:
+        children = psutil.Process(parent).children()
+    except psutil.Error:
+        return []
+    out = []
+    for c in children:
+        with contextlib.suppress(psutil.Error):
+            if any('bringup.zygote' in a for a in c.cmdline()):
+                out.append(c.pid)
+    return out
 
 
 class LogWatcher:
@@ -526,38 +553,28 @@ def ladder_plan(quick: bool, rates: list[float]) -> list[tuple[float, str, str, 
 def run_discovery(
     bench: Bench, done: list[UpCase], sizes: Iterable[int]
 ) -> list[tuple[UpCase, str]]:
-    """(case, 'ladder' | 'own') per (n, K): a ladder case of the discovery configuration
-    when there is one, else a short flight of its own."""
+    """(case, source) per (n, K, spawn): for fork, a ladder case of the discovery
+    configuration when there is one, else a short flight of its own; exec (each node process
+    runs its executable) always a flight of its own, the baseline of the same run."""
     rows = []
-    for k in (1, 4):
-        for n in sizes:
-            found = [
-                c
-                for c in done
-                if c.mode == 'realtime'
-                and c.n == n
-                and c.k == k
-                and c.key == (DISCOVERY_RATE, 'events', 'aggregate', k, 1)
-                and c.result.get('ready_s') is not None
-            ]
-            if found:
-                rows.append((found[0], 'ladder case'))
-            else:
-                rows.append(
-                    (
-                        bench.up(
-                            UpCase(
-                                'realtime',
-                                n,
-                                k,
-                                DISCOVERY_FLIGHT,
-                                DISCOVERY_RATE,
-                                part='discovery',
-                            )
-                        ),
-                        f'{DISCOVERY_FLIGHT:g} s flight',
-                    )
-                )
+    for k, n, spawn in itertools.product((1, 4), sizes, ('fork', 'exec')):
+        found = [
+            c
+            for c in done
+            if c.mode == 'realtime'
+            and c.n == n
+            and c.k == k
+            and c.spawn == spawn
+            and c.key == (DISCOVERY_RATE, 'events', 'aggregate', k, 1)
+            and c.result.get('ready_s') is not None
+        ]
+        if found:
+            rows.append((found[0], 'ladder case'))
+            continue
+        case = UpCase(
+            'realtime', n, k, DISCOVERY_FLIGHT, DISCOVERY_RATE, part='discovery', spawn=spawn
+        )
+        rows.append((bench.up(case), f'{DISCOVERY_FLIGHT:g} s flight'))
     return rows
 
 
@@ -694,19 +711,41 @@ def latency_rows(cases: list[Case], alone: dict[str, Any] | None) -> list[str]:
 
 
 def discovery_rows(rows: list[tuple[UpCase, str]]) -> list[str]:
+    """One row per (n, K): graph ready with the node processes forked from the bring-up's
+    zygote and executed, their ratio, and the start-up CPU split of each."""
     out = [
         (
-            '| trackers | per process | node processes | graph ready [s] | start-up CPU nodes '
-            '/ harness / other [%] | from |'
+            '| trackers | per process | node processes | graph ready, fork [s] | '
+            'graph ready, exec [s] | exec / fork | start-up CPU nodes / harness / other [%], '
+            'fork; exec | from |'
         ),
-        '|---:|---:|---:|---:|---|---|',
+        '|---:|---:|---:|---:|---:|---:|---|---|',
     ]
-    for c, src in sorted(rows, key=lambda x: (x[0].n, x[0].k)):
-        r = c.result
-        ready = f1(r.get('ready_s')) if 'missed' in r else f'failed: {r.get("error", "")}'
+    by_size: dict[tuple[int, int], dict[str, tuple[UpCase, str]]] = {}
+    for c, src in rows:
+        by_size.setdefault((c.n, c.k), {})[c.spawn] = (c, src)
+    for (n, k), pair in sorted(by_size.items()):
+        ready: dict[str, float | None] = {}
+        cells, cpus, srcs = [], [], []
+        for spawn in ('fork', 'exec'):
+            if spawn not in pair:
+                ready[spawn] = None
+                cells.append('-')
+                continue
+            c, src = pair[spawn]
+            r = c.result
+            ready[spawn] = r.get('ready_s') if 'missed' in r else None
+            cells.append(
+                f1(r.get('ready_s')) if 'missed' in r else f'failed: {r.get("error", "")}'
+            )
+            cpus.append(cpu_cell(r.get('cpu_startup')))
+            srcs.append(src)
+        fork, exe = ready['fork'], ready['exec']
+        ratio = f'{exe / fork:.1f}' if fork and exe else ''
+        procs = 2 + -(-n // k)
         out.append(
-            f'| {c.n} | {c.k} | {c.processes} | {ready} | '
-            f'{cpu_cell(r.get("cpu_startup"))} | {src} |'
+            f'| {n} | {k} | {procs} | {cells[0]} | {cells[1]} | {ratio} | '
+            f'{"; ".join(cpus)} | {"; ".join(sorted(set(srcs)))} |'
         )
     return out
 
