@@ -69,7 +69,9 @@ class GraphWatch:
 
         from ..node_common import START_QOS, STATE_QOS, SWARM_START, SWARM_STATE
 
-        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        # its own command line is not ROS arguments (--node-param NAME:=VALUE would read as
+        # a deprecated remapping rule)
+        rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('swarm_up')
         # the events executor costs less CPU per /swarm/state sample than the single-
         # threaded one, and the bring-up shares the cores with the swarm
