@@ -79,10 +79,11 @@ def ros_env(tmp_path: Path) -> dict[str, str]:
     return env
 
 
-def drive(tmp_path: Path, env: dict[str, str]) -> dict[str, Any]:
+def drive(tmp_path: Path, env: dict[str, str], script: str = DRIVER) -> dict[str, Any]:
+    """Run ``script`` (its caller of the zygote) in a subprocess; what it printed last."""
     exe = str(executable_path(package_prefix(), 'target'))
     done = subprocess.run(
-        [sys.executable, '-c', DRIVER, str(tmp_path), exe],
+        [sys.executable, '-c', script, str(tmp_path), exe],
         env=env,
         capture_output=True,
         text=True,
@@ -154,3 +155,33 @@ def test_a_forked_process_that_is_not_a_child_is_judged_by_liveness() -> None:
     assert gone.poll() is not None
     with pytest.raises(subprocess.TimeoutExpired):
         ForkedProcess(os.getppid(), ['parent']).wait(0.05)
+
+
+FALLBACK = r"""
+import json, os, sys
+from pathlib import Path
+from apf_swarm_nodes.bringup.processes import Child, ProcessGroup
+from apf_swarm_nodes.bringup.zygote import Zygote
+
+tmp, exe = Path(sys.argv[1]), sys.argv[2]
+zygote = Zygote()
+zygote.proc.kill()
+zygote.proc.wait()
+group = ProcessGroup()
+c = group.add(Child('live', [exe, '--ros-args', '-r', '__node:=fallback_target'],
+                    tmp / 'live.log', zygote=zygote))
+group.start_all()
+out = {'kind': type(c.popen).__name__, 'error': zygote.error, 'closed': zygote.proc is None}
+out['how'] = group.stop_all()
+out['left'] = group.leftovers()
+print(json.dumps(out))
+"""
+
+
+def test_a_dead_zygote_leaves_the_nodes_to_be_executed(
+    tmp_path: Path, ros_env: dict[str, str]
+) -> None:
+    out = drive(tmp_path, ros_env, FALLBACK)
+    assert out['kind'] == 'Popen'
+    assert 'zygote' in out['error'] and out['closed'] is True
+    assert out['how']['live'] in ('SIGINT', 'exited') and out['left'] == []
