@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
+from apf_swarm_nodes.bringup import pick_domain_id
 from apf_swarm_nodes.bringup.commands import executable_path, package_prefix
 from apf_swarm_nodes.bringup.zygote import ForkedProcess, node_entry_points, serve
 
@@ -73,7 +73,7 @@ print(json.dumps(out))
 @pytest.fixture
 def ros_env(tmp_path: Path) -> dict[str, str]:
     env = dict(os.environ)
-    env['ROS_DOMAIN_ID'] = str(random.randint(140, 160))
+    env['ROS_DOMAIN_ID'] = str(pick_domain_id(lo=102, hi=201))  # away from make test's
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['ROS_LOG_DIR'] = str(tmp_path / 'ros')
     return env

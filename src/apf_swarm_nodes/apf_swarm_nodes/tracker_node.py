@@ -175,7 +175,9 @@ class TrackerNode(Node):
             rate = self.control_rate if not self.on_odom else min(self.control_rate, WATCHDOG_RATE)
             self.create_timer(1.0 / rate, self._on_timer)
         else:
-            self.create_timer(HELD_RETRY, self._send_held)
+            # runs only while a command is held
+            self._held_timer = self.create_timer(HELD_RETRY, self._send_held)
+            self._held_timer.cancel()
         self.get_logger().info(
             f'uav_{self.uav_id}: {self.cfg.law} law, {self.mode}, neighbours '
             f'{[j for j in self.agent.ids if j != self.uav_id]}, dt {self.cfg.dt:g} s'
@@ -360,6 +362,7 @@ class TrackerNode(Node):
         waits for it, and a command published unmatched would be lost."""
         if self.mode == 'lockstep' and self.pub.get_subscription_count() < 1:
             self._held = msg
+            self._held_timer.reset()
         else:
             self._held = None
             self.pub.publish(msg)
@@ -372,8 +375,11 @@ class TrackerNode(Node):
             self.velocity_pub.publish(twist_msg(stamp, v))
 
     def _send_held(self) -> None:
-        if self._held is not None and self.pub.get_subscription_count() >= 1:
+        if self._held is None:
+            self._held_timer.cancel()
+        elif self.pub.get_subscription_count() >= 1:
             msg, self._held = self._held, None
+            self._held_timer.cancel()
             self.pub.publish(msg)
 
 

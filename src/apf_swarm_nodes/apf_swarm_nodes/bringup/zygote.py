@@ -41,6 +41,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+import psutil
+
 __all__ = [
     'DIST',
     'ForkedProcess',
@@ -116,7 +118,7 @@ class ForkedProcess:
                 pid, status = os.waitpid(self.pid, os.WNOHANG)
             except ChildProcessError:
                 # not (or no longer) our child: only a liveness check is left
-                if not _alive(self.pid):
+                if not psutil.pid_exists(self.pid):
                     self.returncode = -signal.SIGKILL
                 return self.returncode
             if pid == self.pid:
@@ -132,16 +134,6 @@ class ForkedProcess:
         return rc
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 class Zygote:
     """The bring-up's handle on a zygote process.
 
@@ -151,7 +143,7 @@ class Zygote:
     itself. :meth:`close` ends the zygote; the node processes live on.
     """
 
-    def __init__(self, env: Mapping[str, str] | None = None) -> None:
+    def __init__(self) -> None:
         self.entries = node_entry_points()
         self.usable = bool(self.entries) and become_subreaper()
         self.proc: subprocess.Popen[bytes] | None = None
@@ -163,7 +155,6 @@ class Zygote:
             [sys.executable, '-m', __name__],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
-            env=dict(env) if env is not None else None,
             start_new_session=True,
             close_fds=True,
         )
