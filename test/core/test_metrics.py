@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 from apf_swarm_core.metrics import (
+    FLIGHT_CRITERIA,
     SUMMARY_KEYS,
     centroid_error,
     flight,
@@ -205,6 +206,38 @@ def test_summary_and_flight_judge_the_nearest_of_several_designs():
     )
     assert s['converged'] is False and not flight(traj, [wide])['flies']
     assert nearest_design(x, []) is None
+
+
+def test_one_pair_closed_in_is_not_converged_though_the_sorted_rms_is_small():
+    # 100 trackers on a line at their design spacing, then the last 0.3 of it closer to its
+    # neighbour: the sorted-pair RMS over 4950 pairs stays within formation_tol of the
+    # closest design pair, yet the closest pair is 70 % of the design's (the 64-tracker
+    # emulation that read "converged" at 53 %). Converged judges the distances: neither
+    # summary nor flight says so.
+    n, T = 100, 20
+    line = np.stack([np.arange(n, dtype=float), np.zeros(n), np.full(n, 5.0)], axis=1)
+    design = pair_distances(line)
+    closed = line.copy()
+    closed[-1, 0] -= 0.3
+    x = np.tile(closed - closed.mean(axis=0) + [0, 0, 5], (T, 1, 1))
+    tx = np.tile([0.0, 0, 5], (T, 1))
+    traj = {'t': np.arange(T) * 0.01, 'x': x, 'v': np.zeros_like(x), 'target_x': tx}
+    params = {'k_n': 1.0, 'k_f': 1.0, 'a': 1.0, 'b': 6.0, 'c': 1.7}
+    rms = float(np.sqrt(np.mean((np.sort(pair_distances(x[0])) - np.sort(design)) ** 2)))
+    assert rms < FLIGHT_CRITERIA['formation_tol'] * design.min()  # the RMS alone would pass
+    s = summarize(
+        traj, law='proposed', dt=0.01, seed=1, potential_params=params, expected_pairs=design
+    )
+    f = flight(traj, design)
+    assert f['closest_pair'] == pytest.approx(0.7)
+    assert s['converged'] is False and s['time_to_converge'] is None
+    assert f['converged'] is False and f['flies'] is False
+    # the same line at its design: converged
+    traj['x'] = np.tile(line - line.mean(axis=0) + [0, 0, 5], (T, 1, 1))
+    s = summarize(
+        traj, law='proposed', dt=0.01, seed=1, potential_params=params, expected_pairs=design
+    )
+    assert s['converged'] is True and flight(traj, design)['converged'] is True
 
 
 def test_formation_edges_match_pairs_by_rank_as_formation_error_does():

@@ -180,8 +180,11 @@ def time_to_converge(t: ArrayLike, ok: ArrayLike) -> float | None:
 #: when a swarm flies (holds its formation), judged over the last ``window`` of a run: the
 #: formation error RMS at most ``formation_rms`` of the mean design spacing, the closest
 #: pair at least ``closest`` of the design's closest, the centroid within
-#: ``centroid_tol`` m of the target and the formation error within ``formation_tol`` of the
-#: design's closest pair at every sample (``converged`` of :func:`summarize`)
+#: ``centroid_tol`` m of the target, and at every sample the formation error within
+#: ``formation_tol`` of the design's closest pair and the closest pair at least ``closest``
+#: of the design's (``converged`` of :func:`summarize`): a swarm is settled by its
+#: distances, never by J alone -- the sorted-pair RMS of a large swarm hides one pair that
+#: has closed in
 FLIGHT_CRITERIA = {
     'window': 0.4,
     'formation_rms': 0.03,
@@ -237,6 +240,7 @@ def flight(
     converged = bool(
         np.all(ce <= criteria['centroid_tol'])
         and np.all(fe <= criteria['formation_tol'] * float(exp.min()))
+        and closest >= criteria['closest']
     )
     out.update(
         formation_error_rms=_f(rms),
@@ -280,6 +284,7 @@ def summarize(
     steady_fraction: float = 0.25,
     centroid_tol: float = 0.5,
     formation_tol: float = 0.05,
+    closest: float = FLIGHT_CRITERIA['closest'],
     chatter_window: float = 0.1,
     warnings: list[str] | None = None,
 ) -> dict[str, Any]:
@@ -287,10 +292,12 @@ def summarize(
 
     ``converged`` is true when, over the steady window, the centroid error stays below
     ``centroid_tol`` [m] and (when the design has a spacing) the formation error stays below
-    ``formation_tol`` times the design spacing. ``time_to_converge`` is the first time after
-    which both hold until the end. ``expected_pairs`` may be a list of designs, as for
-    :func:`flight`: the run is summarized against the one nearest over the steady window
-    (:func:`nearest_design`), so that summary and flight verdict judge one design.
+    ``formation_tol`` times the design spacing and the closest pair at or above
+    ``closest`` times the design's closest pair (:data:`FLIGHT_CRITERIA`).
+    ``time_to_converge`` is the first time after which all hold until the end.
+    ``expected_pairs`` may be a list of designs, as for :func:`flight`: the run is
+    summarized against the one nearest over the steady window (:func:`nearest_design`), so
+    that summary and flight verdict judge one design.
     """
     t = np.asarray(traj['t'], dtype=float)
     x = np.asarray(traj['x'], dtype=float)
@@ -323,6 +330,7 @@ def summarize(
         )
         formation['error_rms_steady'] = _f(float(np.sqrt(np.mean(fe[st] ** 2))))
         ok = ok & (fe <= formation_tol * float(exp.min()))
+        ok = ok & (pd.min(axis=-1) >= closest * float(exp.min()))
     summary: dict[str, Any] = {
         'law': law,
         'n_trackers': int(n),
