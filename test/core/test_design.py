@@ -9,6 +9,7 @@ from apf_swarm_core.design import (
     equilibrium_formation,
     expected_spacing,
     pair_equilibrium_distance,
+    polish_minimum,
     swarm_size_bound,
     triangle_b_for_spacing,
     triangle_c_for_spacing,
@@ -17,6 +18,7 @@ from apf_swarm_core.design import (
 from apf_swarm_core.errors import ConfigError
 from apf_swarm_core.gradients import gradient
 from apf_swarm_core.laws import kinematic_velocity
+from apf_swarm_core.potential import potential
 
 
 def _spec_triangle_side(a, b, c, k_n, k_f):
@@ -153,3 +155,24 @@ def test_b_for_spacing_four_trackers():
     assert f.gradient_norm < 1e-5
     # four trackers around a target: a regular tetrahedron (all six pairs equal)
     np.testing.assert_allclose(f.pair_distances, d, atol=1e-4)
+
+
+def test_polish_leaves_a_saddle_for_the_minimum():
+    # four trackers on a square about the target, side at its planar equilibrium: every
+    # gradient is zero, but out of the plane the square is a saddle of J. The polish must
+    # leave it for the minimum, the regular tetrahedron: six equal pair distances.
+    params = {'k_n': 1.0, 'k_f': 1.0, 'a': 1.0, 'b': 6.0, 'c': 1.7}
+    from scipy.optimize import brentq
+
+    def radial(r):
+        sq = r * np.array([[1.0, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]])
+        return gradient(sq, np.zeros(3), **params)[0, 0]
+
+    r = brentq(radial, 0.05, 3.0)
+    square = r * np.array([[1.0, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]])
+    assert np.abs(gradient(square, np.zeros(3), **params)).max() < 1e-9
+    x = polish_minimum(square, params)
+    d = np.linalg.norm(x[:, None] - x[None], axis=-1)[np.triu_indices(4, 1)]
+    np.testing.assert_allclose(d, d.mean(), rtol=1e-6)
+    assert np.abs(gradient(x, np.zeros(3), **params)).max() < 1e-8
+    assert potential(x, np.zeros(3), **params) < potential(square, np.zeros(3), **params)
