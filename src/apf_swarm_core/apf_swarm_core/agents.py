@@ -128,7 +128,7 @@ class TrackerAgent:
 
     #: configuration keys a running tracker takes over at once (:meth:`retune`): the
     #: controller's gains (eq. 22-28, 31, 24, 26) and the potential (eq. 2 / 44)
-    RETUNABLE = (*CONTROLLER_GAINS, *POTENTIAL_KEYS)
+    RETUNABLE = (*CONTROLLER_GAINS, *POTENTIAL_KEYS, 'b_growth')
 
     def retune(self, cfg: SwarmConfig) -> list[str]:
         """Take over the gains and potential of ``cfg``; returns the keys that changed.

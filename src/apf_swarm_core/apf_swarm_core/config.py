@@ -72,6 +72,14 @@ class SwarmConfig:
     k_f: float = key(1.0, 'weight of the formation term', '', POSITIVE, required=True)
     a: float = key(1.0, 'attraction gain of eq. 44', '', POSITIVE, required=True)
     b: float = key(6.0, 'repulsion gain of eq. 44', '', NON_NEGATIVE, required=True)
+    b_growth: float = key(
+        0.0,
+        'the repulsion gain grows with the swarm: eq. 44 uses b (n/3)^b_growth for n > 3 '
+        'trackers (0: b for every size, the paper); with a fixed b the all-to-all attraction '
+        'squeezes a large swarm onto a sphere whose arrangement J barely sets (not in the paper)',
+        '',
+        NON_NEGATIVE,
+    )
     c: float = key(1.7, 'repulsion range of eq. 44', 'm^2', POSITIVE, required=True)
     # neighbour set of each tracker's potential (not in the paper: the paper's is all-to-all)
     neighbours: str = key(
@@ -116,12 +124,15 @@ class SwarmConfig:
         'none',
         'direction the manifold descends: none, the gradient of J (the paper); newton, the '
         'saddle-free Newton direction |H|_mu^-1 grad J, which descends every mode of J at '
-        'one rate (not in the paper, for large swarms under sampling)',
-        choices=('none', 'newton'),
+        'one rate (O(n^3) per command); block, each tracker its own gradient row scaled by '
+        'its own 3x3 Hessian block, the centroid apart (O(n) per tracker); neither is in the '
+        'paper, both are for large swarms under sampling',
+        choices=('none', 'newton', 'block'),
     )
     newton_mu: float = key(
         0.1,
-        'precondition = newton: the smallest curvature of |H|_mu (same unit as the Hessian of J)',
+        'precondition = newton or block: the smallest curvature of |H|_mu (same unit as '
+        'the Hessian of J)',
         '',
         POSITIVE,
     )
@@ -134,7 +145,8 @@ class SwarmConfig:
     )
     newton_trust: float = key(
         0.0,
-        'precondition = newton: trust radius of the Newton step (RMS per tracker); where the '
+        'precondition = newton or block: trust radius of the step (newton: RMS per tracker; '
+        'block: each tracker, apart from the centroid); where the '
         'step would be longer the curvature floor rises above newton_mu (0: the floor is '
         'newton_mu)',
         'm',
@@ -284,9 +296,17 @@ class SwarmConfig:
             rows.append(list(m) * 3 if len(m) == 1 else list(m))
         return rows
 
+    def swarm_b(self) -> float:
+        """The repulsion gain b of eq. 44 for this swarm's size: ``b (n/3)^b_growth`` for
+        more than 3 trackers, ``b`` otherwise (docs/THEORY.md, "Large swarms")."""
+        if self.b_growth == 0.0 or self.n_trackers <= 3:
+            return self.b
+        return self.b * (self.n_trackers / 3.0) ** self.b_growth
+
     def potential_params(self) -> PotentialParams:
-        """Keyword arguments of :func:`apf_swarm_core.gradients.gradient`."""
-        return {'k_n': self.k_n, 'k_f': self.k_f, 'a': self.a, 'b': self.b, 'c': self.c}
+        """Keyword arguments of :func:`apf_swarm_core.gradients.gradient` (b:
+        :meth:`swarm_b`)."""
+        return {'k_n': self.k_n, 'k_f': self.k_f, 'a': self.a, 'b': self.swarm_b(), 'c': self.c}
 
     def neighbour_rule(self) -> dict[str, Any]:
         """Keyword arguments of :func:`apf_swarm_core.neighbours.neighbour_mask`, or ``{}``

@@ -12,14 +12,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from .config import SwarmConfig
 from .controller import ControlOutput, SlidingModeController
-from .gains import per_run
+from .gains import per_run, shaped
 from .gradients import gradient, obstacle_gradient
-from .newton import newton_basis, newton_direction
+from .newton import block_direction, hessian_blocks, newton_basis, newton_direction
 from .potential import PotentialParams, Rows
 from .prediction import Predictor, compensation_horizon
 
 __all__ = [
     'CONTROLLER_GAINS',
+    'BlockPreconditioner',
     'Preconditioner',
     'control_step',
     'make_controller',
@@ -106,13 +107,43 @@ class Preconditioner:
         return out
 
 
-def make_preconditioner(cfg: SwarmConfig) -> Preconditioner | None:
-    """The :class:`Preconditioner` of a configuration, or None for the gradient (the paper)."""
-    return (
-        Preconditioner(cfg.newton_mu, cfg.newton_every, cfg.newton_trust)
-        if cfg.precondition == 'newton'
-        else None
-    )
+class BlockPreconditioner:
+    """The direction of ``precondition = block``
+    (:func:`~apf_swarm_core.newton.block_direction` with floor ``mu`` and trust radius
+    ``trust``): each tracker's own gradient row scaled by its own Hessian block, with the
+    centroid's mode apart. Its cost per tracker is that of the tracker's gradient row, O(n)
+    (O(k) with k sensed neighbours); it keeps no state."""
+
+    def __init__(self, mu: float, trust: float = 0.0) -> None:
+        self.mu, self.trust = float(mu), float(trust)
+
+    def direction(
+        self,
+        x: ArrayLike,
+        target_x: ArrayLike,
+        params: PotentialParams,
+        grad: NDArray[np.float64],
+        rows: Rows = None,
+        mask: ArrayLike | None = None,
+    ) -> NDArray[np.float64]:
+        """The direction of the trackers in ``rows`` (default all), shape of ``grad``
+        (their gradient rows, (..., m, 3)); ``x`` (..., n, 3): every tracker the potential
+        sees."""
+        x = np.asarray(x, dtype=float)
+        kn = params['k_n']
+        centroid = shaped(kn, 1) * (x.mean(axis=-2) - np.asarray(target_x, dtype=float))
+        blocks = hessian_blocks(x, **params, rows=rows, mask=mask)
+        return block_direction(blocks, grad, centroid, k_n=kn, mu=self.mu, trust=self.trust)
+
+
+def make_preconditioner(cfg: SwarmConfig) -> Preconditioner | BlockPreconditioner | None:
+    """The preconditioner of a configuration (:class:`Preconditioner` for ``newton``,
+    :class:`BlockPreconditioner` for ``block``), or None for the gradient (the paper)."""
+    if cfg.precondition == 'newton':
+        return Preconditioner(cfg.newton_mu, cfg.newton_every, cfg.newton_trust)
+    if cfg.precondition == 'block':
+        return BlockPreconditioner(cfg.newton_mu, cfg.newton_trust)
+    return None
 
 
 def control_step(
@@ -126,7 +157,7 @@ def control_step(
     mask: ArrayLike | None = None,
     obstacles: ArrayLike | None = None,
     target_v: ArrayLike | None = None,
-    precondition: Preconditioner | None = None,
+    precondition: Preconditioner | BlockPreconditioner | None = None,
     predictor: Predictor | None = None,
     velocities: ArrayLike | None = None,
 ) -> ControlOutput:
@@ -150,9 +181,11 @@ def control_step(
     target_v : array (..., 3), optional
         Target velocity, for a controller with ``feedforward`` (ignored without) and for a
         ``predictor``.
-    precondition : Preconditioner, optional
-        The manifold descends the Newton direction (``precondition = newton``) instead of
-        the gradient: computed for every tracker the potential sees, then the rows selected.
+    precondition : Preconditioner or BlockPreconditioner, optional
+        The manifold descends the Newton direction (``precondition = newton``: computed for
+        every tracker the potential sees, then the rows selected) or the block-preconditioned
+        one (``block``: the selected rows only, each from its own gradient row and Hessian
+        block) instead of the gradient.
     predictor : Predictor, optional
         ``compensation = predict``: the command is computed from the state predicted by the
         predictor's horizon (:mod:`apf_swarm_core.prediction`), which then holds it.
@@ -168,6 +201,15 @@ def control_step(
         )
     if precondition is None:
         grad = gradient(x, target_x, **potential_params, rows=rows, mask=mask)
+    elif isinstance(precondition, BlockPreconditioner):
+        grad = precondition.direction(
+            x,
+            target_x,
+            potential_params,
+            gradient(x, target_x, **potential_params, rows=rows, mask=mask),
+            rows,
+            mask,
+        )
     else:
         grad = precondition.direction(x, target_x, potential_params)
         grad = grad if rows is None else grad[..., rows, :]

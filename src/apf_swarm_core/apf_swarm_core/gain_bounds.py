@@ -76,7 +76,7 @@ def gain_bounds(
     from .simulator import initial_positions
 
     n, vn = cfg.n_trackers, cfg.target_speed_bound
-    lip = cfg.k_n + 2.0 * max(0, n - 1) * cfg.k_f * pair_hessian_bound(cfg.a, cfg.b)
+    lip = cfg.k_n + 2.0 * max(0, n - 1) * cfg.k_f * pair_hessian_bound(cfg.a, cfg.swarm_b())
     g0 = float(
         np.linalg.norm(
             gradient(

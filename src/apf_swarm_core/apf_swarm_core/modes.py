@@ -37,9 +37,11 @@ from numpy.typing import NDArray
 
 from .config import SwarmConfig
 from .formation import design_formation
-from .newton import hessian
+from .newton import hessian, hessian_blocks
 
 __all__ = [
+    'centroid_curvature',
+    'design_block_spectrum',
     'design_hessian_spectrum',
     'effective_spectrum',
     'inner_rate',
@@ -138,14 +140,48 @@ def design_hessian_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
 
 
 def effective_spectrum(cfg: SwarmConfig, eigs: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The curvatures the manifold descends: the Hessian's eigenvalues ``lambda`` along the
-    gradient (the paper), ``lambda / max(|lambda|, mu)`` along the Newton direction
-    (``precondition = newton``, :func:`apf_swarm_core.newton.newton_direction`): 1 for every
-    mode at least as stiff as ``mu``."""
+    """The curvatures the manifold descends, ascending: the Hessian's eigenvalues
+    ``lambda`` (``eigs``) along the gradient (the paper), ``lambda / max(|lambda|, mu)``
+    along the Newton direction (``precondition = newton``,
+    :func:`apf_swarm_core.newton.newton_direction`): 1 for every mode at least as stiff as
+    ``mu``; along the block direction (``precondition = block``,
+    :func:`apf_swarm_core.newton.block_direction`) the eigenvalues of ``P H`` at the design
+    (:func:`design_block_spectrum`, ``eigs`` unused): 1 for the centroid, from about 0.003
+    to 3.3 for the formation's modes whatever the size (realtime preset, 3-128 trackers)."""
     eigs = np.asarray(eigs, dtype=float)
+    if cfg.precondition == 'block':
+        return design_block_spectrum(cfg)
     if cfg.precondition != 'newton':
         return eigs
     return eigs / np.maximum(np.abs(eigs), cfg.newton_mu)
+
+
+def centroid_curvature(cfg: SwarmConfig) -> float:
+    """The curvature the manifold descends along the centroid's mode: k_N along the
+    gradient, 1 along the Newton and the block directions (both take it exactly)."""
+    return cfg.k_n if cfg.precondition == 'none' else 1.0
+
+
+def design_block_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
+    """Eigenvalues of ``P H`` at the design equilibrium, ascending (shape (3n,), the
+    rotations' zeros included): H the Hessian of J, P the linear map of
+    :func:`~apf_swarm_core.newton.block_direction` near the equilibrium (each tracker's
+    ``|H_ii|_mu^-1`` on the gradient less its mean, plus the mean over k_N). ``P H`` is
+    similar to a symmetric matrix (P is symmetric positive definite), so its eigenvalues are
+    real: each is the rate, in units of K, at which one mode of the formation decays."""
+    f = design_formation(cfg)
+    params = cfg.potential_params()
+    x = f.relative_positions
+    n = x.shape[0]
+    h = hessian(x, np.zeros(3), **params)
+    w, v = np.linalg.eigh(hessian_blocks(x, **params))
+    inv = np.einsum('ikj,ij,ilj->ikl', v, 1.0 / np.maximum(np.abs(w), cfg.newton_mu), v)
+    p = np.zeros_like(h)
+    for i in range(n):
+        p[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = inv[i]
+    mean = np.kron(np.full((n, n), 1.0 / n), np.eye(3))
+    pre = mean / params['k_n'] + p @ (np.eye(3 * n) - mean)
+    return np.sort(np.linalg.eigvals(pre @ h).real)
 
 
 def inner_rate(cfg: SwarmConfig, period: float, mass: float) -> float:

@@ -8,8 +8,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
+from .potential import Rows
 
-__all__ = ['hessian', 'newton_basis', 'newton_direction']
+__all__ = [
+    'block_direction',
+    'hessian',
+    'hessian_blocks',
+    'newton_basis',
+    'newton_direction',
+]
 
 
 def hessian(
@@ -171,3 +178,100 @@ def newton_direction(
             floor = np.where(too_long, np.clip(_trust_floor(aw, coef, n, trust), mu, top), floor)
     step = coef / np.maximum(aw, floor[..., None])
     return np.einsum('...ij,...j->...i', v, step).reshape(g.shape)
+
+
+def hessian_blocks(
+    x: ArrayLike,
+    *,
+    k_n: ArrayLike = 1.0,
+    k_f: ArrayLike = 1.0,
+    a: ArrayLike = 1.0,
+    b: ArrayLike = 6.0,
+    c: ArrayLike = 1.7,
+    rows: Rows = None,
+    mask: ArrayLike | None = None,
+) -> NDArray[np.float64]:
+    """The diagonal 3x3 blocks ``H_ii`` of the :func:`hessian` of the trackers in ``rows``,
+    shape (..., m, 3, 3): each costs what the tracker's own gradient costs, O(n).
+
+    .. math::
+
+        H_{ii} = k_N I + k_f \\sum_{j \\in N_i} \\big[(a - b e_{ij}) I
+            + \\tfrac{2b}{c} e_{ij} \\, d_{ij} d_{ij}^T\\big]
+
+    with ``d_ij = x_i - x_j`` and ``e_ij = exp(-|d_ij|^2/c)``; ``N_i`` every other tracker,
+    or the row's neighbours in ``mask`` (shape (..., m, n), as for
+    :func:`~apf_swarm_core.gradients.gradient`).
+
+    Parameters
+    ----------
+    x : array (..., n, 3) [m]
+    k_n, k_f, a, b, c : gains of eq. 2 / 44 (floats or arrays (...))
+    rows : the trackers whose block is wanted (default all)
+    mask : bool array (..., m, n), optional
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.shape[-2]
+    idx = np.atleast_1d(np.arange(n) if rows is None else np.arange(n)[rows])
+    d = x[..., idx, None, :] - x[..., None, :, :]  # (..., m, n, 3)
+    e = np.exp(-np.einsum('...ijk,...ijk->...ij', d, d) / shaped(c, 2))
+    keep = np.ones(e.shape, dtype=bool)
+    keep[..., np.arange(idx.size), idx] = False  # j = i is no pair
+    if mask is not None:
+        keep = keep & np.asarray(mask, dtype=bool)
+    e = np.where(keep, e, 0.0)
+    count = keep.sum(axis=-1).astype(float)  # (..., m)
+    iso = shaped(a, 1) * count - shaped(b, 1) * e.sum(axis=-1)  # (..., m)
+    outer = np.einsum('...ij,...ijk,...ijl->...ikl', e, d, d)  # (..., m, 3, 3)
+    eye = np.eye(3)
+    curv = 2.0 * shaped(b, 3) / shaped(c, 3)
+    return shaped(k_f, 3) * (iso[..., None, None] * eye + curv * outer) + shaped(k_n, 3) * eye
+
+
+def block_direction(
+    blocks: ArrayLike,
+    grad: ArrayLike,
+    centroid_grad: ArrayLike,
+    *,
+    k_n: ArrayLike,
+    mu: float,
+    trust: float = 0.0,
+) -> NDArray[np.float64]:
+    r"""The decentralised preconditioned direction of ``precondition = block`` (not in the
+    paper), shape of ``grad`` (..., m, 3): for each tracker, from its own gradient row and
+    its own Hessian block only,
+
+    .. math::
+
+        \delta_i = \frac{\bar g}{k_N} + |H_{ii}|_{\mu_i}^{-1} (g_i - \bar g), \qquad
+        \bar g = k_N (\bar x - x_N)
+
+    ``g_bar`` is the mean of the gradients over the swarm (the pair terms of eq. 2 cancel in
+    it), the gradient along the centroid's mode, an exact eigenvector of H with curvature
+    k_N: the centroid closes on the target at the manifold's full rate, whatever the size
+    of the swarm. The rest of the gradient is scaled by the tracker's own curvature
+    ``|H_ii|_mu = V diag(max(|lambda|, mu_i)) V^T`` (block Jacobi, saddle-free as in
+    :func:`newton_direction`), so a tracker whose neighbours press it from every side moves
+    no further per sample than a lone one: the stiffest modes of a large swarm are scaled
+    down by the swarm's size. Trust region (``trust`` > 0): ``mu_i = max(mu, |g_i - g_bar| /
+    trust)``, so no tracker's relative step is longer than ``trust``.
+
+    Parameters
+    ----------
+    blocks : array (..., m, 3, 3): :func:`hessian_blocks` of the same rows
+    grad : array (..., m, 3): their gradient rows
+    centroid_grad : array (..., 3): ``k_N (mean x - x_N)``
+    k_n : float or array (...): the tracking gain
+    mu : float > 0: the smallest curvature used
+    trust : float >= 0 [m]: the trust radius of the relative step (0: none)
+    """
+    w, v = np.linalg.eigh(np.asarray(blocks, dtype=float))
+    g = np.asarray(grad, dtype=float)
+    gbar = np.asarray(centroid_grad, dtype=float)[..., None, :]
+    rel = g - gbar
+    coef = np.einsum('...kj,...k->...j', v, rel)  # V^T r, (..., m, 3)
+    floor = np.full(rel.shape[:-1], float(mu))
+    if trust > 0.0:
+        floor = np.maximum(floor, np.sqrt(np.einsum('...k,...k->...', rel, rel)) / trust)
+    step = np.einsum('...jk,...k->...j', v, coef / np.maximum(np.abs(w), floor[..., None]))
+    return gbar / shaped(k_n, 2) + step

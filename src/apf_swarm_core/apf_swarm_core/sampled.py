@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 from .config import SwarmConfig
 from .metrics import FLIGHT_CRITERIA
 from .modes import (
+    centroid_curvature,
     design_hessian_spectrum,
     effective_spectrum,
     inner_rate,
@@ -53,6 +54,7 @@ from .modes import (
 from .prediction import compensation_horizon
 
 __all__ = [
+    'BLOCK_LIMIT',
     'CASCADE',
     'DESIGN_MARGIN',
     'LAG_LIMIT',
@@ -94,10 +96,18 @@ LAG_LIMIT = 0.5
 RIPPLE_FRACTION = 0.5
 
 
+#: along the block direction the loop holds while K mu_max (T + tau) stays below this,
+#: mu_max the stiffest rate of :func:`~apf_swarm_core.modes.design_block_spectrum`
+#: (measured on the emulation: 64 trackers at 20 Hz with 30 ms hold at 0.9 and 1.5 and
+#: fail at 2.2; docs/THEORY.md, "Large swarms")
+BLOCK_LIMIT = 1.5
+
+
 def loop_limit(cfg: SwarmConfig) -> float:
     """The bound on ``kappa (T + tau)``: :data:`NEWTON_LIMIT` along the Newton direction,
-    :data:`RELAY_LIMIT` along the gradient."""
-    return NEWTON_LIMIT if cfg.precondition == 'newton' else RELAY_LIMIT
+    :data:`BLOCK_LIMIT` along the block direction, :data:`RELAY_LIMIT` along the
+    gradient."""
+    return {'newton': NEWTON_LIMIT, 'block': BLOCK_LIMIT}.get(cfg.precondition, RELAY_LIMIT)
 
 
 @dataclass(frozen=True)
@@ -155,7 +165,10 @@ def predict(
     raw = design_hessian_spectrum(cfg) if spectrum is None else np.asarray(spectrum)
     eigs = effective_spectrum(cfg, raw)
     lam_max = float(eigs.max())
-    soft = float(eigs[raw > 1e-6 * raw.max()].min())  # the rotations' zeros left out
+    # the rotations' zeros left out (the block spectrum is sorted apart from raw's)
+    soft = float(
+        eigs[3:].min() if cfg.precondition == 'block' else eigs[raw > 1e-6 * raw.max()].min()
+    )
     mass = float(np.min(cfg.mass_matrix_diag()))
     K = cfg.alpha + cfg.beta / cfg.gamma
     g = inner_rate(cfg, T, mass)
@@ -201,7 +214,7 @@ def predict(
     if cfg.switching == 'layer' and g >= CASCADE * K * lam_max:
         # the linear regime: the layer's own loop must be stable at the latency, and should
         # be with it doubled plus half a period (the jitter of a real delay)
-        centroid = float(effective_spectrum(cfg, np.array([cfg.k_n]))[0])
+        centroid = centroid_curvature(cfg)
         jitter = 2.0 * tau + 0.5 * T
         kw = {'layer_gain': K, 'inner_rate': g, 'period': T, 'mass': mass, 'horizon': h}
         if mode_radius(centroid, latency=tau, **kw) >= 1.0:

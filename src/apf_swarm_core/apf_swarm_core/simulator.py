@@ -70,6 +70,7 @@ TRAJECTORY_KEYS = ('t', 'x', 'v', 'u', 's', 'target_x', 'target_v')
 #: :data:`~apf_swarm_core.config.KEYS` must be the same in every run
 BATCHABLE = (
     *POTENTIAL_KEYS,
+    'b_growth',
     *CONTROLLER_GAINS,
     'f_bar',
     'mass',
@@ -190,8 +191,9 @@ class BatchSimulator:
                     )
         self.R, self.n, self.dt = len(self.cfgs), first.n_trackers, first.dt
         # per-run arrays where one run has floats: gradient() broadcasts either
+        per: list[dict[str, Any]] = [dict(c.potential_params()) for c in self.cfgs]
         self.params = cast(
-            PotentialParams, {k: per_run(getattr(c, k) for c in self.cfgs) for k in POTENTIAL_KEYS}
+            PotentialParams, {k: per_run(p[k] for p in per) for k in POTENTIAL_KEYS}
         )
         self.neighbour_rule = first.neighbour_rule()  # {} = all-to-all (eq. 2)
         self.drag = per_run(c.drag for c in self.cfgs)

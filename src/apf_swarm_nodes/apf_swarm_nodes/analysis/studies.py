@@ -233,7 +233,8 @@ def reproduce(
             (
                 f'{cfg.n_trackers} trackers, target `{cfg.target_trajectory}` at '
                 f'{cfg.target_speed:g} m/s (v_N = {cfg.target_speed_bound:g}), a = {cfg.a:g}, '
-                f'b = {cfg.b:g}, c = {cfg.c:g}, alpha = {cfg.alpha:g}, beta = {cfg.beta:g}, '
+                f'b = {cfg.swarm_b():g}, c = {cfg.c:g}, alpha = {cfg.alpha:g}, '
+                f'beta = {cfg.beta:g}, '
                 f'gamma = {cfg.gamma:g}, lambda = {cfg.lambda_filter:g}, u0 = {cfg.u0:g}, '
                 f'dt = {cfg.dt:g} s, {cfg.duration:g} s, seed {cfg.seed}.'
             ),
