@@ -65,6 +65,7 @@ def _probe(cpu_per_message: float, cost16: float, cores: int = 2) -> dict:
         'cpu_per_message': cpu_per_message,
         'rtt': {'p50': 0.001, 'p90': 0.002, 'p99': 0.004},
         'command_cost': {'3': cost16 / 4, '16': cost16, '32': 4 * cost16},
+        'command_cost_p99': {'3': cost16 / 2, '16': 2 * cost16, '32': 8 * cost16},
         'process_rss': 60 * 2**20,
     }
 
@@ -88,7 +89,8 @@ def test_derive_scales_capacity_with_the_cost_and_picks_the_highest_rate_that_fi
     assert fast['rate'] == 100.0 and slow['rate'] == 50.0
     use = 16 * 100 * (3 * 50e-6 + 200e-6) / 2
     assert fast['utilization'] == pytest.approx(use, abs=1e-3)
-    assert fast['latency'] == pytest.approx((0.002 + 200e-6) / (1 - use), rel=1e-3)
+    # the round trip's p90 and the command's p99 (2 x its mean in this probe)
+    assert fast['latency'] == pytest.approx((0.002 + 400e-6) / (1 - use), rel=1e-3)
     assert probe.derive(_probe(50e-6, 200e-6), 16, 20.0)['rate'] == 20.0
 
 

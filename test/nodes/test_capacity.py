@@ -40,3 +40,31 @@ def test_without_a_probe_nothing_is_refused_with_a_warning(monkeypatch) -> None:
     said: list[str] = []
     bringup.check_capacity(10_000, say=said.append)
     assert len(said) == 1 and 'no' in said[0] and 'probe failed' in said[0]
+
+
+def test_the_trackers_per_process_default_follows_the_cores_and_the_period() -> None:
+    # about PROCESSES_PER_CORE processes per core: 2 cores, 8 processes
+    assert probe.trackers_per_process(PROBE, 3) == 1
+    assert probe.trackers_per_process(PROBE, 8) == 1
+    assert probe.trackers_per_process(PROBE, 64) == 8
+    # no more commands in one process than half a period at their p99 (this probe has no
+    # p99: its mean): at 128 trackers 3.2 ms a command (linear past 32) and 2 x 50 us of
+    # messages, so 7 in the 25 ms of half a period at 20 Hz, 1 at 100 Hz
+    assert probe.trackers_per_process(PROBE, 128) == 7
+    assert probe.trackers_per_process(PROBE, 128, rate=100.0) == 1
+    # without a probe, the cores alone
+    assert probe.trackers_per_process(None, 3) == 1
+
+
+def test_derive_counts_the_shared_state_once_per_process_and_the_tail() -> None:
+    tails = {**PROBE, 'command_cost_p99': {'3': 100e-6, '16': 400e-6, '32': 1600e-6}}
+    one = probe.derive(tails, 32, 50.0, per_process=1)
+    eight = probe.derive(tails, 32, 50.0, per_process=8)
+    assert one['per_tracker_cpu'] == pytest.approx(3 * 50e-6 + 800e-6, rel=1e-4)
+    assert eight['per_tracker_cpu'] == pytest.approx(50e-6 / 8 + 2 * 50e-6 + 800e-6, rel=1e-4)
+    assert eight['capacity']['50'] >= one['capacity']['50']
+    # the latency a process of 8 adds: its 8 commands at the p99
+    use = 32 * 50.0 * (50e-6 / 8 + 2 * 50e-6 + 800e-6) / 2
+    assert eight['latency'] == pytest.approx((0.002 + 8 * 1600e-6) / (1 - use), rel=1e-4)
+    # beyond the measured sizes the cost grows linearly (the block direction)
+    assert probe.derive(tails, 64, 50.0)['per_tracker_cpu'] == pytest.approx(3 * 50e-6 + 1600e-6)

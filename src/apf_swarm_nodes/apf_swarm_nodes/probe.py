@@ -36,6 +36,7 @@ from .machine import identity
 __all__ = [
     'CPU_BUDGET',
     'MEMORY_BUDGET',
+    'PROCESSES_PER_CORE',
     'RATES',
     'add_arguments',
     'cache_path',
@@ -44,6 +45,7 @@ __all__ = [
     'load',
     'process_limit',
     'run',
+    'trackers_per_process',
 ]
 
 #: the share of the machine's cores the swarm's messages and commands may take
@@ -51,7 +53,10 @@ CPU_BUDGET = 0.5
 #: the share of the memory available at start that the node processes may take
 MEMORY_BUDGET = 0.5
 #: what a cached probe must hold; one without all of them is measured again
-FIELDS = ('machine', 'rtt', 'cpu_per_message', 'command_cost', 'process_rss')
+FIELDS = ('machine', 'rtt', 'cpu_per_message', 'command_cost', 'command_cost_p99', 'process_rss')
+#: the tracker processes the bring-up aims at per core when it hosts the trackers
+#: several to a process (:func:`trackers_per_process`)
+PROCESSES_PER_CORE = 4
 #: the rates the default is chosen from [Hz], highest first
 RATES = (100.0, 50.0, 20.0)
 
@@ -109,37 +114,65 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> d
     return probe
 
 
-def _command_cost_at(probe: dict[str, Any], n: int) -> float:
-    sizes = np.array(sorted(int(k) for k in probe['command_cost']))
-    costs = np.array([probe['command_cost'][str(k)] for k in sizes])
-    # the Newton direction's eigendecomposition grows as n^3 past the measured sizes
+def _command_cost_at(probe: dict[str, Any], n: int, key: str = 'command_cost') -> float:
+    """The probe's mean command cost (``key = 'command_cost_p99'``: its p99) for n
+    trackers [s]: interpolated between the measured sizes, linear in n beyond them (the
+    block direction's cost grows with the tracker's own gradient)."""
+    table = probe.get(key) or probe['command_cost']
+    sizes = np.array(sorted(int(k) for k in table))
+    costs = np.array([table[str(k)] for k in sizes])
     if n > sizes[-1]:
-        return float(costs[-1] * (n / sizes[-1]) ** 3)
+        return float(costs[-1] * n / sizes[-1])
     return float(np.interp(n, sizes, costs))
 
 
-def derive(probe: dict[str, Any], n: int, rate: float | None = None) -> dict[str, Any]:
-    """What the probe implies for n trackers: ``capacity`` (trackers that fit in CPU_BUDGET
-    of the cores, per rate), ``rate`` (the given one, or the default: the highest of RATES
-    that fits n, else the lowest), the swarm's CPU ``utilization`` at that rate, and the
-    ``latency`` [s] check and design assume: the idle round trip's p90 plus a command,
+def trackers_per_process(probe: dict[str, Any] | None, n: int, rate: float | None = None) -> int:
+    """How many trackers the bring-up hosts in one process by default: about
+    :data:`PROCESSES_PER_CORE` tracker processes per core (one process per tracker for
+    small swarms), and no more in one process than half a control period of commands at the
+    p99 cost (``rate`` [Hz], default the lowest of :data:`RATES`). A process of K trackers
+    receives each swarm state once for all K, so per tracker it costs ``msg / K`` less.
+    Without a probe: the machine's cores alone."""
+    cores = int(probe['machine']['cores']) if probe else (os.cpu_count() or 1)
+    k = max(1, -(-n // (PROCESSES_PER_CORE * cores)))
+    if probe:
+        period = 1.0 / (rate or RATES[-1])
+        each = _command_cost_at(probe, n, 'command_cost_p99') + 2.0 * float(
+            probe['cpu_per_message']
+        )
+        k = min(k, max(1, int(0.5 * period / each)))
+    return k
+
+
+def derive(
+    probe: dict[str, Any], n: int, rate: float | None = None, per_process: int = 1
+) -> dict[str, Any]:
+    """What the probe implies for n trackers hosted ``per_process`` to a process:
+    ``capacity`` (trackers that fit in CPU_BUDGET of the cores, per rate), ``rate`` (the
+    given one, or the default: the highest of RATES that fits n, else the lowest), the
+    swarm's CPU ``utilization`` at that rate (mean costs), and the ``latency`` [s] check
+    and design assume: the idle round trip's p90 plus the process's commands at their p99,
     stretched by ``1 / (1 - utilization)`` for the queueing of a busy machine (capped at
     0.9)."""
     cores = int(probe['machine']['cores'])
     msg = float(probe['cpu_per_message'])
     cmd = _command_cost_at(probe, n)
-    per_tracker = 3.0 * msg + cmd  # its state in, its command out, the plant's in
+    k = max(1, int(per_process))
+    # the swarm's state in (once per process), its command out, the plant's in, a command
+    per_tracker = msg / k + 2.0 * msg + cmd
     capacity = {f'{r:g}': int(CPU_BUDGET * cores / (r * per_tracker)) for r in RATES}
     if rate is None:
         rate = next((r for r in RATES if capacity[f'{r:g}'] >= n), RATES[-1])
     use = min(0.9, n * rate * per_tracker / cores)
-    latency = (float(probe['rtt']['p90']) + cmd) / (1.0 - use)
+    tail = k * _command_cost_at(probe, n, 'command_cost_p99')
+    latency = (float(probe['rtt']['p90']) + tail) / (1.0 - use)
     return {
         'latency': round(latency, 6),
         'capacity': capacity,
         'rate': float(rate),
         'utilization': round(use, 3),
         'per_tracker_cpu': round(per_tracker, 7),
+        'trackers_per_process': k,
     }
 
 
@@ -173,7 +206,8 @@ def add_arguments(p: Any) -> None:
 def run(args: Any) -> int:
     """``apf-swarm probe``: measure (or read the cache) and print what follows."""
     probe = ensure(args.refresh, say=lambda s: print(f'apf-swarm probe: {s}', file=sys.stderr))
-    d = derive(probe, args.n_trackers)
+    k = trackers_per_process(probe, args.n_trackers)
+    d = derive(probe, args.n_trackers, per_process=k)
     if args.json:
         print(
             json.dumps(
@@ -194,9 +228,13 @@ def run(args: Any) -> int:
         f'{1e3 * r["p90"]:.2f} ms, p99 {1e3 * r["p99"]:.2f} ms; CPU per message '
         f'{1e6 * probe["cpu_per_message"]:.0f} us'
     )
+    tails = probe.get('command_cost_p99', {})
     print(
-        '  tracker command: '
-        + ', '.join(f'{1e6 * v:.0f} us for {k}' for k, v in probe['command_cost'].items())
+        '  tracker command (mean / p99): '
+        + ', '.join(
+            f'{1e6 * v:.0f} / {1e6 * tails.get(n, v):.0f} us for {n}'
+            for n, v in probe['command_cost'].items()
+        )
     )
     lim = process_limit(probe)
     print(
@@ -205,9 +243,9 @@ def run(args: Any) -> int:
         f'{lim["cpu"]}, memory: {lim["memory"]})'
     )
     print(
-        f'  {args.n_trackers} trackers: latency {1e3 * d["latency"]:.2f} ms, default rate '
-        f'{d["rate"]:g} Hz; trackers that fit in {CPU_BUDGET:.0%} of the cores: '
-        + ', '.join(f'{v} at {k} Hz' for k, v in d['capacity'].items())
+        f'  {args.n_trackers} trackers, {k} to a process: latency {1e3 * d["latency"]:.2f} '
+        f'ms, default rate {d["rate"]:g} Hz; trackers that fit in {CPU_BUDGET:.0%} of the '
+        'cores: ' + ', '.join(f'{v} at {k} Hz' for k, v in d['capacity'].items())
     )
     return 0
 

@@ -13,6 +13,7 @@ from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import resolve
 from apf_swarm_core.errors import ApfSwarmError
 
+from .. import probe
 from ..argtypes import (
     add_config_args,
     add_view_args,
@@ -21,6 +22,7 @@ from ..argtypes import (
     positive_float,
     positive_int,
 )
+from ..probe import PROCESSES_PER_CORE
 from .isolation import check_capacity
 from .processes import DISCOVERY_RANGES, EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from .session import Bringup
@@ -88,11 +90,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         '--trackers-per-process',
-        type=positive_int,
-        default=1,
+        type=_per_process,
+        default=0,
         metavar='K',
         help='host the trackers K to a process (executable trackers; each still '
-        'its own node with its own namespace and parameters); default 1',
+        'its own node with its own namespace and parameters); default auto: about '
+        f'{PROCESSES_PER_CORE} tracker processes per core, one tracker each for small swarms '
+        '(`apf-swarm probe` prints the choice)',
     )
     p.add_argument(
         '--spawn',
@@ -173,6 +177,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--out', type=Path, required=True, metavar='DIR')
 
 
+def _per_process(text: str) -> int:
+    """``--trackers-per-process``: a positive count, or ``auto`` (0)."""
+    return 0 if text == 'auto' else int(positive_int(text))
+
+
+def _auto_per_process(cfg: SwarmConfig) -> int:
+    """The default trackers per process (:func:`apf_swarm_nodes.probe.
+    trackers_per_process`), from the cached probe if there is one; the bring-up measures
+    the machine later when it needs the probe."""
+    machine = probe.load()
+    return probe.trackers_per_process(machine, cfg.n_trackers, cfg.control_rate or None)
+
+
 def build_parser(prog: str = 'swarm_up.py') -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=prog,
@@ -191,6 +208,15 @@ def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
     """
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # a hung run says where
     cfg = resolve_config(args)
+    if not args.trackers_per_process:
+        args.trackers_per_process = _auto_per_process(cfg)
+        if args.trackers_per_process > 1:
+            print(
+                f'{prog}: hosting the trackers {args.trackers_per_process} to a process '
+                '(--trackers-per-process K to choose)',
+                file=sys.stderr,
+                flush=True,
+            )
     check_capacity(
         cfg.n_trackers,
         allow_overload=args.allow_overload,

@@ -45,7 +45,7 @@ class RealtimePrediction:
             )
             machine = None
         measured = (
-            probe.derive(machine, self.n, cfg.control_rate or None)
+            probe.derive(machine, self.n, cfg.control_rate or None, self.args.trackers_per_process)
             if machine
             else {'rate': cfg.control_rate or REALTIME_RATE, 'latency': None, 'capacity': {}}
         )
