@@ -182,7 +182,13 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     p.add_argument('--hosts', type=int, default=3, help='simulated hosts (>= 2)')
     p.add_argument('--n-trackers', type=int, default=3)
-    p.add_argument('--trackers-per-process', type=int, default=1)
+    p.add_argument(
+        '--trackers-per-process',
+        type=int,
+        default=0,
+        help='trackers hosted in one process (default 0: what the bring-up picks on one '
+        'machine, apf-swarm probe)',
+    )
     p.add_argument('--discovery', choices=('multicast', 'server'), default='multicast')
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep')
     p.add_argument('--preset', default=None, help='default: triangle (lockstep), realtime')
@@ -254,6 +260,12 @@ def main(argv: list[str] | None = None) -> int:
             # plain clients only learn the endpoints they match; the bring-up waits on the
             # whole graph, so every participant is a super client (sees everything)
             env['ROS_SUPER_CLIENT'] = 'TRUE'
+        if args.trackers_per_process <= 0:
+            from apf_swarm_nodes import probe
+
+            args.trackers_per_process = probe.trackers_per_process(
+                probe.load(), args.n_trackers, args.rate
+            )
         names = tracker_process_names(args.n_trackers, args.trackers_per_process)
         tracker_hosts = lab.hosts[1:]
         placement = {name: tracker_hosts[k % len(tracker_hosts)] for k, name in enumerate(names)}

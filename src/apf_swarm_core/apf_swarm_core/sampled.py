@@ -310,8 +310,8 @@ def propose_gains(
 ) -> dict[str, float | str]:
     """Gains that :func:`predict` passes at this rate and delay, for ``cfg.n_trackers``.
 
-    For a direction (the configuration's, then the Newton direction if that one's
-    prediction fails or warns of a slow formation): the layer gain
+    For a direction (the configuration's; along the gradient, then the Newton direction if
+    that one's prediction fails or warns of a slow formation): the layer gain
     ``K = DESIGN_MARGIN loop_limit / (lambda_max (T + tau))`` with the direction's stiffest
     curvature (:func:`effective_spectrum`: 1 along
     the Newton direction, whatever n), at most the configuration's own K, i.e.
@@ -325,7 +325,12 @@ def propose_gains(
     T = 1.0 / control_rate
     eigs = design_hessian_spectrum(cfg) if spectrum is None else np.asarray(spectrum)
     tried = []
-    for direction in dict.fromkeys((cfg.precondition, 'newton')):
+    # the gradient may give way to the Newton direction; the block direction never does
+    # (the Newton direction costs O(n^3) per command, the block direction O(n))
+    directions = (
+        (cfg.precondition, 'newton') if cfg.precondition == 'none' else (cfg.precondition,)
+    )
+    for direction in directions:
         base = cfg.replace(precondition=direction)
         gains = _schedule(base, eigs, T, latency)
         if gains is None:
