@@ -118,6 +118,15 @@ class TrackerAgent:
         if self.neighbour_ids is None:
             self.neighbour_ids = [j for j in range(1, self.cfg.n_trackers + 1) if j != self.uav_id]
         self.ids = sorted({self.uav_id, *self.neighbour_ids})
+        self._id_set = frozenset(self.ids)
+        self._id_array = np.asarray(self.ids)
+        self._own_row = self.ids.index(self.uav_id)
+        #: the latest /swarm/odom as arrays in the order of :attr:`ids` (x, v, active), while
+        #: no input of a single source has replaced a row of it (:meth:`command` reads it
+        #: instead of stacking one Sample per tracker: O(n) in numpy, not in Python)
+        self._swarm: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]] | None
+        self._swarm = None
+        self._seq_max = -1  # the largest order key held of any tracker
         self.controller = make_controller(self.cfg, (1, 3))
         self.precondition = make_preconditioner(self.cfg)
         #: compensation = predict with control_rate > 0: the state a command acts on, and the
@@ -153,6 +162,7 @@ class TrackerAgent:
     def reset(self) -> None:
         """Forget every input and zero the filter state (after a restart)."""
         self.inputs.clear()
+        self._swarm, self._seq_max = None, -1
         self.controller.reset()
         self._last_step = -1
 
@@ -211,6 +221,9 @@ class TrackerAgent:
             bool(active) or source in (0, self.uav_id),
         )
         self.inputs[source] = sample
+        if source != 0:
+            self._swarm = None
+            self._seq_max = max(self._seq_max, seq)
         if step >= 0:
             by_step = self.pending.setdefault(step, {})
             by_step[source] = sample
@@ -242,21 +255,38 @@ class TrackerAgent:
         if self.run and run != self.run:
             return self._reject(f'/swarm/odom of another run ({run:x}; this run: {self.run:x})')
         seq = step if seq is None else int(seq)
-        rows = [(j, x[r], v[r], bool(active[r])) for r, j in enumerate(ids) if j in self.ids]
-        missing = sorted(set(self.ids) - {j for j, *_ in rows})
-        if missing:
+        x, v = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
+        where = {j: r for r, j in enumerate(ids) if j in self._id_set}
+        if len(where) < len(self.ids):
+            missing = [j for j in self.ids if j not in where]
             return self._reject(f'the message has no state of {[f"uav_{j}" for j in missing]}')
         before = self.rejected
         # the values of every row at once (two reductions); only a message that fails this is
         # checked row by row, for the reason and for rows that are not this tracker's inputs
         clean = input_problem(x=x, v=v) is None and input_problem(x=target_x, v=target_v) is None
-        for source, xs, vs in [(0, target_x, target_v)] + [(j, xj, vj) for j, xj, vj, _ in rows]:
-            if not self._acceptable(source, xs, vs, seq, checked=clean):
-                self.rejected = before + 1
-                return False
+        if not self._acceptable(0, target_x, target_v, seq, checked=clean):
+            self.rejected = before + 1
+            return False
+        order = np.fromiter((where[j] for j in self.ids), dtype=np.intp, count=len(self.ids))
+        # a tracker's row is out of order only if some row held is newer than this message
+        if not clean or seq < self._seq_max:
+            for j, r in zip(self.ids, order, strict=True):
+                if not self._acceptable(j, x[r], v[r], seq, checked=clean):
+                    self.rejected = before + 1
+                    return False
         self._store(0, step, target_x, target_v, target_time, seq, True)
-        for j, xj, vj, act in rows:
-            self._store(j, step, xj, vj, now, seq, act)
+        xs, vs = x[order], v[order]
+        act = np.asarray(active, dtype=bool)[order]
+        act[self._own_row] = True
+        samples = {
+            j: Sample(step, xs[k], vs[k], now, seq, a)
+            for k, (j, a) in enumerate(zip(self.ids, act.tolist(), strict=True))
+        }
+        self.inputs.update(samples)
+        if step >= 0:
+            self.pending.setdefault(step, {}).update(samples)
+        self._seq_max = max(self._seq_max, seq)
+        self._swarm = (xs, vs, act)
         return True
 
     def _acceptable(
@@ -270,7 +300,7 @@ class TrackerAgent:
         """The checks of :meth:`offer` without storing (counts and records a rejection);
         ``checked``: the values are known to pass :func:`input_problem`."""
         name = 'target' if source == 0 else f'uav_{source}'
-        if source != 0 and source not in self.ids:
+        if source != 0 and source not in self._id_set:
             return self._reject(f'{name} is not in this swarm (ids {self.ids})')
         problem = None if checked else input_problem(x=x, v=v)
         if problem is not None:
@@ -301,18 +331,28 @@ class TrackerAgent:
         """The controller's command from the held inputs (one row, shape (1, 3) arrays)."""
         held = self.pending.pop(step, None) if step >= 0 else None
         src = held if held is not None else self.inputs
-        ids = [j for j in self.ids if src[j].active]
-        row = ids.index(self.uav_id)
-        x = np.stack([src[j].x for j in ids])
+        if held is None and self._swarm is not None:
+            # the latest /swarm/odom whole: the same arrays, without one Sample per tracker
+            xs, vs, act = self._swarm
+            n_active = int(np.count_nonzero(act))
+            row = int(np.count_nonzero(act[: self._own_row]))
+            x = xs if n_active == act.size else xs[act]
+            silent_x = xs[~act]
+            all_v = vs if n_active == act.size else vs[act]
+        else:
+            ids = [j for j in self.ids if src[j].active]
+            n_active, row = len(ids), ids.index(self.uav_id)
+            x = np.stack([src[j].x for j in ids])
+            silent_x = np.array([src[j].x for j in self.ids if not src[j].active]).reshape(-1, 3)
+            all_v = np.stack([src[j].v for j in ids])
         rule = self.cfg.neighbour_rule()
         # a limited neighbour set (cfg.neighbours): this row of the simulator's mask
         mask = neighbour_mask(x, **rule, rows=[row]) if rule else None
         # inactive neighbours leave the formation term and stay as obstacles
-        silent = [src[j].x for j in self.ids if not src[j].active]
         velocities = None
         if self.predictor is not None:
             self.predictor.horizon = compensation_horizon(self.latency.value)
-            velocities = np.stack([src[j].v for j in ids])
+            velocities = all_v
         out = control_step(
             self.controller,
             x,
@@ -321,14 +361,14 @@ class TrackerAgent:
             self.params,
             rows=[row],
             mask=mask,
-            obstacles=np.stack(silent) if silent else None,
+            obstacles=silent_x if silent_x.size else None,
             target_v=src[0].v,
             precondition=self.precondition,
             predictor=self.predictor,
             velocities=velocities,
         )
-        self.neighbours_used = len(ids) - 1 if mask is None else int(np.count_nonzero(mask))
-        self.active_neighbours = len(ids) - 1
+        self.neighbours_used = n_active - 1 if mask is None else int(np.count_nonzero(mask))
+        self.active_neighbours = n_active - 1
         self.own_velocity = src[self.uav_id].v
         self._last_step = step
         return out
