@@ -232,6 +232,8 @@ def test_parse_set():
         'target_start': [0, 0, 10],
     }
     assert isinstance(out['gamma'], float) and isinstance(out['n_trackers'], int)
+    # exponent notation without a dot is a number (YAML 1.1 alone would keep '1e-5')
+    assert parse_set(['newton_mu=1e-5', 'u0=2E+1']) == {'newton_mu': 1e-5, 'u0': 20.0}
     with pytest.raises(ConfigError, match=r"'novalue': expected KEY=VALUE"):
         parse_set(['novalue'])
     with pytest.raises(ConfigError, match=r'expected KEY=VALUE'):

@@ -186,10 +186,18 @@ def parse_set(items: list[str] | tuple[str, ...]) -> dict[str, Any]:
         if key not in KEYS:
             raise _unknown(key, '--set')
         try:
-            out[key] = yaml.safe_load(raw)
+            value = yaml.safe_load(raw)
         except yaml.YAMLError:
             raise ConfigError(f'--set {item!r}: the value is not valid YAML') from None
+        # YAML 1.1 reads 1e-5 (no dot) as a string; on a command line it is a number
+        if isinstance(value, str) and _EXPONENT.fullmatch(value.strip()):
+            value = float(value)
+        out[key] = value
     return out
+
+
+#: a number in exponent notation without a dot, which YAML 1.1 leaves a string
+_EXPONENT = re.compile(r'[-+]?\d+[eE][-+]?\d+')
 
 
 def apply_overrides(cfg: SwarmConfig, values: Mapping[str, Any]) -> SwarmConfig:

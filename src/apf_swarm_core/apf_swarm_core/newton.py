@@ -214,15 +214,18 @@ def hessian_blocks(
     n = x.shape[-2]
     idx = np.atleast_1d(np.arange(n) if rows is None else np.arange(n)[rows])
     d = x[..., idx, None, :] - x[..., None, :, :]  # (..., m, n, 3)
-    e = np.exp(-np.einsum('...ijk,...ijk->...ij', d, d) / shaped(c, 2))
-    keep = np.ones(e.shape, dtype=bool)
-    keep[..., np.arange(idx.size), idx] = False  # j = i is no pair
-    if mask is not None:
-        keep = keep & np.asarray(mask, dtype=bool)
-    e = np.where(keep, e, 0.0)
-    count = keep.sum(axis=-1).astype(float)  # (..., m)
+    e = np.exp(-(d * d).sum(axis=-1) / shaped(c, 2))  # (..., m, n)
+    e[..., np.arange(idx.size), idx] = 0.0  # j = i is no pair
+    if mask is None:
+        count = np.full(e.shape[:-1], n - 1.0)
+    else:
+        keep = np.asarray(mask, dtype=bool)
+        e = np.where(keep, e, 0.0)
+        keep = keep.copy() if keep.shape == e.shape else np.broadcast_to(keep, e.shape).copy()
+        keep[..., np.arange(idx.size), idx] = False
+        count = keep.sum(axis=-1).astype(float)  # (..., m)
     iso = shaped(a, 1) * count - shaped(b, 1) * e.sum(axis=-1)  # (..., m)
-    outer = np.einsum('...ij,...ijk,...ijl->...ikl', e, d, d)  # (..., m, 3, 3)
+    outer = np.swapaxes(d * e[..., None], -1, -2) @ d  # sum_j e d d^T, (..., m, 3, 3)
     eye = np.eye(3)
     curv = 2.0 * shaped(b, 3) / shaped(c, 3)
     return shaped(k_f, 3) * (iso[..., None, None] * eye + curv * outer) + shaped(k_n, 3) * eye
@@ -269,9 +272,9 @@ def block_direction(
     g = np.asarray(grad, dtype=float)
     gbar = np.asarray(centroid_grad, dtype=float)[..., None, :]
     rel = g - gbar
-    coef = np.einsum('...kj,...k->...j', v, rel)  # V^T r, (..., m, 3)
-    floor = np.full(rel.shape[:-1], float(mu))
+    coef = (rel[..., None, :] @ v)[..., 0, :]  # V^T r, (..., m, 3)
+    floor = float(mu)
     if trust > 0.0:
-        floor = np.maximum(floor, np.sqrt(np.einsum('...k,...k->...', rel, rel)) / trust)
-    step = np.einsum('...jk,...k->...j', v, coef / np.maximum(np.abs(w), floor[..., None]))
+        floor = np.maximum(floor, np.sqrt((rel * rel).sum(axis=-1)) / trust)[..., None]
+    step = (v @ (coef / np.maximum(np.abs(w), floor))[..., None])[..., 0]
     return gbar / shaped(k_n, 2) + step
