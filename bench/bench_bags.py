@@ -3,7 +3,7 @@
 recording the realtime swarm, playback timing, ``bag info`` on a bag of 1 M messages.
 
     source scripts/activate.sh
-    python bench/bench_bags.py [--quick]
+    python bench/bench_bags.py [--quick | --smoke]
 
 * **ceiling**: :class:`apf_swarm_nodes.bags.BagWriter` fed directly in this process with the
   same serialized ``nav_msgs/Odometry`` bytes the recorder gets (no DDS): messages/s and CPU
@@ -49,6 +49,9 @@ from apf_swarm_nodes.machine import process_cpu_seconds
 from apf_swarm_nodes.qos import qos_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
+
+from _children import dying_with_parent, exit_on_signals  # noqa: E402  (bench/ is on sys.path)
+
 T0 = 1_700_000_000_000_000_000
 
 
@@ -167,7 +170,16 @@ def bench_recorder(tmp: Path, ros: Ros, rate: float, seconds: float) -> dict:
     log_path = tmp / f'rec_{int(rate)}.log'
     with open(log_path, 'wb') as lf:
         p = subprocess.Popen(
-            [exe('recorder'), '--ros-args', '-p', f'output:={bag}', '-p', 'topics:=[/bench/odom]'],
+            dying_with_parent(
+                [
+                    exe('recorder'),
+                    '--ros-args',
+                    '-p',
+                    f'output:={bag}',
+                    '-p',
+                    'topics:=[/bench/odom]',
+                ]
+            ),
             env=ros.env,
             stdout=lf,
             stderr=subprocess.STDOUT,
@@ -239,7 +251,13 @@ def bench_swarm(tmp: Path, publish_rate: float, seconds: float, domain: int) -> 
         f'publish_rate:={publish_rate}',
     ]
     t0 = time.perf_counter()
-    p = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 120, cwd=ROOT)
+    p = subprocess.run(
+        dying_with_parent(argv),
+        capture_output=True,
+        text=True,
+        timeout=seconds + 120,
+        cwd=ROOT,
+    )
     wall = time.perf_counter() - t0
     if p.returncode != 0:
         log(f'swarm at {publish_rate} Hz exited {p.returncode}: {p.stderr[-2000:]}')
@@ -288,7 +306,16 @@ def bench_play(tmp: Path, ros: Ros, n: int, hz: float) -> dict:
     log_path = tmp / 'player.log'
     with open(log_path, 'wb') as lf:
         p = subprocess.Popen(
-            [exe('player'), '--ros-args', '-p', f'bag:={path}', '-p', 'wait_for:=[/bench/play]'],
+            dying_with_parent(
+                [
+                    exe('player'),
+                    '--ros-args',
+                    '-p',
+                    f'bag:={path}',
+                    '-p',
+                    'wait_for:=[/bench/play]',
+                ]
+            ),
             env=ros.env,
             stdout=lf,
             stderr=subprocess.STDOUT,
@@ -359,9 +386,16 @@ def bench_info(tmp: Path, n: int) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    quick = '--quick' in argv
-    rates = (1000, 4000) if quick else (1000, 4000, 8000, 16000)
-    seconds = 2.0 if quick else 4.0
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--quick', action='store_true', help='fewer rates, shorter windows')
+    ap.add_argument('--smoke', action='store_true', help='one short case of each (seconds)')
+    args = ap.parse_args(argv)
+    exit_on_signals()
+    quick, smoke = args.quick or args.smoke, args.smoke
+    rates = (1000,) if smoke else (1000, 4000) if quick else (1000, 4000, 8000, 16000)
+    seconds = 1.0 if smoke else 2.0 if quick else 4.0
     swarm_rates = (100.0,) if quick else (100.0, 500.0)
     from apf_swarm_nodes.bringup import pick_domain_id
 
@@ -371,7 +405,7 @@ def main(argv: list[str]) -> int:
     with tempfile.TemporaryDirectory(prefix='bench_bags_') as tmpd:
         tmp = Path(tmpd)
         log('ceiling: BagWriter fed directly')
-        ceiling = bench_ceiling(tmp, 20000 if quick else 100000)
+        ceiling = bench_ceiling(tmp, 2000 if smoke else 20000 if quick else 100000)
         ros = Ros(domain)
         try:
             recs = []
@@ -379,7 +413,7 @@ def main(argv: list[str]) -> int:
                 log(f'recorder at {r} msg/s offered')
                 recs.append(bench_recorder(tmp, ros, float(r), seconds))
             log('play at 100 Hz')
-            play = bench_play(tmp, ros, 300 if quick else 1000, 100.0)
+            play = bench_play(tmp, ros, 100 if smoke else 300 if quick else 1000, 100.0)
         finally:
             ros.close()
         swarms = []
@@ -389,12 +423,12 @@ def main(argv: list[str]) -> int:
                 bench_swarm(
                     tmp,
                     pr,
-                    5.0 if quick else 10.0,
+                    3.0 if smoke else 5.0 if quick else 10.0,
                     pick_domain_id(exclude=[domain], lo=202, hi=232),
                 )
             )
         log('info on a big bag')
-        info = bench_info(tmp, 100_000 if quick else 1_000_000)
+        info = bench_info(tmp, 10_000 if smoke else 100_000 if quick else 1_000_000)
 
     print(
         f'Machine: {os.cpu_count()} cores, load average at the start {load0:.2f}, at the end '

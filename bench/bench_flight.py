@@ -162,7 +162,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--duration', type=float, default=25.0)
     p.add_argument('--set', dest='sets', action='append', default=[], metavar='KEY=VALUE')
     p.add_argument('--json', type=Path, metavar='FILE')
+    p.add_argument(
+        '--smoke', action='store_true', help='8 trackers, one point, one seed, 5 s (seconds)'
+    )
     args = p.parse_args(argv)
+    if args.smoke:
+        args.n, args.points, args.seeds, args.duration = [8], [(50.0, 0.01)], 1, 5.0
+        args.variants = args.variants[:1]
     variants = {**VARIANTS, **dict(args.variant)}
     chosen = [*args.variants, *(name for name, _ in args.variant if name not in args.variants)]
     unknown = [v for v in chosen if v not in variants]

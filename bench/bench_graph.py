@@ -195,7 +195,8 @@ class Graph:
         import rclpy
         import yaml
         from apf_swarm_core.config_files import apply_overrides, load_preset, to_ros_params
-        from apf_swarm_nodes.bringup import Child, ProcessGroup, node_commands, package_prefix
+        from apf_swarm_nodes.bringup import Child, ProcessGroup, node_commands
+        from apf_swarm_nodes.bringup.commands import package_prefix
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
@@ -638,6 +639,11 @@ def role_cells(res: dict[str, Any], roles: tuple[str, ...]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--quick', action='store_true', help='fewer steps, shorter windows')
+    ap.add_argument(
+        '--smoke',
+        action='store_true',
+        help='one lockstep case and one latency case with its ping-pong, briefly (seconds)',
+    )
     ap.add_argument('--only', choices=('lockstep', 'latency'), help='one part only')
     ap.add_argument(
         '--case',
@@ -659,6 +665,8 @@ def main(argv: list[str] | None = None) -> int:
     log(f'machine: {m["nproc"]} CPUs, {m["cpu"]}, load average {m["load"]} (before measuring)')
     q = args.quick
     s3, s10, cap, lat_s = (600, 200, 5.0, 4.0) if q else (2000, 500, 12.0, 8.0)
+    if args.smoke:
+        s3, cap, lat_s = 200, 5.0, 2.0
     cases: list[Case] = []
     if args.only in (None, 'lockstep'):
         for inputs in ('aggregate', 'odom'):
@@ -672,6 +680,18 @@ def main(argv: list[str] | None = None) -> int:
         cases.append(Case('latency', 3, 'single', 'aggregate', seconds=lat_s, pingpong=True))
     if args.case:
         cases = [c for c in cases if any(t in c.label for t in args.case)]
+    if args.smoke:
+        cases = [
+            c
+            for c in cases
+            if (
+                c.kind == 'lockstep'
+                and c.n == 3
+                and c.executor == 'events'
+                and c.inputs == 'aggregate'
+            )
+            or (c.kind == 'latency' and c.pingpong)
+        ]
     used: set[int] = set()
     leftovers: list[tuple[str, int]] = []
     for i, case in enumerate(cases, 1):

@@ -74,6 +74,7 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_graph  # noqa: E402
+from _children import dying_with_parent, exit_on_signals  # noqa: E402
 from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
 from apf_swarm_nodes.machine import machine_busy_seconds, process_cpu_seconds  # noqa: E402
 from bench_graph import Case, machine, rss_mb, run_pingpong  # noqa: E402
@@ -85,7 +86,7 @@ READY_TIMEOUT = 90.0  # --ready-timeout of every bring-up (32 processes on 2 cor
 READY_LINE = 'published /swarm/start'
 STALE_PER_TRACKER = 3
 MIN_SAMPLES = 0.95
-LADDER = (4, 8, 12, 16, 20, 24, 32, 40)
+LADDER = (4, 8, 16, 24, 32, 48, 64, 96, 128)
 DISCOVERY_RATE = 50.0
 DISCOVERY_FLIGHT = 1.0
 PARTS = ('ladder', 'latency', 'discovery', 'lockstep')
@@ -417,7 +418,7 @@ class Bench:
         env.pop('ROS_LOCALHOST_ONLY', None)
         with open(log_path, 'wb') as f:
             p = subprocess.Popen(
-                bringup_argv(case, out, self.domain()),
+                dying_with_parent(bringup_argv(case, out, self.domain())),
                 stdin=subprocess.DEVNULL,
                 stdout=f,
                 stderr=subprocess.STDOUT,
@@ -526,10 +527,14 @@ def run_ladder(
     sizes: Iterable[int],
     flight: float,
 ) -> list[UpCase]:
-    """Climb n until the first size that does not fly."""
+    """Climb n until the first size that does not fly; ``k`` = 0: the bring-up's default
+    trackers per process for each n (:func:`apf_swarm_nodes.probe.trackers_per_process`)."""
+    from apf_swarm_nodes import probe
+
     cases = []
     for n in sizes:
-        c = bench.up(UpCase('realtime', n, k, flight, rate, executor, inputs, depth=depth))
+        kn = k or probe.trackers_per_process(probe.load(), n, rate)
+        c = bench.up(UpCase('realtime', n, kn, flight, rate, executor, inputs, depth=depth))
         cases.append(c)
         if not c.result.get('flies'):
             break
@@ -539,7 +544,7 @@ def run_ladder(
 def ladder_plan(quick: bool, rates: list[float]) -> list[tuple[float, str, str, int, int]]:
     """(rate, executor, inputs, K, QoS depth) of every ladder."""
     if quick:
-        return [(rates[0], 'events', 'aggregate', k, 1) for k in (1, 4)]
+        return [(rates[0], 'events', 'aggregate', k, 1) for k in (1, 0)]
     plan = []
     for rate in rates:
         for executor in ('single', 'events'):
@@ -547,6 +552,7 @@ def ladder_plan(quick: bool, rates: list[float]) -> list[tuple[float, str, str, 
                 plan.append((rate, executor, inputs, 1, 1))
         plan.append((rate, 'events', 'aggregate', 1, 10))
         plan.append((rate, 'events', 'aggregate', 4, 1))
+        plan.append((rate, 'events', 'aggregate', 0, 1))  # K: the bring-up's default
     return plan
 
 
@@ -819,6 +825,11 @@ def build_parser() -> argparse.ArgumentParser:
         help='50 Hz, events / aggregate only, n in (8, 16), short windows',
     )
     ap.add_argument(
+        '--smoke',
+        action='store_true',
+        help='one ladder step: 3 trackers at 50 Hz, the default K, 3 s of flight (seconds)',
+    )
+    ap.add_argument(
         '--rates',
         type=float,
         nargs='+',
@@ -856,10 +867,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run_parts(bench: Bench, args: argparse.Namespace) -> dict[str, Any]:
-    q = args.quick
+    q = args.quick or args.smoke
     rates = args.rates or ([50.0] if q else [50.0, 100.0])
-    flight = args.flight or (5.0 if q else 25.0)  # the formation is judged over the last 40 %
-    sizes = (8, 16) if q else LADDER
+    flight = args.flight or (3.0 if args.smoke else 5.0 if q else 25.0)  # judged: last 40 %
+    sizes = (3,) if args.smoke else (8, 16) if q else LADDER
+    if args.smoke:
+        args.only = ['ladder']
     res: dict[str, Any] = {
         'rates': rates,
         'flight': flight,
@@ -870,8 +883,9 @@ def run_parts(bench: Bench, args: argparse.Namespace) -> dict[str, Any]:
         'lockstep': [],
     }
     if 'ladder' in args.only:
-        for rate, executor, inputs, k, depth in ladder_plan(q, rates):
-            label = f'{rate:g} Hz {executor} {inputs} K={k} depth={depth}'
+        plan = ladder_plan(q, rates)
+        for rate, executor, inputs, k, depth in plan[-1:] if args.smoke else plan:
+            label = f'{rate:g} Hz {executor} {inputs} K={k or "auto"} depth={depth}'
             if args.ladder and not any(t in label for t in args.ladder):
                 continue
             res['ladders'].append(
@@ -975,6 +989,7 @@ def report(res: dict[str, Any], m_before: dict[str, str], wall: float, left: int
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    exit_on_signals()
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'  # the in-process observers too
     os.environ.pop('ROS_LOCALHOST_ONLY', None)
     m = machine()

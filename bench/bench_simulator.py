@@ -218,10 +218,11 @@ def machine() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--quick', action='store_true', help='fewer steps and repeats (smoke run)')
+    ap.add_argument('--quick', action='store_true', help='fewer steps and repeats')
+    ap.add_argument('--smoke', action='store_true', help='as --quick (seconds)')
     ap.add_argument('--plain', action='store_true', help='aligned text instead of Markdown')
     args = ap.parse_args(argv)
-    q = args.quick
+    q = args.quick or args.smoke
     t_start = time.perf_counter()
     cpu_start = time.process_time()
     load_start = load_average()

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 import psutil
+from _children import dying_with_parent, exit_on_signals
 
 CASES = ('no view', 'view, no client', 'view, watched')
 
@@ -72,7 +73,9 @@ def run_case(case: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
     ]  # fmt: skip
     if case != 'no view':
         cmd += ['--view', '0']
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        dying_with_parent(cmd), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
     me = psutil.Process(proc.pid)
     cpu: dict[int, float] = {}
     stop, counts = threading.Event(), {'frames': 0}
@@ -117,7 +120,11 @@ def main() -> int:
     ap.add_argument('--duration', type=float, default=15.0)
     ap.add_argument('--rounds', type=int, default=2)
     ap.add_argument('--json', type=Path)
+    ap.add_argument('--smoke', action='store_true', help='4 trackers, 3 s, one round (seconds)')
     args = ap.parse_args()
+    exit_on_signals()
+    if args.smoke:
+        args.n, args.duration, args.rounds = 4, 3.0, 1
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -29,12 +29,14 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _children import dying_with_parent, exit_on_signals  # noqa: E402
 from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
 from apf_swarm_nodes.machine import process_args, process_cpu_seconds  # noqa: E402
 from bench_graph import machine, rss_mb  # noqa: E402
@@ -142,7 +144,20 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument('--out', type=Path, default=None, help='output directory')
     p.add_argument('--domain-id', type=int, default=None)
+    p.add_argument('--smoke', action='store_true', help='a 10 s soak, sampled every 1 s')
     args = p.parse_args(argv)
+    exit_on_signals()
+    if args.smoke:
+        args.duration, args.every = 10.0, 1.0
+        if args.out is None:  # a smoke run keeps nothing
+            with tempfile.TemporaryDirectory(prefix='soak_smoke_') as tmp:
+                args.out = Path(tmp) / 'soak'
+                return soak(p, args)
+    return soak(p, args)
+
+
+def soak(p: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """The soak of :func:`main`'s arguments."""
     out = (args.out or ROOT / 'runs' / time.strftime('soak-%Y%m%d-%H%M%S')).resolve()
     if out.exists() and any(out.iterdir()):
         p.error(f'{out} is not empty; choose a new --out')
@@ -170,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     err_path = out / 'bringup.stderr'
     with open(err_path, 'wb') as err, open(out / 'bringup.stdout', 'wb') as sout:
         proc = subprocess.Popen(
-            cmd,
+            dying_with_parent(cmd),
             stdin=subprocess.DEVNULL,
             stdout=sout,
             stderr=err,
