@@ -151,3 +151,9 @@ class Supervision:
                 'error: processes left behind: '
                 + ', '.join(f'{n} pid {p}' for n, p in self.leftovers)
             )
+        # the shared memory of participants that did not leave DDS cleanly (a killed node)
+        from ..shm import stale_fastdds_files
+
+        removed = stale_fastdds_files().remove()
+        if removed:
+            self.say(f'removed {removed} stale Fast DDS shared-memory files (/dev/shm)')

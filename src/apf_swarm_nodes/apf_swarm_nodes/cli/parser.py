@@ -140,6 +140,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     probe.add_arguments(p)
     p.set_defaults(func=probe.run)
+    from .. import cleanup
+
+    p = sub.add_parser(
+        'clean',
+        help='remove what killed runs left: stale Fast DDS shared memory (/dev/shm), '
+        'node processes whose bring-up is gone',
+    )
+    cleanup.add_arguments(p)
+    p.set_defaults(func=cleanup.run)
     _add_bag_parser(sub)
     return parser
 

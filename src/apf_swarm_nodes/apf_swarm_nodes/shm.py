@@ -1,0 +1,125 @@
+"""Fast DDS's shared-memory files of participants that no longer exist, found and removed
+(what ``fastdds shm clean`` does, in our own code: the wheels ship no ``fastdds`` tool).
+
+Fast DDS's shared-memory transport leaves, in ``/dev/shm``, per participant a segment
+``fastrtps_<16 hex>`` with its lock file ``fastrtps_<16 hex>_el``, and per port a segment
+``fastrtps_port<N>``, its mutex ``sem.fastrtps_port<N>_mutex`` and, while a participant
+listens on it, a lock file ``fastrtps_port<N>_el`` or ``_sl``. A live owner holds an
+``flock`` on the lock file; the kernel drops it when the owner dies, however it dies. A
+participant killed with SIGKILL (a crashed node, a stop that had to kill) leaves its files
+behind: hundreds after a day of runs, and a port whose interprocess mutex a killed process
+held can block a live one.
+
+A lock file that can be locked exclusively is stale, and so are its segment and mutex
+(Fast DDS's own rule). A port segment with no lock file at all has no listener left;
+it is stale once older than :data:`MIN_AGE` (a port being created has its lock file within
+milliseconds). Nothing a live process holds is removed.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ['MIN_AGE', 'SHM_DIR', 'ShmCleanup', 'count_fastdds_files', 'stale_fastdds_files']
+
+SHM_DIR = Path('/dev/shm')
+#: a port segment without a lock file is left alone until it is this old [s]
+MIN_AGE = 10.0
+
+_SEGMENT_LOCK = re.compile(r'^fastrtps_[0-9a-z]{16}_(el|sl)$')
+_PORT_LOCK = re.compile(r'^fastrtps_port\d{1,5}_(el|sl)$')
+_PORT = re.compile(r'^fastrtps_port\d{1,5}$')
+
+
+@dataclass
+class ShmCleanup:
+    """What :func:`stale_fastdds_files` found: the files to remove and what is in use."""
+
+    stale: list[Path] = field(default_factory=list)
+    segments_in_use: int = 0
+    ports_in_use: int = 0
+
+    def remove(self) -> int:
+        """Remove the stale files (those already gone are skipped); how many were removed."""
+        removed = 0
+        for path in self.stale:
+            try:
+                path.unlink()
+                removed += 1
+            except FileNotFoundError:
+                pass
+            except OSError:
+                continue
+        return removed
+
+
+def _locked(path: Path) -> bool:
+    """Whether a live process holds an flock on ``path`` (Fast DDS's lock files)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return True  # unreadable: leave it alone
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return False
+    finally:
+        os.close(fd)
+
+
+def stale_fastdds_files(shm_dir: Path = SHM_DIR, min_age: float = MIN_AGE) -> ShmCleanup:
+    """The Fast DDS files in ``shm_dir`` of participants that no longer exist."""
+    out = ShmCleanup()
+    try:
+        names = set(os.listdir(shm_dir))
+    except OSError:
+        return out
+    ports_locked: set[str] = set()
+    for name in sorted(names):
+        seg_lock, port_lock = _SEGMENT_LOCK.match(name), _PORT_LOCK.match(name)
+        if not (seg_lock or port_lock):
+            continue
+        base = name[:-3]
+        if _locked(shm_dir / name):
+            if seg_lock:
+                out.segments_in_use += 1
+            else:
+                out.ports_in_use += 1
+                ports_locked.add(base)
+            continue
+        out.stale += [shm_dir / name, shm_dir / base]
+        if port_lock:
+            out.stale.append(shm_dir / f'sem.{base}_mutex')
+            ports_locked.add(base)  # handled with its lock file
+    now = time.time()
+    for name in sorted(names):
+        if not _PORT.match(name) or name in ports_locked:
+            continue
+        if any(f'{name}_{k}' in names for k in ('el', 'sl')):
+            continue
+        try:
+            age = now - (shm_dir / name).stat().st_mtime
+        except OSError:
+            continue
+        if age >= min_age:
+            out.stale += [shm_dir / name, shm_dir / f'sem.{name}_mutex']
+    out.stale = [p for p in dict.fromkeys(out.stale) if p.name in names]
+    return out
+
+
+def count_fastdds_files(shm_dir: Path = SHM_DIR) -> int:
+    """How many Fast DDS entries ``shm_dir`` holds (segments, locks, mutexes)."""
+    try:
+        return sum(1 for n in os.listdir(shm_dir) if n.startswith(('fastrtps_', 'sem.fastrtps_')))
+    except OSError:
+        return 0
