@@ -1,0 +1,66 @@
+"""The bring-up's stop watchdog (bringup.supervision.Signals) in a real process whose main
+thread never returns to Python: a SIGTERM still ends it within the bound."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+SCRIPT = textwrap.dedent(
+    """
+    import sys, threading
+    from apf_swarm_nodes.bringup.supervision import Signals
+    s = Signals(bound=float(sys.argv[1]))
+    s.install()
+    print('ready', flush=True)
+    lock = threading.Lock()
+    lock.acquire()
+    lock.acquire()  # blocks for ever: the handler only sets a flag, as in a DDS call
+    """
+)
+
+
+def _blocked(bound: float) -> subprocess.Popen[str]:
+    p = subprocess.Popen(
+        [sys.executable, '-c', SCRIPT, str(bound)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert p.stdout is not None and p.stdout.readline().strip() == 'ready'
+    return p
+
+
+def test_sigterm_ends_a_run_whose_main_thread_is_blocked_within_the_bound() -> None:
+    p = _blocked(1.0)
+    try:
+        t0 = time.monotonic()
+        p.send_signal(signal.SIGTERM)
+        rc = p.wait(10)
+        took = time.monotonic() - t0
+    finally:
+        p.kill()
+    assert rc == 130
+    assert 1.0 <= took < 10.0
+    assert 'exiting now' in p.stderr.read()
+
+
+@pytest.mark.parametrize('second', [signal.SIGINT, signal.SIGTERM])
+def test_a_second_signal_shortens_the_bound(second) -> None:
+    p = _blocked(60.0)
+    try:
+        p.send_signal(signal.SIGTERM)
+        time.sleep(0.3)
+        # the positive control: the bound holds, the process is still there
+        assert p.poll() is None
+        t0 = time.monotonic()
+        p.send_signal(second)
+        rc = p.wait(15)
+        assert rc == 130 and time.monotonic() - t0 < 15.0
+    finally:
+        p.kill()
