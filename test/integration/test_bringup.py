@@ -544,6 +544,27 @@ def respawn_and_recover(
     return summary | summary_extra | {'out': run.out, 'stderr': run.stderr()}
 
 
+@pytest.mark.parametrize('spawn', ['fork', 'exec'])
+def test_a_killed_bring_up_leaves_no_node_running(bringup, spawn) -> None:
+    """SIGKILL of the bring-up mid-run (it can clean up nothing): every node process gets the
+    parent-death signal (SIGINT, a clean stop) and is gone within seconds, forked or
+    executed; the zygote ends with its input."""
+    run = bringup(f'killed_{spawn}', '--preset', 'triangle', '--duration', '60', '--spawn', spawn)
+    run.wait_running()
+    wait_for(lambda: len(run.collect_nodes()) == 5, 10, 'the 5 node processes', run)
+    wait_for(lambda: sim_time(run) >= 0.5, 60, 't >= 0.5 s', run)
+    nodes = dict(run.nodes)
+    os.kill(run.popen.pid, signal.SIGKILL)
+    run.popen.wait(10)
+    deadline = time.monotonic() + 15.0  # the nodes' clean stop, on a loaded machine
+    while [p for p, t in nodes.items() if alive(p, t)] and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert [p for p, t in nodes.items() if alive(p, t)] == [], {
+        p: _cmdline(p) for p, t in nodes.items() if alive(p, t)
+    }
+    assert [p for p, t in processes_with(run.config).items() if alive(p, t)] == []
+
+
 def _shm_entries() -> set[str]:
     return {n for n in os.listdir('/dev/shm') if n.startswith(('fastrtps_', 'sem.fastrtps_'))}
 

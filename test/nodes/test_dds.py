@@ -105,6 +105,16 @@ def test_a_localhost_run_gets_the_profile_and_drops_what_names_other_hosts(
     assert any('ROS_STATIC_PEERS ignored' in s for s in said)
     assert no_swarm == [(7, False)]
     assert path.read_text() == dds.profile_xml(localhost=True, participants=6)
+    # the bring-up's own participant: the same profile without shared memory
+    own = dds.own_participant_environment(env)
+    udp = Path(own['FASTRTPS_DEFAULT_PROFILES_FILE'])
+    assert udp == tmp_path / dds.OWN_PROFILE and own['FASTDDS_DEFAULT_PROFILES_FILE'] == str(udp)
+    kinds = [t.text for t in ET.parse(udp).getroot().findall('.//{*}type')]
+    assert kinds == ['UDPv4']
+    assert [t.text for t in ET.parse(path).getroot().findall('.//{*}type')] == ['UDPv4', 'SHM']
+    assert udp.read_text() == dds.profile_xml(localhost=True, participants=6, shm=False)
+    # a network run: the builtin transports, UDP alone
+    assert dds.own_participant_environment({}) == {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
 
 
 def test_a_network_run_keeps_a_users_profile_and_off_does_nothing(

@@ -17,6 +17,8 @@ SCRIPT = textwrap.dedent(
     from apf_swarm_nodes.bringup.supervision import Signals
     s = Signals(bound=float(sys.argv[1]))
     s.install()
+    if len(sys.argv) > 2:
+        s.arm()  # stopping begins: the bound runs without a signal
     print('ready', flush=True)
     lock = threading.Lock()
     lock.acquire()
@@ -25,9 +27,9 @@ SCRIPT = textwrap.dedent(
 )
 
 
-def _blocked(bound: float) -> subprocess.Popen[str]:
+def _blocked(bound: float, *extra: str) -> subprocess.Popen[str]:
     p = subprocess.Popen(
-        [sys.executable, '-c', SCRIPT, str(bound)],
+        [sys.executable, '-c', SCRIPT, str(bound), *extra],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -64,3 +66,15 @@ def test_a_second_signal_shortens_the_bound(second) -> None:
         assert rc == 130 and time.monotonic() - t0 < 15.0
     finally:
         p.kill()
+
+
+def test_a_stop_that_hangs_without_any_signal_ends_within_the_bound() -> None:
+    """The run's own stop (its end, a failed start) arms the bound: a shutdown blocked in
+    DDS after the nodes were killed (the 85-minute hang) ends too."""
+    t0 = time.monotonic()
+    p = _blocked(1.0, 'arm')
+    try:
+        rc = p.wait(10)
+    finally:
+        p.kill()
+    assert rc == 130 and time.monotonic() - t0 < 10.0

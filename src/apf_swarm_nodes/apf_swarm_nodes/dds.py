@@ -40,7 +40,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from collections.abc import Callable, MutableMapping, Sequence
+from collections.abc import Callable, Mapping, MutableMapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -49,12 +49,14 @@ from .swarm_domain import MAX_PARTICIPANTS, refuse_other_swarm
 
 __all__ = [
     'LEASE_ANNOUNCEMENT',
+    'OWN_PROFILE',
     'PROFILE_VARIABLES',
     'check_rmw',
     'discovery_timing',
     'isolate_dds',
     'localhost_environment',
     'max_participants',
+    'own_participant_environment',
     'profile_xml',
     'write_profile',
 ]
@@ -82,6 +84,26 @@ LEASE_DURATION = 20.0
 #: participants on this machine beyond a run's own, for the 127.0.0.1 ports a localhost
 #: participant announces to: viewers, ``ros2 topic``, tests' observers, the domain probe
 SPARE_PARTICIPANTS = 16
+#: the profile of the bring-up's own participant, beside the run's (UDP on 127.0.0.1 only)
+OWN_PROFILE = 'fastdds_localhost_udp.xml'
+
+
+def own_participant_environment(environ: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The variables that put the bring-up's own participant on UDP only, never on shared
+    memory: a participant whose call blocks on a shared-memory mutex that a killed node
+    held cannot stop the run then. Localhost runs: the run's profile without its SHM
+    transport (written beside it by :func:`isolate_dds`); otherwise
+    ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``. Set them for ``rclpy.init`` only: the nodes keep
+    shared memory."""
+    env = os.environ if environ is None else environ
+    own = next((env[v] for v in PROFILE_VARIABLES if env.get(v)), None)
+    if own is not None and Path(own).name == 'fastdds_localhost.xml':
+        udp = Path(own).with_name(OWN_PROFILE)
+        if udp.is_file():
+            return dict.fromkeys(PROFILE_VARIABLES, str(udp))
+    return {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
+
+
 # --------------------------------------------------------------------------------------------
 # the profile
 # --------------------------------------------------------------------------------------------
@@ -122,6 +144,7 @@ def profile_xml(
     period: float | None = None,
     window: float | None = None,
     lease_announcement: float | None = None,
+    shm: bool = True,
 ) -> str:
     """The Fast DDS XML profile of a run of ``participants`` (the default participant
     profile: every participant of a process that reads it gets it).
@@ -153,7 +176,13 @@ def profile_xml(
     ]
     loopback = '<locator><udpv4><address>127.0.0.1</address></udpv4></locator>'
     if localhost:
-        what = 'localhost only: UDPv4 on 127.0.0.1 and shared memory'
+        what = 'localhost only: UDPv4 on 127.0.0.1' + (' and shared memory' if shm else '')
+        shm_descriptor = [
+            '  <transport_descriptor>',
+            '    <transport_id>apf_swarm_shm</transport_id>',
+            '    <type>SHM</type>',
+            '  </transport_descriptor>',
+        ]
         transports = [
             '<transport_descriptors>',
             '  <transport_descriptor>',
@@ -162,16 +191,13 @@ def profile_xml(
             f'    <maxInitialPeersRange>{peers}</maxInitialPeersRange>',
             '    <interfaces><allowlist><interface name="127.0.0.1"/></allowlist></interfaces>',
             '  </transport_descriptor>',
-            '  <transport_descriptor>',
-            '    <transport_id>apf_swarm_shm</transport_id>',
-            '    <type>SHM</type>',
-            '  </transport_descriptor>',
+            *(shm_descriptor if shm else []),
             '</transport_descriptors>',
         ]
         rtps = [
             '<userTransports>',
             '  <transport_id>apf_swarm_udp_loopback</transport_id>',
-            '  <transport_id>apf_swarm_shm</transport_id>',
+            *(['  <transport_id>apf_swarm_shm</transport_id>'] if shm else []),
             '</userTransports>',
             '<useBuiltinTransports>false</useBuiltinTransports>',
             '<builtin>',
@@ -270,6 +296,11 @@ def isolate_dds(
                 say(f'warning: {var} ignored: a localhost run reaches no other host')
         path = write_profile(
             Path(directory) / 'fastdds_localhost.xml', localhost=True, participants=processes
+        )
+        # the same without shared memory, for the bring-up's own participant
+        # (:func:`own_participant_environment`)
+        write_profile(
+            Path(directory) / OWN_PROFILE, localhost=True, participants=processes, shm=False
         )
         env.update(localhost_environment(path))
     elif discovery_range in NETWORK_RANGES:

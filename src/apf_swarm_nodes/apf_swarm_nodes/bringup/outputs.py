@@ -75,6 +75,12 @@ class RunOutputs:
                 'rate': round(len(self.acc.samples) / run_s, 1) if run_s > 0 else None,
             },
             'stopped_by': self.stop_how,
+            # how many needed which signal: SIGKILL is the exception (a node that never left
+            # DDS leaves shared memory behind, which the bring-up then removes)
+            'stop_signals': {
+                how: sum(1 for v in self.stop_how.values() if v == how)
+                for how in sorted(set(self.stop_how.values()))
+            },
             **(
                 {
                     'recording': {

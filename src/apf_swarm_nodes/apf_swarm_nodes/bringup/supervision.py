@@ -89,10 +89,12 @@ class Signals:
                 stops = [b for b in data if b in (signal.SIGINT, signal.SIGTERM)]
                 if not data:
                     return
+                now = time.monotonic()
                 if stops:
-                    now = time.monotonic()
                     bound = self.bound if deadline is None else self.HARD_STOP_AFTER
                     deadline = now + bound if deadline is None else min(deadline, now + bound)
+                elif self._ARM[0] in data and deadline is None:
+                    deadline = now + self.bound
                 continue
             if deadline is not None and time.monotonic() >= deadline:
                 os.write(
@@ -101,6 +103,17 @@ class Signals:
                     'call blocked inside DDS?): exiting now, outputs may be missing\n'.encode(),
                 )
                 os._exit(EXIT_INTERRUPTED)
+
+    #: the byte :meth:`arm` writes (no signal has this number)
+    _ARM = b'\xff'
+
+    def arm(self) -> None:
+        """Start the bound now, signal or not: the run is stopping (its end, a failed start, a
+        node's death), and stopping must not hang either (a DDS call blocked on a mutex a
+        killed node held)."""
+        if self._pipe is not None:
+            with contextlib.suppress(OSError):
+                os.write(self._pipe[1], self._ARM)
 
     def restore(self) -> None:
         self._done.set()
@@ -214,7 +227,12 @@ class Supervision:
 
     def stop_children(self) -> None:
         t0 = time.monotonic()
-        self.stop_how = self.group.stop_all(hurry=lambda: len(self.signals.received))
+        self.signals.arm()  # stopping has a bound too
+        hurry = lambda: len(self.signals.received)  # noqa: E731
+        # the trackers first, so that none commands into a plant that is gone; then the plant
+        # and the target; each leaves DDS on SIGINT, given time that grows with the load
+        self.stop_how = self.group.stop_all(hurry=hurry, select=lambda c: 'tracker' in c.name)
+        self.stop_how.update(self.group.stop_all(hurry=hurry))
         # the recorder last: it takes what is still queued and closes the bag
         self.stop_how.update(self.rec_group.stop_all(hurry=lambda: len(self.signals.received)))
         self.stop_seconds = time.monotonic() - t0

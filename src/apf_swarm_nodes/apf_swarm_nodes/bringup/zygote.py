@@ -58,6 +58,7 @@ DIST = 'apf-swarm-nodes'
 #: console scripts that are not nodes (never preloaded or forked)
 NOT_NODES = frozenset({'apf-swarm'})
 PR_SET_CHILD_SUBREAPER = 36
+PR_SET_PDEATHSIG = 1
 
 
 def node_entry_points() -> dict[str, str]:
@@ -299,6 +300,13 @@ def become_node(request: Mapping[str, Any]) -> None:
     session, default signals, its log on stdout and stderr, its environment, working
     directory, argv and command line)."""
     os.setsid()
+    # the node ends (as on Ctrl-C, leaving DDS cleanly) when the bring-up it now belongs to
+    # dies, even by SIGKILL: the kernel's parent-death signal, set once the intermediate
+    # process is gone (before, its exit would have sent it)
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGINT)
+    if os.getppid() == 1:  # the bring-up died before that: no one would stop this node
+        os._exit(0)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD, signal.SIGUSR1):
         signal.signal(sig, signal.SIG_DFL)
