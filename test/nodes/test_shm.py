@@ -32,6 +32,11 @@ def test_only_files_no_live_process_holds_are_stale(tmp_path: Path) -> None:
     _touch(tmp_path, 'fastrtps_port7415', age=60.0)  # no listener left, old
     _touch(tmp_path, 'sem.fastrtps_port7415_mutex', age=60.0)
     _touch(tmp_path, 'fastrtps_port7417')  # no lock file yet, but just created
+    _touch(tmp_path, 'fastrtps_port7419', age=60.0)  # no lock file, but a process maps it
+    mapped = (tmp_path / 'fastrtps_port7419').open('r+b')
+    import mmap
+
+    view = mmap.mmap(mapped.fileno(), 1)
     _touch(tmp_path, 'lttng-ust-wait-6')  # not Fast DDS's
     held = [
         os.open(tmp_path / f'{live_seg}_el', os.O_RDONLY),
@@ -41,7 +46,7 @@ def test_only_files_no_live_process_holds_are_stale(tmp_path: Path) -> None:
         for fd in held:  # as a live participant holds them
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         found = stale_fastdds_files(tmp_path)
-        assert found.segments_in_use == 1 and found.ports_in_use == 1
+        assert found.segments_in_use == 1 and found.ports_in_use == 2
         assert sorted(p.name for p in found.stale) == sorted(
             [
                 dead_seg,
@@ -58,6 +63,7 @@ def test_only_files_no_live_process_holds_are_stale(tmp_path: Path) -> None:
         assert count_fastdds_files(tmp_path) == before - 7
         assert (tmp_path / live_seg).exists() and (tmp_path / 'fastrtps_port7411').exists()
         assert (tmp_path / 'fastrtps_port7417').exists()
+        assert (tmp_path / 'fastrtps_port7419').exists()
         assert (tmp_path / 'lttng-ust-wait-6').exists()
         # the live ones are still locked by their owner: our probe took nothing from it
         for fd in held:
@@ -66,6 +72,8 @@ def test_only_files_no_live_process_holds_are_stale(tmp_path: Path) -> None:
     finally:
         for fd in held:
             os.close(fd)
+        view.close()
+        mapped.close()
     # the owner gone (its descriptors closed, as the kernel does when it dies): stale
     assert {p.name for p in stale_fastdds_files(tmp_path).stale} >= {live_seg, 'fastrtps_port7411'}
 

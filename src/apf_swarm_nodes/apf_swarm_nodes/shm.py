@@ -11,9 +11,10 @@ behind: hundreds after a day of runs, and a port whose interprocess mutex a kill
 held can block a live one.
 
 A lock file that can be locked exclusively is stale, and so are its segment and mutex
-(Fast DDS's own rule). A port segment with no lock file at all has no listener left;
-it is stale once older than :data:`MIN_AGE` (a port being created has its lock file within
-milliseconds). Nothing a live process holds is removed.
+(Fast DDS's own rule). A port segment with no lock file at all has no listener left; it is
+stale when no process maps it (``/proc/*/maps``) and it is older than :data:`MIN_AGE` (a
+port being created has its lock file and its mapping within milliseconds). Nothing a live
+process holds is removed.
 """
 
 from __future__ import annotations
@@ -25,11 +26,18 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ['MIN_AGE', 'SHM_DIR', 'ShmCleanup', 'count_fastdds_files', 'stale_fastdds_files']
+__all__ = [
+    'MIN_AGE',
+    'SHM_DIR',
+    'ShmCleanup',
+    'count_fastdds_files',
+    'mapped_shm_names',
+    'stale_fastdds_files',
+]
 
 SHM_DIR = Path('/dev/shm')
 #: a port segment without a lock file is left alone until it is this old [s]
-MIN_AGE = 10.0
+MIN_AGE = 1.0
 
 _SEGMENT_LOCK = re.compile(r'^fastrtps_[0-9a-z]{16}_(el|sl)$')
 _PORT_LOCK = re.compile(r'^fastrtps_port\d{1,5}_(el|sl)$')
@@ -77,6 +85,24 @@ def _locked(path: Path) -> bool:
         os.close(fd)
 
 
+def mapped_shm_names(shm_dir: Path = SHM_DIR) -> set[str]:
+    """Names of the files in ``shm_dir`` that some process has mapped now."""
+    prefix = str(shm_dir).rstrip('/') + '/'
+    names: set[str] = set()
+    for pid in os.listdir('/proc'):
+        if not pid.isdigit():
+            continue
+        try:
+            with open(f'/proc/{pid}/maps', encoding='utf-8', errors='replace') as f:
+                for line in f:
+                    i = line.find(prefix)
+                    if i >= 0:
+                        names.add(line[i + len(prefix) :].split(' (deleted)')[0].strip())
+        except OSError:
+            continue
+    return names
+
+
 def stale_fastdds_files(shm_dir: Path = SHM_DIR, min_age: float = MIN_AGE) -> ShmCleanup:
     """The Fast DDS files in ``shm_dir`` of participants that no longer exist."""
     out = ShmCleanup()
@@ -102,10 +128,16 @@ def stale_fastdds_files(shm_dir: Path = SHM_DIR, min_age: float = MIN_AGE) -> Sh
             out.stale.append(shm_dir / f'sem.{base}_mutex')
             ports_locked.add(base)  # handled with its lock file
     now = time.time()
+    mapped: set[str] | None = None
     for name in sorted(names):
         if not _PORT.match(name) or name in ports_locked:
             continue
         if any(f'{name}_{k}' in names for k in ('el', 'sl')):
+            continue
+        if mapped is None:
+            mapped = mapped_shm_names(shm_dir)
+        if name in mapped:
+            out.ports_in_use += 1
             continue
         try:
             age = now - (shm_dir / name).stat().st_mtime

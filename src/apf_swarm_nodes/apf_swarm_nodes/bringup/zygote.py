@@ -368,6 +368,22 @@ def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
     return None
 
 
+#: seconds the zygote of a bring-up that died gives the nodes (stopping on their parent-death
+#: signal) before it removes the shared memory they left
+ORPHAN_GRACE = 5.0
+
+
+def orphaned_cleanup() -> None:
+    """The bring-up died (SIGKILL: it could clean nothing up) and its nodes are stopping on
+    their parent-death signal: once they had time to, remove the Fast DDS shared memory no
+    live process holds, as the bring-up would have at its end."""
+    from ..shm import stale_fastdds_files
+
+    time.sleep(ORPHAN_GRACE)
+    with contextlib.suppress(OSError):
+        stale_fastdds_files().remove()
+
+
 def main() -> None:
     # Ctrl-C in a terminal is the bring-up's to handle; the zygote ends with its input
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -383,8 +399,11 @@ def main() -> None:
 
     gc.collect()
     gc.freeze()  # the preloaded objects stay shared with every node process
+    parent = os.getppid()
     request = serve(requests, replies)
     if request is None:
+        if os.getppid() != parent:
+            orphaned_cleanup()
         return
     become_node(request)
     module, _, func = request['entry'].partition(':')

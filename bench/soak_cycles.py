@@ -1,0 +1,184 @@
+#!/usr/bin/env python3
+"""Soak of starts and stops: many short runs, each ended a different way, none may hang or
+leave anything behind.
+
+    source scripts/activate.sh
+    python bench/soak_cycles.py [--cycles 100] [--n-trackers 3] [--duration 3] [--smoke]
+
+Each cycle brings up the lockstep triangle (``swarm_up.py --preset triangle --respawn``) and
+ends it one of four ways, drawn at random (seeded): it runs to its end; a node is killed
+with SIGKILL mid-run (the bring-up respawns it and the run completes); the bring-up gets
+SIGTERM mid-run; the bring-up is killed with SIGKILL mid-run (nothing of it can clean up:
+the nodes' parent-death signal must). Per cycle it records whether the bring-up ended
+within ``duration + 90`` s (else: a hang, and it is killed), whether any process of the run
+is still alive 15 s after (a leftover, killed), and how many Fast DDS entries of
+``/dev/shm`` created during the cycle are still there 10 s after that (those of other jobs
+that come and go meanwhile are not counted).
+
+Output: a Markdown table per way of ending and the totals, with the CPU; exit 1 if any
+cycle hung or left a process. ``--smoke``: one cycle of each way, 2 s runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import psutil
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import contextlib
+
+from _children import dying_with_parent, exit_on_signals
+
+ROOT = Path(__file__).resolve().parents[1]
+WAYS = ('ends', 'node SIGKILL', 'bring-up SIGTERM', 'bring-up SIGKILL')
+
+
+def cpu_model() -> str:
+    for line in Path('/proc/cpuinfo').read_text().splitlines():
+        if line.startswith('model name'):
+            return line.split(':', 1)[1].strip()
+    return 'unknown CPU'
+
+
+def shm_entries() -> set[str]:
+    return {n for n in os.listdir('/dev/shm') if n.startswith(('fastrtps_', 'sem.fastrtps_'))}
+
+
+def run_processes(out: Path) -> list[psutil.Process]:
+    """Live processes whose command line names the run's directory (its nodes)."""
+    found = []
+    for p in psutil.process_iter(['cmdline']):
+        try:
+            if str(out) in ' '.join(p.info['cmdline'] or []):
+                found.append(p)
+        except (psutil.Error, OSError):
+            continue
+    return found
+
+
+def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random.Random) -> dict:
+    out = tmp / f'cycle_{i}'
+    before = shm_entries()
+    cmd = [
+        sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--preset', 'triangle',
+        '--n-trackers', str(args.n_trackers), '--duration', str(args.duration), '--respawn',
+        '--no-plots', '--out', str(out),
+    ]  # fmt: skip
+    t0 = time.monotonic()
+    p = subprocess.Popen(
+        dying_with_parent(cmd),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+        cwd=ROOT,
+    )
+    if way != 'ends':
+        # mid-run: once the nodes are up, then a random moment of the run
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline and p.poll() is None:
+            if len(run_processes(out)) >= args.n_trackers + 2:
+                break
+            time.sleep(0.1)
+        time.sleep(rng.uniform(0.5, 1.0 + 0.5 * args.duration))
+        if p.poll() is None:
+            if way == 'node SIGKILL':
+                nodes = [q for q in run_processes(out) if '/tracker' in ' '.join(q.cmdline())]
+                if nodes:
+                    rng.choice(nodes).kill()
+            else:
+                p.send_signal(signal.SIGTERM if way == 'bring-up SIGTERM' else signal.SIGKILL)
+    hung = False
+    try:
+        rc = p.wait(args.duration + 90.0)
+    except subprocess.TimeoutExpired:
+        hung = True
+        os.killpg(p.pid, signal.SIGKILL)
+        rc = p.wait()
+    ended = time.monotonic() - t0
+    deadline = time.monotonic() + 15.0
+    while run_processes(out) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    left = run_processes(out)
+    for q in left:
+        with contextlib.suppress(psutil.Error):
+            print(
+                f'soak_cycles: leftover pid {q.pid}: {" ".join(q.cmdline())[:200]}',
+                file=sys.stderr,
+            )
+        q.kill()
+    if args.verbose:
+        for name in sorted(shm_entries() - before):
+            print(f'soak_cycles: /dev/shm left: {name}', file=sys.stderr)
+    # a killed bring-up's zygote removes what its nodes left a few seconds after they stopped
+    deadline = time.monotonic() + 10.0
+    while shm_entries() - before and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return {
+        'way': way,
+        'rc': rc,
+        'hung': hung,
+        'seconds': ended,
+        'leftover': len(left),
+        'shm_left': len(shm_entries() - before),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--cycles', type=int, default=100)
+    ap.add_argument('--n-trackers', type=int, default=3)
+    ap.add_argument('--duration', type=float, default=3.0, help='simulated seconds a run')
+    ap.add_argument('--seed', type=int, default=1)
+    ap.add_argument('--smoke', action='store_true', help='one cycle of each way, 2 s runs')
+    ap.add_argument('--verbose', action='store_true', help='name what each cycle left')
+    args = ap.parse_args(argv)
+    exit_on_signals()
+    rng = random.Random(args.seed)
+    ways = list(WAYS) if args.smoke else [rng.choice(WAYS) for _ in range(args.cycles)]
+    if args.smoke:
+        args.duration = 2.0
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    rows = []
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix='soak_cycles_') as tmp:
+        for i, way in enumerate(ways, 1):
+            row = one_cycle(i, way, args, Path(tmp), rng)
+            rows.append(row)
+            print(
+                f'soak_cycles: {i}/{len(ways)} {way}: exit {row["rc"]} after '
+                f'{row["seconds"]:.1f} s, leftover {row["leftover"]}, /dev/shm left '
+                f'{row["shm_left"]}' + (' HUNG' if row['hung'] else ''),
+                file=sys.stderr,
+                flush=True,
+            )
+    print(f'\nCPU: {cpu_model()}; {len(rows)} cycles in {time.monotonic() - t0:.0f} s\n')
+    print(
+        '| ending | cycles | hangs | exit codes | longest [s] | leftover processes '
+        '| /dev/shm left |'
+    )
+    print('|---|---:|---:|---|---:|---:|---:|')
+    for way in (*WAYS, 'all'):
+        mine = [r for r in rows if way in ('all', r['way'])]
+        if not mine:
+            continue
+        codes = ', '.join(str(c) for c in sorted({r['rc'] for r in mine}))
+        print(
+            f'| {way} | {len(mine)} | {sum(r["hung"] for r in mine)} | {codes} | '
+            f'{max(r["seconds"] for r in mine):.1f} | {sum(r["leftover"] for r in mine)} | '
+            f'{sum(r["shm_left"] for r in mine)} |'
+        )
+    bad = any(r['hung'] or r['leftover'] for r in rows)
+    return 1 if bad else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
