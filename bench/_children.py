@@ -7,6 +7,7 @@ running)."""
 
 from __future__ import annotations
 
+import argparse
 import shutil
 import signal
 import sys
@@ -16,11 +17,12 @@ from typing import Any
 __all__ = ['dying_with_parent', 'exit_on_signals']
 
 
-def dying_with_parent(argv: Sequence[str]) -> list[str]:
-    """``argv`` run so that it gets SIGKILL when the process that started it ends (Linux,
+def dying_with_parent(argv: Sequence[str], sig: str = 'KILL') -> list[str]:
+    """``argv`` run so that it gets ``sig`` (default SIGKILL; ``'TERM'`` lets a benchmark
+    unwind through its ``finally`` blocks) when the process that started it ends (Linux,
     util-linux ``setpriv``; unchanged where there is none)."""
     setpriv = shutil.which('setpriv')
-    return [setpriv, '--pdeathsig', 'KILL', '--', *argv] if setpriv else list(argv)
+    return [setpriv, '--pdeathsig', sig, '--', *argv] if setpriv else list(argv)
 
 
 def exit_on_signals() -> None:
@@ -35,4 +37,8 @@ def exit_on_signals() -> None:
 
 
 if __name__ == '__main__':
+    argparse.ArgumentParser(
+        description='A module of the benchmarks (imported by them), not a benchmark: '
+        'it has nothing to run.'
+    ).parse_args()
     sys.exit('bench/_children.py is a module of the benchmarks, not a benchmark')

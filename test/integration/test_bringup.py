@@ -565,6 +565,29 @@ def test_a_killed_bring_up_leaves_no_node_running(bringup, spawn) -> None:
     assert [p for p, t in processes_with(run.config).items() if alive(p, t)] == []
 
 
+def test_a_stop_under_overload_ends_within_the_bound_and_leaves_nothing(bringup) -> None:
+    """More tracker processes than two cores carry (40, one each, realtime), stopped with
+    SIGTERM once they fly: the bring-up ends within its stop bound (the watchdog's), and
+    no process of the run is left."""
+    from apf_swarm_nodes.bringup.supervision import Signals
+
+    run = bringup(
+        'overload',
+        *('--preset', 'realtime', '--mode', 'realtime', '--n-trackers', '40'),
+        *('--trackers-per-process', '1', '--allow-overload', '--duration', '60'),
+    )
+    run.wait_running()
+    wait_for(lambda: sim_time(run) >= 2.0, 120, 't >= 2 s', run)
+    t0 = time.monotonic()
+    run.popen.send_signal(signal.SIGTERM)
+    rc = run.popen.wait(Signals.BOUND + 30.0)  # the bound, then the outputs
+    took = time.monotonic() - t0
+    assert rc in (130, 0), run.stderr()
+    assert took < Signals.BOUND + 30.0
+    assert re.search(r'stopped \d+ processes in', run.stderr()), run.stderr()
+    assert run.left_behind() == [], run.left_behind()
+
+
 def _shm_entries() -> set[str]:
     return {n for n in os.listdir('/dev/shm') if n.startswith(('fastrtps_', 'sem.fastrtps_'))}
 

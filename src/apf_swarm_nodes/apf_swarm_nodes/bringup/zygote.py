@@ -300,6 +300,8 @@ def become_node(request: Mapping[str, Any]) -> None:
     session, default signals, its log on stdout and stderr, its environment, working
     directory, argv and command line)."""
     os.setsid()
+    # (the zygote ignores SIGINT: the node takes it as Ctrl-C again before anything sends it)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     # the node ends (as on Ctrl-C, leaving DDS cleanly) when the bring-up it now belongs to
     # dies, even by SIGKILL: the kernel's parent-death signal, set once the intermediate
     # process is gone (before, its exit would have sent it)
@@ -307,7 +309,6 @@ def become_node(request: Mapping[str, Any]) -> None:
         ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGINT)
     if os.getppid() == 1:  # the bring-up died before that: no one would stop this node
         os._exit(0)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
     for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD, signal.SIGUSR1):
         signal.signal(sig, signal.SIG_DFL)
     log = os.open(request['log'], os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
