@@ -102,7 +102,9 @@ def main(argv: list[str]) -> int:
     mode.add_argument('--quick', action='store_true', help='shorter runs (minutes)')
     mode.add_argument('--smoke', action='store_true', help='each in seconds: does it still run?')
     ap.add_argument('--timeout', type=float, default=None, metavar='S', help='per benchmark')
-    ap.add_argument('names', nargs='*', metavar='NAME', help='e.g. simulator control soak soak_cycles')
+    ap.add_argument(
+        'names', nargs='*', metavar='NAME', help='e.g. simulator control soak soak_cycles'
+    )
     args = ap.parse_args(argv)
     exit_on_signals()
     flags = ['--smoke'] if args.smoke else ['--quick'] if args.quick else []
