@@ -501,7 +501,10 @@ def main(argv: list[str]) -> int:
         f'| {info["n"]:,} | {info["size_mb"]:.1f} MB | {info["write_s"]:.1f} s | '
         f'{info["cli_s"]:.2f} s | {info["startup_s"]:.2f} s | {info["inproc_s"] * 1e3:.0f} ms |'
     )
-    return 0
+    failed = [f'swarm at {s["publish_rate"]:g} Hz' for s in swarms if 'error' in s]
+    if failed:
+        print(f'\nFailed to run: {", ".join(failed)}.')
+    return 1 if failed else 0
 
 
 if __name__ == '__main__':

@@ -37,7 +37,7 @@ time over the same window (``/proc/stat``) minus the processes of the case: what
 
 Output: progress on stderr, markdown tables on stdout. Exit 0 when the 3-tracker lockstep
 floor (500 steps/s) is met by the default configuration (executor single, inputs aggregate),
-else 1.
+else 1; also 1 when a case or the ping-pong failed to run, or left processes behind.
 """
 
 from __future__ import annotations
@@ -716,7 +716,7 @@ def main(argv: list[str] | None = None) -> int:
                         else ''
                     )
                 )
-    ping = None
+    ping, ping_failed = None, False
     if args.only in (None, 'latency'):
         from apf_swarm_nodes.bringup import pick_domain_id
 
@@ -729,6 +729,7 @@ def main(argv: list[str] | None = None) -> int:
                 log(f'  round trip p50 {ping["p50"]:.2f} ms, p99 {ping["p99"]:.2f} ms')
             except RuntimeError as exc:
                 log(f'  FAILED: {exc}')
+                ping_failed = True
 
     # ---- tables ----------------------------------------------------------------------------
     out = [
@@ -885,7 +886,12 @@ def main(argv: list[str] | None = None) -> int:
         f'{len(leftovers)}.'
     )
     print('\n'.join(out))
-    if leftovers:
+    failed = [c.label for c in cases if 'error' in c.result]
+    if ping_failed:
+        failed.append('ping-pong')
+    if failed:
+        print(f'\nFailed to run: {", ".join(failed)}.')
+    if leftovers or failed:
         return 1
     return 0 if floor_ok in (None, True) else 1
 

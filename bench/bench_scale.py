@@ -46,7 +46,7 @@ start-up (launch to graph ready).
 
 Prints progress on stderr and Markdown tables on stdout. Numbers to compare within one run,
 not timed assertions. Exit 1 when a process of a case was left behind (checked by PID at the
-end; they are killed), else 0.
+end; they are killed), or with ``--smoke`` when its case crashed (no summary), else 0.
 """
 
 from __future__ import annotations
@@ -1003,7 +1003,10 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             left = bench.leftovers()
     print(report(res, m, time.monotonic() - bench.t0, len(left)))
-    return 1 if left else 0
+    # --smoke: a case that ran but wrote no summary (a crash) is a broken benchmark; in a
+    # full run a ladder's failing size is its result
+    crashed = args.smoke and any('error' in c.result for cs in res['ladders'] for c in cs)
+    return 1 if left or crashed else 0
 
 
 if __name__ == '__main__':

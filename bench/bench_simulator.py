@@ -3,7 +3,7 @@
 
 Run from the workspace root (numpy only, no ROS):
 
-    PYTHONPATH=src/apf_swarm_core python bench/bench_simulator.py [--quick] [--plain]
+    PYTHONPATH=src/apf_swarm_core python bench/bench_simulator.py [--quick | --smoke] [--plain]
 
 The baseline (:class:`LoopSimulator`) is the straightforward implementation of one step of
 the closed loop: a Python loop over the trackers and over the pairs, with one numpy 3-vector
@@ -20,7 +20,9 @@ Both sides draw the disturbance in the timed region; the target's
 trajectory is evaluated inside the simulator's timed region and precomputed for the loop.
 
 Output: Markdown tables on stdout (``--plain`` for aligned text), progress on stderr. Exit
-status 0 when every floor is met, 1 otherwise.
+status 0 when every floor is met, 1 otherwise. ``--smoke`` (seconds: does it still run?)
+times tiny cases (no n = 1000, R <= 300) and judges only the loop against the simulator, not
+the floors, which a shared machine's load can miss (its tables say "not judged").
 """
 
 from __future__ import annotations
@@ -219,16 +221,26 @@ def machine() -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--quick', action='store_true', help='fewer steps and repeats')
-    ap.add_argument('--smoke', action='store_true', help='as --quick (seconds)')
+    ap.add_argument(
+        '--smoke',
+        action='store_true',
+        help='tiny cases (seconds); only the loop against the simulator is judged, not floors',
+    )
     ap.add_argument('--plain', action='store_true', help='aligned text instead of Markdown')
     args = ap.parse_args(argv)
-    q = args.quick or args.smoke
+    q, smoke = args.quick or args.smoke, args.smoke
     t_start = time.perf_counter()
     cpu_start = time.process_time()
     load_start = load_average()
 
     log('checking that the loop reproduces the simulator ...')
-    checks = [(3, 300), (10, 100)] if q else [(3, 500), (10, 300), (100, 20)]
+    checks = (
+        [(3, 100), (10, 50)]
+        if smoke
+        else [(3, 300), (10, 100)]
+        if q
+        else [(3, 500), (10, 300), (100, 20)]
+    )
     errors = {}
     for n, steps in checks:
         errors[(n, steps)] = verify(n, steps)
@@ -237,18 +249,21 @@ def main(argv: list[str] | None = None) -> int:
 
     log('single runs (simulator and loop timed alternately) ...')
     rows = []  # case, (sim best, median), (loop best, median), floor or None
-    for n, sim_steps, loop_steps, reps, loop_reps, floor in (
+    single = (
         (3, 100, 100, 30 if q else 150, None, None),
         (100, 50, 2, 4 if q else 7, None, FLOOR_N100),
         (1000, 5 if q else 10, 1, 2 if q else 3, 1 if q else 2, None),
-    ):
+    )
+    if smoke:
+        single = ((3, 100, 100, 5, None, None), (100, 10, 1, 2, None, FLOOR_N100))
+    for n, sim_steps, loop_steps, reps, loop_reps, floor in single:
         res = single_case(n, sim_steps, loop_steps, reps, loop_reps)
         rows.append((f'n={n}, record off', res['off'], res['loop'], floor))
         rows.append((f'n={n}, record on', res['on'], res['loop'], floor))
 
     log('batched runs (R runs x 3 trackers, record off) ...')
     batch = []
-    Rs = (100, 1000, 3000) if q else (100, 300, 1000, 3000, 10000)
+    Rs = (100, 300) if smoke else (100, 1000, 3000) if q else (100, 300, 1000, 3000, 10000)
     for R in Rs:
         steps = max(20, min(1000, (600_000 if q else 1_500_000) // (R * 3)))
         batch.append((R, 'uniform_ball', batch_case(R, steps, 3 if q else 5, 'uniform_ball')))
@@ -274,7 +289,15 @@ def main(argv: list[str] | None = None) -> int:
         )
     for case, ts, tl, floor in rows:
         ratio = tl[0] / ts[0]
-        res = '(reported)' if floor is None else ('pass' if ratio >= floor else 'FAIL')
+        res = (
+            '(reported)'
+            if floor is None
+            else f'({"met" if ratio >= floor else "missed"}, not judged)'
+            if smoke
+            else 'pass'
+            if ratio >= floor
+            else 'FAIL'
+        )
         all_ok &= res != 'FAIL'
         fl = '-' if floor is None else f'{floor:g}x'
         st = f'{fmt_t(ts[0])}, {fmt_t(ts[1])}'
@@ -298,6 +321,8 @@ def main(argv: list[str] | None = None) -> int:
     for R, noise, (best, med) in batch:
         if noise != 'uniform_ball':
             res = '(reported)'
+        elif best_R == R and smoke:
+            res = f'({"met" if best >= FLOOR_BATCH else "missed"}, not judged)'
         elif best_R == R:  # the floor is judged at the best R
             res = 'pass' if best >= FLOOR_BATCH else 'FAIL'
             all_ok &= res == 'pass'
