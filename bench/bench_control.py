@@ -22,12 +22,13 @@ formation around the target with 1 cm of noise a call (every call sees new posit
   ``TrackerAgent.command`` with ``precondition=none`` and ``compensation=none`` (the same
   law): the forces must agree to 1e-9, else the bench fails.
 
-Each number is the mean and the p99 over ``--calls`` calls after 20 of warm-up, the command
+Each number is the mean, the median and the p99 over ``--calls`` calls after 20 of warm-up
+(the median resists the preemptions of a shared machine better than the mean), the command
 and the baseline alternating in slices of 10 calls so that a busy moment hits both.
 ``--precondition`` overrides the preset's direction (any value the configuration accepts).
 Output: the CPU model, then a Markdown table on stdout; ``--json FILE`` writes
 ``{"rows": [{"n": .., "mean_us": .., "p99_us": .., ...}, ...]}`` (``mean_us`` and ``p99_us``:
-the command; the other fields: the offer, the baseline, the ratio). ``--smoke``: n = 3 and 16,
+the command; the other fields: the offer, the baseline, the ratios). ``--smoke``: n = 3 and 16,
 20 calls. Exit status 0; 1 when the baseline disagrees with the command, or when the block
 direction's command grows from 32 to 128 trackers by more than 6x (the floor; when both are
 measured); 2 for bad arguments.
@@ -163,9 +164,11 @@ def measure(cfg: SwarmConfig, calls: int) -> dict[str, Any]:
     for key, vals in times.items():
         arr = 1e6 * np.asarray(vals[WARMUP:total])
         row[f'{key}_mean_us'] = round(float(arr.mean()), 1)
+        row[f'{key}_p50_us'] = round(float(np.median(arr)), 1)
         row[f'{key}_p99_us'] = round(float(np.quantile(arr, 0.99)), 1)
     row['mean_us'], row['p99_us'] = row['command_mean_us'], row['command_p99_us']
     row['ratio_to_naive'] = round(row['command_mean_us'] / row['naive_mean_us'], 2)
+    row['ratio_to_naive_p50'] = round(row['command_p50_us'] / row['naive_p50_us'], 2)
     return row
 
 
@@ -219,15 +222,20 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(measure(cfg, calls))
         print(f'bench_control: n = {n} done', file=sys.stderr, flush=True)
     print(
-        '\n| n | command mean [µs] | command p99 [µs] | offer + command mean / p99 [µs] '
-        '| naive mean [µs] | naive p99 [µs] | command / naive |'
+        '\n| n | command mean / p50 / p99 [µs] | naive mean / p50 / p99 [µs] '
+        '| command / naive (means, medians) | offer + command mean / p99 [µs] |'
     )
-    print('|---:|---:|---:|---:|---:|---:|---:|')
+    print('|---:|---:|---:|---:|---:|')
+
+    def us(r: dict[str, Any], key: str, stats: tuple[str, ...]) -> str:
+        return ' / '.join(f'{r[f"{key}_{q}_us"]:.0f}' for q in stats)
+
     for r in rows:
         print(
-            f'| {r["n"]} | {r["command_mean_us"]:.0f} | {r["command_p99_us"]:.0f} | '
-            f'{r["offer_command_mean_us"]:.0f} / {r["offer_command_p99_us"]:.0f} | '
-            f'{r["naive_mean_us"]:.0f} | {r["naive_p99_us"]:.0f} | {r["ratio_to_naive"]:.2f} |'
+            f'| {r["n"]} | {us(r, "command", ("mean", "p50", "p99"))} '
+            f'| {us(r, "naive", ("mean", "p50", "p99"))} '
+            f'| {r["ratio_to_naive"]:.2f}, {r["ratio_to_naive_p50"]:.2f} '
+            f'| {us(r, "offer_command", ("mean", "p99"))} |'
         )
     print(
         f'\nBaseline against TrackerAgent.command with precondition=none, compensation=none: '
