@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark of one tracker's command against a naive numpy command of the same law.
 
-Run from the workspace root (numpy only, no ROS graph):
+Run from the workspace root (numpy and psutil, no ROS graph):
 
     python bench/bench_control.py [--n 3,16,32,64,128] [--calls 200] [--precondition P]
                                   [--json FILE] [--smoke]
@@ -50,8 +50,10 @@ import numpy as np
 
 try:
     import apf_swarm_core  # noqa: F401
-except ImportError:  # run from the workspace root without PYTHONPATH
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'apf_swarm_core'))
+    import apf_swarm_nodes  # noqa: F401
+except ImportError:  # run without the workspace's environment: its sources (numpy, psutil)
+    for pkg in ('apf_swarm_core', 'apf_swarm_nodes'):
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / pkg))
 
 from apf_swarm_core.agents import TrackerAgent
 from apf_swarm_core.config import SwarmConfig

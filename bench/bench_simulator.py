@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Benchmark of the headless simulator against a per-agent Python loop of the same step.
 
-Run from the workspace root (numpy only, no ROS):
+Run from the workspace root (numpy and psutil, no ROS):
 
-    PYTHONPATH=src/apf_swarm_core python bench/bench_simulator.py [--quick | --smoke] [--plain]
+    python bench/bench_simulator.py [--quick | --smoke] [--plain]
 
 The baseline (:class:`LoopSimulator`) is the straightforward implementation of one step of
 the closed loop: a Python loop over the trackers and over the pairs, with one numpy 3-vector
@@ -40,8 +40,10 @@ import numpy as np
 
 try:
     import apf_swarm_core  # noqa: F401
-except ImportError:  # run from the workspace root without PYTHONPATH
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'apf_swarm_core'))
+    import apf_swarm_nodes  # noqa: F401
+except ImportError:  # run without the workspace's environment: its sources (numpy, psutil)
+    for pkg in ('apf_swarm_core', 'apf_swarm_nodes'):
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / pkg))
 
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import load_preset
