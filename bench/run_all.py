@@ -124,7 +124,7 @@ def main(argv: list[str]) -> int:
             print(f'\n{script.name} exited with status {rc}', flush=True)
     print('\n| benchmark | exit | wall [s] |\n|---|---:|---:|')
     for name, rc, wall in results:
-        print(f'| {name} | {rc} | {wall:.0f} |')
+        print(f'| {name} | {rc} | {wall:.1f} |')
     failed = [name for name, rc, _ in results if rc]
     print(
         f'\n{len(results) - len(failed)} of {len(results)} benchmarks ran'
