@@ -362,6 +362,7 @@ def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
                 os.close(gate_r)
                 return dict(request)
             results.append({'pid': pid})
+            FORKED.append(pid)
         os.close(gate_w)
         os.close(gate_r)
         replies.write(json.dumps(results).encode() + b'\n')
@@ -374,13 +375,23 @@ def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
 ORPHAN_GRACE = 5.0
 
 
+#: the node processes this zygote forked (pids)
+FORKED: list[int] = []
+
+
 def orphaned_cleanup() -> None:
     """The bring-up died (SIGKILL: it could clean nothing up) and its nodes are stopping on
-    their parent-death signal: once they had time to, remove the Fast DDS shared memory no
-    live process holds, as the bring-up would have at its end."""
+    their parent-death signal: once they had time to, SIGKILL those of them still running
+    (orphaned: reparented to init; a node that ignored its SIGINT), then remove the Fast DDS
+    shared memory no live process holds, as the bring-up would have at its end."""
     from ..shm import stale_fastdds_files
 
     time.sleep(ORPHAN_GRACE)
+    for pid in FORKED:
+        with contextlib.suppress(psutil.Error, OSError):
+            proc = psutil.Process(pid)
+            if proc.ppid() == 1 and proc.status() != psutil.STATUS_ZOMBIE:
+                proc.kill()
     with contextlib.suppress(OSError):
         stale_fastdds_files().remove()
 
