@@ -31,8 +31,10 @@ __all__ = [
     'SHM_DIR',
     'ShmCleanup',
     'count_fastdds_files',
+    'fastdds_entries',
     'mapped_shm_names',
     'stale_fastdds_files',
+    'unheld',
 ]
 
 SHM_DIR = Path('/dev/shm')
@@ -155,3 +157,49 @@ def count_fastdds_files(shm_dir: Path = SHM_DIR) -> int:
         return sum(1 for n in os.listdir(shm_dir) if n.startswith(('fastrtps_', 'sem.fastrtps_')))
     except OSError:
         return 0
+
+
+def fastdds_entries(shm_dir: Path = SHM_DIR) -> set[str]:
+    """The names of Fast DDS's entries in ``shm_dir`` now."""
+    try:
+        return {n for n in os.listdir(shm_dir) if n.startswith(('fastrtps_', 'sem.fastrtps_'))}
+    except OSError:
+        return set()
+
+
+def _owner_base(name: str) -> str:
+    """The segment or port an entry belongs to: ``fastrtps_port7411`` for its lock files and
+    its mutex ``sem.fastrtps_port7411_mutex``, the name itself for a segment."""
+    if name.startswith('sem.') and name.endswith('_mutex'):
+        return name[len('sem.') : -len('_mutex')]
+    if name.endswith(('_el', '_sl')):
+        return name[:-3]
+    return name
+
+
+def unheld(names: set[str] | list[str], shm_dir: Path = SHM_DIR) -> set[str]:
+    """Of ``names`` (entries of ``shm_dir``), those that still exist and that no live process
+    holds: neither a lock on its segment's or port's lock file, nor a mapping of the segment,
+    the port or the mutex. What a run that has ended left behind is the entries it created
+    that are unheld; entries that other jobs' live participants created in the meantime are
+    held, and not counted."""
+    present = fastdds_entries(shm_dir)
+    todo = [n for n in names if n in present]
+    if not todo:
+        return set()
+    mapped = mapped_shm_names(shm_dir)
+    held_bases: dict[str, bool] = {}
+
+    def base_held(base: str) -> bool:
+        if base not in held_bases:
+            held_bases[base] = (
+                base in mapped
+                or f'sem.{base}_mutex' in mapped
+                or any(
+                    f'{base}_{k}' in present and _locked(shm_dir / f'{base}_{k}')
+                    for k in ('el', 'sl')
+                )
+            )
+        return held_bases[base]
+
+    return {n for n in todo if n not in mapped and not base_held(_owner_base(n))}

@@ -64,11 +64,14 @@ def describe_rc(rc: int) -> str:
 
 
 def dying_with_parent(argv: Sequence[str]) -> list[str]:
-    """``argv`` run so that it gets SIGINT (a node's clean stop) when the bring-up that
-    started it dies, even by SIGKILL: util-linux ``setpriv --pdeathsig`` (no ``preexec_fn``,
-    unsafe in a process with DDS threads); unchanged where there is no setpriv."""
+    """``argv`` run so that it gets SIGKILL when the bring-up that started it dies, even by
+    SIGKILL: util-linux ``setpriv --pdeathsig`` (no ``preexec_fn``, unsafe in a process with
+    DDS threads); unchanged where there is no setpriv. SIGKILL, not SIGINT: a node busy in a
+    callback may not see one SIGINT, and with the bring-up gone nothing would escalate (a
+    forked node gets SIGINT, and its zygote escalates); the shared memory it leaves is
+    removed by the next run or ``apf-swarm clean``."""
     setpriv = shutil.which('setpriv')
-    return [setpriv, '--pdeathsig', 'INT', '--', *argv] if setpriv else list(argv)
+    return [setpriv, '--pdeathsig', 'KILL', '--', *argv] if setpriv else list(argv)
 
 
 def stop_process(
