@@ -6,14 +6,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
-import select
 import signal
-import threading
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..stop_watchdog import HARD_STOP_AFTER, StopWatchdog
 from .processes import EXIT_CHILD_DIED, EXIT_INTERRUPTED, ProcessGroup, StopRun, describe_rc
 
 __all__ = ['Signals', 'Supervision']
@@ -22,28 +20,34 @@ __all__ = ['Signals', 'Supervision']
 class Signals:
     """SIGINT / SIGTERM set a flag (the loops poll it); restored on exit.
 
-    And a watchdog: Python runs a signal's handler only between bytecodes of the main thread,
-    so a main thread blocked inside a DDS call (a shared-memory mutex a killed node held)
-    would ignore every SIGTERM. The signal's number also reaches a pipe at once
-    (``signal.set_wakeup_fd``, written by the C-level handler in whatever thread takes it);
-    a thread reading it gives the run :attr:`bound` seconds from the first signal to end
-    (:data:`HARD_STOP_AFTER` from a second one), then ends the process with
-    ``EXIT_INTERRUPTED`` and a line saying why.
+    And the bound on the stop (:class:`~..stop_watchdog.StopWatchdog`): a main thread
+    blocked inside a DDS call never runs the handler, so a watchdog thread ends the process
+    with ``EXIT_INTERRUPTED`` and a line saying why :attr:`bound` seconds after the first
+    signal or after :meth:`arm` (the run's own stop), :data:`HARD_STOP_AFTER` seconds after
+    a second signal. The bring-up sets :attr:`bound` to its stop's grace plus a margin once
+    it knows its processes (:meth:`Supervision.stop_bound`).
     """
 
-    #: seconds from the first SIGINT / SIGTERM to a hard exit if the run has not ended: the
-    #: nodes' stop sequence, the recorder's, and the outputs
+    #: seconds from the first SIGINT / SIGTERM to a hard exit until the bring-up knows its
+    #: processes (then :meth:`Supervision.stop_bound`)
     BOUND = 60.0
     #: seconds from a second SIGINT / SIGTERM to a hard exit
-    HARD_STOP_AFTER = 5.0
+    HARD_STOP_AFTER = HARD_STOP_AFTER
 
     def __init__(self, bound: float = BOUND) -> None:
         self.received: list[int] = []
         self._old: dict[int, Any] = {}
-        self.bound = bound
-        self._done = threading.Event()
-        self._pipe: tuple[int, int] | None = None
-        self._old_wakeup = -1
+        self.watchdog = StopWatchdog(
+            bound, who='bring-up', hard_after=self.HARD_STOP_AFTER, code=EXIT_INTERRUPTED
+        )
+
+    @property
+    def bound(self) -> float:
+        return self.watchdog.bound
+
+    @bound.setter
+    def bound(self, seconds: float) -> None:
+        self.watchdog.bound = seconds
 
     def _handler(self, signum: int, frame: Any) -> None:
         self.received.append(signum)
@@ -52,80 +56,17 @@ class Signals:
         for sig in (signal.SIGINT, signal.SIGTERM):
             with contextlib.suppress(ValueError):  # not the main thread: nothing to install
                 self._old[sig] = signal.signal(sig, self._handler)
-        if not self._old:
-            return
-        r, w = os.pipe()
-        os.set_blocking(w, False)
-        try:
-            self._old_wakeup = signal.set_wakeup_fd(w, warn_on_full_buffer=False)
-        except ValueError:
-            os.close(r)
-            os.close(w)
-            return
-        self._pipe = (r, w)
-        self._done.clear()
-        threading.Thread(target=self._watch, args=(r,), name='stop-watchdog', daemon=True).start()
-
-    def _watch(self, fd: int) -> None:
-        """The watchdog thread: the first stop signal arms the bound, a second shortens it."""
-        try:
-            self._watch_fd(fd)
-        finally:
-            with contextlib.suppress(OSError):
-                os.close(fd)
-
-    def _watch_fd(self, fd: int) -> None:
-        deadline: float | None = None
-        while not self._done.is_set():
-            timeout = None if deadline is None else max(0.0, deadline - time.monotonic())
-            ready, _, _ = select.select([fd], [], [], timeout)
-            if self._done.is_set():
-                return
-            if ready:
-                try:
-                    data = os.read(fd, 64)
-                except OSError:
-                    return
-                stops = [b for b in data if b in (signal.SIGINT, signal.SIGTERM)]
-                if not data:
-                    return
-                now = time.monotonic()
-                if stops:
-                    bound = self.bound if deadline is None else self.HARD_STOP_AFTER
-                    deadline = now + bound if deadline is None else min(deadline, now + bound)
-                elif self._ARM[0] in data and deadline is None:
-                    deadline = now + self.bound
-                continue
-            if deadline is not None and time.monotonic() >= deadline:
-                os.write(
-                    2,
-                    f'bring-up: still not ended {self.bound:g} s after the stop signal (a '
-                    'call blocked inside DDS?): exiting now, outputs may be missing\n'.encode(),
-                )
-                os._exit(EXIT_INTERRUPTED)
-
-    #: the byte :meth:`arm` writes (no signal has this number)
-    _ARM = b'\xff'
+        if self._old:
+            self.watchdog.install()
 
     def arm(self) -> None:
         """Start the bound now, signal or not: the run is stopping (its end, a failed start, a
         node's death), and stopping must not hang either (a DDS call blocked on a mutex a
         killed node held)."""
-        if self._pipe is not None:
-            with contextlib.suppress(OSError):
-                os.write(self._pipe[1], self._ARM)
+        self.watchdog.arm()
 
     def restore(self) -> None:
-        self._done.set()
-        if self._pipe is not None:
-            with contextlib.suppress(ValueError):
-                signal.set_wakeup_fd(self._old_wakeup)
-            w = self._pipe[1]
-            with contextlib.suppress(OSError):
-                os.write(w, b'\0')  # wake the watchdog, which sees _done (and closes its end)
-            with contextlib.suppress(OSError):
-                os.close(w)
-            self._pipe = None
+        self.watchdog.close()
         for sig, old in self._old.items():
             signal.signal(sig, old)
         self._old.clear()
