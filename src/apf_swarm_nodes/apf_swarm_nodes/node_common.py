@@ -65,6 +65,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from .errors import CliError
+from .stop_watchdog import NODE_STOP_BOUND, StopWatchdog
 
 __all__ = [
     'CLOCK',
@@ -270,6 +271,8 @@ def run_nodes(
     signal.signal(signal.SIGINT, _stop_between_callbacks)
     signal.signal(signal.SIGTERM, _stop_between_callbacks)
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # a hung process says where
+    # a stop (signal, or the end) bounded even when the main thread is blocked in DDS
+    watchdog = StopWatchdog(NODE_STOP_BOUND, who=name).install()
     nodes: list[Node] = []
     code = 0
     try:
@@ -291,9 +294,11 @@ def run_nodes(
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        watchdog.arm()  # leaving DDS must not hang either
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()
+        watchdog.close()
     return code
 
 

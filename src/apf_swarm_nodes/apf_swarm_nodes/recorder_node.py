@@ -44,6 +44,7 @@ from .params import MODES, NodeParam, declare_node_params, declare_str_array
 from .qos import profile_to_dict, qos_from_dict, recording_profile
 from .recorder_take import never_called, spin
 from .recording import RecordedTopic, TopicSelection, recording_counts, recording_status
+from .stop_watchdog import NODE_STOP_BOUND, StopWatchdog
 
 __all__ = ['RecorderNode', 'main', 'spin']
 
@@ -267,10 +268,14 @@ def main(args: list[str] | None = None) -> None:
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _frame: stop.append(signum))
+    # the stop bounded even when the main thread is blocked in DDS: the drain, the bag's
+    # close and leaving DDS (the bound grows with the drain once the parameter is read)
+    watchdog = StopWatchdog(NODE_STOP_BOUND, who='recorder').install()
     node: RecorderNode | None = None
     code = 0
     try:
         node = RecorderNode()
+        watchdog.bound = NODE_STOP_BOUND + float(node.p['drain_timeout'])
         freeze_startup_heap()
         spin(node, stop, float(node.p['drain_timeout']))
     except (ApfSwarmError, ValueError) as exc:
@@ -279,6 +284,7 @@ def main(args: list[str] | None = None) -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        watchdog.arm()
         if node is not None:
             try:
                 c = node.close()
@@ -299,6 +305,7 @@ def main(args: list[str] | None = None) -> None:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        watchdog.close()
     sys.exit(code)
 
 
