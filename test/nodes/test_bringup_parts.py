@@ -160,3 +160,38 @@ def test_a_trajectory_refuses_samples_of_another_size() -> None:
     with pytest.raises(CliError, match='changed its number of trackers from 3'):
         acc.trajectory()
     assert StateAccumulator('lockstep', 5).trajectory() is None
+
+
+def test_the_stop_bound_is_the_grace_of_each_stage_and_grows_with_the_load(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """The bring-up's watchdog bound (Supervision.stop_bound): the trackers' stop, then the
+    plant's and target's, then the recorder's, each at its longest, and a margin; the first
+    stage waits STOP_CPU_PER_PROCESS more per process, shared over the cores."""
+    import os
+
+    from apf_swarm_nodes.bringup import processes
+    from apf_swarm_nodes.bringup.graph import RECORDER_STOP_SEQUENCE
+    from apf_swarm_nodes.bringup.supervision import STOP_MARGIN, Supervision
+
+    monkeypatch.setattr(os, 'cpu_count', lambda: 2)
+    per = processes.STOP_CPU_PER_PROCESS / 2
+    waits = sum(w for _, w in processes.STOP_SEQUENCE)
+
+    def run(n_trackers: int, record: bool) -> Supervision:
+        sup = Supervision()
+        sup.group, sup.rec_group = ProcessGroup(), ProcessGroup(RECORDER_STOP_SEQUENCE)
+        for name in ['target', 'plant', *[f'tracker_{i}' for i in range(n_trackers)]]:
+            sup.group.add(Child(name, ['true'], tmp_path / f'{name}.log'))
+        if record:
+            sup.rec_group.add(Child('recorder', ['true'], tmp_path / 'recorder.log'))
+        return sup
+
+    small, large = run(3, False).stop_bound(), run(64, True).stop_bound()
+    assert small == pytest.approx(2 * waits + 5 * per + STOP_MARGIN)
+    rec = sum(w for _, w in RECORDER_STOP_SEQUENCE) + per
+    assert large == pytest.approx(2 * waits + 66 * per + rec + STOP_MARGIN)
+    assert ProcessGroup().stop_grace() == 0.0
+    # a small run's bound is half the old fixed 60 s; the issue's 66 processes, recorded,
+    # get a few seconds more than it
+    assert small < 35.0 and large < 70.0

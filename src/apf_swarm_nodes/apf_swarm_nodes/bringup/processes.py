@@ -241,6 +241,16 @@ class ProcessGroup:
         for c, f in zip(self.children, forked, strict=True):
             c.start(f)
 
+    def stop_grace(self, select: Callable[[Child], bool] | None = None) -> float:
+        """The longest :meth:`stop_all` of the children ``select`` accepts (all by
+        default) can take: every stage's wait, and the first stage's
+        :data:`STOP_CPU_PER_PROCESS` per process, shared over the cores; 0 without any."""
+        n = sum(1 for c in self.children if select is None or select(c))
+        if not n:
+            return 0.0
+        waits = sum(wait_s for _, wait_s in self.stop_sequence)
+        return waits + STOP_CPU_PER_PROCESS * n / (os.cpu_count() or 1)
+
     def poll(self) -> list[tuple[Child, int]]:
         """Children that exited since they were (re)started and were not asked to stop."""
         return [(c, rc) for c in self.children if not c.stopping and (rc := c.poll()) is not None]

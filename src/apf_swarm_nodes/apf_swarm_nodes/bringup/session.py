@@ -212,6 +212,8 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
             try:
                 self.init_ros()
                 self.launch()
+                # a stop from now on ends within its grace, which grows with the load
+                self.signals.bound = self.stop_bound()
                 self.check_signals()
                 self.wait_ready()
                 self.run_loop()

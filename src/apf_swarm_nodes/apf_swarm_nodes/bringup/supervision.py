@@ -12,7 +12,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..stop_watchdog import HARD_STOP_AFTER, StopWatchdog
-from .processes import EXIT_CHILD_DIED, EXIT_INTERRUPTED, ProcessGroup, StopRun, describe_rc
+from .processes import (
+    EXIT_CHILD_DIED,
+    EXIT_INTERRUPTED,
+    Child,
+    ProcessGroup,
+    StopRun,
+    describe_rc,
+)
 
 __all__ = ['Signals', 'Supervision']
 
@@ -74,6 +81,16 @@ class Signals:
     @property
     def first(self) -> int | None:
         return self.received[0] if self.received else None
+
+
+#: seconds of a stop's bound beyond the children's stop grace: the shared-memory cleanup,
+#: the bring-up's own DDS shutdown, a loaded machine's delays
+STOP_MARGIN = 10.0
+
+
+def _is_tracker(child: Child) -> bool:
+    """Trackers are stopped first: none commands into a plant that is gone."""
+    return 'tracker' in child.name
 
 
 class Supervision:
@@ -166,13 +183,24 @@ class Supervision:
             )
         return ''
 
+    def stop_bound(self) -> float:
+        """The bound of the whole stop: the trackers' stop, then the plant's and the
+        target's, then the recorder's, each at its longest (:meth:`ProcessGroup.stop_grace`,
+        which grows with the load), and :data:`STOP_MARGIN`."""
+        return (
+            self.group.stop_grace(select=_is_tracker)
+            + self.group.stop_grace(select=lambda c: not _is_tracker(c))
+            + self.rec_group.stop_grace()
+            + STOP_MARGIN
+        )
+
     def stop_children(self) -> None:
         t0 = time.monotonic()
         self.signals.arm()  # stopping has a bound too
         hurry = lambda: len(self.signals.received)  # noqa: E731
         # the trackers first, so that none commands into a plant that is gone; then the plant
         # and the target; each leaves DDS on SIGINT, given time that grows with the load
-        self.stop_how = self.group.stop_all(hurry=hurry, select=lambda c: 'tracker' in c.name)
+        self.stop_how = self.group.stop_all(hurry=hurry, select=_is_tracker)
         self.stop_how.update(self.group.stop_all(hurry=hurry))
         # the recorder last: it takes what is still queued and closes the bag
         self.stop_how.update(self.rec_group.stop_all(hurry=lambda: len(self.signals.received)))
