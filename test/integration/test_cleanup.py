@@ -252,3 +252,31 @@ def test_apf_swarm_clean_removes_what_a_killed_participant_left(tmp_path: Path) 
     # gone, or taken over by a live participant since (ports are shared between
     # participants: another job's may open one again, its lock file held anew)
     assert unheld(dead) == set(), sorted(unheld(dead))
+
+
+@pytest.mark.parametrize('spawn', ['fork', 'exec'])
+def test_a_sigkilled_bring_up_leaves_no_process_and_no_shared_memory(start, spawn) -> None:
+    """SIGKILL of the bring-up mid-run (nothing of it can clean up): its nodes end on their
+    parent-death signal, and its zygote (fork) ends too, once it has killed any node still
+    there and removed the shared memory; no process of the run a few seconds later, and
+    (fork) nothing of its shared memory that no live process holds."""
+    from apf_swarm_nodes.bringup import zygote
+
+    before = fastdds_entries()
+    run = start(f'killed_{spawn}', '--preset', 'triangle', '--duration', '60', '--spawn', spawn)
+    wait_for(lambda: run.sim_time() >= 0.5, 90, 'the run to fly')
+    helpers = [
+        p
+        for p in psutil.Process(run.popen.pid).children()
+        if 'bringup.zygote' in ' '.join(p.cmdline())
+    ]
+    assert len(run.nodes()) == 5 and len(helpers) == (spawn == 'fork')
+    run.popen.kill()
+    run.popen.wait(10)
+    end = time.monotonic() + zygote.ORPHAN_GRACE + 15.0
+    while time.monotonic() < end and (run.left() or any(p.is_running() for p in helpers)):
+        time.sleep(0.1)
+    assert run.left() == [], run.left()
+    assert not any(p.is_running() and p.status() != psutil.STATUS_ZOMBIE for p in helpers)
+    if spawn == 'fork':  # executed nodes die by SIGKILL: the next run or `clean` removes it
+        assert left_shm(before) == set()

@@ -185,3 +185,49 @@ def test_a_dead_zygote_leaves_the_nodes_to_be_executed(
     assert out['kind'] == 'Popen'
     assert 'zygote' in out['error'] and out['closed'] is True
     assert out['how']['live'] in ('SIGINT', 'exited') and out['left'] == []
+
+
+def test_an_orphaned_zygote_kills_the_nodes_that_do_not_stop_then_cleans(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """The zygote of a killed bring-up: a node that stops on its parent-death SIGINT is
+    waited for, one that does not is SIGKILLed (its whole session) once the grace is over,
+    and the shared memory is cleaned only once both are gone."""
+    import signal
+    import time
+
+    import psutil
+    from apf_swarm_nodes.bringup import zygote
+
+    from apf_swarm_nodes import shm
+
+    stubborn = subprocess.Popen(
+        [sys.executable, '-c', 'import signal, time; signal.signal(2, 1); time.sleep(60)'],
+        start_new_session=True,
+    )
+    polite = subprocess.Popen(
+        [sys.executable, '-c', 'import time; time.sleep(60)'], start_new_session=True
+    )
+    procs = [psutil.Process(stubborn.pid), psutil.Process(polite.pid)]
+    cleaned: list[list[bool]] = []
+
+    class Found:
+        def remove(self) -> int:
+            cleaned.append([p.poll() is not None for p in (stubborn, polite)])
+            return 0
+
+    monkeypatch.setattr(shm, 'stale_fastdds_files', Found)
+    monkeypatch.setattr(zygote, 'ORPHAN_GRACE', 1.0)
+    try:
+        time.sleep(0.3)
+        for p in (stubborn, polite):  # the parent-death signal
+            p.send_signal(signal.SIGINT)
+        t0 = time.monotonic()
+        zygote.orphaned_cleanup(procs)
+        took = time.monotonic() - t0
+        assert polite.wait(5) != 0 and stubborn.wait(5) == -signal.SIGKILL
+        assert cleaned == [[True, True]]  # both gone before the cleanup
+        assert 1.0 <= took < 10.0
+    finally:
+        for p in (stubborn, polite):
+            p.kill()

@@ -21,7 +21,10 @@ nodes already running, took seconds for 34 nodes.
 
 Protocol: a JSON list of requests a line on the zygote's stdin (each with ``entry``,
 ``argv``, ``env``, ``cwd``, ``log``), the list of replies a line on its stdout (each
-``{"pid": N}`` or ``{"error": "..."}``); end of input ends it. Run as
+``{"pid": N}`` or ``{"error": "..."}``); the line ``"bye"`` and end of input end it. An
+input that ends without ``"bye"`` means that the bring-up died (SIGKILL): the zygote then
+waits for the nodes it forked to stop on their parent-death signal, kills those still
+running and removes the shared memory they left (:func:`orphaned_cleanup`). Run as
 ``python -m apf_swarm_nodes.bringup.zygote``.
 """
 
@@ -35,6 +38,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -217,6 +221,7 @@ class Zygote:
             return
         with contextlib.suppress(OSError):
             if proc.stdin is not None:
+                proc.stdin.write(json.dumps(BYE).encode() + b'\n')  # not orphaned
                 proc.stdin.close()
         try:
             proc.wait(5.0)
@@ -343,6 +348,9 @@ def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
         except ValueError as exc:
             batch, bad = [], f'ValueError: {exc}'
         else:
+            if batch == BYE:  # the bring-up closes it: it stops its nodes itself
+                CLOSED.set()
+                return None
             bad = None if isinstance(batch, list) else 'expected a JSON list of requests'
         if bad is not None:
             replies.write(json.dumps([{'error': bad}]).encode() + b'\n')
@@ -362,7 +370,8 @@ def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
                 os.close(gate_r)
                 return dict(request)
             results.append({'pid': pid})
-            FORKED.append(pid)
+            with contextlib.suppress(psutil.Error):  # (its start time: no pid reused later)
+                FORKED.append(psutil.Process(pid))
         os.close(gate_w)
         os.close(gate_r)
         replies.write(json.dumps(results).encode() + b'\n')
@@ -375,23 +384,50 @@ def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
 ORPHAN_GRACE = 5.0
 
 
-#: the node processes this zygote forked (pids)
-FORKED: list[int] = []
+#: the line that ends a zygote's input when its bring-up closes it (an input that ends
+#: without it: the bring-up died)
+BYE = 'bye'
+#: set once the bring-up said goodbye
+CLOSED = threading.Event()
+
+#: the node processes this zygote forked (the run's nodes and their respawns)
+FORKED: list[psutil.Process] = []
 
 
-def orphaned_cleanup() -> None:
+def _running(procs: Sequence[psutil.Process]) -> list[psutil.Process]:
+    """Those of ``procs`` that still run (a zombie holds no lock and no mapping)."""
+    out = []
+    for p in procs:
+        with contextlib.suppress(psutil.Error):
+            if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
+                out.append(p)
+    return out
+
+
+def orphaned_cleanup(nodes: Sequence[psutil.Process] | None = None) -> None:
     """The bring-up died (SIGKILL: it could clean nothing up) and its nodes are stopping on
-    their parent-death signal: once they had time to, SIGKILL those of them still running
-    (orphaned: reparented to init; a node that ignored its SIGINT), then remove the Fast DDS
-    shared memory no live process holds, as the bring-up would have at its end."""
+    their parent-death signal: once they are gone (at most :data:`ORPHAN_GRACE` s, and
+    :data:`~.processes.STOP_CPU_PER_PROCESS` more per node over the cores, as the
+    bring-up's own stop waits), SIGKILL the process group of every one still running (a
+    node that missed or could not act on its SIGINT; all of them are orphans, wherever
+    they were reparented), wait until they are gone, then remove the Fast DDS shared memory
+    no live process holds, as the bring-up would have at its end."""
     from ..shm import stale_fastdds_files
+    from .processes import STOP_CPU_PER_PROCESS
 
-    time.sleep(ORPHAN_GRACE)
-    for pid in FORKED:
-        with contextlib.suppress(psutil.Error, OSError):
-            proc = psutil.Process(pid)
-            if proc.ppid() == 1 and proc.status() != psutil.STATUS_ZOMBIE:
-                proc.kill()
+    pending = _running(FORKED if nodes is None else nodes)
+    deadline = time.monotonic() + ORPHAN_GRACE
+    deadline += STOP_CPU_PER_PROCESS * len(pending) / (os.cpu_count() or 1)
+    while pending and time.monotonic() < deadline:
+        time.sleep(0.1)
+        pending = _running(pending)
+    for p in pending:
+        with contextlib.suppress(OSError):
+            os.killpg(p.pid, signal.SIGKILL)  # its own session: the node and its children
+    deadline = time.monotonic() + 5.0  # the kernel drops a killed node's locks at its exit
+    while pending and time.monotonic() < deadline:
+        time.sleep(0.05)
+        pending = _running(pending)
     with contextlib.suppress(OSError):
         stale_fastdds_files().remove()
 
@@ -411,10 +447,11 @@ def main() -> None:
 
     gc.collect()
     gc.freeze()  # the preloaded objects stay shared with every node process
-    parent = os.getppid()
     request = serve(requests, replies)
     if request is None:
-        if os.getppid() != parent:
+        # the input ended without a goodbye: the bring-up died (SIGKILL) and could stop
+        # nothing (its parent pid cannot tell: the input ends before the reparenting)
+        if not CLOSED.is_set():
             orphaned_cleanup()
         return
     become_node(request)
