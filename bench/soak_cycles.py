@@ -11,12 +11,14 @@ with SIGKILL mid-run (the bring-up respawns it and the run completes); the bring
 SIGTERM mid-run; the bring-up is killed with SIGKILL mid-run (nothing of it can clean up:
 the nodes' parent-death signal must). Per cycle it records whether the bring-up ended
 within ``duration + 90`` s (else: a hang, and it is killed), whether any process of the run
-is still alive 15 s after (a leftover, killed), and how many Fast DDS entries of
-``/dev/shm`` created during the cycle are still there 10 s after that (those of other jobs
-that come and go meanwhile are not counted).
+is still alive 15 s after (a leftover, killed; the bring-up's zygote included), and how
+many Fast DDS entries of ``/dev/shm`` created during the cycle no live process holds 15 s
+after that (``apf_swarm_nodes.shm.unheld``: ``/dev/shm`` is the machine's, and the entries
+other jobs' live participants create meanwhile are held by them).
 
-Output: a Markdown table per way of ending and the totals, with the CPU; exit 1 if any
-cycle hung or left a process. ``--smoke``: one cycle of each way, 2 s runs.
+Output: a Markdown table per way of ending and the totals, with the CPU and the count of
+``/dev/shm`` before and after; exit 1 if any cycle hung, left a process or left shared
+memory. ``--smoke``: one cycle of each way, 2 s runs.
 """
 
 from __future__ import annotations
@@ -50,7 +52,16 @@ def cpu_model() -> str:
 
 
 def shm_entries() -> set[str]:
-    return {n for n in os.listdir('/dev/shm') if n.startswith(('fastrtps_', 'sem.fastrtps_'))}
+    from apf_swarm_nodes.shm import fastdds_entries
+
+    return fastdds_entries()
+
+
+def shm_left(before: set[str]) -> set[str]:
+    """The entries created since ``before`` that no live process holds."""
+    from apf_swarm_nodes.shm import unheld
+
+    return unheld(shm_entries() - before)
 
 
 def run_processes(out: Path) -> list[psutil.Process]:
@@ -81,14 +92,22 @@ def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random
         start_new_session=True,
         cwd=ROOT,
     )
+    helpers: list[psutil.Process] = []  # the bring-up's zygote
+    # once the nodes are up (mid-run endings: then a random moment of the run)
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline and p.poll() is None:
+        if len(run_processes(out)) >= args.n_trackers + 2:
+            with contextlib.suppress(psutil.Error):
+                helpers = [
+                    c
+                    for c in psutil.Process(p.pid).children()
+                    if 'bringup.zygote' in ' '.join(c.cmdline())
+                ]
+            break
+        time.sleep(0.1)
     if way != 'ends':
-        # mid-run: once the nodes are up, then a random moment of the run
-        deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline and p.poll() is None:
-            if len(run_processes(out)) >= args.n_trackers + 2:
-                break
-            time.sleep(0.1)
         time.sleep(rng.uniform(0.5, 1.0 + 0.5 * args.duration))
+        t_signal = time.monotonic()
         if p.poll() is None:
             if way == 'node SIGKILL':
                 nodes = [q for q in run_processes(out) if '/tracker' in ' '.join(q.cmdline())]
@@ -96,6 +115,8 @@ def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random
                     rng.choice(nodes).kill()
             else:
                 p.send_signal(signal.SIGTERM if way == 'bring-up SIGTERM' else signal.SIGKILL)
+    else:
+        t_signal = None
     hung = False
     try:
         rc = p.wait(args.duration + 90.0)
@@ -105,9 +126,24 @@ def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random
         rc = p.wait()
     ended = time.monotonic() - t0
     deadline = time.monotonic() + 15.0
-    while run_processes(out) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    left = run_processes(out)
+
+    def alive() -> list[psutil.Process]:
+        found = run_processes(out)
+        for h in helpers:
+            with contextlib.suppress(psutil.Error):
+                if h.is_running() and h.status() != psutil.STATUS_ZOMBIE:
+                    found.append(h)
+        return found
+
+    while alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = alive()
+    # from the signal to the bring-up's end (SIGTERM), or to its last process's (SIGKILL)
+    stop_s = None
+    if t_signal is not None and way.startswith('bring-up'):
+        stop_s = (
+            time.monotonic() - t_signal if way == 'bring-up SIGKILL' else t0 + ended - t_signal
+        )
     for q in left:
         with contextlib.suppress(psutil.Error):
             print(
@@ -115,20 +151,22 @@ def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random
                 file=sys.stderr,
             )
         q.kill()
-    if args.verbose:
-        for name in sorted(shm_entries() - before):
-            print(f'soak_cycles: /dev/shm left: {name}', file=sys.stderr)
-    # a killed bring-up's zygote removes what its nodes left a few seconds after they stopped
-    deadline = time.monotonic() + 10.0
-    while shm_entries() - before and time.monotonic() < deadline:
+    # (a killed bring-up's zygote removes what its nodes left once they are gone)
+    deadline = time.monotonic() + 15.0
+    while shm_left(before) and time.monotonic() < deadline:
         time.sleep(0.2)
+    stale = shm_left(before)
+    if args.verbose:
+        for name in sorted(stale):
+            print(f'soak_cycles: /dev/shm left: {name}', file=sys.stderr)
     return {
         'way': way,
         'rc': rc,
         'hung': hung,
         'seconds': ended,
         'leftover': len(left),
-        'shm_left': len(shm_entries() - before),
+        'shm_left': len(stale),
+        'stop_s': stop_s,
     }
 
 
@@ -149,6 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     rows = []
     t0 = time.monotonic()
+    first = shm_entries()
     with tempfile.TemporaryDirectory(prefix='soak_cycles_') as tmp:
         for i, way in enumerate(ways, 1):
             row = one_cycle(i, way, args, Path(tmp), rng)
@@ -160,23 +199,30 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
                 flush=True,
             )
-    print(f'\nCPU: {cpu_model()}; {len(rows)} cycles in {time.monotonic() - t0:.0f} s\n')
+    last = shm_entries()
+    print(f'\nCPU: {cpu_model()}; {len(rows)} cycles in {time.monotonic() - t0:.0f} s')
     print(
-        '| ending | cycles | hangs | exit codes | longest [s] | leftover processes '
-        '| /dev/shm left |'
+        f'/dev/shm: {len(first)} Fast DDS entries before, {len(last)} after; '
+        f'{len(shm_left(first))} created meanwhile that no live process holds\n'
     )
-    print('|---|---:|---:|---|---:|---:|---:|')
+    print(
+        '| ending | cycles | hangs | exit codes | longest [s] | longest stop [s] '
+        '| leftover processes | /dev/shm left |'
+    )
+    print('|---|---:|---:|---|---:|---:|---:|---:|')
     for way in (*WAYS, 'all'):
         mine = [r for r in rows if way in ('all', r['way'])]
         if not mine:
             continue
         codes = ', '.join(str(c) for c in sorted({r['rc'] for r in mine}))
+        stops = [r['stop_s'] for r in mine if r['stop_s'] is not None]
+        stop = f'{max(stops):.1f}' if stops else ''
         print(
             f'| {way} | {len(mine)} | {sum(r["hung"] for r in mine)} | {codes} | '
-            f'{max(r["seconds"] for r in mine):.1f} | {sum(r["leftover"] for r in mine)} | '
-            f'{sum(r["shm_left"] for r in mine)} |'
+            f'{max(r["seconds"] for r in mine):.1f} | {stop} | '
+            f'{sum(r["leftover"] for r in mine)} | {sum(r["shm_left"] for r in mine)} |'
         )
-    bad = any(r['hung'] or r['leftover'] for r in rows)
+    bad = any(r['hung'] or r['leftover'] or r['shm_left'] for r in rows)
     return 1 if bad else 0
 
 
