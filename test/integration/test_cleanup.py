@@ -280,3 +280,54 @@ def test_a_sigkilled_bring_up_leaves_no_process_and_no_shared_memory(start, spaw
     assert not any(p.is_running() and p.status() != psutil.STATUS_ZOMBIE for p in helpers)
     if spawn == 'fork':  # executed nodes die by SIGKILL: the next run or `clean` removes it
         assert left_shm(before) == set()
+
+
+ORPHAN_MAKER = textwrap.dedent(
+    """
+    import os, subprocess, sys
+    from apf_swarm_nodes.cleanup import BRINGUP_ENV, bringup_mark
+    env = dict(os.environ, **{BRINGUP_ENV: bringup_mark()})  # as a bring-up marks its nodes
+    node = subprocess.Popen(
+        [sys.executable, '-c', 'import time; time.sleep(120)', sys.argv[1]],
+        env=env, start_new_session=True, stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    print(node.pid, flush=True)  # then this 'bring-up' ends: the node is orphaned
+    """
+)
+
+
+def test_apf_swarm_clean_stops_a_node_whose_bring_up_is_gone() -> None:
+    """A process of ours (its command line names a node executable) whose bring-up, named
+    in its environment, has ended: `clean --dry-run` names it and leaves it, `clean`
+    stops it."""
+    from apf_swarm_nodes.bringup.commands import executable_path, package_prefix
+
+    exe = str(executable_path(package_prefix(), 'tracker'))
+    out = subprocess.run(
+        [sys.executable, '-c', ORPHAN_MAKER, exe], capture_output=True, text=True, timeout=30
+    )
+    pid = int(out.stdout.strip())
+    node = psutil.Process(pid)
+    try:
+        wait_for(lambda: node.ppid() != 0, 5, 'the orphan')
+        dry = subprocess.run(
+            [sys.executable, '-m', 'apf_swarm_nodes.cli', 'clean', '--dry-run'],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert f'orphaned node pid {pid}:' in dry.stdout, dry.stdout
+        assert node.is_running()
+        done = subprocess.run(
+            [sys.executable, '-m', 'apf_swarm_nodes.cli', 'clean'],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert f'orphaned node pid {pid}:' in done.stdout, done.stdout
+        assert re.search(r'stopped [1-9]\d* orphaned node processes', done.stdout), done.stdout
+        wait_for(lambda: not node.is_running() or node.status() == psutil.STATUS_ZOMBIE, 5, 'it')
+    finally:
+        with contextlib.suppress(psutil.Error):
+            node.kill()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import random
 import sys
 import time
@@ -195,6 +196,11 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         self.say(f'view: {self.view.url} (Foxglove: Open connection, Foxglove WebSocket)')
 
     def execute(self) -> int:
+        # every process of the run names its bring-up: `apf-swarm clean` stops those whose
+        # bring-up is gone, wherever they were reparented
+        from ..cleanup import BRINGUP_ENV, bringup_mark
+
+        os.environ[BRINGUP_ENV] = bringup_mark()
         self.start_zygote()  # its imports overlap the preparation
         try:
             self.prepare()
