@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import fcntl
 import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -92,17 +94,30 @@ def test_orphans_are_our_nodes_whose_parent_is_gone(monkeypatch) -> None:
     from apf_swarm_nodes import cleanup
 
     class P:
-        def __init__(self, pid: int, ppid: int, cmd: str) -> None:
+        def __init__(self, pid: int, ppid: int, cmd: str, mark: str | None = None) -> None:
             self.pid, self.info = pid, {'pid': pid, 'ppid': ppid, 'cmdline': cmd.split()}
+            self.mark = mark
+
+        def environ(self) -> dict[str, str]:
+            return {} if self.mark is None else {cleanup.BRINGUP_ENV: self.mark}
 
     node = '/ws/install/apf_swarm_nodes/lib/apf_swarm_nodes/tracker --ros-args'
+    live = cleanup.bringup_mark()  # this process stands for a live bring-up
+    dead = subprocess.Popen([sys.executable, '-c', 'pass'])
+    gone = cleanup.bringup_mark(dead.pid)
+    dead.wait()
     procs = [
-        P(101, 1, f'python {node}'),  # orphaned
+        P(101, 1, f'python {node}'),  # orphaned (no mark: an older version)
         P(102, 77, f'python {node}'),  # under its bring-up
         P(103, 1, 'python /usr/bin/something_else'),
+        P(104, 55, f'python {node}', mark=gone),  # its bring-up died, reparented elsewhere
+        P(105, 1, f'python {node}', mark=live),  # reparented, but its bring-up lives
+        P(106, 55, f'python {node}', mark=f'{os.getpid()}:12.00'),  # a reused pid
     ]
     monkeypatch.setattr(psutil, 'process_iter', lambda attrs=None: iter(procs))
-    assert [p.pid for p in cleanup.orphan_nodes()] == [101]
+    assert [p.pid for p in cleanup.orphan_nodes()] == [101, 104, 106]
+    assert cleanup.bringup_alive(live) and not cleanup.bringup_alive(gone)
+    assert cleanup.bringup_alive('garbage')  # never a reason to stop anything
 
 
 def test_clean_dry_run_changes_nothing(tmp_path: Path, monkeypatch, capsys) -> None:
@@ -115,9 +130,37 @@ def test_clean_dry_run_changes_nothing(tmp_path: Path, monkeypatch, capsys) -> N
     monkeypatch.setattr(shm, 'SHM_DIR', tmp_path)
     monkeypatch.setattr(cleanup, 'stale_fastdds_files', lambda: stale_fastdds_files(tmp_path))
     monkeypatch.setattr(cleanup, 'orphan_nodes', list)
+    monkeypatch.setattr(cleanup, 'expired_leases', list)
     assert cleanup.run(argparse.Namespace(dry_run=True)) == 0
     assert 'would remove 2 stale' in capsys.readouterr().out
     assert count_fastdds_files(tmp_path) == 2
     assert cleanup.run(argparse.Namespace(dry_run=False)) == 0
     assert 'removed 2 stale' in capsys.readouterr().out
+    assert count_fastdds_files(tmp_path) == 0
+
+
+def test_expired_domain_leases_are_found(tmp_path: Path, monkeypatch) -> None:
+    from apf_swarm_nodes.bringup import isolation
+
+    from apf_swarm_nodes import cleanup
+
+    monkeypatch.setattr(isolation, '_lease_dir', lambda: tmp_path)
+    _touch(tmp_path, '17', age=isolation.DOMAIN_LEASE + 5)  # expired
+    _touch(tmp_path, '18')  # a run picked it just now
+    _touch(tmp_path, '.lock', age=3600.0)  # the pickers' lock, never removed
+    assert [p.name for p in cleanup.expired_leases()] == ['17']
+
+
+def test_ports_too_young_to_judge_are_judged_again_once_old_enough(tmp_path: Path) -> None:
+    """A port segment without a lock file that the run's last process wrote just before it
+    ended is too young at the run's end: remove_stale looks again once it is old enough."""
+    from apf_swarm_nodes.shm import remove_stale
+
+    _touch(tmp_path, 'fastrtps_port7421')
+    _touch(tmp_path, 'sem.fastrtps_port7421_mutex')
+    found = stale_fastdds_files(tmp_path, min_age=0.3)
+    assert found.stale == [] and found.young == 1
+    t0 = time.monotonic()
+    assert remove_stale(tmp_path, min_age=0.3) == 2
+    assert 0.3 <= time.monotonic() - t0 < 5.0
     assert count_fastdds_files(tmp_path) == 0

@@ -211,12 +211,11 @@ def test_an_orphaned_zygote_kills_the_nodes_that_do_not_stop_then_cleans(
     procs = [psutil.Process(stubborn.pid), psutil.Process(polite.pid)]
     cleaned: list[list[bool]] = []
 
-    class Found:
-        def remove(self) -> int:
-            cleaned.append([p.poll() is not None for p in (stubborn, polite)])
-            return 0
+    def remove_stale() -> int:
+        cleaned.append([p.poll() is not None for p in (stubborn, polite)])
+        return 0
 
-    monkeypatch.setattr(shm, 'stale_fastdds_files', Found)
+    monkeypatch.setattr(shm, 'remove_stale', remove_stale)
     monkeypatch.setattr(zygote, 'ORPHAN_GRACE', 1.0)
     try:
         time.sleep(0.3)

@@ -33,6 +33,7 @@ __all__ = [
     'count_fastdds_files',
     'fastdds_entries',
     'mapped_shm_names',
+    'remove_stale',
     'stale_fastdds_files',
     'unheld',
 ]
@@ -53,6 +54,8 @@ class ShmCleanup:
     stale: list[Path] = field(default_factory=list)
     segments_in_use: int = 0
     ports_in_use: int = 0
+    #: port segments without a lock file, mapped by no one, but younger than the minimum age
+    young: int = 0
 
     def remove(self) -> int:
         """Remove the stale files (those already gone are skipped); how many were removed."""
@@ -147,8 +150,22 @@ def stale_fastdds_files(shm_dir: Path = SHM_DIR, min_age: float = MIN_AGE) -> Sh
             continue
         if age >= min_age:
             out.stale += [shm_dir / name, shm_dir / f'sem.{name}_mutex']
+        else:
+            out.young += 1
     out.stale = [p for p in dict.fromkeys(out.stale) if p.name in names]
     return out
+
+
+def remove_stale(shm_dir: Path = SHM_DIR, min_age: float = MIN_AGE) -> int:
+    """Remove the stale files (:func:`stale_fastdds_files`); when port segments were too
+    young to judge (the run's last processes wrote them just before they ended), look again
+    once they are old enough. How many files were removed."""
+    found = stale_fastdds_files(shm_dir, min_age)
+    removed = found.remove()
+    if found.young:
+        time.sleep(min_age)
+        removed += stale_fastdds_files(shm_dir, min_age).remove()
+    return removed
 
 
 def count_fastdds_files(shm_dir: Path = SHM_DIR) -> int:

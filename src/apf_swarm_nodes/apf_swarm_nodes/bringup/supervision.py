@@ -220,8 +220,8 @@ class Supervision:
                 + ', '.join(f'{n} pid {p}' for n, p in self.leftovers)
             )
         # the shared memory of participants that did not leave DDS cleanly (a killed node)
-        from ..shm import stale_fastdds_files
+        from ..shm import remove_stale
 
-        removed = stale_fastdds_files().remove()
+        removed = remove_stale()
         if removed:
             self.say(f'removed {removed} stale Fast DDS shared-memory files (/dev/shm)')
