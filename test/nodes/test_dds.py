@@ -210,3 +210,22 @@ def test_a_swarm_is_told_from_a_viewer_by_its_publishers() -> None:
         '/swarm/start (1 publishers: a node not yet named)',
         '/uav_12/velocity_cmd (1 publishers: /uav_12/tracker)',
     ]
+
+
+def test_own_participant_sets_the_udp_only_environment_then_restores_it(monkeypatch) -> None:
+    """The bring-up's node and its domain probe are made inside own_participant(): UDP only
+    while Fast DDS reads its transports, the run's environment as before afterwards."""
+    import os
+
+    from apf_swarm_nodes.dds import own_participant
+
+    monkeypatch.delenv('FASTDDS_BUILTIN_TRANSPORTS', raising=False)
+    monkeypatch.delenv('FASTRTPS_DEFAULT_PROFILES_FILE', raising=False)
+    monkeypatch.delenv('FASTDDS_DEFAULT_PROFILES_FILE', raising=False)
+    with own_participant():
+        assert os.environ['FASTDDS_BUILTIN_TRANSPORTS'] == 'UDPv4'
+    assert 'FASTDDS_BUILTIN_TRANSPORTS' not in os.environ
+    monkeypatch.setenv('FASTDDS_BUILTIN_TRANSPORTS', 'DEFAULT')
+    with own_participant():
+        assert os.environ['FASTDDS_BUILTIN_TRANSPORTS'] == 'UDPv4'
+    assert os.environ['FASTDDS_BUILTIN_TRANSPORTS'] == 'DEFAULT'

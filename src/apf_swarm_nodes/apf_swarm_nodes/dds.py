@@ -38,9 +38,10 @@ prints the environment they need (docs/RELIABILITY.md, "Isolation").
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
-from collections.abc import Callable, Mapping, MutableMapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, MutableMapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +57,7 @@ __all__ = [
     'isolate_dds',
     'localhost_environment',
     'max_participants',
+    'own_participant',
     'own_participant_environment',
     'profile_xml',
     'write_profile',
@@ -102,6 +104,24 @@ def own_participant_environment(environ: Mapping[str, str] | None = None) -> dic
         if udp.is_file():
             return dict.fromkeys(PROFILE_VARIABLES, str(udp))
     return {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
+
+
+@contextlib.contextmanager
+def own_participant() -> Iterator[None]:
+    """``os.environ`` with :func:`own_participant_environment` while a participant of the
+    bring-up's own is made (``rclpy.init`` and the node: Fast DDS reads its transports
+    then), as before afterwards: the bring-up's node and its domain probe."""
+    own = own_participant_environment()
+    saved = {k: os.environ.get(k) for k in own}
+    os.environ.update(own)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 # --------------------------------------------------------------------------------------------

@@ -99,27 +99,34 @@ def swarm_publishers(
     each as ``'topic (N publishers: /node, ...)'``.
 
     An rclpy participant of its own, made with this process's environment (call it once the
-    run's profile is set), watches the graph until a swarm publisher shows (then ``settle``
-    s more, for the names), or ``timeout`` s. Localhost (``network`` False): nothing bound
-    on the domain's ports here means nothing to see, [] at once; otherwise the watch also
-    ends ``settle`` s after every participant on those ports has shown its
-    ``ros_discovery_info`` writer. Network: :data:`NETWORK_WATCH` s at least."""
+    run's profile is set) but on UDP only (:func:`~.dds.own_participant`), watches the
+    graph until a swarm publisher shows (then ``settle`` s more, for the names), or
+    ``timeout`` s. Localhost (``network`` False): nothing bound on the domain's ports here
+    means nothing to see, [] at once; otherwise the watch also ends ``settle`` s after every
+    participant on those ports has shown its ``ros_discovery_info`` writer. Network:
+    :data:`NETWORK_WATCH` s at least."""
     others = domain_participant_ports(domain)
     if not others and not network:
         return []
     import rclpy
     from rclpy.context import Context
 
+    from .dds import own_participant
+
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=domain)
+    # on UDP only, as the bring-up's own node: a shared-memory port whose mutex a killed
+    # process of another run held cannot block the check
+    with own_participant():
+        rclpy.init(context=ctx, domain_id=domain)
     node = None
     try:
-        node = rclpy.create_node(
-            'apf_swarm_domain_probe',
-            context=ctx,
-            enable_rosout=False,
-            start_parameter_services=False,
-        )
+        with own_participant():
+            node = rclpy.create_node(
+                'apf_swarm_domain_probe',
+                context=ctx,
+                enable_rosout=False,
+                start_parameter_services=False,
+            )
         others -= bound_udp_ports(os.getpid())
         t0 = time.monotonic()
         found: list[str] = []

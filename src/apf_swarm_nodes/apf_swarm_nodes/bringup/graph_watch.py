@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -68,25 +67,16 @@ class GraphWatch:
 
         from apf_swarm_msgs.msg import SwarmState
 
-        from ..dds import own_participant_environment
+        from ..dds import own_participant
         from ..node_common import START_QOS, STATE_QOS, SWARM_START, SWARM_STATE
 
         # its own command line is not ROS arguments (--node-param NAME:=VALUE would read as
         # a deprecated remapping rule)
         # its own participant on UDP only (the nodes keep shared memory): a call of the
         # supervising process cannot block on a shared-memory mutex a killed node held
-        own = own_participant_environment()
-        saved = {k: os.environ.get(k) for k in own}
-        os.environ.update(own)
-        try:
+        with own_participant():
             rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
             self.node = rclpy.create_node('swarm_up')
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
         # the events executor costs less CPU per /swarm/state sample than the single-
         # threaded one, and the bring-up shares the cores with the swarm
         # (bench/bench_graph.py compares the executors)

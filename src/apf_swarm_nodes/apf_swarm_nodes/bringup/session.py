@@ -210,12 +210,18 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
                 self.zygote.close()
 
     def execute_prepared(self) -> int:
-        self.isolate()
-        code, status, message = EXIT_OK, 'completed', ''
-        self.start_view()
+        # the stop's bound from the start: the domain check already makes a participant
+        self.signals.install()
         try:
-            self.signals.install()
+            self.isolate()
+        except BaseException:
+            self.signals.restore()
+            raise
+        code, status, message = EXIT_OK, 'completed', ''
+        try:
+            self.start_view()
             try:
+                self.check_signals()
                 self.init_ros()
                 self.launch()
                 # a stop from now on ends within its grace, which grows with the load
