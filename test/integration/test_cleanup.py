@@ -331,3 +331,43 @@ def test_apf_swarm_clean_stops_a_node_whose_bring_up_is_gone() -> None:
     finally:
         with contextlib.suppress(psutil.Error):
             node.kill()
+
+
+def test_a_killed_probe_leaves_no_echo_process() -> None:
+    """The capacity probe's echo process (a node in its own session, which never ends by
+    itself) ends with the probe, however the probe ends: here SIGKILL mid-measure."""
+    env = {**os.environ, 'ROS_DOMAIN_ID': str(pick_domain_id(lo=102, hi=201))}
+    probe = subprocess.Popen(
+        [sys.executable, '-m', 'apf_swarm_nodes.probe', '--measure'],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=env,
+        start_new_session=True,
+    )
+    mine = 'probe --echo'
+
+    def echoes() -> list[psutil.Process]:
+        out = []
+        for p in _procs_naming(mine):
+            with contextlib.suppress(psutil.Error):
+                if p.environ().get('ROS_DOMAIN_ID') == env['ROS_DOMAIN_ID']:
+                    out.append(p)
+        return out
+
+    def running(p: psutil.Process) -> bool:
+        try:
+            return p.is_running() and p.status() != psutil.STATUS_ZOMBIE
+        except psutil.Error:
+            return False
+
+    try:
+        wait_for(lambda: bool(echoes()), 30, 'the echo process')
+        found = echoes()
+        probe.kill()
+        probe.wait(10)
+        wait_for(lambda: not any(running(p) for p in found), 10, 'the echo to end')
+    finally:
+        probe.kill()
+        for p in echoes():
+            with contextlib.suppress(psutil.Error):
+                p.kill()

@@ -95,8 +95,11 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> d
             'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
         }
         env.pop('ROS_STATIC_PEERS', None)
+        from .bringup.processes import dying_with_parent
+
+        # it ends with this process, however this one ends (a killed `apf-swarm probe`)
         done = subprocess.run(
-            [sys.executable, '-m', 'apf_swarm_nodes.probe', '--measure'],
+            dying_with_parent([sys.executable, '-m', 'apf_swarm_nodes.probe', '--measure'], 'INT'),
             env=env,
             capture_output=True,
             text=True,

@@ -96,11 +96,12 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
 
     from apf_swarm_msgs.msg import SwarmOdometry
 
-    from .bringup.processes import stop_process
+    from .bringup.processes import dying_with_parent, stop_process
     from .conversions import swarm_odom_msg
 
+    # it ends with this process, however this one ends (rclpy's SIGINT handler stops it)
     echo = subprocess.Popen(
-        [sys.executable, '-m', 'apf_swarm_nodes.probe', '--echo'],
+        dying_with_parent([sys.executable, '-m', 'apf_swarm_nodes.probe', '--echo'], 'INT'),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         start_new_session=True,

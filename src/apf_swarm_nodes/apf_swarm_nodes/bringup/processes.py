@@ -63,15 +63,16 @@ def describe_rc(rc: int) -> str:
     return f'exit code {rc}'
 
 
-def dying_with_parent(argv: Sequence[str]) -> list[str]:
+def dying_with_parent(argv: Sequence[str], sig: str = 'KILL') -> list[str]:
     """``argv`` run so that it gets SIGKILL when the bring-up that started it dies, even by
     SIGKILL: util-linux ``setpriv --pdeathsig`` (no ``preexec_fn``, unsafe in a process with
     DDS threads); unchanged where there is no setpriv. SIGKILL, not SIGINT: a node busy in a
     callback may not see one SIGINT, and with the bring-up gone nothing would escalate (a
     forked node gets SIGINT, and its zygote escalates); the shared memory it leaves is
-    removed by the next run or ``apf-swarm clean``."""
+    removed by the next run or ``apf-swarm clean``. ``sig``: another signal, for a process
+    whose own stop is bounded (the probe's processes: ``INT``)."""
     setpriv = shutil.which('setpriv')
-    return [setpriv, '--pdeathsig', 'KILL', '--', *argv] if setpriv else list(argv)
+    return [setpriv, '--pdeathsig', sig, '--', *argv] if setpriv else list(argv)
 
 
 def stop_process(
