@@ -14,7 +14,8 @@ within ``duration + 90`` s (else: a hang, and it is killed), whether any process
 is still alive 15 s after (a leftover, killed; the bring-up's zygote included), and how
 many Fast DDS entries of ``/dev/shm`` created during the cycle no live process holds 15 s
 after that (``apf_swarm_nodes.shm.unheld``: ``/dev/shm`` is the machine's, and the entries
-other jobs' live participants create meanwhile are held by them).
+other jobs' live participants create meanwhile are held by them; what a run of another job
+on another domain left meanwhile is told apart by its ports' domain and reported apart).
 
 Output: a Markdown table per way of ending and the totals, with the CPU and the count of
 ``/dev/shm`` before and after; exit 1 if any cycle hung, left a process or left shared
@@ -26,6 +27,7 @@ from __future__ import annotations
 import argparse
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -64,6 +66,26 @@ def shm_left(before: set[str]) -> set[str]:
     return unheld(shm_entries() - before)
 
 
+def port_domain(name: str) -> int | None:
+    """The domain whose port range (7400 + 250 d, 250 ports) a Fast DDS port entry is in;
+    None for a participant segment or a port outside every domain's range."""
+    m = re.match(r'^(?:sem\.)?fastrtps_port(\d+)', name)
+    if m is None or int(m.group(1)) < 7400:
+        return None
+    return (int(m.group(1)) - 7400) // 250
+
+
+def attribute(left: set[str], domain: int) -> tuple[set[str], set[str]]:
+    """(this cycle's, another job's) of the unheld entries ``left``: a port is the cycle's
+    when it lies in its domain's range; segments and ports of no domain are the cycle's
+    when any of its ports is (a participant that did not leave DDS leaves its own domain's
+    ports too), else another job's (a run on another domain killed meanwhile)."""
+    ports = {n for n in left if port_domain(n) == domain}
+    foreign = {n for n in left if port_domain(n) not in (None, domain)}
+    rest = left - ports - foreign
+    return (ports | rest, foreign) if ports else (set(), foreign | rest)
+
+
 def run_processes(out: Path) -> list[psutil.Process]:
     """Live processes whose command line names the run's directory (its nodes)."""
     found = []
@@ -77,12 +99,15 @@ def run_processes(out: Path) -> list[psutil.Process]:
 
 
 def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random.Random) -> dict:
+    from apf_swarm_nodes.bringup import pick_domain_id
+
     out = tmp / f'cycle_{i}'
     before = shm_entries()
+    domain = pick_domain_id()  # as the bring-up would, but known here: its ports are its own
     cmd = [
         sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--preset', 'triangle',
         '--n-trackers', str(args.n_trackers), '--duration', str(args.duration), '--respawn',
-        '--no-plots', '--out', str(out),
+        '--no-plots', '--domain-id', str(domain), '--out', str(out),
     ]  # fmt: skip
     t0 = time.monotonic()
     p = subprocess.Popen(
@@ -153,12 +178,14 @@ def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random
         q.kill()
     # (a killed bring-up's zygote removes what its nodes left once they are gone)
     deadline = time.monotonic() + 15.0
-    while shm_left(before) and time.monotonic() < deadline:
+    while attribute(shm_left(before), domain)[0] and time.monotonic() < deadline:
         time.sleep(0.2)
-    stale = shm_left(before)
+    stale, foreign = attribute(shm_left(before), domain)
     if args.verbose:
         for name in sorted(stale):
             print(f'soak_cycles: /dev/shm left: {name}', file=sys.stderr)
+        for name in sorted(foreign):
+            print(f'soak_cycles: /dev/shm left by another job: {name}', file=sys.stderr)
     return {
         'way': way,
         'rc': rc,
@@ -166,6 +193,7 @@ def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random
         'seconds': ended,
         'leftover': len(left),
         'shm_left': len(stale),
+        'shm_foreign': len(foreign),
         'stop_s': stop_s,
     }
 
@@ -195,7 +223,8 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f'soak_cycles: {i}/{len(ways)} {way}: exit {row["rc"]} after '
                 f'{row["seconds"]:.1f} s, leftover {row["leftover"]}, /dev/shm left '
-                f'{row["shm_left"]}' + (' HUNG' if row['hung'] else ''),
+                f'{row["shm_left"]} (other jobs: {row["shm_foreign"]})'
+                + (' HUNG' if row['hung'] else ''),
                 file=sys.stderr,
                 flush=True,
             )
@@ -207,9 +236,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(
         '| ending | cycles | hangs | exit codes | longest [s] | longest stop [s] '
-        '| leftover processes | /dev/shm left |'
+        "| leftover processes | /dev/shm left | other jobs' left meanwhile |"
     )
-    print('|---|---:|---:|---|---:|---:|---:|---:|')
+    print('|---|---:|---:|---|---:|---:|---:|---:|---:|')
     for way in (*WAYS, 'all'):
         mine = [r for r in rows if way in ('all', r['way'])]
         if not mine:
@@ -220,7 +249,8 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f'| {way} | {len(mine)} | {sum(r["hung"] for r in mine)} | {codes} | '
             f'{max(r["seconds"] for r in mine):.1f} | {stop} | '
-            f'{sum(r["leftover"] for r in mine)} | {sum(r["shm_left"] for r in mine)} |'
+            f'{sum(r["leftover"] for r in mine)} | {sum(r["shm_left"] for r in mine)} | '
+            f'{sum(r["shm_foreign"] for r in mine)} |'
         )
     bad = any(r['hung'] or r['leftover'] or r['shm_left'] for r in rows)
     return 1 if bad else 0
