@@ -195,3 +195,31 @@ def test_the_stop_bound_is_the_grace_of_each_stage_and_grows_with_the_load(
     # a small run's bound is half the old fixed 60 s; the issue's 66 processes, recorded,
     # get a few seconds more than it
     assert small < 35.0 and large < 70.0
+
+
+def test_the_stop_reports_each_process_with_the_signal_that_stopped_it(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """Trackers first, then the others: each keeps the signal that stopped it in stopped_by
+    (a second pass over the whole group once reported every tracker as 'exited', hiding a
+    SIGKILL), and the stop is said in one line."""
+    from apf_swarm_nodes.bringup.supervision import Signals, Supervision
+
+    from apf_swarm_nodes import shm
+
+    monkeypatch.setattr(shm, 'remove_stale', lambda: 0)
+    said: list[str] = []
+    sup = Supervision()
+    sup.group, sup.rec_group = ProcessGroup(), ProcessGroup()
+    sup.signals = Signals()
+    sup.say = said.append  # type: ignore[method-assign]
+    for name in ('target', 'plant', 'tracker_1', 'tracker_2'):
+        sup.group.add(Child(name, [sys.executable, '-c', POLITE], tmp_path / f'{name}.log'))
+    sup.group.start_all()
+    for name in ('target', 'plant', 'tracker_1', 'tracker_2'):
+        assert wait_until(lambda n=name: 'ready' in (tmp_path / f'{n}.log').read_text(), 30)
+    sup.stop_children()
+    assert sup.stop_how == dict.fromkeys(('tracker_1', 'tracker_2', 'target', 'plant'), 'SIGINT')
+    assert list(sup.stop_how)[:2] == ['tracker_1', 'tracker_2']  # the trackers first
+    assert any('stopped 4 processes' in s and '4 SIGINT' in s for s in said), said
+    assert sup.leftovers == []

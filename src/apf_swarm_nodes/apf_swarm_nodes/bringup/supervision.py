@@ -201,7 +201,7 @@ class Supervision:
         # the trackers first, so that none commands into a plant that is gone; then the plant
         # and the target; each leaves DDS on SIGINT, given time that grows with the load
         self.stop_how = self.group.stop_all(hurry=hurry, select=_is_tracker)
-        self.stop_how.update(self.group.stop_all(hurry=hurry))
+        self.stop_how.update(self.group.stop_all(hurry=hurry, select=lambda c: not _is_tracker(c)))
         # the recorder last: it takes what is still queued and closes the bag
         self.stop_how.update(self.rec_group.stop_all(hurry=lambda: len(self.signals.received)))
         self.stop_seconds = time.monotonic() - t0
