@@ -31,6 +31,17 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.integration)
 
 
+@pytest.fixture(autouse=True, scope='session')
+def _no_shared_memory_left_behind():
+    """Tests that SIGKILL a participant outside a bring-up (a recorder, a node started by
+    hand) leave its Fast DDS files: removed once the tests are done, as a run removes its
+    own (only what no live process holds)."""
+    yield
+    from apf_swarm_nodes.shm import remove_stale
+
+    remove_stale()
+
+
 def free_domain_id() -> int:
     """A domain id for this test in 102..201, away from make test's 1..100: one with no bound
     port and not leased by another picker (``pick_domain_id``)."""
