@@ -257,20 +257,20 @@ def test_apf_swarm_clean_removes_what_a_killed_participant_left(tmp_path: Path) 
 @pytest.mark.parametrize('spawn', ['fork', 'exec'])
 def test_a_sigkilled_bring_up_leaves_no_process_and_no_shared_memory(start, spawn) -> None:
     """SIGKILL of the bring-up mid-run (nothing of it can clean up): its nodes end on their
-    parent-death signal, and its zygote (fork) ends too, once it has killed any node still
-    there and removed the shared memory; no process of the run a few seconds later, and
-    (fork) nothing of its shared memory that no live process holds."""
+    parent-death signal, and its helper (the zygote that forked them, or the janitor told
+    the pids of those it executed) ends too, once it has killed any node still there and
+    removed the shared memory; no process of the run a few seconds later, and nothing of
+    its shared memory that no live process holds."""
     from apf_swarm_nodes.bringup import zygote
 
     before = fastdds_entries()
     run = start(f'killed_{spawn}', '--preset', 'triangle', '--duration', '60', '--spawn', spawn)
     wait_for(lambda: run.sim_time() >= 0.5, 90, 'the run to fly')
+    helper = 'bringup.zygote' if spawn == 'fork' else 'bringup.janitor'
     helpers = [
-        p
-        for p in psutil.Process(run.popen.pid).children()
-        if 'bringup.zygote' in ' '.join(p.cmdline())
+        p for p in psutil.Process(run.popen.pid).children() if helper in ' '.join(p.cmdline())
     ]
-    assert len(run.nodes()) == 5 and len(helpers) == (spawn == 'fork')
+    assert len(run.nodes()) == 5 and len(helpers) == 1
     run.popen.kill()
     run.popen.wait(10)
     end = time.monotonic() + zygote.ORPHAN_GRACE + 15.0
@@ -278,8 +278,7 @@ def test_a_sigkilled_bring_up_leaves_no_process_and_no_shared_memory(start, spaw
         time.sleep(0.1)
     assert run.left() == [], run.left()
     assert not any(p.is_running() and p.status() != psutil.STATUS_ZOMBIE for p in helpers)
-    if spawn == 'fork':  # executed nodes die by SIGKILL: the next run or `clean` removes it
-        assert left_shm(before) == set()
+    assert left_shm(before) == set()
 
 
 ORPHAN_MAKER = textwrap.dedent(

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Protocol
 from ..machine import group_members
 
 if TYPE_CHECKING:
+    from .janitor import Janitor
     from .zygote import Zygote
 
 PACKAGE = 'apf_swarm_nodes'
@@ -134,6 +135,8 @@ class Child:
     env: Mapping[str, str] | None = None
     cwd: Path | None = None
     zygote: Zygote | None = None
+    #: told the pid of an executed process (it cleans up if the bring-up is killed)
+    janitor: Janitor | None = None
     popen: Process | None = None
     starts: int = 0
     stopping: bool = False
@@ -166,6 +169,8 @@ class Child:
                     start_new_session=True,
                     close_fds=True,
                 )
+            if self.janitor is not None:
+                self.janitor.watch(self.popen.pid)
         self.starts += 1
         self.stopping = False
         self.pids.append(self.popen.pid)

@@ -89,6 +89,7 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         #: ``--view``: the live view (:class:`~apf_swarm_nodes.view.LiveView`)
         self.view: Any = None
         self.zygote: Any = None
+        self.janitor: Any = None
 
     # --- messages -------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -208,6 +209,8 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         finally:
             if self.zygote is not None:
                 self.zygote.close()
+            if self.janitor is not None:
+                self.janitor.close()
 
     def execute_prepared(self) -> int:
         # the stop's bound from the start: the domain check already makes a participant

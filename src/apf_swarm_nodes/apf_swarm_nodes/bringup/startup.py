@@ -19,6 +19,7 @@ from .isolation import env_domain, pick_domain_id
 from .processes import Child, ProcessGroup
 
 if TYPE_CHECKING:
+    from .janitor import Janitor
     from .zygote import Zygote
 
 __all__ = ['Startup']
@@ -38,6 +39,7 @@ class Startup:
     domain_id: int | None
     run_id: int
     zygote: Zygote | None
+    janitor: Janitor | None
     t_launch: Any
     prefix: Path
     config_file: Path
@@ -109,15 +111,19 @@ class Startup:
 
     def start_zygote(self) -> None:
         """``--spawn fork``: start the zygote first, so that its imports overlap the
-        preparation (the node processes are forked from it at the launch)."""
-        if getattr(self.args, 'spawn', 'exec') != 'fork':
-            return
-        from .zygote import Zygote
+        preparation (the node processes are forked from it at the launch). Nodes executed
+        instead: the janitor, which cleans up after them if this bring-up is killed."""
+        if getattr(self.args, 'spawn', 'exec') == 'fork':
+            from .zygote import Zygote
 
-        self.zygote = Zygote()
-        if not self.zygote.usable:
+            self.zygote = Zygote()
+            if self.zygote.usable:
+                return
             self.say(f'--spawn fork unavailable ({self.zygote.error}); executing the nodes')
             self.zygote = None
+        from .janitor import Janitor
+
+        self.janitor = Janitor()
 
     def child_env(self) -> dict[str, str]:
         env = dict(os.environ)
@@ -157,6 +163,7 @@ class Startup:
                 self.out / 'logs' / 'recorder.log',
                 env,
                 zygote=self.zygote,
+                janitor=self.janitor,
             )
             self.rec_group.add(rec)
             self.rec_group.start_all()
@@ -165,7 +172,14 @@ class Startup:
             # a simulated host (scripts/multihost.py)
             argv = cmd if ns is None else ['ip', 'netns', 'exec', ns, *cmd]
             self.group.add(
-                Child(name, argv, self.out / 'logs' / f'{name}.log', env, zygote=self.zygote)
+                Child(
+                    name,
+                    argv,
+                    self.out / 'logs' / f'{name}.log',
+                    env,
+                    zygote=self.zygote,
+                    janitor=self.janitor,
+                )
             )
         self.group.start_all()
         if self.zygote is not None and self.zygote.error:

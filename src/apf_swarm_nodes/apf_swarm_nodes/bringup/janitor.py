@@ -1,0 +1,80 @@
+"""What a killed bring-up cannot do for the nodes it executed: the janitor.
+
+A bring-up that forks its nodes has its zygote clean up after it if it is killed
+(:func:`~.zygote.orphaned_cleanup`). One that executes them (``--spawn exec``, or no zygote)
+starts this small process instead: it is told the pid of every node executed (a line each on
+its stdin) and ``"bye"`` when the bring-up closes it normally. An input that ends without
+the goodbye means the bring-up died (SIGKILL): the janitor then does what the zygote would,
+waits for those nodes to end on their parent-death signal, kills any still running, and
+removes the Fast DDS shared memory no live process holds. It imports no ROS (started in a
+fraction of a second) and ignores SIGINT (Ctrl-C is the bring-up's). Run as
+``python -m apf_swarm_nodes.bringup.janitor``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import subprocess
+import sys
+
+import psutil
+
+__all__ = ['BYE', 'Janitor', 'main']
+
+#: the line that ends a janitor's input when its bring-up closes it
+BYE = 'bye'
+
+
+class Janitor:
+    """The bring-up's handle on its janitor process (see the module docstring)."""
+
+    def __init__(self) -> None:
+        self.proc: subprocess.Popen[bytes] | None = subprocess.Popen(
+            [sys.executable, '-m', __name__],
+            stdin=subprocess.PIPE,
+            start_new_session=True,
+            close_fds=True,
+        )
+
+    def watch(self, pid: int) -> None:
+        """A node process this bring-up started: the janitor's if the bring-up dies."""
+        proc = self.proc
+        if proc is None or proc.stdin is None:
+            return
+        with contextlib.suppress(OSError, ValueError):
+            proc.stdin.write(b'%d\n' % pid)
+            proc.stdin.flush()
+
+    def close(self) -> None:
+        """The bring-up ends normally (it stopped its nodes itself): goodbye."""
+        proc, self.proc = self.proc, None
+        if proc is None:
+            return
+        with contextlib.suppress(OSError, ValueError):
+            if proc.stdin is not None:
+                proc.stdin.write(BYE.encode() + b'\n')
+                proc.stdin.close()
+        try:
+            proc.wait(5.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def main() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    watched: list[psutil.Process] = []
+    for raw in sys.stdin:
+        line = raw.strip()
+        if line == BYE:
+            return
+        with contextlib.suppress(ValueError, psutil.Error):
+            watched.append(psutil.Process(int(line)))
+    from .zygote import orphaned_cleanup
+
+    orphaned_cleanup(watched)
+
+
+if __name__ == '__main__':
+    main()
