@@ -5,7 +5,8 @@ leave anything behind.
     source scripts/activate.sh
     python bench/soak_cycles.py [--cycles 100] [--n-trackers 3] [--duration 3] [--smoke]
 
-Each cycle brings up the lockstep triangle (``swarm_up.py --preset triangle --respawn``) and
+Each cycle brings up the lockstep triangle (``swarm_up.py --preset triangle --respawn``),
+its nodes forked or executed (``--spawn``, drawn at random unless ``--spawn`` says), and
 ends it one of four ways, drawn at random (seeded): it runs to its end; a node is killed
 with SIGKILL mid-run (the bring-up respawns it and the run completes); the bring-up gets
 SIGTERM mid-run; the bring-up is killed with SIGKILL mid-run (nothing of it can clean up:
@@ -98,7 +99,9 @@ def run_processes(out: Path) -> list[psutil.Process]:
     return found
 
 
-def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random.Random) -> dict:
+def one_cycle(
+    i: int, way: str, spawn: str, args: argparse.Namespace, tmp: Path, rng: random.Random
+) -> dict:
     from apf_swarm_nodes.bringup import pick_domain_id
 
     out = tmp / f'cycle_{i}'
@@ -107,7 +110,7 @@ def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random
     cmd = [
         sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--preset', 'triangle',
         '--n-trackers', str(args.n_trackers), '--duration', str(args.duration), '--respawn',
-        '--no-plots', '--domain-id', str(domain), '--out', str(out),
+        '--no-plots', '--domain-id', str(domain), '--spawn', spawn, '--out', str(out),
     ]  # fmt: skip
     t0 = time.monotonic()
     p = subprocess.Popen(
@@ -117,7 +120,7 @@ def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random
         start_new_session=True,
         cwd=ROOT,
     )
-    helpers: list[psutil.Process] = []  # the bring-up's zygote
+    helpers: list[psutil.Process] = []  # the bring-up's zygote or janitor
     # once the nodes are up (mid-run endings: then a random moment of the run)
     deadline = time.monotonic() + 60.0
     while time.monotonic() < deadline and p.poll() is None:
@@ -126,7 +129,7 @@ def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random
                 helpers = [
                     c
                     for c in psutil.Process(p.pid).children()
-                    if 'bringup.zygote' in ' '.join(c.cmdline())
+                    if re.search(r'bringup\.(zygote|janitor)', ' '.join(c.cmdline()))
                 ]
             break
         time.sleep(0.1)
@@ -188,6 +191,7 @@ def one_cycle(i: int, way: str, args: argparse.Namespace, tmp: Path, rng: random
             print(f'soak_cycles: /dev/shm left by another job: {name}', file=sys.stderr)
     return {
         'way': way,
+        'spawn': spawn,
         'rc': rc,
         'hung': hung,
         'seconds': ended,
@@ -206,10 +210,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--seed', type=int, default=1)
     ap.add_argument('--smoke', action='store_true', help='one cycle of each way, 2 s runs')
     ap.add_argument('--verbose', action='store_true', help='name what each cycle left')
+    ap.add_argument(
+        '--spawn',
+        choices=('fork', 'exec', 'both'),
+        default='both',
+        help='how the bring-up starts its nodes (both: drawn at random each cycle)',
+    )
     args = ap.parse_args(argv)
     exit_on_signals()
     rng = random.Random(args.seed)
     ways = list(WAYS) if args.smoke else [rng.choice(WAYS) for _ in range(args.cycles)]
+    kinds = ['fork', 'exec'] if args.spawn == 'both' else [args.spawn]
+    spawns = [kinds[i % len(kinds)] if args.smoke else rng.choice(kinds) for i in range(len(ways))]
     if args.smoke:
         args.duration = 2.0
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -217,11 +229,11 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     first = shm_entries()
     with tempfile.TemporaryDirectory(prefix='soak_cycles_') as tmp:
-        for i, way in enumerate(ways, 1):
-            row = one_cycle(i, way, args, Path(tmp), rng)
+        for i, (way, spawn) in enumerate(zip(ways, spawns, strict=True), 1):
+            row = one_cycle(i, way, spawn, args, Path(tmp), rng)
             rows.append(row)
             print(
-                f'soak_cycles: {i}/{len(ways)} {way}: exit {row["rc"]} after '
+                f'soak_cycles: {i}/{len(ways)} {way} ({spawn}): exit {row["rc"]} after '
                 f'{row["seconds"]:.1f} s, leftover {row["leftover"]}, /dev/shm left '
                 f'{row["shm_left"]} (other jobs: {row["shm_foreign"]})'
                 + (' HUNG' if row['hung'] else ''),
@@ -239,8 +251,8 @@ def main(argv: list[str] | None = None) -> int:
         "| leftover processes | /dev/shm left | other jobs' left meanwhile |"
     )
     print('|---|---:|---:|---|---:|---:|---:|---:|---:|')
-    for way in (*WAYS, 'all'):
-        mine = [r for r in rows if way in ('all', r['way'])]
+    for way in (*WAYS, 'fork', 'exec', 'all'):
+        mine = [r for r in rows if way in ('all', r['way'], r['spawn'])]
         if not mine:
             continue
         codes = ', '.join(str(c) for c in sorted({r['rc'] for r in mine}))
