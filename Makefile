@@ -58,7 +58,7 @@ COLCON_ENV := env -u PYTHONPATH -u COLCON_PREFIX_PATH -u LD_LIBRARY_PATH \
 COLCON_ARGS := --base-paths src --build-base build --install-base install --symlink-install \
 	--cmake-args -DPython3_EXECUTABLE='$(VPY)' -DCMAKE_BUILD_TYPE=Release -DBUILD_TESTING=OFF
 
-.PHONY: setup test run reproduce clean distclean help FORCE
+.PHONY: setup warm test run reproduce clean distclean help FORCE
 
 help:
 	@sed -n '2,10p' '$(ROOT)/Makefile' | sed 's/^# \{0,1\}//'
@@ -83,7 +83,15 @@ $(BUILD_STAMP): $(REQ_STAMP) $(addprefix $(ROOT)/,$(SRC_FILES)) $(ROOT)/Makefile
 	@echo "==> colcon build (build/ install/ log/)"
 	@cd '$(ROOT)' && $(COLCON_ENV) colcon --log-base log build $(COLCON_ARGS) 2>&1 \
 	  | { grep -v "AMENT_PREFIX_PATH doesn't contain any 'local_setup" || true; }
+	@$(MAKE) -s warm
 	@touch '$@'
+
+# the compiled control kernels into numba's cache, so that no process compiles them at run
+# time (seconds once; a fraction of a second when they are current)
+warm:
+	@echo "==> compiling the control kernels (numba cache)"
+	@cd '$(ROOT)' && source scripts/activate.sh && \
+	  python -c 'from apf_swarm_core.kernels import warm; warm()'
 
 # `apf-swarm` on PATH without putting lib/apf_swarm_nodes (generic names: target, plant, ...)
 # there: a small wrapper in .venv/bin that enters the workspace environment when needed.
@@ -99,6 +107,7 @@ $(APF_WRAPPER): $(ROOT)/Makefile | $(REQ_STAMP)
 	@chmod +x '$@'
 
 test: setup
+	@$(MAKE) -s warm
 	@echo "==> pytest (ROS_DOMAIN_ID=$(ROS_DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)"
 	@cd '$(ROOT)' && source scripts/activate.sh && \
 	  export ROS_DOMAIN_ID='$(ROS_DOMAIN_ID)' ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST && \

@@ -46,6 +46,7 @@ from .control import (
 )
 from .controller import ControlOutput
 from .inputs import input_problem
+from .kernels import warm
 from .laws import switching_force
 from .neighbours import neighbour_mask
 from .plant import acceleration_setpoint, velocity_setpoint
@@ -128,6 +129,7 @@ class TrackerAgent:
         self._swarm = None
         self._seq_max = -1  # the largest order key held of any tracker
         self.controller = make_controller(self.cfg, (1, 3))
+        warm()  # the compiled kernels loaded now, not at the first command
         self.precondition = make_preconditioner(self.cfg)
         #: compensation = predict with control_rate > 0: the state a command acts on, and the
         #: loop latency the plant reports (:meth:`report_latency`)

@@ -12,9 +12,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from .config import SwarmConfig
 from .controller import ControlOutput, SlidingModeController
-from .gains import per_run, shaped
+from .gains import per_run
 from .gradients import gradient, obstacle_gradient
-from .newton import block_direction, hessian_blocks, newton_basis, newton_direction
+from .kernels import block_rows, kernel_args
+from .newton import newton_basis, newton_direction
 from .potential import PotentialParams, Rows
 from .prediction import Predictor, compensation_horizon
 
@@ -122,18 +123,17 @@ class BlockPreconditioner:
         x: ArrayLike,
         target_x: ArrayLike,
         params: PotentialParams,
-        grad: NDArray[np.float64],
         rows: Rows = None,
         mask: ArrayLike | None = None,
     ) -> NDArray[np.float64]:
-        """The direction of the trackers in ``rows`` (default all), shape of ``grad``
-        (their gradient rows, (..., m, 3)); ``x`` (..., n, 3): every tracker the potential
-        sees."""
-        x = np.asarray(x, dtype=float)
-        kn = params['k_n']
-        centroid = shaped(kn, 1) * (x.mean(axis=-2) - np.asarray(target_x, dtype=float))
-        blocks = hessian_blocks(x, **params, rows=rows, mask=mask)
-        return block_direction(blocks, grad, centroid, k_n=kn, mu=self.mu, trust=self.trust)
+        """The direction of the trackers in ``rows`` (default all), shape (..., m, 3);
+        ``x`` (..., n, 3): every tracker the potential sees. One pass of the compiled
+        kernel :func:`~apf_swarm_core.kernels.block_rows` over each row's pairs gives its
+        gradient row, its Hessian block and the step."""
+        gains = (params['k_n'], params['k_f'], params['a'], params['b'], params['c'])
+        args = kernel_args(x, target_x, gains, rows, mask)
+        out = block_rows(args.x, args.tx, args.rows, args.mask, args.gains, self.mu, self.trust)
+        return out.reshape((*args.shape, 3))
 
 
 def make_preconditioner(cfg: SwarmConfig) -> Preconditioner | BlockPreconditioner | None:
@@ -202,14 +202,7 @@ def control_step(
     if precondition is None:
         grad = gradient(x, target_x, **potential_params, rows=rows, mask=mask)
     elif isinstance(precondition, BlockPreconditioner):
-        grad = precondition.direction(
-            x,
-            target_x,
-            potential_params,
-            gradient(x, target_x, **potential_params, rows=rows, mask=mask),
-            rows,
-            mask,
-        )
+        grad = precondition.direction(x, target_x, potential_params, rows, mask)
     else:
         grad = precondition.direction(x, target_x, potential_params)
         grad = grad if rows is None else grad[..., rows, :]

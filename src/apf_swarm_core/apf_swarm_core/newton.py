@@ -4,10 +4,13 @@ damped (Levenberg-Marquardt) direction with a trust radius."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
+from .kernels import block_steps, hessian_rows, kernel_args
 from .potential import Rows
 
 __all__ = [
@@ -210,25 +213,9 @@ def hessian_blocks(
     rows : the trackers whose block is wanted (default all)
     mask : bool array (..., m, n), optional
     """
-    x = np.asarray(x, dtype=float)
-    n = x.shape[-2]
-    idx = np.atleast_1d(np.arange(n) if rows is None else np.arange(n)[rows])
-    d = x[..., idx, None, :] - x[..., None, :, :]  # (..., m, n, 3)
-    e = np.exp(-(d * d).sum(axis=-1) / shaped(c, 2))  # (..., m, n)
-    e[..., np.arange(idx.size), idx] = 0.0  # j = i is no pair
-    if mask is None:
-        count = np.full(e.shape[:-1], n - 1.0)
-    else:
-        keep = np.asarray(mask, dtype=bool)
-        e = np.where(keep, e, 0.0)
-        keep = keep.copy() if keep.shape == e.shape else np.broadcast_to(keep, e.shape).copy()
-        keep[..., np.arange(idx.size), idx] = False
-        count = keep.sum(axis=-1).astype(float)  # (..., m)
-    iso = shaped(a, 1) * count - shaped(b, 1) * e.sum(axis=-1)  # (..., m)
-    outer = np.swapaxes(d * e[..., None], -1, -2) @ d  # sum_j e d d^T, (..., m, 3, 3)
-    eye = np.eye(3)
-    curv = 2.0 * shaped(b, 3) / shaped(c, 3)
-    return shaped(k_f, 3) * (iso[..., None, None] * eye + curv * outer) + shaped(k_n, 3) * eye
+    args = kernel_args(x, None, (k_n, k_f, a, b, c), rows, mask)
+    out = hessian_rows(args.x, args.rows, args.mask, args.gains)
+    return out.reshape((*args.shape, 3, 3))
 
 
 def block_direction(
@@ -268,13 +255,15 @@ def block_direction(
     mu : float > 0: the smallest curvature used
     trust : float >= 0 [m]: the trust radius of the relative step (0: none)
     """
-    w, v = np.linalg.eigh(np.asarray(blocks, dtype=float))
     g = np.asarray(grad, dtype=float)
-    gbar = np.asarray(centroid_grad, dtype=float)[..., None, :]
-    rel = g - gbar
-    coef = (rel[..., None, :] @ v)[..., 0, :]  # V^T r, (..., m, 3)
-    floor = float(mu)
-    if trust > 0.0:
-        floor = np.maximum(floor, np.sqrt((rel * rel).sum(axis=-1)) / trust)[..., None]
-    step = (v @ (coef / np.maximum(np.abs(w), floor))[..., None])[..., 0]
-    return gbar / shaped(k_n, 2) + step
+    lead = np.broadcast_shapes(g.shape[:-2], np.shape(centroid_grad)[:-1], np.shape(k_n))
+    m, runs = g.shape[-2], math.prod(lead)
+    out = block_steps(
+        np.ascontiguousarray(np.broadcast_to(blocks, (*lead, m, 3, 3))).reshape(runs, m, 3, 3),
+        np.ascontiguousarray(np.broadcast_to(g, (*lead, m, 3))).reshape(runs, m, 3),
+        np.ascontiguousarray(np.broadcast_to(centroid_grad, (*lead, 3))).reshape(runs, 3),
+        np.ascontiguousarray(np.broadcast_to(np.asarray(k_n, dtype=float), lead)).reshape(runs),
+        float(mu),
+        float(trust),
+    )
+    return out.reshape(g.shape if g.shape[:-2] == lead else (*lead, m, 3))

@@ -250,6 +250,9 @@ def preload(entries: Mapping[str, str]) -> None:
 
     for value in entries.values():
         importlib.import_module(value.partition(':')[0])
+    from apf_swarm_core.kernels import warm
+
+    warm()  # the control kernels' machine code, shared with every node process
     done: set[str] = set()
     while todo := [
         name
