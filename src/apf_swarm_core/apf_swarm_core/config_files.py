@@ -16,6 +16,7 @@ import yaml
 
 from .config import KEYS, REQUIRED_KEYS, SwarmConfig
 from .errors import ConfigError, UnknownPresetError
+from .names import tracker_node_name
 
 __all__ = [
     'apply_overrides',
@@ -216,7 +217,7 @@ def to_ros_params(cfg: SwarmConfig) -> dict[str, Any]:
     over = d.pop('uav_overrides')
     doc: dict[str, Any] = {'/**': {'ros__parameters': d}}
     for i, vals in sorted(over.items()):
-        doc[f'/uav_{i}/tracker'] = {
+        doc[tracker_node_name(i)] = {
             'ros__parameters': {k: list(v) if isinstance(v, tuple) else v for k, v in vals.items()}
         }
     return doc

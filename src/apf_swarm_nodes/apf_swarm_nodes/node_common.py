@@ -1,6 +1,7 @@
-"""What every apf_swarm node shares: QoS profiles per topic, topic names, the executor
-choice and the Jazzy ``main()`` pattern; for the nodes that handle any message type (recorder,
-player), the message class of a type name and the start-up heap kept from the collector.
+"""What every apf_swarm node shares: QoS profiles per topic (the topic names are
+:mod:`.topics`'), the executor choice and the Jazzy ``main()`` pattern; for the nodes that
+handle any message type (recorder, player), the message class of a type name and the
+start-up heap kept from the collector.
 
 QoS (documented in README, section "Topics and QoS"):
 
@@ -61,65 +62,41 @@ from rclpy.executors import (
     SingleThreadedExecutor,
 )
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
 
 from .errors import CliError
+from .qos import make_profile
 from .stop_watchdog import NODE_STOP_BOUND, StopWatchdog
 
 __all__ = [
-    'CLOCK',
     'CLOCK_QOS',
+    'DEFAULT_EXECUTOR',
     'EXECUTORS',
     'INPUTS',
     'REALTIME_RATE',
     'REQUEST_QOS',
     'START_QOS',
     'STATE_QOS',
-    'SWARM_MARKERS',
-    'SWARM_ODOM',
-    'SWARM_START',
-    'SWARM_STATE',
     'TARGET_LOOKAHEAD',
-    'TARGET_ODOM',
-    'TARGET_REQUEST',
     'RejectionLog',
     'control_qos',
-    'force_topic',
     'freeze_startup_heap',
     'msg_class',
-    'odom_topic',
     'run_node',
     'run_nodes',
     'running',
     'spin',
 ]
 
-TARGET_ODOM = '/target/odom'
-SWARM_STATE = '/swarm/state'
-SWARM_ODOM = '/swarm/odom'
-SWARM_MARKERS = '/swarm/markers'
 INPUTS = ('aggregate', 'odom')
-SWARM_START = '/swarm/start'
-CLOCK = '/clock'
-TARGET_REQUEST = '/target/request'
 #: lockstep: how many steps ahead the plant asks for the target's states (the core's)
 TARGET_LOOKAHEAD = LOOKAHEAD
 
 #: deep enough that a reader paused for seconds loses nothing in lockstep (5000 steps; a
 #: depth of 100 loses samples over a pause of a few seconds)
-STATE_QOS = QoSProfile(
-    reliability=ReliabilityPolicy.RELIABLE,
-    history=HistoryPolicy.KEEP_LAST,
-    depth=5000,
-    durability=DurabilityPolicy.VOLATILE,
-)
-START_QOS = QoSProfile(
-    reliability=ReliabilityPolicy.RELIABLE,
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+STATE_QOS = make_profile(reliable=True, transient_local=False, depth=5000)
+START_QOS = make_profile(reliable=True, transient_local=True, depth=1)
 #: only the latest request matters; a (re)started target gets it on joining
 REQUEST_QOS = START_QOS
 #: lockstep control topics and /clock: a reliable keep-last writer drops what a reader has not
@@ -129,25 +106,18 @@ REQUEST_QOS = START_QOS
 #: live loop (at most a step or two is ever in flight) and let a recorder, or a tracker fed
 #: from a bag, fall behind by over a second.
 LOCKSTEP_DEPTH = 1000
-CLOCK_QOS = QoSProfile(
-    reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=LOCKSTEP_DEPTH
-)
 
 
 def control_qos(mode: str, depth: int = 1) -> QoSProfile:
     """QoS of odometry and force commands for a timing mode; ``depth``: realtime keep-last
     depth (the nodes' ``qos_depth``; 1, the newest sample, is the default and measured best)."""
     if mode == 'lockstep':
-        return QoSProfile(
-            reliability=ReliabilityPolicy.RELIABLE,
-            history=HistoryPolicy.KEEP_LAST,
-            depth=LOCKSTEP_DEPTH,
-        )
-    return QoSProfile(
-        reliability=ReliabilityPolicy.BEST_EFFORT,
-        history=HistoryPolicy.KEEP_LAST,
-        depth=int(depth),
-    )
+        return make_profile(reliable=True, transient_local=False, depth=LOCKSTEP_DEPTH)
+    return make_profile(reliable=False, transient_local=False, depth=int(depth))
+
+
+#: /clock: the lockstep control topics' profile
+CLOCK_QOS = control_qos('lockstep')
 
 
 class RejectionLog:
@@ -166,16 +136,6 @@ class RejectionLog:
         if now - self._last.get(kind, -1e9) >= self.period:
             self._last[kind] = now
             self.node.get_logger().warn(f'rejected: {why}; {total} rejected so far')
-
-
-def odom_topic(uav_id: int) -> str:
-    """Absolute odometry topic of tracker ``uav_id``."""
-    return f'/uav_{uav_id}/odom'
-
-
-def force_topic(uav_id: int) -> str:
-    """Absolute force-command topic of tracker ``uav_id``."""
-    return f'/uav_{uav_id}/force_cmd'
 
 
 def msg_class(msgtype: str) -> Any:
@@ -200,10 +160,12 @@ def freeze_startup_heap() -> None:
     gc.freeze()
 
 
-EXECUTORS = ('single', 'events', 'multi')
+#: the executors a node can spin with (its ``executor`` parameter), and the default
+EXECUTORS = ('events', 'single', 'multi')
+DEFAULT_EXECUTOR = 'events'
 
 
-def spin(node: Node | Sequence[Node], kind: str = 'single') -> None:
+def spin(node: Node | Sequence[Node], kind: str = DEFAULT_EXECUTOR) -> None:
     """Spin ``node`` (or several nodes on one executor) with the chosen executor until
     shutdown or until SIGINT / SIGTERM (:func:`run_nodes`), always between callbacks.
 
@@ -285,7 +247,7 @@ def run_nodes(
             kind = (
                 first.get_parameter('executor').value
                 if first.has_parameter('executor')
-                else 'single'
+                else DEFAULT_EXECUTOR
             )
             spin(nodes, kind)
     except (ApfSwarmError, ParameterException, ValueError) as exc:

@@ -30,6 +30,8 @@ from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from .node_common import DEFAULT_EXECUTOR, EXECUTORS
+
 __all__ = [
     'EXECUTOR_PARAM',
     'MODES',
@@ -134,9 +136,9 @@ class NodeParam:
 #: events is the default: measured here about 1.5x the lockstep steps/s of single
 EXECUTOR_PARAM = NodeParam(
     'executor',
-    'events',
+    DEFAULT_EXECUTOR,
     'executor: events (rclpy.experimental, driven by spin_once), single or multi',
-    choices=('events', 'single', 'multi'),
+    choices=EXECUTORS,
 )
 QOS_DEPTH_PARAM = NodeParam(
     'qos_depth',

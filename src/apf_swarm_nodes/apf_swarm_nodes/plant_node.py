@@ -53,15 +53,13 @@ from .node_common import (
     INPUTS,
     REALTIME_RATE,
     START_QOS,
-    SWARM_START,
-    TARGET_ODOM,
     RejectionLog,
     control_qos,
-    force_topic,
     run_node,
 )
 from .params import NodeParam, declare_swarm_node
 from .plant_outputs import PlantOutputs
+from .topics import SWARM_START, TARGET_ODOM, force_topic
 
 __all__ = ['PlantNode', 'main']
 

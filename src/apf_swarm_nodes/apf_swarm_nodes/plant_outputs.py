@@ -19,17 +19,8 @@ from visualization_msgs.msg import MarkerArray
 from apf_swarm_msgs.msg import SwarmOdometry, SwarmState
 
 from .conversions import clock_msg, markers_msg, odom_msg, swarm_odom_msg, swarm_state_msg
-from .node_common import (
-    CLOCK,
-    CLOCK_QOS,
-    REQUEST_QOS,
-    STATE_QOS,
-    SWARM_MARKERS,
-    SWARM_ODOM,
-    SWARM_STATE,
-    TARGET_REQUEST,
-    odom_topic,
-)
+from .node_common import CLOCK_QOS, REQUEST_QOS, STATE_QOS
+from .topics import CLOCK, SWARM_MARKERS, SWARM_ODOM, SWARM_STATE, TARGET_REQUEST, odom_topic
 
 __all__ = ['PlantOutputs']
 

@@ -15,6 +15,7 @@ from typing import Any
 
 __all__ = [
     'INFINITE',
+    'make_profile',
     'profile_to_dict',
     'qos_from_dict',
     'qos_to_dict',
@@ -97,7 +98,9 @@ def profile_to_dict(q: Any) -> dict[str, Any]:
     }
 
 
-def _profile(reliable: bool, transient_local: bool, depth: int) -> Any:
+def make_profile(*, reliable: bool, transient_local: bool, depth: int) -> Any:
+    """An rclpy keep-last profile: the one place the project builds one (the nodes' profiles
+    per topic, :mod:`.node_common`, and the recorder's and the player's)."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     return QoSProfile(
@@ -114,10 +117,10 @@ def recording_profile(offered: Sequence[Mapping[str, Any]], depth: int) -> Any:
     """The rclpy profile a recorder subscribes with: reliable and transient-local only when
     every offered profile is (a reliable reader matches no best-effort writer), keep last
     ``depth``."""
-    return _profile(
-        all(q.get('reliability') == 'reliable' for q in offered),
-        all(q.get('durability') == 'transient_local' for q in offered),
-        int(depth),
+    return make_profile(
+        reliable=all(q.get('reliability') == 'reliable' for q in offered),
+        transient_local=all(q.get('durability') == 'transient_local' for q in offered),
+        depth=int(depth),
     )
 
 
@@ -126,8 +129,8 @@ def replay_profile(offered: Sequence[Mapping[str, Any]], depth: int) -> Any:
     publisher's reliability and durability (reliable and volatile when the bag recorded
     none), keep last the larger of ``depth`` and its depth."""
     q = offered[0] if offered else {}
-    return _profile(
-        q.get('reliability') != 'best_effort',
-        q.get('durability') == 'transient_local',
-        max(int(depth), int(q.get('depth', 0) or 0)),
+    return make_profile(
+        reliable=q.get('reliability') != 'best_effort',
+        transient_local=q.get('durability') == 'transient_local',
+        depth=max(int(depth), int(q.get('depth', 0) or 0)),
     )

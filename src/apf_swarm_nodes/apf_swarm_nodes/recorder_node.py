@@ -45,6 +45,7 @@ from .qos import profile_to_dict, qos_from_dict, recording_profile
 from .recorder_take import never_called, spin
 from .recording import RecordedTopic, TopicSelection, recording_counts, recording_status
 from .stop_watchdog import NODE_STOP_BOUND, StopWatchdog
+from .topics import PRIVATE_STATUS
 
 __all__ = ['RecorderNode', 'main', 'spin']
 
@@ -134,7 +135,7 @@ class RecorderNode(Node):
         self.topics: dict[str, RecordedTopic] = {}
         self.skipped: dict[str, str] = {}
         self.closed = False
-        self.status_pub = self.create_publisher(String, '~/status', START_QOS)
+        self.status_pub = self.create_publisher(String, PRIVATE_STATUS, START_QOS)
         self.selected.own.add(self.status_pub.topic_name)
         self._last_status = ''
         #: [period, next due (monotonic), what]: run by :func:`~.recorder_take.spin` between waits

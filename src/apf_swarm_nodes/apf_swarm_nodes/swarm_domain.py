@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import time
 from collections.abc import Iterable
 from typing import Any
 
 from .errors import CliError
+from .topics import DISCOVERY_INFO, SWARM_PUBLISHED, UAV_TOPIC
 
 __all__ = [
     'MAX_PARTICIPANTS',
@@ -43,18 +43,6 @@ NETWORK_WATCH = 2.0
 #: every participant there has announced itself again, whatever was lost
 PROBE_TIMEOUT = 4.0
 
-#: topics only a swarm publishes (its nodes, a bring-up, a bag played into the domain):
-#: a publisher of one of them means another swarm; ``/uav_<i>/force_cmd``, ``accel_cmd``,
-#: ``velocity_cmd`` and ``odom`` are matched by pattern
-SWARM_PUBLISHED = (
-    '/swarm/state',
-    '/swarm/odom',
-    '/swarm/start',
-    '/swarm/markers',
-    '/target/odom',
-    '/target/request',
-)
-_UAV_TOPIC = re.compile(r'^/uav_\d+/(force_cmd|accel_cmd|velocity_cmd|odom)$')
 _UNKNOWN_NAME = '_NODE_NAME_UNKNOWN_'
 
 
@@ -143,7 +131,7 @@ def swarm_publishers(
                 if now >= t0 + NETWORK_WATCH:
                     break
             else:
-                seen = node.get_publishers_info_by_topic('ros_discovery_info', no_mangle=True)
+                seen = node.get_publishers_info_by_topic(DISCOVERY_INFO, no_mangle=True)
                 if len(seen) - 1 >= len(others):  # every participant, minus this probe
                     all_seen_at = now if all_seen_at is None else all_seen_at
                     if now >= all_seen_at + settle:
@@ -162,7 +150,7 @@ def _swarm_topics(node: Any) -> list[str]:
     order = {t: k for k, t in enumerate(SWARM_PUBLISHED)}
     found = []
     for topic, _types in node.get_topic_names_and_types():
-        if topic not in order and not _UAV_TOPIC.match(topic):
+        if topic not in order and not UAV_TOPIC.match(topic):
             continue
         pubs = node.get_publishers_info_by_topic(topic)
         if pubs:

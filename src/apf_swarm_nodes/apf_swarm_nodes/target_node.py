@@ -27,12 +27,12 @@ from .conversions import dt_to_ns, odom_msg, step_stamp
 from .node_common import (
     REQUEST_QOS,
     START_QOS,
-    SWARM_START,
     TARGET_LOOKAHEAD,
     control_qos,
     run_node,
 )
 from .params import NodeParam, declare_swarm_node
+from .topics import ODOM, REQUEST, SWARM_START
 
 __all__ = ['TargetNode', 'main']
 
@@ -51,12 +51,12 @@ class TargetNode(Node):
         self.mode = p['mode']
         self.traj = self.cfg.target_trajectory_obj
         self.dt_ns = dt_to_ns(self.cfg.dt)
-        self.pub = self.create_publisher(Odometry, 'odom', control_qos(self.mode, p['qos_depth']))
+        self.pub = self.create_publisher(Odometry, ODOM, control_qos(self.mode, p['qos_depth']))
         self.t0: float | None = None
         self.next_step = 0
         self._msg = None
         if self.mode == 'lockstep':
-            self.create_subscription(UInt64, 'request', self._on_request, REQUEST_QOS)
+            self.create_subscription(UInt64, REQUEST, self._on_request, REQUEST_QOS)
         else:
             if p['wait_for_start']:
                 self.create_subscription(Empty, SWARM_START, self._on_start, START_QOS)

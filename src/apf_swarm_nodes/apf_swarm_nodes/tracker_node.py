@@ -56,14 +56,12 @@ from .conversions import (
 from .node_common import (
     INPUTS,
     REALTIME_RATE,
-    SWARM_ODOM,
-    TARGET_ODOM,
     RejectionLog,
     control_qos,
-    odom_topic,
     run_node,
 )
 from .params import NodeParam, declare_swarm_node, install_validator
+from .topics import ACCEL_CMD, FORCE_CMD, ODOM, SWARM_ODOM, TARGET_ODOM, VELOCITY_CMD, odom_topic
 
 __all__ = ['OUTPUTS', 'TrackerNode', 'main', 'parse_outputs']
 
@@ -140,19 +138,17 @@ class TrackerNode(Node):
         self.dt_ns = dt_to_ns(self.cfg.dt)
         qos = control_qos(self.mode, p['qos_depth'])
         outputs = parse_outputs(p['outputs'])
-        self.pub = self.create_publisher(ForceCommand, 'force_cmd', qos)
+        self.pub = self.create_publisher(ForceCommand, FORCE_CMD, qos)
         self.accel_pub = (
-            self.create_publisher(AccelStamped, 'accel_cmd', qos) if 'accel' in outputs else None
+            self.create_publisher(AccelStamped, ACCEL_CMD, qos) if 'accel' in outputs else None
         )
         self.velocity_pub = (
-            self.create_publisher(TwistStamped, 'velocity_cmd', qos)
+            self.create_publisher(TwistStamped, VELOCITY_CMD, qos)
             if 'velocity' in outputs
             else None
         )
         if p['inputs'] == 'odom':
-            self.create_subscription(
-                Odometry, 'odom', lambda m: self._on_odom(self.uav_id, m), qos
-            )
+            self.create_subscription(Odometry, ODOM, lambda m: self._on_odom(self.uav_id, m), qos)
             for j in self.agent.ids:
                 if j != self.uav_id:
                     self.create_subscription(

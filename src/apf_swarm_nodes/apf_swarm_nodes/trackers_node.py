@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 
 from .node_common import run_nodes
+from .topics import uav_namespace
 from .tracker_node import TrackerNode
 
 __all__ = ['group_main', 'parse_uav_ids']
@@ -56,7 +57,7 @@ def group_main(args: list[str] | None = None) -> None:
 
     def make(i: int) -> TrackerNode:
         node = TrackerNode(
-            namespace=f'/uav_{i}',
+            namespace=uav_namespace(i),
             parameter_overrides=[Parameter('uav_id', value=i)],
             swarm_odom=not lead,
         )

@@ -9,11 +9,11 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import CliError
+from ..topics import SWARM_STATE
 from .info import BagInfo, _read_error, open_bag
 from .types import (
     CUSTOM_CONFIG,
     CUSTOM_MODE,
-    SWARM_STATE_TOPIC,
     SWARM_STATE_TYPE,
     _one_line,
     typestore,
@@ -104,12 +104,10 @@ def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str, *, quiet: bool =
     from ..analysis.samples import StateAccumulator
     from ..progress import progress_iter
 
-    count = info.topic(SWARM_STATE_TOPIC).count
+    count = info.topic(SWARM_STATE).count
     acc = StateAccumulator(mode, cfg.steps, cfg.record_every, swarm_state_decoder())
-    messages = iter_raw(info.path, [SWARM_STATE_TOPIC], info=info)
-    for _topic, _type, _ts, raw in progress_iter(
-        messages, SWARM_STATE_TOPIC, total=count, quiet=quiet
-    ):
+    messages = iter_raw(info.path, [SWARM_STATE], info=info)
+    for _topic, _type, _ts, raw in progress_iter(messages, SWARM_STATE, total=count, quiet=quiet):
         acc.add_raw(raw)
     return acc
 

@@ -24,7 +24,6 @@ CUSTOM_CONFIG = 'apf_swarm.config'  # the run's ROS 2 parameter file (YAML text)
 CUSTOM_MODE = 'apf_swarm.mode'  # lockstep | realtime
 MCAP_METADATA_NAME = 'apf_swarm'
 DEFAULT_CHUNK_SIZE = 1 << 20
-SWARM_STATE_TOPIC = '/swarm/state'
 SWARM_STATE_TYPE = 'apf_swarm_msgs/msg/SwarmState'
 _FILE_RE = re.compile(r'^(?P<stem>.*?)(?:_(?P<index>\d+))?\.mcap$')
 

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import CliError
+from ..topics import PLANT_NODE, TARGET_NAMESPACE, TARGET_NODE, TRACKER_NODE, uav_namespace
 from .processes import PACKAGE
 
 
@@ -56,9 +57,9 @@ def node_commands(
                 '--params-file',
                 cfg,
                 '-r',
-                '__ns:=/target',
+                f'__ns:={TARGET_NAMESPACE}',
                 '-r',
-                '__node:=target',
+                f'__node:={TARGET_NODE}',
                 '-p',
                 f'mode:={mode}',
                 '-p',
@@ -74,7 +75,7 @@ def node_commands(
                 '--params-file',
                 cfg,
                 '-r',
-                '__node:=plant',
+                f'__node:={PLANT_NODE}',
                 '-p',
                 f'mode:={mode}',
                 '-p',
@@ -113,9 +114,9 @@ def node_commands(
                     '--params-file',
                     cfg,
                     '-r',
-                    f'__ns:=/uav_{i}',
+                    f'__ns:={uav_namespace(i)}',
                     '-r',
-                    '__node:=tracker',
+                    f'__node:={TRACKER_NODE}',
                     '-p',
                     f'uav_id:={i}',
                     '-p',

@@ -9,6 +9,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..topics import (
+    CLOCK,
+    SWARM_ODOM,
+    SWARM_STATE,
+    TARGET_ODOM,
+    TARGET_REQUEST,
+    force_topic,
+    odom_topic,
+    swarm_node_names,
+)
+
 # --------------------------------------------------------------------------------------------
 # the graph: what must be there before the start
 # --------------------------------------------------------------------------------------------
@@ -31,9 +42,6 @@ class TopicExpectation:
     optional: bool = False
 
 
-SWARM_ODOM = '/swarm/odom'
-
-
 def expected_graph(
     n: int, mode: str, readers: int | None = None
 ) -> tuple[list[str], list[TopicExpectation]]:
@@ -47,18 +55,18 @@ def expected_graph(
     ``/swarm/state`` subscription are checked on its own endpoints (matched counts), see
     :meth:`Bringup.missing`.
     """
-    nodes = ['/target/target', '/plant'] + [f'/uav_{i}/tracker' for i in range(1, n + 1)]
+    nodes = swarm_node_names(n)
     topics = []
     readers = n if readers is None else readers
     for i in range(1, n + 1):
-        topics.append(TopicExpectation(f'/uav_{i}/odom', 1, readers, or_subscribers_of=SWARM_ODOM))
-        topics.append(TopicExpectation(f'/uav_{i}/force_cmd', 1, 1))
-    topics.append(TopicExpectation('/target/odom', 1, readers + 1, or_subscribers_of=SWARM_ODOM))
+        topics.append(TopicExpectation(odom_topic(i), 1, readers, or_subscribers_of=SWARM_ODOM))
+        topics.append(TopicExpectation(force_topic(i), 1, 1))
+    topics.append(TopicExpectation(TARGET_ODOM, 1, readers + 1, or_subscribers_of=SWARM_ODOM))
     topics.append(TopicExpectation(SWARM_ODOM, 1, 0, optional=True))
     if mode == 'lockstep':
-        topics.append(TopicExpectation('/clock', 1, 0))
-        topics.append(TopicExpectation('/target/request', 1, 1))
-    topics.append(TopicExpectation('/swarm/state', 1, 1))
+        topics.append(TopicExpectation(CLOCK, 1, 0))
+        topics.append(TopicExpectation(TARGET_REQUEST, 1, 1))
+    topics.append(TopicExpectation(SWARM_STATE, 1, 1))
     return nodes, topics
 
 
@@ -105,7 +113,6 @@ def graph_missing(
     return out
 
 
-RECORDER_STATUS = '/recorder/status'
 #: the recorder drains its queues and writes the MCAP summary after SIGINT
 RECORDER_STOP_SEQUENCE = ((signal.SIGINT, 20.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0))
 

@@ -15,8 +15,8 @@ from apf_swarm_core.config import (
 )
 
 from ..analysis.samples import StateAccumulator
+from ..topics import RECORDER_NODE, RECORDER_STATUS
 from .graph import (
-    RECORDER_STATUS,
     expected_graph,
     graph_missing,
     input_readers,
@@ -68,7 +68,8 @@ class GraphWatch:
         from apf_swarm_msgs.msg import SwarmState
 
         from ..dds import own_participant
-        from ..node_common import START_QOS, STATE_QOS, SWARM_START, SWARM_STATE
+        from ..node_common import START_QOS, STATE_QOS
+        from ..topics import SWARM_START, SWARM_STATE
 
         # its own command line is not ROS arguments (--node-param NAME:=VALUE would read as
         # a deprecated remapping rule)
@@ -112,7 +113,7 @@ class GraphWatch:
             input_readers(self.n, self.mode, self.args.trackers_per_process, self.node_params),
         )
         if self.args.record:
-            nodes = [*nodes, '/recorder']
+            nodes = [*nodes, f'/{RECORDER_NODE}']
         counts = {
             t.topic: (node.count_publishers(t.topic), node.count_subscribers(t.topic))
             for t in topics

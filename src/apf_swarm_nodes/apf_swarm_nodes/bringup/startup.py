@@ -14,6 +14,7 @@ from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import to_ros_params
 
 from ..errors import CliError
+from ..topics import RECORDER_NODE
 from .commands import executable_path, node_commands, node_netns, package_prefix
 from .isolation import env_domain, pick_domain_id
 from .processes import Child, ProcessGroup
@@ -151,7 +152,7 @@ class Startup:
                     str(executable_path(self.prefix, 'recorder')),
                     '--ros-args',
                     '-r',
-                    '__node:=recorder',
+                    f'__node:={RECORDER_NODE}',
                     '-p',
                     f'mode:={self.mode}',
                     '-p',

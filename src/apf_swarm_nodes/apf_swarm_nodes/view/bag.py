@@ -23,14 +23,14 @@ def bag_samples(info: Any) -> list[tuple[int, RawSample]]:
     bytes, decoded by rosbags only when a frame shows them."""
     from ..bags import iter_raw
     from ..bags.read import swarm_state_decoder
-    from ..bags.types import SWARM_STATE_TOPIC
     from ..conversions import swarm_state_step
+    from ..topics import SWARM_STATE
 
-    info.topic(SWARM_STATE_TOPIC)  # CliError naming the topic when the bag has none
+    info.topic(SWARM_STATE)  # CliError naming the topic when the bag has none
     decode = swarm_state_decoder()
     return [
         (ts, RawSample(swarm_state_step(raw), raw, decode))
-        for _topic, _type, ts, raw in iter_raw(info.path, [SWARM_STATE_TOPIC], info=info)
+        for _topic, _type, ts, raw in iter_raw(info.path, [SWARM_STATE], info=info)
     ]
 
 
@@ -56,8 +56,8 @@ def live_view_of_bag(
     it keeps the newest ``/swarm/state``, which the view shows (decoded only while a
     client watches)."""
     from ..bags.read import swarm_state_decoder
-    from ..bags.types import SWARM_STATE_TOPIC
     from ..conversions import swarm_state_step
+    from ..topics import SWARM_STATE
 
     view = LiveView(host=host, port=port)
     view.builder.designs = _designs(info, config, lambda m: print(m, file=sys.stderr))
@@ -65,7 +65,7 @@ def live_view_of_bag(
     newest: list[RawSample | None] = [None]
 
     def observe(topic: str, raw: bytes) -> None:
-        if topic == SWARM_STATE_TOPIC:
+        if topic == SWARM_STATE:
             newest[0] = RawSample(swarm_state_step(raw), raw, decode)
 
     view.follow(lambda: newest[0])

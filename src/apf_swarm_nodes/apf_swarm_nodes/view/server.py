@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from ..analysis.samples import RawSample
 from ..errors import CliError
+from ..topics import FOXGLOVE_FRAMES, FOXGLOVE_METRICS, FOXGLOVE_SCENE
 from .scene import SceneBuilder
 
 __all__ = ['DEFAULT_PORT', 'VIEW_RATE', 'LiveView', 'foxglove_url']
@@ -28,10 +29,6 @@ __all__ = ['DEFAULT_PORT', 'VIEW_RATE', 'LiveView', 'foxglove_url']
 DEFAULT_PORT = 8765
 #: frames per second the view sends at most
 VIEW_RATE = 20.0
-
-SCENE_TOPIC = '/swarm/scene'
-FRAMES_TOPIC = '/swarm/frames'
-METRICS_TOPIC = '/swarm/metrics'
 
 
 def foxglove_url(host: str, port: int) -> str:
@@ -69,9 +66,9 @@ class LiveView:
             ) from None
         self.host = host
         self.port = int(self.server.port)
-        self.scene_ch = SceneUpdateChannel(SCENE_TOPIC)
-        self.frames_ch = FrameTransformChannel(FRAMES_TOPIC)
-        self.metrics_ch = foxglove.Channel(METRICS_TOPIC, message_encoding='json')
+        self.scene_ch = SceneUpdateChannel(FOXGLOVE_SCENE)
+        self.frames_ch = FrameTransformChannel(FOXGLOVE_FRAMES)
+        self.metrics_ch = foxglove.Channel(FOXGLOVE_METRICS, message_encoding='json')
         self.frames = 0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
