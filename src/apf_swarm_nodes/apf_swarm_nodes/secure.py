@@ -1,0 +1,604 @@
+"""A multi-host run that admits only its own hosts: Fast DDS over TCP with TLS, both sides
+verified, nothing else (``apf-swarm up --discovery-range SUBNET --secure``; the default of
+``scripts/multihost.py``). docs/RELIABILITY.md, "Multi-host runs: threat model", says what
+it protects and what not.
+
+**The run's authority.** :func:`make_pki` makes a certificate authority for the run and a
+certificate and key per host (``cryptography``; EC P-256, ECDSA-SHA256). The authority's
+key lives in memory only and is dropped once the hosts' certificates are signed: nobody,
+not even the bring-up, can admit another host to the run afterwards. Keys are written
+mode 0600 and removed at the run's end unless kept (:func:`remove_keys`).
+
+**The profile.** :func:`profile_xml`: one TCPv4 transport with a ``<tls>`` block (the
+run's CA, the host's certificate and key, ``VERIFY_PEER``), no builtin transport (no UDP,
+no shared memory), and discovery through a Fast DDS discovery server over that same
+transport: the bring-up's own participant is the server (its profile:
+``fastdds_secure_server.xml``, a fixed TCP port), every node a super client that listens
+on a port of the system's choosing. Simple discovery cannot work over TCP here: a
+participant only learns the participants it has connected to, and the node processes of a
+host cannot share one listening port.
+
+**Why an OpenSSL configuration too.** The TLS transport of Fast DDS 2.14 (these wheels)
+never asks a connecting peer for its certificate: the acceptor's handshake runs on a
+context whose verify mode the profile's ``<verify_mode>`` never reaches (it is applied to
+the socket after the handshake), so *anyone* that speaks TLS is accepted, with no
+certificate, a self-signed one or one from another authority
+(``test/integration/test_secure_transport.py`` shows it). The connecting side does verify
+the server. :func:`openssl_conf` sets the verify mode of every TLS context the process's
+OpenSSL makes, through OpenSSL's own configuration (``OPENSSL_CONF``, section
+``system_default``: ``VerifyMode = Peer,Require``, ``MinProtocol = TLSv1.2``): the acceptor
+then requests a certificate and refuses a connection without one signed by the run's CA.
+A process of the run therefore needs both variables (:func:`secure_environment`), and the
+bring-up checks, before it starts any node, that its own listening port refuses a TLS
+client without a certificate (:func:`check_refuses`).
+
+``python -m apf_swarm_nodes.secure check DIR/dds/HOST`` checks a host's files before it
+joins; ``python -m apf_swarm_nodes.secure env DIR/dds/HOST`` prints its environment.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import datetime as dt
+import os
+import socket
+import ssl
+import stat
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import CliError
+
+__all__ = [
+    'CA_FILE',
+    'CERT_FILE',
+    'KEY_FILE',
+    'OPENSSL_FILE',
+    'PROFILE_FILE',
+    'SERVER_PROFILE',
+    'HostFiles',
+    'Pki',
+    'check_files',
+    'check_refuses',
+    'make_pki',
+    'openssl_conf',
+    'profile_xml',
+    'remove_keys',
+    'secure_environment',
+    'server_port',
+    'write_run_files',
+]
+
+#: the files of a run's security, under DIR/dds/: the authority's certificate and the
+#: OpenSSL configuration, shared; per host (DIR/dds/HOST/): its certificate, key, profile
+CA_FILE, OPENSSL_FILE = 'ca.pem', 'openssl.cnf'
+CERT_FILE, KEY_FILE, PROFILE_FILE = 'cert.pem', 'key.pem', 'fastdds_secure.xml'
+#: the bring-up's own participant: the discovery server
+SERVER_PROFILE = 'fastdds_secure_server.xml'
+#: the discovery server's TCP port is this plus the domain id
+SERVER_PORT_BASE = 20000
+#: how long a run's certificates are valid, and how far back (hosts' clocks differ)
+VALIDITY = dt.timedelta(days=7)
+BACKDATE = dt.timedelta(minutes=10)
+#: the Fast DDS transport id in the profile
+TRANSPORT_ID = 'apf_swarm_tls'
+
+
+def server_port(domain: int) -> int:
+    """The discovery server's TCP port on the bring-up's host for ``domain``."""
+    return SERVER_PORT_BASE + domain
+
+
+# --------------------------------------------------------------------------------------------
+# the run's authority
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class HostFiles:
+    """A host's files: certificate, key and profile (under DIR/dds/HOST/)."""
+
+    name: str
+    cert: Path
+    key: Path
+    profile: Path
+
+
+@dataclass(frozen=True)
+class Pki:
+    """A run's authority certificate, OpenSSL configuration and hosts (by name)."""
+
+    ca: Path
+    openssl: Path
+    hosts: dict[str, HostFiles]
+    server_profile: Path
+
+
+def _name(common_name: str) -> object:
+    from cryptography import x509
+    from cryptography.x509.oid import NameOID
+
+    return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
+
+
+def _write_private(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` readable by its owner only (created 0600, never wider)."""
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, 'wb') as f:
+        f.write(data)
+
+
+def make_pki(
+    directory: Path,
+    hosts: Sequence[str],
+    *,
+    run: str = 'apf_swarm',
+    now: dt.datetime | None = None,
+    validity: dt.timedelta = VALIDITY,
+) -> dict[str, tuple[Path, Path]]:
+    """A certificate authority for a run (``directory``/ca.pem; its key is never written)
+    and a certificate and key per host (``directory``/HOST/cert.pem, key.pem, mode 0600),
+    valid from ``now`` - :data:`BACKDATE` for ``validity``. Returns {host: (cert, key)}."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    if len(set(hosts)) != len(hosts) or not hosts:
+        raise ValueError(f'hosts must be distinct and at least one: {hosts}')
+    now = now or dt.datetime.now(dt.UTC)
+    start, end = now - BACKDATE, now + validity
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca_name = _name(f'{run} run authority')
+    ca_cert = (
+        x509.CertificateBuilder()
+        .subject_name(ca_name)  # type: ignore[arg-type]
+        .issuer_name(ca_name)  # type: ignore[arg-type]
+        .public_key(ca_key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(start)
+        .not_valid_after(end)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=False,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                key_cert_sign=True,
+                crl_sign=True,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key()), False)
+        .sign(ca_key, hashes.SHA256())
+    )
+    (directory / CA_FILE).write_bytes(ca_cert.public_bytes(serialization.Encoding.PEM))
+    out = {}
+    for host in hosts:
+        key = ec.generate_private_key(ec.SECP256R1())
+        cert = (
+            x509.CertificateBuilder()
+            .subject_name(_name(f'{run} {host}'))  # type: ignore[arg-type]
+            .issuer_name(ca_name)  # type: ignore[arg-type]
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(start)
+            .not_valid_after(end)
+            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+            .add_extension(
+                x509.ExtendedKeyUsage(
+                    [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
+                ),
+                critical=False,
+            )
+            .add_extension(x509.SubjectAlternativeName([x509.DNSName(host)]), critical=False)
+            .add_extension(
+                x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), False
+            )
+            .sign(ca_key, hashes.SHA256())
+        )
+        where = directory / host
+        where.mkdir(parents=True, exist_ok=True)
+        (where / CERT_FILE).write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+        _write_private(
+            where / KEY_FILE,
+            key.private_bytes(
+                serialization.Encoding.PEM,
+                serialization.PrivateFormat.PKCS8,
+                serialization.NoEncryption(),
+            ),
+        )
+        out[host] = (where / CERT_FILE, where / KEY_FILE)
+    del ca_key  # the authority signs nothing more
+    return out
+
+
+def remove_keys(directory: Path) -> list[Path]:
+    """Remove every host key under ``directory`` (DIR/dds/); returns those removed."""
+    removed = []
+    for key in sorted(Path(directory).glob(f'*/{KEY_FILE}')):
+        with contextlib.suppress(FileNotFoundError):
+            key.unlink()
+            removed.append(key)
+    return removed
+
+
+# --------------------------------------------------------------------------------------------
+# bad input
+# --------------------------------------------------------------------------------------------
+
+_AGAIN = 'start the run again (it issues new ones), or copy them again from its DIR/dds/'
+
+
+def _load_cert(path: Path, what: str) -> object:
+    from cryptography import x509
+
+    if not path.is_file():
+        raise CliError(f'{path}: {what} missing; {_AGAIN}')
+    try:
+        return x509.load_pem_x509_certificate(path.read_bytes())
+    except (ValueError, OSError) as exc:
+        raise CliError(f'{path}: not a PEM certificate ({exc}); {_AGAIN}') from exc
+
+
+def _check_dates(cert: object, path: Path, now: dt.datetime) -> None:
+    start = cert.not_valid_before_utc  # type: ignore[attr-defined]
+    end = cert.not_valid_after_utc  # type: ignore[attr-defined]
+    if now >= end:
+        raise CliError(f'{path}: certificate expired at {end:%Y-%m-%d %H:%M} UTC; {_AGAIN}')
+    if now < start:
+        raise CliError(
+            f'{path}: certificate not valid before {start:%Y-%m-%d %H:%M} UTC (is this '
+            "host's clock right?); set the clock, or " + _AGAIN
+        )
+
+
+def check_files(ca: Path, cert: Path, key: Path, *, now: dt.datetime | None = None) -> None:
+    """CliError, naming the file and what to do, unless ``cert`` is a current certificate
+    signed by the current authority ``ca``, ``key`` its private key, readable by its owner
+    only."""
+    from cryptography.exceptions import InvalidSignature
+    from cryptography.hazmat.primitives import serialization
+
+    now = now or dt.datetime.now(dt.UTC)
+    ca, cert, key = Path(ca), Path(cert), Path(key)
+    ca_cert = _load_cert(ca, "the run's authority certificate")
+    _check_dates(ca_cert, ca, now)
+    host_cert = _load_cert(cert, "the host's certificate")
+    _check_dates(host_cert, cert, now)
+    try:
+        host_cert.verify_directly_issued_by(ca_cert)  # type: ignore[attr-defined]
+    except (ValueError, TypeError, InvalidSignature) as exc:
+        raise CliError(
+            f"{cert}: not issued by the run's authority {ca} (a certificate of another "
+            f'run?); {_AGAIN}'
+        ) from exc
+    if not key.is_file():
+        raise CliError(f'{key}: private key missing (removed at the run end?); {_AGAIN}')
+    mode = stat.S_IMODE(key.stat().st_mode)
+    if mode & 0o077:
+        raise CliError(
+            f'{key}: private key readable by others (mode {mode:04o}); '
+            f'`chmod 600 {key}`, and start a new run if others may have read it'
+        )
+    try:
+        private = serialization.load_pem_private_key(key.read_bytes(), password=None)
+    except (ValueError, TypeError, OSError) as exc:
+        raise CliError(f'{key}: not an unencrypted PEM private key ({exc}); {_AGAIN}') from exc
+    pem = serialization.Encoding.PEM
+    spki = serialization.PublicFormat.SubjectPublicKeyInfo
+    if private.public_key().public_bytes(pem, spki) != host_cert.public_key().public_bytes(  # type: ignore[attr-defined]
+        pem, spki
+    ):
+        raise CliError(f'{key}: not the key of the certificate {cert} (mismatched); {_AGAIN}')
+
+
+# --------------------------------------------------------------------------------------------
+# the profile and the OpenSSL configuration
+# --------------------------------------------------------------------------------------------
+
+
+def openssl_conf() -> str:
+    """The OpenSSL configuration of a run's processes: every TLS context verifies its peer
+    and, when it accepts, requires a certificate (the module's docstring says why)."""
+    return '\n'.join(
+        [
+            '# apf_swarm, written by apf_swarm_nodes.secure: every TLS context of the',
+            "# process verifies its peer and requires the peer's certificate (Fast DDS 2.14",
+            "# does not apply the profile's verify mode to the connections it accepts)",
+            'openssl_conf = apf_swarm_init',
+            '',
+            '[apf_swarm_init]',
+            'ssl_conf = apf_swarm_ssl',
+            '',
+            '[apf_swarm_ssl]',
+            'system_default = apf_swarm_tls',
+            '',
+            '[apf_swarm_tls]',
+            'VerifyMode = Peer,Require',
+            'MinProtocol = TLSv1.2',
+            '',
+        ]
+    )
+
+
+def _duration(seconds: float) -> str:
+    sec = int(seconds)
+    return f'<sec>{sec}</sec><nanosec>{round((seconds - sec) * 1e9)}</nanosec>'
+
+
+def server_prefix(run: str) -> str:
+    """The discovery server's GUID prefix (12 bytes, dotted hex) of the run ``run``."""
+    import hashlib
+
+    return '.'.join(f'{b:02x}' for b in hashlib.sha256(run.encode()).digest()[:12])
+
+
+def profile_xml(
+    *,
+    ca: Path,
+    cert: Path,
+    key: Path,
+    server: tuple[str, int],
+    prefix: str,
+    is_server: bool = False,
+    participants: int = 32,
+) -> str:
+    """The Fast DDS profile of a host of a secure run (``is_server``: the bring-up's own
+    participant, the discovery server, listening on ``server``'s port): TCPv4 with TLS
+    only, discovery through the server at ``server`` (address, port) whose GUID prefix is
+    ``prefix``."""
+    from .dds import LEASE_ANNOUNCEMENT, LEASE_DURATION, discovery_timing
+
+    period, _, _ = discovery_timing(participants)
+    address, port = server
+    locator = (
+        f'<locator><tcpv4><address>{address}</address><physical_port>{port}</physical_port>'
+        f'<port>{port}</port></tcpv4></locator>'
+    )
+    tls = [
+        '<tls>',
+        f'  <private_key_file>{Path(key).resolve()}</private_key_file>',
+        f'  <cert_chain_file>{Path(cert).resolve()}</cert_chain_file>',
+        f'  <verify_file>{Path(ca).resolve()}</verify_file>',
+        # Fast DDS applies the first of these only, to the connections it makes; the
+        # ones it accepts are verified by OpenSSL's configuration (openssl_conf)
+        (
+            '  <verify_mode><verify>VERIFY_PEER</verify>'
+            '<verify>VERIFY_FAIL_IF_NO_PEER_CERT</verify></verify_mode>'
+        ),
+        (
+            '  <options><option>DEFAULT_WORKAROUNDS</option><option>NO_COMPRESSION</option>'
+            '<option>NO_SSLV2</option><option>NO_SSLV3</option><option>NO_TLSV1</option>'
+            '<option>NO_TLSV1_1</option></options>'
+        ),
+        '  <handshake_role>DEFAULT</handshake_role>',
+        '</tls>',
+    ]
+    transports = [
+        '<transport_descriptors>',
+        '  <transport_descriptor>',
+        f'    <transport_id>{TRANSPORT_ID}</transport_id>',
+        '    <type>TCPv4</type>',
+        # the server on its known port; a node on one the system picks (announced)
+        f'    <listening_ports><port>{port if is_server else 0}</port></listening_ports>',
+        '    <enable_tcp_nodelay>true</enable_tcp_nodelay>',
+        *(f'    {line}' for line in tls),
+        '  </transport_descriptor>',
+        '</transport_descriptors>',
+    ]
+    timing = [
+        f'<leaseDuration>{_duration(LEASE_DURATION)}</leaseDuration>',
+        f'<leaseAnnouncement>{_duration(LEASE_ANNOUNCEMENT)}</leaseAnnouncement>',
+        f'<clientAnnouncementPeriod>{_duration(period)}</clientAnnouncementPeriod>',
+    ]
+    if is_server:
+        builtin = [
+            '<discovery_config>',
+            '  <discoveryProtocol>SERVER</discoveryProtocol>',
+            *(f'  {line}' for line in timing),
+            '</discovery_config>',
+            f'<metatrafficUnicastLocatorList>{locator}</metatrafficUnicastLocatorList>',
+        ]
+    else:
+        builtin = [
+            '<discovery_config>',
+            # a super client learns the whole graph (the bring-up's checks, viewers)
+            '  <discoveryProtocol>SUPER_CLIENT</discoveryProtocol>',
+            *(f'  {line}' for line in timing),
+            '  <discoveryServersList>',
+            f'    <RemoteServer prefix="{prefix}">',
+            f'      <metatrafficUnicastLocatorList>{locator}</metatrafficUnicastLocatorList>',
+            '    </RemoteServer>',
+            '  </discoveryServersList>',
+            '</discovery_config>',
+        ]
+    rtps = [
+        *([f'<prefix>{prefix}</prefix>'] if is_server else []),
+        f'<userTransports><transport_id>{TRANSPORT_ID}</transport_id></userTransports>',
+        '<useBuiltinTransports>false</useBuiltinTransports>',
+        '<builtin>',
+        *(f'  {line}' for line in builtin),
+        '</builtin>',
+    ]
+    what = 'discovery server' if is_server else 'node'
+    lines = [
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        (
+            f'<!-- apf_swarm, secure multi-host run ({what}): TCPv4 with TLS only, peers '
+            "verified against the run's authority; written by apf_swarm_nodes.secure. Use "
+            f'with OPENSSL_CONF={Path(ca).resolve().parent / OPENSSL_FILE} -->'
+        ),
+        '<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">',
+        '  <profiles>',
+        *(f'    {line}' for line in transports),
+        '    <participant profile_name="apf_swarm_secure" is_default_profile="true">',
+        '      <rtps>',
+        *(f'        {line}' for line in rtps),
+        '      </rtps>',
+        '    </participant>',
+        '  </profiles>',
+        '</dds>',
+    ]
+    return '\n'.join(lines) + '\n'
+
+
+def secure_environment(profile: Path, openssl: Path) -> dict[str, str]:
+    """The variables a process of a secure run needs (with ``ROS_DOMAIN_ID``; no
+    ``ROS_STATIC_PEERS`` / ``ROS_DISCOVERY_SERVER``, which would add UDP)."""
+    from .dds import PROFILE_VARIABLES
+
+    env = dict.fromkeys(PROFILE_VARIABLES, str(Path(profile).resolve()))
+    env['OPENSSL_CONF'] = str(Path(openssl).resolve())
+    # SUBNET: the one range in which rmw adds no transport of its own to the profile's
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
+    return env
+
+
+#: what a secure run does not take from the environment: each would add UDP
+NOT_SECURE = ('ROS_STATIC_PEERS', 'ROS_DISCOVERY_SERVER', 'ROS_SUPER_CLIENT',
+              'FASTDDS_BUILTIN_TRANSPORTS', 'ROS_LOCALHOST_ONLY')  # fmt: skip
+
+
+def write_run_files(
+    directory: Path,
+    hosts: Sequence[str],
+    server_host: str,
+    server: tuple[str, int],
+    *,
+    run: str,
+    participants: int,
+) -> Pki:
+    """Everything a secure run needs under ``directory`` (DIR/dds/): the authority, each
+    host's certificate, key and profile, the server's profile (``server_host``'s files),
+    the OpenSSL configuration; each host's files checked (:func:`check_files`)."""
+    directory = Path(directory).resolve()
+    issued = make_pki(directory, list(hosts), run=run)
+    ca = directory / CA_FILE
+    openssl = directory / OPENSSL_FILE
+    openssl.write_text(openssl_conf())
+    prefix = server_prefix(run)
+    files = {}
+    for host, (cert, key) in issued.items():
+        profile = directory / host / PROFILE_FILE
+        profile.write_text(
+            profile_xml(
+                ca=ca, cert=cert, key=key, server=server, prefix=prefix, participants=participants
+            )
+        )
+        files[host] = HostFiles(host, cert, key, profile)
+    cert, key = issued[server_host]
+    server_profile = directory / SERVER_PROFILE
+    server_profile.write_text(
+        profile_xml(
+            ca=ca,
+            cert=cert,
+            key=key,
+            server=server,
+            prefix=prefix,
+            is_server=True,
+            participants=participants,
+        )
+    )
+    for f in files.values():
+        check_files(ca, f.cert, f.key)
+    return Pki(ca, openssl, files, server_profile)
+
+
+# --------------------------------------------------------------------------------------------
+# the self-check
+# --------------------------------------------------------------------------------------------
+
+
+def tls_admits(address: str, port: int, *, cert: Path | None = None, key: Path | None = None,
+               timeout: float = 5.0) -> bool:  # fmt: skip
+    """Whether the TLS server at ``address``:``port`` completes a TLS 1.2 handshake with a
+    client that presents ``cert``/``key`` (None: no certificate) and does not verify the
+    server. TLS 1.2, so that the server's verdict on the client's certificate arrives
+    within the handshake."""
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.check_hostname = False
+    ctx.verify_mode = ssl.CERT_NONE
+    ctx.maximum_version = ssl.TLSVersion.TLSv1_2
+    if cert is not None:
+        ctx.load_cert_chain(str(cert), str(key) if key is not None else None)
+    with socket.create_connection((address, port), timeout=timeout) as raw:
+        try:
+            with ctx.wrap_socket(raw) as tls:
+                tls.do_handshake()
+        except (ssl.SSLError, ConnectionError):
+            return False
+    return True
+
+
+def check_refuses(address: str, port: int, *, timeout: float = 10.0) -> None:
+    """CliError unless the TLS server at ``address``:``port`` (the bring-up's own) refuses
+    a client without a certificate; waits up to ``timeout`` s for it to listen."""
+    import time
+
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            admitted = tls_admits(address, port)
+            break
+        except OSError as exc:
+            if time.monotonic() > end:
+                raise CliError(
+                    f'--secure: the discovery server {address}:{port} does not answer ({exc}); '
+                    'another process holds the port? choose another --domain-id'
+                ) from exc
+            time.sleep(0.1)
+    if admitted:
+        raise CliError(
+            f'--secure: the TLS port {address}:{port} admitted a client without a '
+            "certificate: this OpenSSL ignores the run's configuration (OPENSSL_CONF); "
+            'nothing was started. Run without --secure only on a network you trust'
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# python -m apf_swarm_nodes.secure
+# --------------------------------------------------------------------------------------------
+
+
+def main(argv: Sequence[str] | None = None, environ: Mapping[str, str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog='python -m apf_swarm_nodes.secure',
+        description="A secure run's host files (DIR/dds/HOST/): check them, or print the "
+        'environment a process on that host needs: eval "$(python -m apf_swarm_nodes.secure '
+        'env DIR/dds/HOST)"',
+    )
+    p.add_argument('action', choices=('check', 'env'))
+    p.add_argument('host_dir', type=Path, help='DIR/dds/HOST of a secure run')
+    args = p.parse_args(argv)
+    d = args.host_dir.resolve()
+    try:
+        check_files(d.parent / CA_FILE, d / CERT_FILE, d / KEY_FILE)
+        for needed in (d / PROFILE_FILE, d.parent / OPENSSL_FILE):
+            if not needed.is_file():
+                raise CliError(f'{needed}: missing; {_AGAIN}')
+    except CliError as exc:
+        print(f'apf-swarm: error: {exc}', file=sys.stderr)
+        return 2
+    if args.action == 'check':
+        print(f'{d}: ok')
+        return 0
+    for k, v in secure_environment(d / PROFILE_FILE, d.parent / OPENSSL_FILE).items():
+        print(f'export {k}={v}')
+    print(f'unset {" ".join(NOT_SECURE)}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,113 @@
+"""A secure run's files (apf_swarm_nodes.secure): the authority and host certificates, the
+profile, and bad input (missing, expired, mismatched, another run's, a key others can read)
+named with its file and what to do."""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+import stat
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+from apf_swarm_nodes.errors import CliError
+
+from apf_swarm_nodes import secure
+
+NS = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
+
+
+@pytest.fixture
+def pki(tmp_path: Path) -> secure.Pki:
+    return secure.write_run_files(
+        tmp_path / 'dds', ['h1', 'h2'], 'h1', ('10.0.0.1', 20007), run='r', participants=6
+    )
+
+
+def test_files_keys_private_and_authority_key_never_written(pki: secure.Pki) -> None:
+    d = pki.ca.parent
+    assert sorted(p.name for p in d.iterdir()) == sorted(
+        ['ca.pem', 'openssl.cnf', 'fastdds_secure_server.xml', 'h1', 'h2']
+    )
+    for host in pki.hosts.values():
+        assert stat.S_IMODE(host.key.stat().st_mode) == 0o600
+        assert sorted(p.name for p in host.key.parent.iterdir()) == [
+            'cert.pem',
+            'fastdds_secure.xml',
+            'key.pem',
+        ]
+    # the only private keys on disk are the hosts'
+    keys = [p for p in d.rglob('*') if p.is_file() and b'PRIVATE KEY' in p.read_bytes()]
+    assert sorted(keys) == sorted(h.key for h in pki.hosts.values())
+    assert secure.remove_keys(d) == sorted(h.key for h in pki.hosts.values())
+    assert not any(h.key.exists() for h in pki.hosts.values())
+
+
+def test_profile_is_tls_over_tcp_only(pki: secure.Pki) -> None:
+    for path, server in ((pki.hosts['h2'].profile, False), (pki.server_profile, True)):
+        root = ET.parse(path).getroot()
+        descriptors = root.findall(f'.//{NS}transport_descriptor')
+        assert len(descriptors) == 1
+        assert descriptors[0].findtext(f'{NS}type') == 'TCPv4'
+        tls = descriptors[0].find(f'{NS}tls')
+        assert tls is not None
+        assert tls.findtext(f'{NS}verify_file') == str(pki.ca)
+        assert 'VERIFY_PEER' in [v.text for v in tls.iter(f'{NS}verify')]
+        assert tls.find(f'{NS}password') is None  # an empty one breaks the parsing
+        assert root.findtext(f'.//{NS}useBuiltinTransports') == 'false'
+        protocol = root.findtext(f'.//{NS}discoveryProtocol')
+        assert protocol == ('SERVER' if server else 'SUPER_CLIENT')
+        port = root.findtext(f'.//{NS}listening_ports/{NS}port')
+        assert port == ('20007' if server else '0')
+    assert 'VerifyMode = Peer,Require' in pki.openssl.read_text()
+    env = secure.secure_environment(pki.hosts['h2'].profile, pki.openssl)
+    assert env['OPENSSL_CONF'] == str(pki.openssl)
+    assert env['FASTRTPS_DEFAULT_PROFILES_FILE'] == str(pki.hosts['h2'].profile)
+
+
+def check(pki: secure.Pki, host: str = 'h2', **kw: object) -> str:
+    h = pki.hosts[host]
+    with pytest.raises(CliError) as err:
+        secure.check_files(pki.ca, h.cert, h.key, **kw)  # type: ignore[arg-type]
+    return str(err.value)
+
+
+def test_bad_input_names_the_file_and_the_fix(pki: secure.Pki, tmp_path: Path) -> None:
+    h2 = pki.hosts['h2']
+    secure.check_files(pki.ca, h2.cert, h2.key)  # fine as written
+    later = dt.datetime.now(dt.UTC) + secure.VALIDITY + dt.timedelta(hours=1)
+    msg = check(pki, now=later)
+    assert str(pki.ca) in msg and 'expired' in msg and 'start the run again' in msg
+    earlier = dt.datetime.now(dt.UTC) - dt.timedelta(days=1)
+    assert 'not valid before' in check(pki, now=earlier)
+    # another run's certificate
+    other = secure.make_pki(tmp_path / 'other', ['h2'], run='other')['h2']
+    with pytest.raises(CliError, match="not issued by the run's authority") as err:
+        secure.check_files(pki.ca, other[0], other[1])
+    assert str(other[0]) in str(err.value)
+    # a key that is not the certificate's
+    with pytest.raises(CliError, match='mismatched') as err:
+        secure.check_files(pki.ca, h2.cert, pki.hosts['h1'].key)
+    assert str(pki.hosts['h1'].key) in str(err.value)
+    # a key others can read
+    h2.key.chmod(0o644)
+    msg = check(pki)
+    assert f'chmod 600 {h2.key}' in msg and '0644' in msg
+    h2.key.chmod(0o600)
+    # missing files
+    os.unlink(h2.key)
+    assert f'{h2.key}: private key missing' in check(pki)
+    os.unlink(h2.cert)
+    assert f"{h2.cert}: the host's certificate missing" in check(pki)
+
+
+def test_check_command(pki: secure.Pki, capsys: pytest.CaptureFixture[str]) -> None:
+    d = pki.hosts['h2'].cert.parent
+    assert secure.main(['check', str(d)]) == 0
+    assert secure.main(['env', str(d)]) == 0
+    out = capsys.readouterr().out
+    assert f'export OPENSSL_CONF={pki.openssl}' in out
+    pki.hosts['h2'].key.chmod(0o640)
+    assert secure.main(['check', str(d)]) == 2
+    assert 'chmod 600' in capsys.readouterr().err
