@@ -258,11 +258,11 @@ def _rows(rows: Rows, n: int) -> tuple[NDArray[np.int64], bool]:
 
 
 def _no_mask(m: int, n: int) -> NDArray[np.bool_]:
-    """The empty mask (0, m, n) of 'every other tracker' (read-only, shared)."""
+    """The empty mask (0, m, n) of 'every other tracker' (shared; it has no element to
+    write, and a writeable array keeps the kernels' one compiled signature)."""
     out = _NO_MASK.get((m, n))
     if out is None:
         out = _NO_MASK[m, n] = np.zeros((0, m, n), dtype=np.bool_)
-        out.flags.writeable = False
     return out
 
 
@@ -297,22 +297,33 @@ def kernel_args(
             )
     arrays = [np.asarray(v, dtype=np.float64) for v in gains]
     mk = None if mask is None else np.asarray(mask, dtype=np.bool_)
-    lead = np.broadcast_shapes(
-        x.shape[:-2],
-        tx.shape[:-1],
-        *(v.shape for v in arrays),
-        () if mk is None or mk.ndim <= 2 else mk.shape[:-2],
-    )
+    lead = x.shape[:-2]
+    if (
+        tx.shape[:-1] != lead
+        or any(v.ndim and v.shape != lead for v in arrays)
+        or (mk is not None and mk.ndim > 2 and mk.shape[:-2] != lead)
+    ):  # broadcast every run axis together (the arrays' own shapes are the usual case)
+        lead = np.broadcast_shapes(
+            lead,
+            tx.shape[:-1],
+            *(v.shape for v in arrays),
+            () if mk is None or mk.ndim <= 2 else mk.shape[:-2],
+        )
+        x = np.broadcast_to(x, (*lead, n, 3))
+        tx = np.broadcast_to(tx, (*lead, 3))
+        arrays = [v if not v.ndim else np.broadcast_to(v, lead) for v in arrays]
+        if mk is not None and mk.ndim > 2:
+            mk = np.broadcast_to(mk, (*lead, m, n))
     runs = math.prod(lead)
-    xs = np.ascontiguousarray(np.broadcast_to(x, (*lead, n, 3))).reshape(runs, n, 3)
-    ts = np.ascontiguousarray(np.broadcast_to(tx, (*lead, 3))).reshape(runs, 3)
+    xs = np.ascontiguousarray(x).reshape(runs, n, 3)
+    ts = np.ascontiguousarray(tx).reshape(runs, 3)
     if mk is None:
         ms = _no_mask(m, n)
     elif mk.ndim <= 2:
         ms = np.ascontiguousarray(np.broadcast_to(mk, (1, m, n)))
     else:
-        ms = np.ascontiguousarray(np.broadcast_to(mk, (*lead, m, n))).reshape(runs, m, n)
+        ms = np.ascontiguousarray(mk).reshape(runs, m, n)
     g = np.empty((runs, len(arrays)))
     for q, v in enumerate(arrays):
-        g[:, q] = np.broadcast_to(v, lead).reshape(runs)
+        g[:, q] = v.reshape(runs) if v.ndim else v
     return Args(xs, ts, idx, ms, g, lead if single else (*lead, m))
