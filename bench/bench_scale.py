@@ -526,9 +526,11 @@ def run_ladder(
     depth: int,
     sizes: Iterable[int],
     flight: float,
+    climb: bool = True,
 ) -> list[UpCase]:
-    """Climb n until the first size that does not fly; ``k`` = 0: the bring-up's default
-    trackers per process for each n (:func:`apf_swarm_nodes.probe.trackers_per_process`)."""
+    """Climb n until the first size that does not fly (``climb``; else every size);
+    ``k`` = 0: the bring-up's default trackers per process for each n
+    (:func:`apf_swarm_nodes.probe.trackers_per_process`)."""
     from apf_swarm_nodes import probe
 
     cases = []
@@ -536,7 +538,7 @@ def run_ladder(
         kn = k or probe.trackers_per_process(probe.load(), n, rate)
         c = bench.up(UpCase('realtime', n, kn, flight, rate, executor, inputs, depth=depth))
         cases.append(c)
-        if not c.result.get('flies'):
+        if climb and not c.result.get('flies'):
             break
     return cases
 
@@ -653,15 +655,17 @@ def flight_cell(f: dict[str, Any] | None) -> str:
     return f'{100 * f["formation_error_rms"]:.1f} % / {100 * f["closest_pair"]:.0f} %'
 
 
-def realtime_rows(cases: list[UpCase]) -> list[str]:
+def realtime_rows(cases: list[UpCase], ping: dict[str, Any] | None = None) -> list[str]:
+    """One row per case; with ``ping`` (the raw ping-pong alone in the same run) the control
+    latency's p50 and p99 against the round trip's."""
     out = [
         (
             '| rate [Hz] | executor | inputs | depth | K | trackers | flies | exit | missed | '
             'stale | samples / expected | formation err / closest pair (run; headless) | '
-            'latency p50 / p99 [ms] | graph ready [s] | CPU nodes / harness / other [%] | '
-            'RSS per tracker [MB] | plant RSS [MB] |'
+            'latency p50 / p99 [ms] | latency / ping-pong p50, p99 | graph ready [s] | '
+            'CPU nodes / harness / other [%] | RSS per tracker [MB] | plant RSS [MB] |'
         ),
-        '|---:|---|---|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---|---:|---:|',
+        '|---:|---|---|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---|---:|---:|',
     ]
     for c in cases:
         r = c.result
@@ -677,10 +681,18 @@ def realtime_rows(cases: list[UpCase]) -> list[str]:
             f'{flight_cell(pr.get("run"))}; {flight_cell(pr.get("emulation"))} | '
             f'{f1(1e3 * lat["p50"]) if lat else "-"} / '
             f'{f1(1e3 * lat["p99"]) if lat else "-"} | '
+            f'{ratio_cell(lat, ping)} | '
             f'{f1(r["ready_s"])} | {cpu_cell(r["cpu"])} | '
             f'{f1(r["rss_per_tracker"])} | {f1(r["rss_plant"], ".0f")} |'
         )
     return out
+
+
+def ratio_cell(lat: dict[str, float] | None, ping: dict[str, Any] | None) -> str:
+    """``12x, 9x``: the control latency's p50 and p99 [s] over the ping-pong's [ms]."""
+    if not lat or not ping:
+        return '-'
+    return f'{1e3 * lat["p50"] / ping["p50"]:.0f}x, {1e3 * lat["p99"] / ping["p99"]:.0f}x'
 
 
 def latency_rows(cases: list[Case], alone: dict[str, Any] | None) -> list[str]:
@@ -858,6 +870,15 @@ def build_parser() -> argparse.ArgumentParser:
         '"depth=10"; labels: "<rate> Hz <executor> <inputs> K=<k> depth=<d>"',
     )
     ap.add_argument(
+        '--sizes',
+        metavar='N',
+        type=int,
+        nargs='+',
+        help='fly exactly these swarm sizes in each ladder (no stop at the first failing '
+        'one) and measure the raw rclpy ping-pong alone in the same run: the control '
+        'latency of each size against it, e.g. --sizes 3 32 64 128',
+    )
+    ap.add_argument(
         '--keep',
         type=Path,
         metavar='DIR',
@@ -870,7 +891,7 @@ def run_parts(bench: Bench, args: argparse.Namespace) -> dict[str, Any]:
     q = args.quick or args.smoke
     rates = args.rates or ([50.0] if q else [50.0, 100.0])
     flight = args.flight or (3.0 if args.smoke else 5.0 if q else 25.0)  # judged: last 40 %
-    sizes = (3,) if args.smoke else (8, 16) if q else LADDER
+    sizes = args.sizes or ((3,) if args.smoke else (8, 16) if q else LADDER)
     if args.smoke:
         args.only = ['ladder']
     res: dict[str, Any] = {
@@ -881,7 +902,10 @@ def run_parts(bench: Bench, args: argparse.Namespace) -> dict[str, Any]:
         'latency': ([], None),
         'discovery': [],
         'lockstep': [],
+        'pingpong': None,
     }
+    if args.sizes:  # the raw round trip of this machine, in the same run as the sizes
+        res['pingpong'] = bench.pingpong(4.0 if q else 8.0)
     if 'ladder' in args.only:
         plan = ladder_plan(q, rates)
         for rate, executor, inputs, k, depth in plan[-1:] if args.smoke else plan:
@@ -889,7 +913,7 @@ def run_parts(bench: Bench, args: argparse.Namespace) -> dict[str, Any]:
             if args.ladder and not any(t in label for t in args.ladder):
                 continue
             res['ladders'].append(
-                run_ladder(bench, rate, executor, inputs, k, depth, sizes, flight)
+                run_ladder(bench, rate, executor, inputs, k, depth, sizes, flight, not args.sizes)
             )
         if not q and not args.ladder:
             res['multi'] = bench.up(UpCase('realtime', 4, 1, flight, 50.0, 'multi'))
@@ -931,10 +955,20 @@ def report(res: dict[str, Any], m_before: dict[str, str], wall: float, left: int
             'Every realtime case:',
             '',
             *realtime_rows(
-                [c for cases in ladders for c in cases] + ([res['multi']] if res['multi'] else [])
+                [c for cases in ladders for c in cases] + ([res['multi']] if res['multi'] else []),
+                res['pingpong'],
             ),
             '',
         ]
+        if res['pingpong']:
+            pp = res['pingpong']
+            out += [
+                (
+                    'Raw rclpy ping-pong alone in the same run (observer -> echo -> observer, '
+                    f'100 Hz): round trip p50 {pp["p50"]:.2f} ms, p99 {pp["p99"]:.2f} ms.'
+                ),
+                '',
+            ]
     lat, alone = res['latency']
     if lat:
         out += [
