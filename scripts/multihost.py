@@ -1,19 +1,22 @@
 #!/usr/bin/env python3
 """The swarm split across simulated hosts: network namespaces joined by veth pairs.
 
-    sudo python scripts/multihost.py --hosts 3 --n-trackers 6 --discovery multicast --out DIR
-    sudo python scripts/multihost.py --hosts 3 --discovery server --mode realtime --out DIR
+    sudo python scripts/multihost.py --hosts 3 --n-trackers 6 --out DIR
+    sudo python scripts/multihost.py --hosts 3 --open --discovery server --mode realtime --out DIR
 
 Makes a private "switch" namespace with a bridge and ``--hosts`` host namespaces, each with its
 own address on a private /24 that exists only inside them (``10.231.X.h``, X from this
 process's id, so two labs never share one), plugged into the bridge by a veth pair, with a
 multicast route. Host 1 runs the plant, the target and the bring-up (which observes
 ``/swarm/state`` and writes the usual outputs into ``--out``); the trackers (``K`` per
-process with ``--trackers-per-process``) go round-robin to hosts 2..H. DDS uses UDP only
-(``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``: ``/dev/shm`` is shared between namespaces) and
-discovers either by multicast on the subnet (``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``) or
-through the Fast DDS discovery server shipped in the wheels, run on host 1
-(``--discovery server``, ``ROS_DISCOVERY_SERVER``). No address outside these namespaces and
+process with ``--trackers-per-process``) go round-robin to hosts 2..H. By default the run
+is secure (``swarm_up.py --secure``, :mod:`apf_swarm_nodes.secure`): TCP with TLS only, a
+certificate per host from the run's own authority, discovery through the bring-up's server.
+``--open``: DDS uses UDP only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``: ``/dev/shm`` is shared
+between namespaces) and discovers either by multicast on the subnet
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``) or through the Fast DDS discovery server shipped
+in the wheels, run on host 1 (``--discovery server``, ``ROS_DISCOVERY_SERVER``); anyone on
+the network can then see and steer the swarm. No address outside these namespaces and
 loopback is used. At the end it prints the CPU each host's processes used and writes
 ``multihost.json``; the namespaces are removed whatever happens (``--keep`` keeps them).
 
@@ -189,7 +192,19 @@ def main(argv: list[str] | None = None) -> int:
         help='trackers hosted in one process (default 0: what the bring-up picks on one '
         'machine, apf-swarm probe)',
     )
-    p.add_argument('--discovery', choices=('multicast', 'server'), default='multicast')
+    p.add_argument(
+        '--discovery',
+        choices=('multicast', 'server'),
+        default='multicast',
+        help='--open only: UDP multicast on the subnet, or the Fast DDS discovery server '
+        '(a secure run has its own, on TCP with TLS, in the bring-up)',
+    )
+    p.add_argument(
+        '--open',
+        action='store_true',
+        help='UDP, open to anyone on the network (the default is --secure: TCP with TLS, '
+        "only the run's hosts admitted; docs/RELIABILITY.md)",
+    )
     p.add_argument('--mode', choices=('lockstep', 'realtime'), default='lockstep')
     p.add_argument('--preset', default=None, help='default: triangle (lockstep), realtime')
     p.add_argument('--duration', type=float, default=5.0)
@@ -204,6 +219,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--out', type=Path, required=True)
     p.add_argument('--keep', action='store_true', help='keep the namespaces (debugging)')
     args = p.parse_args(argv)
+    if not args.open and args.discovery == 'server':
+        p.error('--discovery server: only with --open (a secure run has its own server)')
     if args.hosts < 2:
         p.error('--hosts: at least 2 (one for the plant and target, one for trackers)')
     why = unavailable()
@@ -224,7 +241,9 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out.resolve()
     with Lab(args.hosts) as lab:
         h1 = lab.hosts[0]
-        env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS='UDPv4', PYTHONUNBUFFERED='1')
+        env = dict(os.environ, PYTHONUNBUFFERED='1')
+        if args.open:
+            env['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
         server = None
         if args.discovery == 'server':
             exe = shutil.which('fast-discovery-server') or str(
@@ -293,6 +312,8 @@ def main(argv: list[str] | None = None) -> int:
             '--no-plots',
             '--allow-overload',
         ]
+        if not args.open:
+            cmd += ['--secure', '--secure-address', lab.addr[h1]]
         if args.domain_id is not None:
             cmd += ['--domain-id', str(args.domain_id)]
         if args.rate is not None:
@@ -302,7 +323,12 @@ def main(argv: list[str] | None = None) -> int:
         say(
             f'{args.hosts} hosts on {lab.net}.0/24 '
             f'({", ".join(f"{ns}={a}" for ns, a in lab.addr.items())}), '
-            f'discovery {args.discovery}; host 1: plant, target, bring-up; trackers: '
+            + (
+                'secure (TCP with TLS), discovery server in the bring-up; '
+                if not args.open
+                else f'open (UDP), discovery {args.discovery}; '
+            )
+            + 'host 1: plant, target, bring-up; trackers: '
             + ', '.join(f'{n}@{ns}' for n, ns in placement.items())
         )
         cpu = HostCpu(lab, str(out / 'config.yaml'))
@@ -345,7 +371,8 @@ def main(argv: list[str] | None = None) -> int:
             )
         result = {
             'hosts': hosts,
-            'discovery': args.discovery,
+            'secure': not args.open,
+            'discovery': 'server' if not args.open else args.discovery,
             'mode': args.mode,
             'n_trackers': args.n_trackers,
             'trackers_per_process': args.trackers_per_process,
@@ -361,7 +388,7 @@ def main(argv: list[str] | None = None) -> int:
                 f'| {r["host"]} | {r["address"]} | {r["runs"]} | {r["processes"]} | '
                 f'{r["cpu_pct"]:.1f} |'
             )
-        print(f'\nwall time {wall:.1f} s, discovery {args.discovery}, bring-up exit {rc}')
+        print(f'\nwall time {wall:.1f} s, discovery {result["discovery"]}, bring-up exit {rc}')
         return rc
 
 

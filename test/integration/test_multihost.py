@@ -1,5 +1,6 @@
 """The swarm across simulated hosts (scripts/multihost.py): network namespaces joined by veth
-pairs, UDP only, multicast discovery or the Fast DDS discovery server. Skipped, with the
+pairs; secure (TCP with TLS, the default) or open (--open: UDP only, multicast discovery or
+the Fast DDS discovery server). Skipped, with the
 reason, on a machine without root or iproute2."""
 
 from __future__ import annotations
@@ -55,11 +56,17 @@ def no_namespaces_left(tag_text: str) -> bool:
     return tag_text not in listed
 
 
-def test_three_hosts_multicast_lockstep_equals_the_simulator(tmp_path: Path) -> None:
-    """Plant and target on host 1, trackers on hosts 2 and 3, multicast discovery on the
-    lab's subnet: the lockstep run over UDP equals the headless simulator exactly."""
+@pytest.mark.parametrize('transport', ['open', 'secure'])
+def test_three_hosts_lockstep_equals_the_simulator(tmp_path: Path, transport: str) -> None:
+    """Plant and target on host 1, trackers on hosts 2 and 3; open: UDP, multicast discovery
+    on the lab's subnet; secure (the default): TCP with TLS, the bring-up's discovery
+    server. Either lockstep run equals the headless simulator exactly."""
     out = tmp_path / 'mc'
-    p, result = run_lab(out, '--n-trackers', '3', '--duration', '1.5')
+    p, result = run_lab(
+        out, '--n-trackers', '3', '--duration', '1.5', *(['--open'] if transport == 'open' else [])
+    )
+    assert result['secure'] == (transport == 'secure')
+    assert result['discovery'] == ('multicast' if transport == 'open' else 'server')
     hosts = {h['host']: h for h in result['hosts']}
     assert hosts[1]['runs'] == 'plant, target, bring-up' and hosts[1]['processes'] == 2
     assert hosts[2]['runs'] == 'tracker_1, tracker_3' and hosts[2]['processes'] == 2
@@ -81,7 +88,16 @@ def test_three_hosts_discovery_server_realtime_forms_the_triangle(tmp_path: Path
     """The Fast DDS discovery server on host 1, realtime: the triangle forms across hosts."""
     out = tmp_path / 'ds'
     _, result = run_lab(
-        out, '--n-trackers', '3', '--mode', 'realtime', '--duration', '16', '--discovery', 'server'
+        out,
+        '--n-trackers',
+        '3',
+        '--mode',
+        'realtime',
+        '--duration',
+        '16',
+        '--discovery',
+        'server',
+        '--open',
     )
     assert result['discovery'] == 'server'
     cfg = load_config(out / 'config.yaml')

@@ -22,6 +22,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -64,12 +65,11 @@ print(json.dumps({'topics': sorted(topics), 'nodes': sorted(nodes), 'received': 
 """
 
 ADMITS = r"""
-import sys
+import json, sys
 from pathlib import Path
 from apf_swarm_nodes.secure import tls_admits
-cert = Path(sys.argv[3]) if len(sys.argv) > 3 else None
-key = Path(sys.argv[4]) if len(sys.argv) > 4 else None
-print(tls_admits(sys.argv[1], int(sys.argv[2]), cert=cert, key=key))
+print(json.dumps([tls_admits(a, p, cert=c and Path(c), key=k and Path(k))
+                  for a, p, c, k in json.loads(sys.argv[1])]))
 """
 
 
@@ -162,17 +162,21 @@ def base_env(domain: int) -> dict[str, str]:
     return env
 
 
-def admits(ns: str, env: dict[str, str], address: str, port: int, *files: Path) -> bool:
+def admits_all(ns: str, env: dict[str, str], tries: list[tuple]) -> list[bool]:
+    """Whether each (address, port, cert or None, key or None) admits a TLS client,
+    probed from ``ns`` (one process for all)."""
     p = subprocess.run(
-        ['ip', 'netns', 'exec', ns, sys.executable, '-c', ADMITS, address, str(port)]
-        + [str(f) for f in files],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
+        ['ip', 'netns', 'exec', ns, sys.executable, '-c', ADMITS,
+         json.dumps([[a, port, c and str(c), k and str(k)] for a, port, c, k in tries])],
+        env=env, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
     assert p.returncode == 0, p.stderr
-    return p.stdout.strip() == 'True'
+    return json.loads(p.stdout)
+
+
+def admits(ns: str, env: dict[str, str], address: str, port: int, *files: Path) -> bool:
+    cert, key = files if files else (None, None)
+    return admits_all(ns, env, [(address, port, cert, key)])[0]
 
 
 def test_outsiders_without_the_runs_certificate_see_nothing(
@@ -230,11 +234,10 @@ def test_outsiders_without_the_runs_certificate_see_nothing(
                 break
             subprocess.run(['sleep', '0.1'])
         assert port in listening, listening
-        for p in sorted(listening):
-            assert not admits(h2, env, lab.addr[h1], p), p
-            assert not admits(h2, env, lab.addr[h1], p, cert, key), p
-            assert not admits(h2, env, lab.addr[h1], p, *other), p
-            assert admits(h2, env, lab.addr[h1], p, mine.cert, mine.key), p
+        files = [(None, None), (cert, key), other, (mine.cert, mine.key)]
+        tries = [(lab.addr[h1], p, c, k) for p in sorted(listening) for c, k in files]
+        admitted = admits_all(h2, env, tries)
+        assert admitted == [False, False, False, True] * len(listening), (tries, admitted)
         udp = subprocess.run(
             ['ip', 'netns', 'exec', h1, 'ss', '-Hulpn'], capture_output=True, text=True
         ).stdout
@@ -285,3 +288,150 @@ def test_without_the_openssl_configuration_fast_dds_admits_anyone(
         finally:
             stop_process(member, ((signal.SIGINT, 5.0), (signal.SIGKILL, 5.0)))
     assert found == {False: True, True: False}, found
+
+
+# --------------------------------------------------------------------------------------------
+# the bring-up
+# --------------------------------------------------------------------------------------------
+
+#: someone who wants to read or steer the swarm: subscribes /swarm/state, publishes
+#: /uav_1/force_cmd for SECONDS (as test_isolation's looker); with 'until' it stops as soon
+#: as it has seen the plant, some states and a subscriber of its commands
+LOOKER = r"""
+import json, sys, time
+import rclpy
+from apf_swarm_msgs.msg import ForceCommand, SwarmState
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+rclpy.init()
+node = rclpy.create_node('looker')
+got = []
+qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+node.create_subscription(SwarmState, '/swarm/state', lambda m: got.append(1), qos)
+pub = node.create_publisher(ForceCommand, '/uav_1/force_cmd', 10)
+topics, nodes, matched = set(), set(), 0
+t0 = time.monotonic()
+end = t0 + float(sys.argv[1])
+until = len(sys.argv) > 2 and sys.argv[2] == 'until'
+while time.monotonic() < end:
+    rclpy.spin_once(node, timeout_sec=0.05)
+    topics |= {t for t, _ in node.get_topic_names_and_types()}
+    nodes |= {ns.rstrip('/') + '/' + n for n, ns in node.get_node_names_and_namespaces()}
+    matched = max(matched, pub.get_subscription_count())
+    if until and '/plant' in nodes and len(got) >= 5 and matched:
+        break
+print(json.dumps({'topics': sorted(topics), 'nodes': sorted(nodes), 'states': len(got),
+                  'force_cmd_matched': matched, 'seconds': time.monotonic() - t0}), flush=True)
+"""
+OWN_TOPICS = {'/swarm/state', '/uav_1/force_cmd', '/rosout', '/parameter_events'}
+
+
+@pytest.fixture
+def lab3() -> Iterator[multihost.Lab]:
+    with multihost.Lab(3) as made:
+        yield made
+    listed = subprocess.run(['ip', 'netns', 'list'], capture_output=True, text=True).stdout
+    assert not any(ns in listed for ns in made.hosts)
+
+
+def listening_tcp(ns: str) -> set[int]:
+    ss = subprocess.run(['ip', 'netns', 'exec', ns, 'ss', '-Htln'], capture_output=True, text=True)
+    return {int(line.split()[3].rsplit(':', 1)[1]) for line in ss.stdout.splitlines()}
+
+
+def test_a_secure_bringup_admits_only_its_hosts(lab3: multihost.Lab, tmp_path: Path) -> None:
+    """``swarm_up.py --discovery-range SUBNET --secure``: plant, target and bring-up on host
+    1, the trackers on host 2; on host 3 outsiders with no certificate, a self-signed one,
+    another run's see no node and no topic of the swarm, receive no /swarm/state and no
+    subscriber matches their /uav_1/force_cmd; the same looker with host 2's files does
+    (the positive control). Every TCP port of hosts 1 and 2 refuses them, no UDP socket is
+    open there, and the run's keys are gone at its end."""
+    h1, h2, h3 = lab3.hosts
+    d = pick_domain_id(lo=102, hi=201)
+    out = (tmp_path / 'run').resolve()
+    err = tmp_path / 'bringup.stderr'
+    argv = [
+        'ip', 'netns', 'exec', h1, sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'),
+        '--preset', 'triangle', '--n-trackers', '3', '--duration', '120',
+        '--domain-id', str(d), '--out', str(out), '--no-plots', '--allow-overload',
+        '--discovery-range', 'SUBNET', '--secure', '--secure-address', lab3.addr[h1],
+        '--node-netns', f'tracker*={h2}',
+    ]  # fmt: skip
+    with open(err, 'wb') as f:
+        bring = subprocess.Popen(
+            argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=f, cwd=ROOT,
+            start_new_session=True,
+        )  # fmt: skip
+    procs: list[tuple[str, subprocess.Popen[str]]] = []
+    try:
+        end = time.monotonic() + 90
+        while 'graph ready after' not in err.read_text(errors='replace'):
+            assert bring.poll() is None, err.read_text(errors='replace')
+            assert time.monotonic() < end, err.read_text(errors='replace')
+            time.sleep(0.1)
+        text = err.read_text(errors='replace')
+        assert 'OPEN TO THE NETWORK' not in text and 'secure: TCP with TLS only' in text
+        dds_dir = out / 'dds'
+        mine = dds_dir / h2
+        profile = (mine / secure.PROFILE_FILE).read_text()
+        other = secure.make_pki(tmp_path / 'other', ['x'], run='another run')['x']
+        cert, key = self_signed(tmp_path / 'self')
+        variants = {
+            'no_cert': (False, {}),
+            'self_signed': (True, {mine / 'cert.pem': cert, mine / 'key.pem': key}),
+            'other_ca': (
+                True,
+                {
+                    mine / 'cert.pem': other[0],
+                    mine / 'key.pem': other[1],
+                    dds_dir / 'ca.pem': tmp_path / 'other' / 'ca.pem',
+                },
+            ),
+        }
+        env = base_env(d)
+        for name, (with_cert, swap) in variants.items():
+            text = profile
+            for old, new in swap.items():
+                text = text.replace(str(old), str(new))
+            path = outsider_profile(tmp_path / f'{name}.xml', text, with_cert=with_cert)
+            out_env = {**env, **dict.fromkeys(dds.PROFILE_VARIABLES, str(path))}
+            procs.append((name, start(h3, out_env, '-c', LOOKER, '15')))
+        control_env = {
+            **env,
+            **secure.secure_environment(mine / secure.PROFILE_FILE, dds_dir / 'openssl.cnf'),
+        }
+        # the positive control sees the swarm well within the outsiders' 15 s (about 2 s
+        # on an idle machine: its start, the server, a connection to each participant)
+        procs.append(('control', start(h3, control_env, '-c', LOOKER, '15', 'until')))
+        # every TCP port of the run's hosts refuses the outsiders' certificates
+        ports = {h1: listening_tcp(h1), h2: listening_tcp(h2)}
+        assert secure.server_port(d) in ports[h1] and len(ports[h1]) >= 3, ports  # + plant, target
+        assert len(ports[h2]) >= 1, ports
+        files = [(None, None), (cert, key), other]
+        tries = [
+            (lab3.addr[ns], p, c, k) for ns, listening in ports.items()
+            for p in sorted(listening) for c, k in files
+        ]  # fmt: skip
+        admitted = admits_all(h3, env, tries)
+        assert not any(admitted), [t for t, a in zip(tries, admitted, strict=True) if a]
+        for ns in ports:
+            udp = subprocess.run(
+                ['ip', 'netns', 'exec', ns, 'ss', '-Hulpn'], capture_output=True, text=True
+            ).stdout
+            assert udp.strip() == '', (ns, udp)
+        seen = {name: result(proc, 60.0) for name, proc in procs}
+    finally:
+        for _, proc in procs:
+            stop_process(proc, ((signal.SIGKILL, 5.0),))
+        rc = stop_process(bring, ((signal.SIGINT, 30.0), (signal.SIGKILL, 5.0)))
+    for name in variants:
+        s = seen[name]
+        assert s['nodes'] == ['/looker'], (name, s)
+        assert set(s['topics']) <= OWN_TOPICS, (name, s)
+        assert s['states'] == 0 and s['force_cmd_matched'] == 0, (name, s)
+    control = seen['control']
+    assert '/plant' in control['nodes'] and control['states'] > 0, control
+    assert control['force_cmd_matched'] == 1, control
+    assert control['seconds'] < 12, control
+    assert rc == 130, err.read_text(errors='replace')
+    assert not list(dds_dir.glob('*/key.pem'))  # removed at the end
+    assert (dds_dir / 'ca.pem').is_file() and (mine / 'cert.pem').is_file()

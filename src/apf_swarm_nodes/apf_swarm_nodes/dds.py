@@ -86,6 +86,12 @@ LEASE_DURATION = 20.0
 #: participants on this machine beyond a run's own, for the 127.0.0.1 ports a localhost
 #: participant announces to: viewers, ``ros2 topic``, tests' observers, the domain probe
 SPARE_PARTICIPANTS = 16
+#: what a run open to the network says before it starts
+OPEN_WARNING = (
+    'WARNING: this run is OPEN TO THE NETWORK: any host on it can see every topic, read '
+    'every state and steer the swarm (a run id in clear does not stop it). Use --secure to '
+    'admit only the hosts of this run (docs/RELIABILITY.md, "Multi-host runs: threat model")'
+)
 #: the profile of the bring-up's own participant, beside the run's (UDP on 127.0.0.1 only)
 OWN_PROFILE = 'fastdds_localhost_udp.xml'
 
@@ -94,15 +100,21 @@ def own_participant_environment(environ: Mapping[str, str] | None = None) -> dic
     """The variables that put the bring-up's own participant on UDP only, never on shared
     memory: a participant whose call blocks on a shared-memory mutex that a killed node
     held cannot stop the run then. Localhost runs: the run's profile without its SHM
-    transport (written beside it by :func:`isolate_dds`); otherwise
-    ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``. Set them for ``rclpy.init`` only: the nodes keep
-    shared memory."""
+    transport (written beside it by :func:`isolate_dds`); secure runs: the discovery
+    server's profile (:mod:`.secure`); otherwise ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``. Set
+    them for ``rclpy.init`` only: the nodes keep shared memory."""
     env = os.environ if environ is None else environ
     own = next((env[v] for v in PROFILE_VARIABLES if env.get(v)), None)
     if own is not None and Path(own).name == 'fastdds_localhost.xml':
         udp = Path(own).with_name(OWN_PROFILE)
         if udp.is_file():
             return dict.fromkeys(PROFILE_VARIABLES, str(udp))
+    if own is not None and Path(own).name == 'fastdds_secure.xml':
+        # a secure run (apf_swarm_nodes.secure): the bring-up's participant is its
+        # discovery server, on TCP with TLS as every other
+        server = Path(own).parent.parent / 'fastdds_secure_server.xml'
+        if server.is_file():
+            return dict.fromkeys(PROFILE_VARIABLES, str(server))
     return {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
 
 
@@ -324,6 +336,8 @@ def isolate_dds(
         )
         env.update(localhost_environment(path))
     elif discovery_range in NETWORK_RANGES:
+        if say is not None:
+            say(OPEN_WARNING)
         if own is None:
             path = write_profile(
                 Path(directory) / 'fastdds_network.xml', localhost=False, participants=processes

@@ -46,7 +46,7 @@ import socket
 import ssl
 import stat
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, MutableMapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,6 +59,7 @@ __all__ = [
     'OPENSSL_FILE',
     'PROFILE_FILE',
     'SERVER_PROFILE',
+    'THIS_HOST',
     'HostFiles',
     'Pki',
     'check_files',
@@ -67,6 +68,7 @@ __all__ = [
     'openssl_conf',
     'profile_xml',
     'remove_keys',
+    'secure_dds',
     'secure_environment',
     'server_port',
     'write_run_files',
@@ -78,6 +80,8 @@ CA_FILE, OPENSSL_FILE = 'ca.pem', 'openssl.cnf'
 CERT_FILE, KEY_FILE, PROFILE_FILE = 'cert.pem', 'key.pem', 'fastdds_secure.xml'
 #: the bring-up's own participant: the discovery server
 SERVER_PROFILE = 'fastdds_secure_server.xml'
+#: the bring-up's host among the run's hosts (DIR/dds/bringup/)
+THIS_HOST = 'bringup'
 #: the discovery server's TCP port is this plus the domain id
 SERVER_PORT_BASE = 20000
 #: how long a run's certificates are valid, and how far back (hosts' clocks differ)
@@ -514,6 +518,71 @@ def write_run_files(
     for f in files.values():
         check_files(ca, f.cert, f.key)
     return Pki(ca, openssl, files, server_profile)
+
+
+def first_address() -> str:
+    """This host's first non-loopback IPv4 address (CliError if it has none)."""
+    import psutil
+
+    for addrs in psutil.net_if_addrs().values():
+        for a in addrs:
+            if a.family == socket.AF_INET and not a.address.startswith('127.'):
+                return str(a.address)
+    raise CliError(
+        '--secure: this host has no IPv4 address but loopback; give the one the other hosts '
+        'reach it at with --secure-address ADDR'
+    )
+
+
+def secure_dds(
+    directory: Path,
+    domain: int,
+    discovery_range: str,
+    *,
+    hosts: Sequence[str],
+    address: str | None,
+    processes: int,
+    run: str,
+    environ: MutableMapping[str, str] | None = None,
+    say: Callable[[str], None] | None = None,
+) -> Pki:
+    """The bring-up's hook of a secure run (instead of :func:`~.dds.isolate_dds`): write
+    the run's files into ``directory`` (DIR/dds/) for this host (:data:`THIS_HOST`) and
+    ``hosts``, and put this host's environment into ``environ`` (default ``os.environ``),
+    dropping what would add UDP. The discovery server is this process's own participant
+    (:func:`~.dds.own_participant`), at ``address`` (default :func:`first_address`),
+    port :func:`server_port`. A secure run skips the domain check: no participant of
+    another run can reach it."""
+    from .dds import NETWORK_RANGES, check_rmw
+
+    env = os.environ if environ is None else environ
+    if discovery_range not in NETWORK_RANGES:
+        raise CliError(
+            f'--secure with --discovery-range {discovery_range}: --secure is for a run '
+            'across hosts (--discovery-range SUBNET); a LOCALHOST run admits nothing from '
+            'outside this machine already'
+        )
+    check_rmw(env)
+    address = address or first_address()
+    names = [THIS_HOST, *dict.fromkeys(h for h in hosts if h != THIS_HOST)]
+    for name in names:
+        if not name or '/' in name or name.startswith('.'):
+            raise CliError(f'--secure: {name!r} is not a usable host name')
+    pki = write_run_files(
+        directory, names, THIS_HOST, (address, server_port(domain)), run=run,
+        participants=processes,
+    )  # fmt: skip
+    for var in NOT_SECURE:
+        if env.pop(var, None) is not None and say is not None:
+            say(f'warning: {var} ignored: a secure run talks TCP with TLS only')
+    env.pop('OPENSSL_CONF', None)
+    env.update(secure_environment(pki.hosts[THIS_HOST].profile, pki.openssl))
+    if say is not None:
+        say(
+            f'secure: TCP with TLS only, discovery server {address}:{server_port(domain)}; '
+            f'files for {", ".join(names)} in {Path(directory)}'
+        )
+    return pki
 
 
 # --------------------------------------------------------------------------------------------

@@ -86,6 +86,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         'nodes on several hosts (scripts/multihost.py); OFF: no discovery',
     )
     p.add_argument(
+        '--secure',
+        action='store_true',
+        help='with --discovery-range SUBNET: admit only the hosts of this run. A certificate '
+        'authority for the run, a certificate and key per host (this one, each --node-netns '
+        'namespace, each --secure-host) and their Fast DDS profiles (TCP with TLS only, both '
+        'sides verified) in DIR/dds/; keys removed at the end (docs/RELIABILITY.md, '
+        '"Multi-host runs: threat model")',
+    )
+    p.add_argument(
+        '--secure-host',
+        action='append',
+        default=[],
+        metavar='NAME',
+        help='--secure: also issue files for host NAME (DIR/dds/NAME/), for nodes started '
+        'there by hand; repeatable',
+    )
+    p.add_argument(
+        '--secure-address',
+        metavar='ADDR',
+        help="--secure: this host's address the others reach its discovery server at "
+        '(default: its first non-loopback IPv4 address)',
+    )
+    p.add_argument(
+        '--keep-keys',
+        action='store_true',
+        help="--secure: keep the hosts' private keys after the run (default: removed)",
+    )
+    p.add_argument(
         '--record', action='store_true', help='also record a rosbag2 (MCAP) with the recorder node'
     )
     p.add_argument(

@@ -211,6 +211,7 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
                 self.zygote.close()
             if self.janitor is not None:
                 self.janitor.close()
+            self.end_secure()
 
     def execute_prepared(self) -> int:
         # the stop's bound from the start: the domain check already makes a participant

@@ -20,6 +20,7 @@ from .isolation import env_domain, pick_domain_id
 from .processes import Child, ProcessGroup
 
 if TYPE_CHECKING:
+    from ..secure import Pki
     from .janitor import Janitor
     from .zygote import Zygote
 
@@ -44,6 +45,8 @@ class Startup:
     t_launch: Any
     prefix: Path
     config_file: Path
+    #: a secure run's files (--secure), else None
+    pki: Pki | None = None
 
     if TYPE_CHECKING:  # the other parts of Bringup
 
@@ -102,13 +105,59 @@ class Startup:
         # 127.0.0.1), the discovery timing, and no second swarm on the domain (CliError)
         from ..dds import isolate_dds
 
+        processes = 3 + -(-self.n // self.args.trackers_per_process) + int(self.args.record)
+        if getattr(self.args, 'secure', False):
+            # a multi-host run that admits only its hosts: TLS, a per-run authority
+            from ..secure import secure_dds
+
+            self.pki = secure_dds(
+                self.out / 'dds',
+                self.domain_id,
+                self.args.discovery_range,
+                hosts=[*(r.partition('=')[2] for r in self.args.node_netns),
+                       *getattr(self.args, 'secure_host', [])],
+                address=getattr(self.args, 'secure_address', None),
+                processes=processes,
+                run=f'{self.run_id}',
+                say=self.say,
+            )  # fmt: skip
+            return
         isolate_dds(
             self.out / 'dds',
             self.domain_id,
             self.args.discovery_range,
-            processes=3 + -(-self.n // self.args.trackers_per_process) + int(self.args.record),
+            processes=processes,
             say=self.say,
         )
+
+    def check_secure(self) -> None:
+        """A secure run, before any node starts: the bring-up's own port (its participant,
+        the discovery server) refuses a TLS client without the run's certificate."""
+        if self.pki is None:
+            return
+        from ..secure import check_refuses, first_address, server_port
+
+        assert self.domain_id is not None
+        address = getattr(self.args, 'secure_address', None) or first_address()
+        check_refuses(address, server_port(self.domain_id))
+
+    def end_secure(self) -> None:
+        """A secure run's end: the hosts' private keys removed, unless kept (--keep-keys)."""
+        if self.pki is None or getattr(self.args, 'keep_keys', False):
+            return
+        from ..secure import remove_keys
+
+        remove_keys(self.out / 'dds')
+
+    def host_env(self, env: dict[str, str], netns: str | None) -> dict[str, str]:
+        """A node's environment on the simulated host ``netns``: a secure run's nodes there
+        take that host's files."""
+        if self.pki is None or netns is None or netns not in self.pki.hosts:
+            return env
+        from ..secure import secure_environment
+
+        host = self.pki.hosts[netns]
+        return {**env, **secure_environment(host.profile, self.pki.openssl)}
 
     def start_zygote(self) -> None:
         """``--spawn fork``: start the zygote first, so that its imports overlap the
@@ -133,6 +182,7 @@ class Startup:
         return env
 
     def launch(self) -> None:
+        self.check_secure()
         env = self.child_env()
         cmds = node_commands(
             self.prefix,
@@ -177,7 +227,7 @@ class Startup:
                     name,
                     argv,
                     self.out / 'logs' / f'{name}.log',
-                    env,
+                    self.host_env(env, ns),
                     zygote=self.zygote,
                     janitor=self.janitor,
                 )
