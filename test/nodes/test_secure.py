@@ -111,3 +111,56 @@ def test_check_command(pki: secure.Pki, capsys: pytest.CaptureFixture[str]) -> N
     pki.hosts['h2'].key.chmod(0o640)
     assert secure.main(['check', str(d)]) == 2
     assert 'chmod 600' in capsys.readouterr().err
+
+
+def test_bringup_stops_on_bad_reused_files(tmp_path: Path) -> None:
+    """``swarm_up.py --secure --secure-pki DIR`` with a kept run's files: a key readable by
+    others, a key missing, another run's certificate, an expired authority each stop the
+    bring-up before any node starts, with one error line naming the file and the fix."""
+    import subprocess
+    import sys
+
+    from apf_swarm_nodes.bringup import pick_domain_id
+
+    root = Path(__file__).resolve().parents[2]
+
+    def bringup(pki_dir: Path, name: str) -> tuple[int, str, Path]:
+        out = tmp_path / name
+        p = subprocess.run(
+            [sys.executable, str(root / 'scripts' / 'swarm_up.py'), '--preset', 'triangle',
+             '--n-trackers', '3', '--duration', '1', '--out', str(out), '--no-plots',
+             '--domain-id', str(pick_domain_id(lo=102, hi=201)), '--discovery-range', 'SUBNET',
+             '--secure', '--secure-pki', str(pki_dir), '--secure-address', '127.0.0.1'],
+            capture_output=True, text=True, timeout=120, cwd=root,
+        )  # fmt: skip
+        return p.returncode, p.stderr, out
+
+    def kept(name: str, **kw: object) -> Path:
+        d = tmp_path / name / 'dds'
+        secure.make_pki(d, [secure.THIS_HOST], run=name, **kw)  # type: ignore[arg-type]
+        return d
+
+    d = kept('perm')
+    key = d / secure.THIS_HOST / 'key.pem'
+    key.chmod(0o644)
+    d2 = kept('missing')
+    (d2 / secure.THIS_HOST / 'key.pem').unlink()
+    d3 = kept('foreign')
+    other = kept('other')
+    for f in ('cert.pem', 'key.pem'):
+        (d3 / secure.THIS_HOST / f).write_bytes((other / secure.THIS_HOST / f).read_bytes())
+    (d3 / secure.THIS_HOST / 'key.pem').chmod(0o600)
+    long_ago = dt.datetime.now(dt.UTC) - dt.timedelta(days=30)
+    d4 = kept('expired', now=long_ago)
+    cases = {
+        'perm': (d, f'chmod 600 {key}'),
+        'missing': (d2, f'{d2 / secure.THIS_HOST / "key.pem"}: private key missing'),
+        'foreign': (d3, f"{d3 / secure.THIS_HOST / 'cert.pem'}: not issued by the run's"),
+        'expired': (d4, f'{d4 / "ca.pem"}: certificate expired'),
+    }
+    for name, (pki_dir, expected) in cases.items():
+        rc, err, out = bringup(pki_dir, name)
+        errors = [line for line in err.splitlines() if 'error' in line]
+        assert rc == 2, (name, err)
+        assert len(errors) == 1 and expected in errors[0], (name, err)
+        assert not list((out / 'logs').glob('*.log')), name  # no node was started

@@ -483,13 +483,33 @@ def write_run_files(
     *,
     run: str,
     participants: int,
+    reuse: Path | None = None,
 ) -> Pki:
     """Everything a secure run needs under ``directory`` (DIR/dds/): the authority, each
     host's certificate, key and profile, the server's profile (``server_host``'s files),
-    the OpenSSL configuration; each host's files checked (:func:`check_files`)."""
+    the OpenSSL configuration; each host's files checked (:func:`check_files`: CliError
+    naming the file and what to do). ``reuse``: the DIR/dds/ of an earlier run whose keys
+    were kept (``--keep-keys``): its authority and host files instead of new ones (the
+    new profiles name them; nothing is copied), for hosts that hold them already."""
     directory = Path(directory).resolve()
-    issued = make_pki(directory, list(hosts), run=run)
-    ca = directory / CA_FILE
+    directory.mkdir(parents=True, exist_ok=True)
+    if reuse is None:
+        issued = make_pki(directory, list(hosts), run=run)
+        ca = directory / CA_FILE
+    else:
+        reuse = Path(reuse).resolve()
+        ca = reuse / CA_FILE
+        issued = {}
+        for host in hosts:
+            if not (reuse / host).is_dir():
+                raise CliError(
+                    f'--secure-pki {reuse}: no files for host {host!r} ({reuse / host} '
+                    'missing); a kept authority cannot admit a new host: run without '
+                    '--secure-pki to issue new files for every host'
+                )
+            issued[host] = (reuse / host / CERT_FILE, reuse / host / KEY_FILE)
+            check_files(ca, *issued[host])
+            (directory / host).mkdir(exist_ok=True)
     openssl = directory / OPENSSL_FILE
     openssl.write_text(openssl_conf())
     prefix = server_prefix(run)
@@ -543,13 +563,15 @@ def secure_dds(
     address: str | None,
     processes: int,
     run: str,
+    reuse: Path | None = None,
     environ: MutableMapping[str, str] | None = None,
     say: Callable[[str], None] | None = None,
 ) -> Pki:
     """The bring-up's hook of a secure run (instead of :func:`~.dds.isolate_dds`): write
     the run's files into ``directory`` (DIR/dds/) for this host (:data:`THIS_HOST`) and
-    ``hosts``, and put this host's environment into ``environ`` (default ``os.environ``),
-    dropping what would add UDP. The discovery server is this process's own participant
+    ``hosts`` (or name those of ``reuse``, see :func:`write_run_files`), and put this
+    host's environment into ``environ`` (default ``os.environ``), dropping what would add
+    UDP. The discovery server is this process's own participant
     (:func:`~.dds.own_participant`), at ``address`` (default :func:`first_address`),
     port :func:`server_port`. A secure run skips the domain check: no participant of
     another run can reach it."""
@@ -570,7 +592,7 @@ def secure_dds(
             raise CliError(f'--secure: {name!r} is not a usable host name')
     pki = write_run_files(
         directory, names, THIS_HOST, (address, server_port(domain)), run=run,
-        participants=processes,
+        participants=processes, reuse=reuse,
     )  # fmt: skip
     for var in NOT_SECURE:
         if env.pop(var, None) is not None and say is not None:

@@ -114,6 +114,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="--secure: keep the hosts' private keys after the run (default: removed)",
     )
     p.add_argument(
+        '--secure-pki',
+        type=Path,
+        metavar='DIR',
+        help='--secure: the authority and host files of an earlier run kept with '
+        '--keep-keys (its DIR/dds/), instead of new ones; each checked (missing, expired, '
+        'mismatched, key readable by others: the bring-up stops, naming the file)',
+    )
+    p.add_argument(
         '--record', action='store_true', help='also record a rosbag2 (MCAP) with the recorder node'
     )
     p.add_argument(

@@ -119,6 +119,7 @@ class Startup:
                 address=getattr(self.args, 'secure_address', None),
                 processes=processes,
                 run=f'{self.run_id}',
+                reuse=getattr(self.args, 'secure_pki', None),
                 say=self.say,
             )  # fmt: skip
             return
