@@ -1,7 +1,7 @@
 """The floors of the layout that a grep can hold: every ROS name of the swarm is said in one
 module (:mod:`apf_swarm_nodes.topics`, or :mod:`apf_swarm_core.names` for what the core must
 know), a node names its topics through it, and nothing under src/ imports rclpy's private
-API."""
+API (``rclpy.impl``, ``_rclpy``)."""
 
 from __future__ import annotations
 
@@ -99,6 +99,21 @@ def test_the_names_are_distinct() -> None:
     assert topics.UAV_TOPIC.match('/uav_12/velocity_cmd') and not topics.UAV_TOPIC.match(
         '/uav_/odom'
     )
+
+
+def test_no_private_rclpy_api() -> None:
+    found = []
+    for path, tree in _modules():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = [node.module or ''] + [f'{node.module}.{a.name}' for a in node.names]
+            else:
+                continue
+            if any(n.startswith('rclpy.impl') or '_rclpy' in n for n in names):
+                found.append(f'{_where(path, node)}: {", ".join(names)}')
+    assert not found, 'rclpy private API imported:\n' + '\n'.join(found)
 
 
 @pytest.mark.parametrize('planted', ["x = '/swarm/state'\n", "x = f'/uav_{i}/odom'\n"])
