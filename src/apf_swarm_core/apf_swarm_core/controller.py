@@ -5,6 +5,7 @@ a step returns."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,22 +13,23 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
-from .laws import (
-    LAWS,
-    SWITCHINGS,
-    _check_saturation,
-    _decay,
-    _filter,
-    _surface_continuous,
-    _surface_filtered,
-    _surface_proposed,
-    _switching,
-    _switching_layer,
+from .kernels import (
+    CTL_ALPHA,
+    CTL_BETA,
+    CTL_BOUND,
+    CTL_COLUMNS,
+    CTL_DECAY,
+    CTL_DRAG,
+    CTL_FEEDFORWARD,
+    CTL_GAIN_IN,
+    CTL_GAMMA,
+    CTL_INV_PHI,
+    CTL_LAYER_GAIN,
+    CTL_NEG_U0,
+    smc_rows,
 )
-from .saturation import (
-    _layer_bound,
-    _outside,
-)
+from .laws import LAWS, SWITCHINGS, _check_saturation, _decay
+from .saturation import _layer_bound
 
 __all__ = ['ControlOutput', 'SlidingModeController']
 
@@ -95,6 +97,7 @@ class _ControllerGains:
     manifold: int  # 0 proposed with eq. 8, 1 traditional, 2 continuous sat
     inv_phi: NDArray[np.float64] | None  # 1/phi of the boundary-layer switching, None: sign
     feedforward: NDArray[np.float64] | None  # weight w of the target velocity, None: 0
+    ctl: NDArray[np.float64]  # every gain per run, (B, CTL_COLUMNS), for kernels.smc_rows
 
 
 @dataclass
@@ -169,19 +172,46 @@ class SlidingModeController:
             object.__setattr__(self, '_bound_of', (self.gamma, bound))
         # np.asarray: arithmetic on 0-d arrays gives numpy scalars, which numpy treats like
         # Python floats, the slower operand (see the module docstring)
+        layer_gain = np.asarray(alpha + beta / gamma)
+        neg_u0 = np.asarray(-shaped(self.u0))
+        drag = shaped(self.drag)
+        gain_in = np.asarray((1.0 - decay) * beta)
+        inv_phi = np.asarray(1.0 / shaped(self.phi)) if self.switching == 'layer' else None
+        feedforward = ff if np.any(ff != 0.0) else None
+        lead = self.shape[:-2]
+        runs = math.prod(lead)
+        ctl = np.zeros((runs, CTL_COLUMNS))
+        for col, value in (
+            (CTL_ALPHA, alpha),
+            (CTL_BETA, beta),
+            (CTL_GAMMA, gamma),
+            (CTL_BOUND, bound),
+            (CTL_LAYER_GAIN, layer_gain),
+            (CTL_NEG_U0, neg_u0),
+            (CTL_DRAG, drag),
+            (CTL_DECAY, decay),
+            (CTL_GAIN_IN, gain_in),
+            (CTL_INV_PHI, inv_phi),
+            (CTL_FEEDFORWARD, feedforward),
+        ):
+            if value is not None:
+                arr = np.asarray(value, dtype=float)
+                arr = arr.reshape(arr.shape[: len(lead)]) if arr.ndim else arr
+                ctl[:, col] = np.broadcast_to(arr, lead).reshape(runs)
         gains = _ControllerGains(
             alpha=alpha,
             beta=beta,
             gamma=self.gamma,
             layer_bound=bound,
-            layer_gain=np.asarray(alpha + beta / gamma),
-            neg_u0=np.asarray(-shaped(self.u0)),
-            drag=shaped(self.drag),
+            layer_gain=layer_gain,
+            neg_u0=neg_u0,
+            drag=drag,
             decay=np.asarray(decay),
-            gain_in=np.asarray((1.0 - decay) * beta),
+            gain_in=gain_in,
             manifold=manifold,
-            inv_phi=np.asarray(1.0 / shaped(self.phi)) if self.switching == 'layer' else None,
-            feedforward=ff if np.any(ff != 0.0) else None,
+            inv_phi=inv_phi,
+            feedforward=feedforward,
+            ctl=ctl,
         )
         object.__setattr__(self, '_gains', gains)
         return gains
@@ -210,29 +240,35 @@ class SlidingModeController:
 
     def step(self, v: ArrayLike, grad: ArrayLike, v_ref: ArrayLike | None = None) -> ControlOutput:
         """Compute the command for velocities ``v`` and gradients ``grad`` (shape
-        ``(..., m, 3)``); ``v_ref`` (shape ``(..., 3)``), the target velocity, enters the
-        manifold as ``v - feedforward v_ref`` when ``feedforward`` is not 0."""
+        ``(..., m, 3)``, the controller's :attr:`shape`); ``v_ref`` (shape ``(..., 3)``),
+        the target velocity, enters the manifold as ``v - feedforward v_ref`` when
+        ``feedforward`` is not 0. The law is the compiled :func:`~apf_swarm_core.kernels.
+        smc_rows` (eq. 8, 20, 22-28, 31, 24, 26), the one the simulator's loop runs."""
         p = self._gains or self._prepare()
+        shape = self.shape
         v = np.asarray(v, dtype=float)
         grad = np.asarray(grad, dtype=float)
+        runs, m = p.ctl.shape[0], shape[-2]
+        feedforward = p.feedforward is not None and v_ref is not None
+        vref = (
+            np.ascontiguousarray(
+                np.broadcast_to(np.asarray(v_ref, dtype=float), (*shape[:-2], 3))
+            ).reshape(runs, 3)
+            if feedforward
+            else np.zeros((runs, 3))
+        )
+        force, s, znew, outside = smc_rows(
+            np.ascontiguousarray(np.broadcast_to(v, shape)).reshape(runs, m, 3),
+            np.ascontiguousarray(np.broadcast_to(grad, shape)).reshape(runs, m, 3),
+            np.ascontiguousarray(self.z).reshape(runs, m, 3),
+            vref,
+            p.ctl,
+            p.manifold,
+            p.inv_phi is not None,
+            feedforward,
+        )
         z = self.z
-        outside = _outside(grad, p.layer_bound)
-        manifold = p.manifold
-        vs = (
-            v
-            if p.feedforward is None or v_ref is None
-            else v - p.feedforward * np.asarray(v_ref, dtype=float)[..., None, :]
+        object.__setattr__(self, 'z', znew.reshape(shape))  # not a gain
+        return ControlOutput(
+            force.reshape(shape), s.reshape(shape), grad, z, outside.reshape(shape[:-1])
         )
-        if manifold == 0:
-            s = _surface_proposed(vs, grad, z, outside, p.alpha, p.layer_gain)
-        elif manifold == 1:
-            s = _surface_filtered(vs, grad, z, p.alpha)
-        else:
-            s = _surface_continuous(vs, grad, p.alpha, p.beta, p.gamma)
-        force = (
-            _switching(s, v, p.neg_u0, p.drag)
-            if p.inv_phi is None
-            else _switching_layer(s, v, p.neg_u0, p.inv_phi, p.drag)
-        )
-        object.__setattr__(self, 'z', _filter(z, grad, p.decay, p.gain_in))  # not a gain
-        return ControlOutput(force, s, grad, z, outside)  # positional: cheaper per step

@@ -133,6 +133,48 @@ def _step(H: _A, g: _A, gbar: _A, kn: float, mu: float, trust: float, out: _A) -
 
 
 @_jit
+def _directions(
+    x: _A,
+    r: int,
+    tx: _A,
+    rows: _I,
+    mask: _M,
+    gains: _A,
+    block: bool,
+    mu: float,
+    trust: float,
+    out: _A,
+    work: _A,
+    H: _A,
+) -> None:
+    """Run ``r``'s direction for each row into ``out`` (m, 3): its gradient row, ``k_N (x_i -
+    x_N) + k_f sum_j d_ij (a - b e_ij)`` (eq. 2 / 44), or with ``block`` the step of
+    :func:`_step` from it, its Hessian block and ``g_bar = k_N (mean x - x_N)``. ``tx`` (3,)
+    the run's target; ``work`` (17,) and ``H`` (3, 3) scratch."""
+    n, m = x.shape[1], rows.shape[0]
+    mr = r if mask.shape[0] > 1 else 0
+    kn, kf, a, b, c = gains[r, 0], gains[r, 1], gains[r, 2], gains[r, 3], gains[r, 4]
+    s, h, g, gbar = work[0:3], work[3:11], work[11:14], work[14:17]
+    if block:
+        for q in range(3):
+            acc = 0.0
+            for j in range(n):
+                acc += x[r, j, q]
+            gbar[q] = kn * (acc / n - tx[q])
+    for k in range(m):
+        i = rows[k]
+        _row_sums(x, r, i, mask, mr, k, a, b, c, block, s, h)
+        for q in range(3):
+            g[q] = kn * (x[r, i, q] - tx[q]) + kf * s[q]
+        if block:
+            _block(h, kn, kf, a, b, c, H)
+            _step(H, g, gbar, kn, mu, trust, out[k])
+        else:
+            for q in range(3):
+                out[k, q] = g[q]
+
+
+@_jit
 def gradient_rows(x: _A, tx: _A, rows: _I, mask: _M, gains: _A) -> _A:
     """Gradient rows of J (eq. 2 / 44), shape (B, m, 3): ``k_N (x_i - x_N) + k_f sum_j
     d_ij (a - b e_ij)``.
@@ -142,16 +184,10 @@ def gradient_rows(x: _A, tx: _A, rows: _I, mask: _M, gains: _A) -> _A:
     """
     B, m = x.shape[0], rows.shape[0]
     out = np.empty((B, m, 3))
-    s = np.empty(3)
-    h = np.empty(8)
+    work = np.empty(17)
+    H = np.empty((3, 3))
     for r in range(B):
-        mr = r if mask.shape[0] > 1 else 0
-        kn, kf, a, b, c = gains[r, 0], gains[r, 1], gains[r, 2], gains[r, 3], gains[r, 4]
-        for k in range(m):
-            i = rows[k]
-            _row_sums(x, r, i, mask, mr, k, a, b, c, False, s, h)
-            for q in range(3):
-                out[r, k, q] = kn * (x[r, i, q] - tx[r, q]) + kf * s[q]
+        _directions(x, r, tx[r], rows, mask, gains, False, 0.0, 0.0, out[r], work, H)
     return out
 
 
@@ -190,29 +226,268 @@ def block_rows(x: _A, tx: _A, rows: _I, mask: _M, gains: _A, mu: float, trust: f
     over each row's pairs: its gradient row (:func:`gradient_rows`), its Hessian block
     (:func:`hessian_rows`) and the step of :func:`block_steps` with ``g_bar = k_N (mean x -
     x_N)`` over every tracker in ``x``."""
-    B, n, m = x.shape[0], x.shape[1], rows.shape[0]
+    B, m = x.shape[0], rows.shape[0]
     out = np.empty((B, m, 3))
-    s = np.empty(3)
-    h = np.empty(8)
-    g = np.empty(3)
-    gbar = np.empty(3)
+    work = np.empty(17)
     H = np.empty((3, 3))
     for r in range(B):
-        mr = r if mask.shape[0] > 1 else 0
-        kn, kf, a, b, c = gains[r, 0], gains[r, 1], gains[r, 2], gains[r, 3], gains[r, 4]
-        for q in range(3):
-            acc = 0.0
-            for j in range(n):
-                acc += x[r, j, q]
-            gbar[q] = kn * (acc / n - tx[r, q])
-        for k in range(m):
-            i = rows[k]
-            _row_sums(x, r, i, mask, mr, k, a, b, c, True, s, h)
-            for q in range(3):
-                g[q] = kn * (x[r, i, q] - tx[r, q]) + kf * s[q]
-            _block(h, kn, kf, a, b, c, H)
-            _step(H, g, gbar, kn, mu, trust, out[r, k])
+        _directions(x, r, tx[r], rows, mask, gains, True, mu, trust, out[r], work, H)
     return out
+
+
+#: columns of the controller's per-run gains (B, 11) that :func:`smc_rows` takes
+CTL_ALPHA, CTL_BETA, CTL_GAMMA, CTL_BOUND, CTL_LAYER_GAIN, CTL_NEG_U0 = 0, 1, 2, 3, 4, 5
+CTL_DRAG, CTL_DECAY, CTL_GAIN_IN, CTL_INV_PHI, CTL_FEEDFORWARD = 6, 7, 8, 9, 10
+CTL_COLUMNS = 11
+
+
+@_jit
+def _sign(value: float) -> float:
+    """numpy's sign: 1, -1, 0 for either zero, NaN for NaN (eq. 8, 24, 26)."""
+    if value > 0.0:
+        return 1.0
+    if value < 0.0:
+        return -1.0
+    if value == 0.0:
+        return 0.0
+    return value
+
+
+@_jit
+def _smc(
+    v: _A,
+    g: _A,
+    z: _A,
+    vref: _A,
+    c: _A,
+    manifold: int,
+    layer: bool,
+    feedforward: bool,
+    force: _A,
+    s: _A,
+    znew: _A,
+) -> bool:
+    """One tracker's sliding-mode step; returns whether ``|g| >= gamma`` (eq. 8).
+
+    The manifold (``manifold`` 0: the proposed one with the paper's sat, eq. 28 outside
+    the layer and eq. 31 inside; 1: the traditional ``v + alpha g + z``; 2: eq. 22 with the
+    continuous sat ``g / max(|g|, gamma)``) on ``v - w v_ref`` with the feed-forward; the
+    force of eq. 24, ``-u0 sign(s)`` or with ``layer`` ``-u0 clip(s / phi, -1, 1)``, plus
+    ``f_known = drag v`` (eq. 20); the filter of eq. 26, ``decay z + (1 - decay) beta
+    sign(g)``. v, g, z, vref (3,); c: the run's gains (``CTL_*`` columns); out: force, s,
+    znew (3,)."""
+    n2 = g[0] * g[0] + g[1] * g[1]
+    n2 = n2 + g[2] * g[2]
+    outside = n2 >= c[CTL_BOUND]
+    den = 0.0
+    if manifold == 2:
+        den = max(math.sqrt(n2), c[CTL_GAMMA])
+    for q in range(3):
+        vs = v[q] - c[CTL_FEEDFORWARD] * vref[q] if feedforward else v[q]
+        if manifold == 1 or (manifold == 0 and outside):
+            sq = (vs + c[CTL_ALPHA] * g[q]) + z[q]
+        elif manifold == 0:
+            sq = vs + c[CTL_LAYER_GAIN] * g[q]
+        else:
+            sq = (vs + c[CTL_ALPHA] * g[q]) + c[CTL_BETA] * (g[q] / den)
+        s[q] = sq
+        if layer:
+            force[q] = c[CTL_NEG_U0] * min(max(sq * c[CTL_INV_PHI], -1.0), 1.0) + (
+                c[CTL_DRAG] * v[q]
+            )
+        else:
+            force[q] = c[CTL_NEG_U0] * _sign(sq) + c[CTL_DRAG] * v[q]
+        znew[q] = c[CTL_DECAY] * z[q] + c[CTL_GAIN_IN] * _sign(g[q])
+    return outside
+
+
+@_jit
+def smc_rows(
+    v: _A, grad: _A, z: _A, vref: _A, ctl: _A, manifold: int, layer: bool, feedforward: bool
+) -> tuple[_A, _A, _A, NDArray[np.bool_]]:
+    """:func:`_smc` for every tracker: v, grad, z (B, m, 3); vref (B, 3); ctl (B, 11).
+    Returns the force, the manifold s, the next filter state (B, m, 3) and ``outside``
+    (B, m)."""
+    B, m = v.shape[0], v.shape[1]
+    force = np.empty((B, m, 3))
+    s = np.empty((B, m, 3))
+    znew = np.empty((B, m, 3))
+    outside = np.empty((B, m), dtype=np.bool_)
+    for r in range(B):
+        for k in range(m):
+            outside[r, k] = _smc(
+                v[r, k],
+                grad[r, k],
+                z[r, k],
+                vref[r],
+                ctl[r],
+                manifold,
+                layer,
+                feedforward,
+                force[r, k],
+                s[r, k],
+                znew[r, k],
+            )
+    return force, s, znew, outside
+
+
+@_jit
+def _plant(
+    x: float, v: float, f: float, d: float, mass: float, drag: float, h: float, half_h2: float
+) -> tuple[float, float]:
+    """Eq. 19-21 for one coordinate over one step ``h`` with the force ``f`` held:
+    ``acc = ((f - drag v) - d) / M``; returns ``x + v h + acc h^2 / 2`` and ``v + acc h``."""
+    acc = f - drag * v
+    acc = (acc - d) / mass
+    return (x + v * h) + half_h2 * acc, v + acc * h
+
+
+@_jit
+def plant_rows(
+    x: _A, v: _A, force: _A, dist: _A, mass: _A, drag: _A, h: float, half_h2: float
+) -> tuple[_A, _A]:
+    """:func:`_plant` for every coordinate: x, v, force, dist, mass (B, n, 3); drag (B,).
+    Returns the next positions and velocities (B, n, 3)."""
+    B, n = x.shape[0], x.shape[1]
+    xn = np.empty((B, n, 3))
+    vn = np.empty((B, n, 3))
+    for r in range(B):
+        for i in range(n):
+            for q in range(3):
+                xn[r, i, q], vn[r, i, q] = _plant(
+                    x[r, i, q],
+                    v[r, i, q],
+                    force[r, i, q],
+                    dist[r, i, q],
+                    mass[r, i, q],
+                    drag[r],
+                    h,
+                    half_h2,
+                )
+    return xn, vn
+
+
+@_jit
+def simulate_steps(
+    x: _A,
+    v: _A,
+    z: _A,
+    held: _A,
+    outside: NDArray[np.bool_],
+    have_out: bool,
+    k0: int,
+    i0: int,
+    steps: int,
+    hold: int,
+    dist: _A,
+    tpos: _A,
+    tvel: _A,
+    tindex: _I,
+    gains: _A,
+    block: bool,
+    mu: float,
+    trust: float,
+    ctl: _A,
+    manifold: int,
+    layer: bool,
+    feedforward: bool,
+    mass: _A,
+    drag: _A,
+    h: float,
+    half_h2: float,
+    every: int,
+    record: bool,
+    rec_x: _A,
+    rec_v: _A,
+    rec_u: _A,
+    rec_s: _A,
+    rec_sat: NDArray[np.bool_],
+    rec_tx: _A,
+    rec_tv: _A,
+) -> bool:
+    """``steps`` steps of the closed loop of every run, in place, with the functions the
+    step-by-step path calls (:func:`_directions`, :func:`_smc`, :func:`_plant`): the same
+    bits as :meth:`~apf_swarm_core.simulator.BatchSimulator.step` in a loop.
+
+    x, v, z (B, n, 3): state and filter; ``held`` (4, B, n, 3): the command being held
+    (force, s, direction, the filter state it was computed with) and ``outside`` (B, n),
+    valid if ``have_out``; a new command at the first step without one and every ``hold``
+    steps (k0 + t); dist (steps or 1, B, n, 3) [N]; tpos, tvel (steps, trajectories, 3)
+    and ``tindex`` (B,) each run's trajectory; recording every ``every``-th step k into row
+    (i0 + t) // every of the step-major rec arrays. Returns ``have_out``."""
+    B, n = x.shape[0], x.shape[1]
+    rows = np.arange(n)
+    nomask = np.zeros((0, n, n), dtype=np.bool_)
+    work = np.empty(17)
+    H = np.empty((3, 3))
+    znew = np.empty(3)
+    for t in range(steps):
+        k = k0 + t
+        if not have_out or k % hold == 0:
+            for r in range(B):
+                tr = tindex[r]
+                _directions(
+                    x,
+                    r,
+                    tpos[t, tr],
+                    rows,
+                    nomask,
+                    gains,
+                    block,
+                    mu,
+                    trust,
+                    held[2, r],
+                    work,
+                    H,
+                )
+                for i in range(n):
+                    for q in range(3):
+                        held[3, r, i, q] = z[r, i, q]
+                    outside[r, i] = _smc(
+                        v[r, i],
+                        held[2, r, i],
+                        z[r, i],
+                        tvel[t, tr],
+                        ctl[r],
+                        manifold,
+                        layer,
+                        feedforward,
+                        held[0, r, i],
+                        held[1, r, i],
+                        znew,
+                    )
+                    for q in range(3):
+                        z[r, i, q] = znew[q]
+            have_out = True
+        if record and k % every == 0:
+            j = (i0 + t) // every
+            for r in range(B):
+                tr = tindex[r]
+                for q in range(3):
+                    rec_tx[j, r, q] = tpos[t, tr, q]
+                    rec_tv[j, r, q] = tvel[t, tr, q]
+                for i in range(n):
+                    rec_sat[j, r, i] = outside[r, i]
+                    for q in range(3):
+                        rec_x[j, r, i, q] = x[r, i, q]
+                        rec_v[j, r, i, q] = v[r, i, q]
+                        rec_u[j, r, i, q] = held[0, r, i, q]
+                        rec_s[j, r, i, q] = held[1, r, i, q]
+        d = dist[t] if dist.shape[0] > 1 else dist[0]
+        for r in range(B):
+            for i in range(n):
+                for q in range(3):
+                    x[r, i, q], v[r, i, q] = _plant(
+                        x[r, i, q],
+                        v[r, i, q],
+                        held[0, r, i, q],
+                        d[r, i, q],
+                        mass[r, i, q],
+                        drag[r],
+                        h,
+                        half_h2,
+                    )
+    return have_out
 
 
 def warm() -> None:
@@ -231,6 +506,49 @@ def warm() -> None:
         block_rows(x, tx, rows, mask, gains, 0.1, 0.5)
     blocks = hessian_rows(x, rows, np.zeros((0, 2, 2), dtype=np.bool_), gains)
     block_steps(blocks, np.zeros((1, 2, 3)), np.zeros((1, 3)), np.ones(1), 0.1, 0.0)
+    ctl = np.ones((1, CTL_COLUMNS))
+    v = np.zeros((1, 2, 3))
+    for manifold in range(3):
+        smc_rows(v, v, v, tx, ctl, manifold, manifold == 1, manifold == 2)
+    plant_rows(x, v, v, v, np.ones((1, 2, 3)), np.ones(1), 0.001, 5e-7)
+    # the simulator's loop, recording into step-major views of (R, T, ...) arrays or not
+    for steps in (0, 1):
+        rec = [np.empty((1, steps, 2, 3)).swapaxes(0, 1) for _ in range(4)]
+        sat = np.empty((1, steps, 2), dtype=np.bool_).swapaxes(0, 1)
+        trec = [np.empty((1, steps, 3)).swapaxes(0, 1) for _ in range(2)]
+        simulate_steps(
+            x.copy(),
+            v.copy(),
+            v.copy(),
+            np.zeros((4, 1, 2, 3)),
+            np.zeros((1, 2), np.bool_),
+            False,
+            0,
+            0,
+            1,
+            1,
+            np.zeros((1, 1, 2, 3)),
+            np.zeros((1, 1, 3)),
+            np.zeros((1, 1, 3)),
+            np.zeros(1, dtype=np.int64),
+            gains,
+            steps == 1,
+            0.1,
+            0.0,
+            ctl,
+            0,
+            True,
+            True,
+            np.ones((1, 2, 3)),
+            np.ones(1),
+            0.001,
+            5e-7,
+            1,
+            steps == 1,
+            *rec,
+            sat,
+            *trec,
+        )
 
 
 class Args(NamedTuple):

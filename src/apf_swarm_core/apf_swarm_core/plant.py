@@ -24,14 +24,15 @@ without changing a single value.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .gains import shaped
-from .laws import _known, known_force
+from .kernels import plant_rows
+from .laws import known_force
 
 __all__ = [
     'NOISE_KINDS',
@@ -161,6 +162,24 @@ class DisturbanceSource:
         self._buf = buf if self._batched else buf[:, 0]
         self._pos = 0
 
+    @property
+    def silent(self) -> bool:
+        """No disturbance: every step's is zero."""
+        return self._silent
+
+    def take(self, limit: int) -> NDArray[np.float64]:
+        """The disturbances of the next steps, at most ``limit`` (>= 1) and at least one,
+        as many as the buffer holds without a refill: shape (steps, R, n, 3) [N], or (1, R,
+        n, 3) of zeros for any number of steps when there is no disturbance (a batch)."""
+        if self._silent:
+            return self._zeros[None] if self._batched else self._zeros[None, None]
+        if self._pos >= self._steps or not len(self._buf):
+            self._refill()
+        count = min(limit, self._steps - self._pos)
+        out = self._buf[self._pos : self._pos + count]
+        self._pos += count
+        return out if self._batched else out[:, None]
+
     def next(self) -> NDArray[np.float64]:
         """Disturbance for the next step [N]."""
         if self._silent:
@@ -170,10 +189,6 @@ class DisturbanceSource:
         out = self._buf[self._pos]
         self._pos += 1
         return out
-
-
-#: dt -> (dt, dt^2 / 2) as 0-d arrays, prepared once per step length
-_STEP_LENGTHS: dict[float, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
 
 
 def plant_step(
@@ -211,38 +226,31 @@ def plant_step(
     force = np.asarray(force, dtype=float)
     disturbance = np.asarray(disturbance, dtype=float)
     mass = np.asarray(mass, dtype=float)
-    # 0-d arrays: cheaper than Python floats in numpy arithmetic on small arrays, same values
-    steps = _STEP_LENGTHS.get(dt) if type(dt) is float else None
-    if steps is None:
-        steps = (np.asarray(dt, dtype=float), np.asarray(0.5 * dt * dt, dtype=float))
-        if type(dt) is float:
-            if len(_STEP_LENGTHS) >= 64:
-                _STEP_LENGTHS.clear()
-            _STEP_LENGTHS[dt] = steps
-    h, half_h2 = steps
-    acc = _known(v, drag if type(drag) is np.ndarray and not drag.ndim else shaped(drag))
-    shape = acc.shape
-    if not (
-        x.shape == shape
-        and (force.shape == shape or not force.ndim)
-        and (disturbance.shape == shape or not disturbance.ndim)
-        and (mass.shape == shape or not mass.ndim)
-    ):
-        # operands that broadcast beyond v: the same expressions, allocating
-        acc = (force - acc - disturbance) / mass
-        return x + v * h + half_h2 * acc, v + acc * h
-    # the same expressions in the same order, in place on two temporaries (on the arrays of
-    # a small swarm a numpy call that writes into an array it is given costs less than one
-    # that allocates); a division by a unit mass (a 0-d 1.0) changes nothing and is skipped
-    np.subtract(force, acc, acc)  # u - f_known (laws.known_force)
-    np.subtract(acc, disturbance, acc)  # - f_unknown
-    if mass.ndim or float(mass) != 1.0:
-        np.divide(acc, mass, acc)  # acc
-    x_next = v * h
-    np.add(x, x_next, x_next)  # x + v dt
-    np.add(x_next, half_h2 * acc, x_next)  # ... + acc dt^2 / 2
-    np.multiply(acc, h, acc)
-    return x_next, np.add(v, acc, acc)  # v + acc dt
+    drag = np.asarray(drag, dtype=float)
+    shape = x.shape
+    if not (v.shape == force.shape == shape and disturbance.shape in (shape, ())):
+        shape = np.broadcast_shapes(
+            x.shape, v.shape, force.shape, disturbance.shape, mass.shape, (*drag.shape, 1, 1)
+        )
+    lead, n = shape[:-2], shape[-2] if len(shape) > 1 else 1
+    runs = math.prod(lead)
+
+    def rows(arr: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.ascontiguousarray(np.broadcast_to(arr, shape)).reshape(runs, n, 3)
+
+    xn, vn = plant_rows(
+        rows(x),
+        rows(v),
+        rows(force),
+        rows(disturbance),
+        rows(mass),
+        np.ascontiguousarray(np.broadcast_to(drag.reshape(drag.shape[: len(lead)]), lead)).reshape(
+            runs
+        ),
+        float(dt),
+        0.5 * float(dt) * float(dt),
+    )
+    return xn.reshape(shape), vn.reshape(shape)
 
 
 def acceleration_setpoint(

@@ -37,6 +37,7 @@ from .command_hold import CommandHold
 from .config import KEYS, SwarmConfig
 from .control import (
     CONTROLLER_GAINS,
+    BlockPreconditioner,
     control_step,
     make_controller,
     make_preconditioner,
@@ -45,6 +46,7 @@ from .control import (
 from .controller import ControlOutput
 from .formation import design_pair_sets
 from .gains import per_run
+from .kernels import simulate_steps
 from .metrics import summarize
 from .neighbours import neighbour_mask
 from .plant import DisturbanceSource, plant_step, uniform_ball
@@ -305,6 +307,14 @@ class BatchSimulator:
         rec_tx, rec_tv = (rec[key].swapaxes(0, 1) for key in ('target_x', 'target_v'))
         k0 = self.k
         first = (-k0) % every  # the first recorded step is k0 + first
+        if self._compiled():
+            self._run_compiled(steps, record, rec, progress, progress_every)
+            if record:
+                m = len(range(first, steps, every))
+                rec['t'][:m] = (k0 + first + every * np.arange(m)) * dt  # k dt, as k * dt
+            if progress is not None:
+                progress(steps, steps)
+            return rec
         held = [0, 0]  # samples from the current block: j, count
         target = self.target
 
@@ -342,6 +352,126 @@ class BatchSimulator:
         if progress is not None:
             progress(steps, steps)
         return rec
+
+    def _compiled(self) -> bool:
+        """Whether :meth:`run` can take the compiled loop
+        (:func:`~apf_swarm_core.kernels.simulate_steps`): every command acts at its own
+        sample, no prediction, every tracker a neighbour, the gradient or the block
+        direction (the realtime emulation's delays, a limited neighbour set and the Newton
+        direction step in Python, with the same kernels)."""
+        return (
+            self.actuator is None
+            and self.predictor is None
+            and not self.neighbour_rule
+            and (self.precondition is None or isinstance(self.precondition, BlockPreconditioner))
+            and self.controller.shape == (self.R, self.n, 3)
+        )
+
+    def _run_compiled(
+        self,
+        steps: int,
+        record: bool,
+        rec: dict[str, NDArray[Any]],
+        progress: Callable[[int, int], None] | None,
+        progress_every: int,
+    ) -> None:
+        """:meth:`run`'s steps in the compiled loop, in pieces bounded by the disturbance's
+        buffer, the target's block and the progress reports; the same bits as
+        :meth:`step` in a loop."""
+        R, n = self.R, self.n
+        ctl = self.controller._gains or self.controller._prepare()
+        gains = np.empty((R, 5))
+        for q, value in enumerate(self.params[key] for key in ('k_n', 'k_f', 'a', 'b', 'c')):
+            gains[:, q] = np.broadcast_to(np.asarray(value, dtype=np.float64), (R,))
+        pre = self.precondition
+        mu, trust = (pre.mu, pre.trust) if isinstance(pre, BlockPreconditioner) else (0.0, 0.0)
+        mass = np.ascontiguousarray(np.broadcast_to(self.mass, (R, n, 3)), dtype=float)
+        drag = np.ascontiguousarray(np.broadcast_to(self.drag, (R,)), dtype=float)
+        target = self.target
+        if target.identity:
+            tindex = np.arange(R, dtype=np.int64)
+        elif len(target.distinct) == 1:
+            tindex = np.zeros(R, dtype=np.int64)
+        else:
+            tindex = target.index.astype(np.int64)
+        x = np.array(self.x, dtype=float)
+        v = np.array(self.v, dtype=float)
+        z = np.array(self.controller.z, dtype=float).reshape(R, n, 3)
+        held = np.zeros((4, R, n, 3))
+        outside = np.zeros((R, n), dtype=np.bool_)
+        out = self.out
+        if out is not None:
+            for q, arr in enumerate(
+                (out.force, out.sliding_surface, out.gradient, out.filter_state)
+            ):
+                held[q] = arr
+            outside[:] = out.saturated
+        if record:
+            views = [
+                rec[key].swapaxes(0, 1)
+                for key in ('x', 'v', 'u', 's', 'saturated', 'target_x', 'target_v')
+            ]
+        else:
+            views = [
+                np.empty((R, 0, n, 3)).swapaxes(0, 1),
+                np.empty((R, 0, n, 3)).swapaxes(0, 1),
+                np.empty((R, 0, n, 3)).swapaxes(0, 1),
+                np.empty((R, 0, n, 3)).swapaxes(0, 1),
+                np.empty((R, 0, n), dtype=np.bool_).swapaxes(0, 1),
+                np.empty((R, 0, 3)).swapaxes(0, 1),
+                np.empty((R, 0, 3)).swapaxes(0, 1),
+            ]
+        dt = float(self.dt)
+        have = out is not None
+        i = 0
+        while i < steps:
+            k = self.k
+            target.state(k)  # the block holding step k
+            base, pos, vel = target.block
+            limit = min(steps - i, base + target.BLOCK - k)
+            if progress is not None:
+                limit = min(limit, progress_every - i % progress_every)
+            dist = self.noise.take(limit)
+            count = limit if self.noise.silent else dist.shape[0]
+            have = simulate_steps(
+                x,
+                v,
+                z,
+                held,
+                outside,
+                have,
+                k,
+                i,
+                count,
+                self.hold,
+                dist,
+                np.ascontiguousarray(pos[k - base : k - base + count]),
+                np.ascontiguousarray(vel[k - base : k - base + count]),
+                tindex,
+                gains,
+                pre is not None,
+                mu,
+                trust,
+                ctl.ctl,
+                ctl.manifold,
+                ctl.inv_phi is not None,
+                ctl.feedforward is not None,
+                mass,
+                drag,
+                dt,
+                0.5 * dt * dt,
+                self.cfgs[0].record_every,
+                record,
+                *views,
+            )
+            i += count
+            self.k += count
+            if progress is not None and i % progress_every == 0:
+                progress(i, steps)
+        self.x, self.v = x, v
+        self.controller.z = z.reshape(self.controller.shape)
+        self.out = ControlOutput(held[0], held[1], held[2], held[3], outside)
+        self.force = held[0]
 
 
 def simulate_batch(
