@@ -3,20 +3,26 @@
 ``scripts/multihost.py`` twice with the same swarm, ``--open`` (UDP, multicast discovery)
 and secure (TCP with TLS, the bring-up's discovery server), in the order given.
 
-    sudo python bench/bench_secure.py --n-trackers 32 --duration 25 --out runs/secure_cost
+    sudo python bench/bench_secure.py [--quick | --smoke] [--n-trackers 32 --duration 25]
+        [--out runs/secure_cost]
 
 Per run: graph-ready time (the bring-up's ``timing.ready``), the control latency the plant
 measured (p50 / p99, ``prediction.latency``), each simulated host's CPU (% of a core over
 the wall time, start-up included), the formation judged by flight, missed deadlines.
-Prints a Markdown table and writes ``bench_secure.json`` into ``--out``. Needs root.
+Prints a Markdown table and writes ``bench_secure.json`` into ``--out`` (default: a
+temporary directory, removed). ``--quick``: 8 trackers, 10 s; ``--smoke``: 3 trackers, 3 s.
+Needs root and iproute2 (simulated hosts): without them it says why and exits 0.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import importlib.util
 import json
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -67,13 +73,34 @@ def one(out: Path, mode: str, args: argparse.Namespace) -> dict:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    p.add_argument('--n-trackers', type=int, default=32)
+    p.add_argument('--n-trackers', type=int, default=None, help='default 32')
     p.add_argument('--trackers-per-process', type=int, default=4)
-    p.add_argument('--duration', type=float, default=25.0)
+    p.add_argument('--duration', type=float, default=None, help='wall seconds, default 25')
     p.add_argument('--order', default='open,secure', help='the runs, in order')
-    p.add_argument('--out', type=Path, required=True)
+    p.add_argument('--out', type=Path, default=None, help='default: a temporary directory')
+    size = p.add_mutually_exclusive_group()
+    size.add_argument('--quick', action='store_true', help='8 trackers, 10 s')
+    size.add_argument('--smoke', action='store_true', help='3 trackers, 3 s: does it run?')
     args = p.parse_args()
-    rows = [one(args.out / mode, mode, args) for mode in args.order.split(',')]
+    n, duration = (3, 3.0) if args.smoke else (8, 10.0) if args.quick else (32, 25.0)
+    args.n_trackers = args.n_trackers or n
+    args.duration = args.duration or duration
+    args.trackers_per_process = min(args.trackers_per_process, args.n_trackers)
+    spec = importlib.util.spec_from_file_location('multihost', ROOT / 'scripts' / 'multihost.py')
+    assert spec is not None and spec.loader is not None
+    multihost = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(multihost)
+    why = multihost.unavailable()
+    if why is not None:
+        print(f'bench_secure: skipped, simulated hosts unavailable: {why}')
+        return 0
+    with contextlib.ExitStack() as stack:
+        if args.out is None:
+            args.out = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix='secure_')))
+        return report(args, [one(args.out / mode, mode, args) for mode in args.order.split(',')])
+
+
+def report(args: argparse.Namespace, rows: list[dict]) -> int:
     print(
         '| run | graph ready | latency p50 / p99 | CPU host 1 / 2 / 3 [% of a core] | '
         'formation error / closest pair | missed | rate |'
