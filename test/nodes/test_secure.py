@@ -164,3 +164,47 @@ def test_bringup_stops_on_bad_reused_files(tmp_path: Path) -> None:
         assert rc == 2, (name, err)
         assert len(errors) == 1 and expected in errors[0], (name, err)
         assert not list((out / 'logs').glob('*.log')), name  # no node was started
+
+
+def test_check_refuses_stops_a_port_that_admits_anyone(pki: secure.Pki) -> None:
+    """The bring-up's self-check against a TLS server of Python's own: one that does not
+    ask for a certificate (as Fast DDS 2.14 without the run's OpenSSL configuration) stops
+    the run; one that requires a certificate of the run's authority passes."""
+    import socket
+    import ssl
+    import threading
+
+    h1 = pki.hosts['h1']
+
+    def serve(require: bool) -> tuple[socket.socket, threading.Thread]:
+        ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+        ctx.load_cert_chain(str(h1.cert), str(h1.key))
+        if require:
+            ctx.verify_mode = ssl.CERT_REQUIRED
+            ctx.load_verify_locations(str(pki.ca))
+        listener = socket.create_server(('127.0.0.1', 0))
+
+        def accept_once() -> None:
+            conn, _ = listener.accept()
+            try:
+                with ctx.wrap_socket(conn, server_side=True) as tls:
+                    tls.recv(1)
+            except (ssl.SSLError, OSError):
+                pass
+
+        t = threading.Thread(target=accept_once, daemon=True)
+        t.start()
+        return listener, t
+
+    for require in (False, True):
+        listener, t = serve(require)
+        port = listener.getsockname()[1]
+        try:
+            if require:
+                secure.check_refuses('127.0.0.1', port, timeout=5.0)
+            else:
+                with pytest.raises(CliError, match='admitted a client without a certificate'):
+                    secure.check_refuses('127.0.0.1', port, timeout=5.0)
+        finally:
+            listener.close()
+            t.join(5.0)
