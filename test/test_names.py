@@ -1,7 +1,8 @@
 """The floors of the layout that a grep can hold: every ROS name of the swarm is said in one
 module (:mod:`apf_swarm_nodes.topics`, or :mod:`apf_swarm_core.names` for what the core must
-know), a node names its topics through it, and nothing under src/ imports rclpy's private
-API (``rclpy.impl``, ``_rclpy``)."""
+know), a node names its topics through it, nothing under src/ imports rclpy's private API
+(``rclpy.impl``, ``_rclpy``), and the library layers raise their own errors, not the command
+line's."""
 
 from __future__ import annotations
 
@@ -114,6 +115,24 @@ def test_no_private_rclpy_api() -> None:
             if any(n.startswith('rclpy.impl') or '_rclpy' in n for n in names):
                 found.append(f'{_where(path, node)}: {", ".join(names)}')
     assert not found, 'rclpy private API imported:\n' + '\n'.join(found)
+
+
+def test_library_layers_raise_their_own_errors() -> None:
+    # the bags, the bring-up (but its command line) and the core raise BagError,
+    # BringupError, ConfigError...; only a command line speaks of CliError
+    nodes = SRC / 'apf_swarm_nodes' / 'apf_swarm_nodes'
+    layers = [nodes / 'bags', nodes / 'bringup', SRC / 'apf_swarm_core' / 'apf_swarm_core']
+    found = []
+    for path, tree in _modules():
+        if not any(layer in path.parents for layer in layers) or path.name == 'cli.py':
+            continue
+        found += [
+            _where(path, n)
+            for n in ast.walk(tree)
+            if (isinstance(n, ast.Name) and n.id == 'CliError')
+            or (isinstance(n, ast.alias) and n.name == 'CliError')
+        ]
+    assert not found, 'CliError in a library layer:\n' + '\n'.join(found)
 
 
 @pytest.mark.parametrize('planted', ["x = '/swarm/state'\n", "x = f'/uav_{i}/odom'\n"])

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from apf_swarm_nodes.errors import CliError
+from apf_swarm_nodes.bringup.errors import BringupError
 
 from apf_swarm_nodes import bringup, probe
 
@@ -24,10 +24,10 @@ def limit(monkeypatch) -> int:
 
 def test_processes_past_the_probe_limit_are_refused_naming_it(limit) -> None:
     bringup.check_capacity(limit)
-    with pytest.raises(CliError, match=rf'{limit + 1} processes .* allows {limit} tracker'):
+    with pytest.raises(BringupError, match=rf'{limit + 1} processes .* allows {limit} tracker'):
         bringup.check_capacity(limit + 1)
     bringup.check_capacity(4 * limit, per_process=4)  # 4 to a process: the limit
-    with pytest.raises(CliError, match='--trackers-per-process K'):
+    with pytest.raises(BringupError, match='--trackers-per-process K'):
         bringup.check_capacity(4 * limit + 1, per_process=4)
     bringup.check_capacity(10 * limit, allow_overload=True)
 

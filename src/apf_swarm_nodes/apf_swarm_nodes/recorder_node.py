@@ -41,7 +41,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from std_msgs.msg import String
 
-from .bags import CUSTOM_CONFIG, CUSTOM_MODE, CUSTOM_RECORDER, BagWriter
+from .bags import CUSTOM_CONFIG, CUSTOM_MODE, CUSTOM_RECORDER, BagError, BagWriter
 from .errors import CliError
 from .node_common import START_QOS, freeze_startup_heap, msg_class
 from .params import MODES, NodeParam, declare_node_params, declare_str_array
@@ -206,7 +206,7 @@ class RecorderNode(Node):
                 conn = self.writer.add_topic(
                     topic, msgtype, offered_qos=[qos_from_dict(o) for o in offered]
                 )
-            except CliError as exc:
+            except BagError as exc:
                 self._skip(topic, str(exc))
                 continue
             qos = recording_profile(offered, int(self.p['queue_depth']))

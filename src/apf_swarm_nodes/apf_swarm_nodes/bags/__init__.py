@@ -24,10 +24,11 @@ the bring-up's deserialization so that ``bag metrics`` equals the live ``summary
   :func:`reindex` -- the other ``apf-swarm bag`` commands.
 
 Every expected problem (no such path, not a bag, missing metadata.yaml, truncated or corrupt
-MCAP, unknown topic or type) raises :class:`~apf_swarm_nodes.errors.CliError` with one line that
-names it and says what to do.
+MCAP, unknown topic or type) raises :class:`BagError` with one line that names it
+and says what to do (the command line prints it, exit code 2).
 """
 
+from .errors import BagError
 from .export import export_csv, flatten
 from .info import BagInfo, FileInfo, TopicInfo, bag_files, format_info, info_dict, open_bag
 from .read import bag_config, bag_metrics, bag_trajectory, iter_raw, swarm_state_accumulator
@@ -47,6 +48,7 @@ __all__ = [
     'CUSTOM_CONFIG',
     'CUSTOM_MODE',
     'CUSTOM_RECORDER',
+    'BagError',
     'BagInfo',
     'BagWriter',
     'FileInfo',

@@ -10,7 +10,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from ..errors import CliError
+from .errors import BagError
 from .info import _read_error, open_bag
 from .read import _any_reader
 from .types import _one_line
@@ -68,7 +68,7 @@ def export_csv(path: Path | str, topic: str, out: TextIO, *, quiet: bool = True)
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
                 except Exception as exc:
-                    raise CliError(
+                    raise BagError(
                         f'{topic}: cannot decode type {t.type} '
                         f"({_one_line(exc)}); the bag's definition of it is "
                         'missing or wrong'
@@ -78,7 +78,7 @@ def export_csv(path: Path | str, topic: str, out: TextIO, *, quiet: bool = True)
                     if k not in columns:
                         columns[k] = None
                 rows.append(row)
-    except CliError:
+    except BagError:
         raise
     except Exception as exc:
         raise _read_error(info.path, exc, topic) from None

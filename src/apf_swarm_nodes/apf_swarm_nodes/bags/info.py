@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from ..errors import CliError
+from .errors import BagError
 from .types import _FILE_RE, CUSTOM_RECORDER, _one_line
 
 # --------------------------------------------------------------------------------------------
@@ -71,7 +71,7 @@ class BagInfo:
             if t.name == name:
                 return t
         known = ', '.join(t.name for t in self.topics) or 'none'
-        raise CliError(
+        raise BagError(
             f'topic {name} is not in {self.path} (its topics: {known}); see `apf-swarm bag info`'
         )
 
@@ -86,9 +86,9 @@ def bag_files(path: Path) -> list[Path]:
     return sorted((p for p in path.glob('*.mcap') if p.is_file()), key=key)
 
 
-def _read_error(path: Path, exc: BaseException, what: str = 'the messages') -> CliError:
+def _read_error(path: Path, exc: BaseException, what: str = 'the messages') -> BagError:
     """A failure while reading messages of an opened bag: a damaged file."""
-    return CliError(
+    return BagError(
         f'{path}: cannot read {what}, the file is damaged ({_one_line(exc)}); '
         f'{_reindex_hint(path)}'
     )
@@ -101,24 +101,24 @@ def _reindex_hint(path: Path) -> str:
 def _check_bag_dir(path: Path) -> Path:
     path = Path(path)
     if not path.exists():
-        raise CliError(
+        raise BagError(
             f'{path}: no such file or directory; pass a bag directory (one with metadata.yaml)'
         )
     if path.is_file():
         if path.suffix == '.mcap' and (path.parent / 'metadata.yaml').is_file():
             return path.parent
-        raise CliError(
+        raise BagError(
             f'{path} is a file, not a bag; pass the bag directory (the one with '
             'metadata.yaml and the .mcap files)'
         )
     meta = path / 'metadata.yaml'
     if not meta.is_file():
         if bag_files(path):
-            raise CliError(
+            raise BagError(
                 f'{path}: metadata.yaml is missing (the recorder did not close the '
                 f'bag?); {_reindex_hint(path)}'
             )
-        raise CliError(f'{path} is not a bag: no metadata.yaml and no .mcap file in it')
+        raise BagError(f'{path} is not a bag: no metadata.yaml and no .mcap file in it')
     return path
 
 
@@ -130,14 +130,14 @@ def _read_metadata(path: Path) -> dict[str, Any]:
         if not isinstance(info, dict) or 'relative_file_paths' not in info:
             raise KeyError('relative_file_paths')
     except (yaml.YAMLError, KeyError, TypeError, UnicodeDecodeError) as exc:
-        raise CliError(
+        raise BagError(
             f'{meta} is not rosbag2 metadata ({_one_line(exc)}); {_reindex_hint(path)}'
         ) from None
     return info
 
 
 def _mcap_summary(file: Path) -> Any:
-    """The summary section of an MCAP file; CliError when it is missing or unreadable."""
+    """The summary section of an MCAP file; BagError when it is missing or unreadable."""
     from mcap.reader import make_reader
 
     bag = file.parent
@@ -145,12 +145,12 @@ def _mcap_summary(file: Path) -> Any:
         with open(file, 'rb') as f:
             summary = make_reader(f).get_summary()
     except Exception as exc:  # mcap raises McapError, EndOfFile, struct.error, ValueError...
-        raise CliError(
+        raise BagError(
             f'{file}: truncated or corrupt MCAP file ({_one_line(exc)}); '
             f'{_reindex_hint(bag)} (it keeps every complete chunk)'
         ) from None
     if summary is None or summary.statistics is None:
-        raise CliError(
+        raise BagError(
             f'{file}: the MCAP file has no summary section (not closed?); {_reindex_hint(bag)}'
         )
     return summary
@@ -166,7 +166,7 @@ def open_bag(path: Path | str) -> BagInfo:
     meta = _read_metadata(path)
     storage = str(meta.get('storage_identifier', ''))
     if storage != 'mcap':
-        raise CliError(
+        raise BagError(
             f'{path}: storage {storage!r} is not supported here (only mcap); convert '
             'it with `rosbags-convert` or `ros2 bag convert`'
         )
@@ -175,7 +175,7 @@ def open_bag(path: Path | str) -> BagInfo:
     for rel in meta.get('relative_file_paths') or []:
         file = path / rel
         if not file.is_file():
-            raise CliError(
+            raise BagError(
                 f'{path}: {rel} is listed in metadata.yaml but missing; {_reindex_hint(path)}'
             )
         s = _mcap_summary(file)

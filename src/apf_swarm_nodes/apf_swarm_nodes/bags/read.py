@@ -8,8 +8,8 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from ..errors import CliError
 from ..topics import SWARM_STATE
+from .errors import BagError
 from .info import BagInfo, _read_error, open_bag
 from .types import (
     CUSTOM_CONFIG,
@@ -33,7 +33,7 @@ def _any_reader(path: Path) -> Any:
     try:
         reader.open()
     except Exception as exc:
-        raise CliError(
+        raise BagError(
             f'{path}: cannot load the type definitions stored in the bag '
             f'({_one_line(exc)}); it was not written with full, valid ros2msg '
             'definitions'
@@ -46,7 +46,7 @@ def iter_raw(
 ) -> Iterator[tuple[str, str, int, bytes]]:
     """``(topic, type, timestamp_ns, cdr bytes)`` of every message, in time order.
 
-    ``topics``: only these (CliError for a topic that is not in the bag).
+    ``topics``: only these (BagError for a topic that is not in the bag).
     """
     info = info or open_bag(path)
     wanted = None
@@ -59,7 +59,7 @@ def iter_raw(
             conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
             for conn, ts, raw in reader.messages(connections=conns):
                 yield conn.topic, conn.msgtype, int(ts), bytes(raw)
-    except CliError:
+    except BagError:
         raise
     except Exception as exc:  # rosbags raises ReaderError / AnyReaderError, mcap errors
         raise _read_error(info.path, exc) from None
@@ -77,7 +77,7 @@ def bag_config(info: BagInfo, config: Path | None = None) -> tuple[Any, str]:
         return load_config(config), mode
     text = info.custom_data.get(CUSTOM_CONFIG)
     if not text:
-        raise CliError(
+        raise BagError(
             f'{info.path} has no apf_swarm configuration in its custom_data (not '
             'recorded by `apf-swarm up --record`?); pass --config FILE'
         )
@@ -121,7 +121,7 @@ def bag_trajectory(
     acc = swarm_state_accumulator(info, cfg, mode, quiet=quiet)
     traj = acc.trajectory()
     if traj is None:
-        raise CliError(f'{info.path}: /swarm/state has no message; nothing to compute')
+        raise BagError(f'{info.path}: /swarm/state has no message; nothing to compute')
     return traj, cfg, mode, acc
 
 

@@ -12,7 +12,7 @@ from typing import Any, TextIO
 
 import yaml
 
-from ..errors import CliError
+from .errors import BagError
 from .info import _read_metadata, bag_files
 from .types import DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME, ROS_DISTRO
 from .write import _write_metadata, build_metadata
@@ -123,17 +123,17 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
     say = (lambda s: print(s, file=stream)) if stream is not None else (lambda s: None)
     path = Path(path)
     if not path.exists():
-        raise CliError(f'{path}: no such file or directory; pass the bag directory to reindex')
+        raise BagError(f'{path}: no such file or directory; pass the bag directory to reindex')
     if not path.is_dir():
-        raise CliError(f'{path} is a file; pass the bag directory (with the .mcap files)')
+        raise BagError(f'{path} is a file; pass the bag directory (with the .mcap files)')
     files = bag_files(path)
     if not files:
-        raise CliError(f'{path} is not a bag: it has no .mcap file to rebuild metadata.yaml from')
+        raise BagError(f'{path} is not a bag: it has no .mcap file to rebuild metadata.yaml from')
     old_meta: dict[str, Any] = {}
     if (path / 'metadata.yaml').is_file():
         try:
             old_meta = _read_metadata(path)
-        except CliError:
+        except BagError:
             old_meta = {}
     old_topics = {
         e.get('topic_metadata', {}).get('name'): e.get('topic_metadata', {})
@@ -156,7 +156,7 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
         rec = _scan_mcap(file)
         if not rec.complete:
             if not rec.schemas and not rec.messages:
-                raise CliError(
+                raise BagError(
                     f'{file}: no complete MCAP record could be read ({rec.error}); '
                     'nothing to recover (the recorder died before its first chunk?)'
                 )

@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from ..errors import CliError
+from .errors import BagError
 
 BAG_VERSION = 9
 #: the distribution the bags are written for, as rosbag2 names it (metadata.yaml and MCAP)
@@ -90,7 +90,7 @@ def _register_from_index(store: Any, msgtype: str, seen: set[str] | None = None)
 def type_definition(msgtype: str) -> tuple[str, str]:
     """The full ``ros2msg`` definition text (dependencies included) and the RIHS01 hash.
 
-    Raises CliError for a type that is neither in the Jazzy type store nor in a ``.msg`` file
+    Raises BagError for a type that is neither in the Jazzy type store nor in a ``.msg`` file
     of the ament index.
     """
     store = typestore()
@@ -100,7 +100,7 @@ def type_definition(msgtype: str) -> tuple[str, str]:
         msgdef, _ = store.generate_msgdef(msgtype, ros_version=2)
         return msgdef, store.hash_rihs01(msgtype)
     except Exception as exc:  # rosbags raises TypesysError / KeyError for missing dependencies
-        raise CliError(
+        raise BagError(
             f'message type {msgtype} is unknown: it is not a ROS 2 Jazzy type and no '
             f'{msgtype}.msg is in the ament index ({_one_line(exc)}); build and '
             'source the package that defines it'

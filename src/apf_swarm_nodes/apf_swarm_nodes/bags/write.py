@@ -11,7 +11,7 @@ from typing import Any
 
 import yaml
 
-from ..errors import CliError
+from .errors import BagError
 from .types import (
     BAG_VERSION,
     DEFAULT_CHUNK_SIZE,
@@ -215,7 +215,7 @@ class BagWriter:
     ) -> None:
         self.path = Path(path)
         if self.path.exists():
-            raise CliError(
+            raise BagError(
                 f'{self.path} exists already; a bag is never overwritten: choose a new '
                 'output directory'
             )
@@ -274,14 +274,14 @@ class BagWriter:
     ) -> Any:
         """Register a topic; returns the connection to pass to :meth:`write`.
 
-        Without ``msgdef`` / ``rihs01`` they come from :func:`type_definition` (CliError for a
+        Without ``msgdef`` / ``rihs01`` they come from :func:`type_definition` (BagError for a
         type nobody knows).
         """
         if msgdef is None or rihs01 is None:
             d, h = type_definition(msgtype)
             msgdef, rihs01 = msgdef or d, rihs01 or h
         if any(t.topic == topic for t in self.topics):
-            raise CliError(f'{topic} is in the bag already; add each topic once')
+            raise BagError(f'{topic} is in the bag already; add each topic once')
         t = Topic(
             len(self.topics) + 1,
             topic,
@@ -300,7 +300,7 @@ class BagWriter:
     def write(self, conn: Topic, timestamp: int, data: bytes | memoryview) -> None:
         """One serialized message at ``timestamp`` (ns since the epoch)."""
         if self.storage is None:
-            raise CliError(f'{self.path}: the bag is not open (use BagWriter.open or with)')
+            raise BagError(f'{self.path}: the bag is not open (use BagWriter.open or with)')
         if self._file_start is None:
             self._file_start = timestamp
         elif (self.split_size and self.storage.file_bytes() >= self.split_size) or (

@@ -6,8 +6,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..errors import CliError
 from ..topics import PLANT_NODE, TARGET_NAMESPACE, TARGET_NODE, TRACKER_NODE, uav_namespace
+from .errors import BringupError
 from .processes import PACKAGE
 
 
@@ -21,7 +21,7 @@ def package_prefix() -> Path:
     try:
         return Path(get_package_prefix(PACKAGE))
     except (PackageNotFoundError, KeyError, ValueError) as exc:
-        raise CliError(
+        raise BringupError(
             f'package {PACKAGE} is not in the ament index ({exc}); build with '
             '`make setup` and `source scripts/activate.sh`'
         ) from None

@@ -13,8 +13,8 @@ import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from ..errors import CliError
 from ..swarm_domain import bound_udp_ports, domain_port_range
+from .errors import BringupError
 
 # --------------------------------------------------------------------------------------------
 # configuration, isolation, command lines
@@ -28,7 +28,7 @@ def check_capacity(
     per_process: int = 1,
     say: Callable[[str], None] | None = None,
 ) -> None:
-    """Refuse more tracker processes than this machine runs (CliError naming the limit).
+    """Refuse more tracker processes than this machine runs (BringupError naming the limit).
 
     The limit counts processes (``ceil(n_trackers / per_process)``) and comes from the
     machine's probe (:func:`apf_swarm_nodes.probe.process_limit`: CPU at the lowest rate and
@@ -47,7 +47,7 @@ def check_capacity(
         return
     limit = probe.process_limit(machine)
     if procs > limit['processes'] and not allow_overload:
-        raise CliError(
+        raise BringupError(
             f'n_trackers = {n_trackers} in {procs} processes is more than this '
             f'machine runs: its probe (`apf-swarm probe`) allows '
             f'{limit["processes"]} tracker processes ({limit["cpu"]} by CPU at '

@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING, Any
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import to_ros_params
 
-from ..errors import CliError
 from ..topics import RECORDER_NODE
 from .commands import executable_path, node_commands, node_netns, package_prefix
+from .errors import BringupError
 from .isolation import env_domain, pick_domain_id
 from .processes import Child, ProcessGroup
 
@@ -61,7 +61,7 @@ class Startup:
         if self.mode == 'realtime':
             self.realtime_check()
         elif self.cfg.control_rate > 0:
-            raise CliError(
+            raise BringupError(
                 f'control_rate = {self.cfg.control_rate:g} Hz: lockstep commands '
                 'every step of dt; use --mode realtime, or --set control_rate=0'
             )
@@ -74,14 +74,14 @@ class Startup:
         if self.args.record:
             names.append('recorder')
             if (self.out / 'bag').exists():
-                raise CliError(
+                raise BringupError(
                     f'--record: {self.out / "bag"} exists already; a bag is never '
                     'overwritten: choose a new --out directory'
                 )
         for name in names:
             path = executable_path(prefix, name)
             if not (path.is_file() and os.access(path, os.X_OK)):
-                raise CliError(
+                raise BringupError(
                     f'node executable {path} not found; build the workspace with `make setup`'
                 )
         self.prefix = prefix

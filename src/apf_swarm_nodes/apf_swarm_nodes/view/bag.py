@@ -26,7 +26,7 @@ def bag_samples(info: Any) -> list[tuple[int, RawSample]]:
     from ..conversions import swarm_state_step
     from ..topics import SWARM_STATE
 
-    info.topic(SWARM_STATE)  # CliError naming the topic when the bag has none
+    info.topic(SWARM_STATE)  # BagError naming the topic when the bag has none
     decode = swarm_state_decoder()
     return [
         (ts, RawSample(swarm_state_step(raw), raw, decode))
@@ -39,11 +39,11 @@ def _designs(info: Any, config: Path | None, say: Callable[[str], None]) -> list
     with a warning, for a bag that stores none (the edges are then not drawn)."""
     from apf_swarm_core.formation import design_pair_sets
 
-    from ..bags import bag_config
+    from ..bags import BagError, bag_config
 
     try:
         cfg, _mode = bag_config(info, config)
-    except CliError as exc:
+    except BagError as exc:
         say(f'warning: {exc}; the formation edges are not drawn')
         return []
     return design_pair_sets(cfg)
