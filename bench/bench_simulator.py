@@ -51,9 +51,9 @@ from apf_swarm_core.plant import DisturbanceSource
 from apf_swarm_core.simulator import BatchSimulator, initial_positions
 from apf_swarm_nodes.machine import cpu_model
 
-#: floors (at 3 trackers none: the simulator shares its one code path with the nodes, and
-#: its ratio to the loop is reported)
-FLOOR_N100 = 50.0  # simulator vs loop, single run, 100 trackers
+#: floors: the simulator against the naive loop of the same law, single runs
+FLOOR_N3 = 5.0  # 3 trackers (the paper's swarm)
+FLOOR_N100 = 50.0  # 100 trackers
 FLOOR_BATCH = 5e6  # tracker-steps per second, batched runs of 3 trackers
 
 
@@ -252,12 +252,12 @@ def main(argv: list[str] | None = None) -> int:
     log('single runs (simulator and loop timed alternately) ...')
     rows = []  # case, (sim best, median), (loop best, median), floor or None
     single = (
-        (3, 100, 100, 30 if q else 150, None, None),
+        (3, 2000, 100, 30 if q else 150, None, FLOOR_N3),
         (100, 50, 2, 4 if q else 7, None, FLOOR_N100),
         (1000, 5 if q else 10, 1, 2 if q else 3, 1 if q else 2, None),
     )
     if smoke:
-        single = ((3, 100, 100, 5, None, None), (100, 10, 1, 2, None, FLOOR_N100))
+        single = ((3, 2000, 100, 5, None, FLOOR_N3), (100, 10, 1, 2, None, FLOOR_N100))
     for n, sim_steps, loop_steps, reps, loop_reps, floor in single:
         res = single_case(n, sim_steps, loop_steps, reps, loop_reps)
         rows.append((f'n={n}, record off', res['off'], res['loop'], floor))

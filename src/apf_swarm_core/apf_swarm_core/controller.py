@@ -26,6 +26,7 @@ from .kernels import (
     CTL_INV_PHI,
     CTL_LAYER_GAIN,
     CTL_NEG_U0,
+    as_kernel,
     smc_rows,
 )
 from .laws import LAWS, SWITCHINGS, _check_saturation, _decay
@@ -251,16 +252,14 @@ class SlidingModeController:
         runs, m = p.ctl.shape[0], shape[-2]
         feedforward = p.feedforward is not None and v_ref is not None
         vref = (
-            np.ascontiguousarray(
-                np.broadcast_to(np.asarray(v_ref, dtype=float), (*shape[:-2], 3))
-            ).reshape(runs, 3)
-            if feedforward
+            as_kernel(v_ref, (*shape[:-2], 3)).reshape(runs, 3)
+            if feedforward and v_ref is not None
             else np.zeros((runs, 3))
         )
         force, s, znew, outside = smc_rows(
-            np.ascontiguousarray(np.broadcast_to(v, shape)).reshape(runs, m, 3),
-            np.ascontiguousarray(np.broadcast_to(grad, shape)).reshape(runs, m, 3),
-            np.ascontiguousarray(self.z).reshape(runs, m, 3),
+            as_kernel(v, shape).reshape(runs, m, 3),
+            as_kernel(grad, shape).reshape(runs, m, 3),
+            as_kernel(self.z).reshape(runs, m, 3),
             vref,
             p.ctl,
             p.manifold,

@@ -28,6 +28,7 @@ from .potential import Rows
 
 __all__ = [
     'Args',
+    'as_kernel',
     'block_rows',
     'block_steps',
     'gradient_rows',
@@ -115,8 +116,10 @@ def _block(h: _A, kn: float, kf: float, a: float, b: float, c: float, out: _A) -
 
 
 @_jit
-def _step(H: _A, g: _A, gbar: _A, kn: float, mu: float, trust: float, out: _A) -> None:
-    """``out = gbar / k_N + |H|_mu^-1 (g - gbar)`` for one tracker (the formula of
+def _step(
+    H: _A, g: _A, gbar: _A, kn: float, mu: float, trust: float, out: _A, r: int, k: int
+) -> None:
+    """``out[r, k] = gbar / k_N + |H|_mu^-1 (g - gbar)`` for one tracker (the formula of
     :func:`~apf_swarm_core.newton.block_direction`): ``|H|_mu = V diag(max(|lambda|, mu_i))
     V^T``, ``mu_i = max(mu, |g - gbar| / trust)`` with a trust radius."""
     w, v = np.linalg.eigh(H)
@@ -125,11 +128,18 @@ def _step(H: _A, g: _A, gbar: _A, kn: float, mu: float, trust: float, out: _A) -
     if trust > 0.0:
         floor = max(floor, math.sqrt(r0 * r0 + r1 * r1 + r2 * r2) / trust)
     for q in range(3):
-        out[q] = gbar[q] / kn
+        out[r, k, q] = gbar[q] / kn
     for p in range(3):
         coef = (v[0, p] * r0 + v[1, p] * r1 + v[2, p] * r2) / max(abs(w[p]), floor)
         for q in range(3):
-            out[q] += v[q, p] * coef
+            out[r, k, q] += v[q, p] * coef
+
+
+@_jit
+def _scratch() -> tuple[_A, _A, _A, _A, _A]:
+    """Work arrays of :func:`_directions`: pair sums (3,), Hessian sums (8,), a gradient
+    row (3,), the centroid's gradient (3,), a Hessian block (3, 3)."""
+    return np.empty(3), np.empty(8), np.empty(3), np.empty(3), np.empty((3, 3))
 
 
 @_jit
@@ -137,6 +147,7 @@ def _directions(
     x: _A,
     r: int,
     tx: _A,
+    tr: int,
     rows: _I,
     mask: _M,
     gains: _A,
@@ -144,34 +155,37 @@ def _directions(
     mu: float,
     trust: float,
     out: _A,
-    work: _A,
+    s: _A,
+    h: _A,
+    g: _A,
+    gbar: _A,
     H: _A,
 ) -> None:
-    """Run ``r``'s direction for each row into ``out`` (m, 3): its gradient row, ``k_N (x_i -
-    x_N) + k_f sum_j d_ij (a - b e_ij)`` (eq. 2 / 44), or with ``block`` the step of
-    :func:`_step` from it, its Hessian block and ``g_bar = k_N (mean x - x_N)``. ``tx`` (3,)
-    the run's target; ``work`` (17,) and ``H`` (3, 3) scratch."""
+    """Run ``r``'s direction for each row into ``out[r]`` (out (B, m, 3)): its gradient
+    row, ``k_N (x_i - x_N) + k_f sum_j d_ij (a - b e_ij)`` (eq. 2 / 44), or with ``block``
+    the step of :func:`_step` from it, its Hessian block and ``g_bar = k_N (mean x -
+    x_N)``. ``tx[tr]`` (tx (., 3)) the run's target; s, h, g, gbar, H scratch
+    (:func:`_scratch`)."""
     n, m = x.shape[1], rows.shape[0]
     mr = r if mask.shape[0] > 1 else 0
     kn, kf, a, b, c = gains[r, 0], gains[r, 1], gains[r, 2], gains[r, 3], gains[r, 4]
-    s, h, g, gbar = work[0:3], work[3:11], work[11:14], work[14:17]
     if block:
         for q in range(3):
             acc = 0.0
             for j in range(n):
                 acc += x[r, j, q]
-            gbar[q] = kn * (acc / n - tx[q])
+            gbar[q] = kn * (acc / n - tx[tr, q])
     for k in range(m):
         i = rows[k]
         _row_sums(x, r, i, mask, mr, k, a, b, c, block, s, h)
         for q in range(3):
-            g[q] = kn * (x[r, i, q] - tx[q]) + kf * s[q]
+            g[q] = kn * (x[r, i, q] - tx[tr, q]) + kf * s[q]
         if block:
             _block(h, kn, kf, a, b, c, H)
-            _step(H, g, gbar, kn, mu, trust, out[k])
+            _step(H, g, gbar, kn, mu, trust, out, r, k)
         else:
             for q in range(3):
-                out[k, q] = g[q]
+                out[r, k, q] = g[q]
 
 
 @_jit
@@ -184,10 +198,9 @@ def gradient_rows(x: _A, tx: _A, rows: _I, mask: _M, gains: _A) -> _A:
     """
     B, m = x.shape[0], rows.shape[0]
     out = np.empty((B, m, 3))
-    work = np.empty(17)
-    H = np.empty((3, 3))
+    s, h, g, gbar, H = _scratch()
     for r in range(B):
-        _directions(x, r, tx[r], rows, mask, gains, False, 0.0, 0.0, out[r], work, H)
+        _directions(x, r, tx, r, rows, mask, gains, False, 0.0, 0.0, out, s, h, g, gbar, H)
     return out
 
 
@@ -214,9 +227,14 @@ def block_steps(blocks: _A, grad: _A, gbar: _A, kn: _A, mu: float, trust: float)
     centroid gradients (B, 3); kn (B,); shape (B, m, 3)."""
     B, m = grad.shape[0], grad.shape[1]
     out = np.empty((B, m, 3))
+    g, gb = np.empty(3), np.empty(3)
     for r in range(B):
+        for q in range(3):
+            gb[q] = gbar[r, q]
         for k in range(m):
-            _step(blocks[r, k], grad[r, k], gbar[r], kn[r], mu, trust, out[r, k])
+            for q in range(3):
+                g[q] = grad[r, k, q]
+            _step(blocks[r, k], g, gb, kn[r], mu, trust, out, r, k)
     return out
 
 
@@ -228,10 +246,9 @@ def block_rows(x: _A, tx: _A, rows: _I, mask: _M, gains: _A, mu: float, trust: f
     x_N)`` over every tracker in ``x``."""
     B, m = x.shape[0], rows.shape[0]
     out = np.empty((B, m, 3))
-    work = np.empty(17)
-    H = np.empty((3, 3))
+    s, h, g, gbar, H = _scratch()
     for r in range(B):
-        _directions(x, r, tx[r], rows, mask, gains, True, mu, trust, out[r], work, H)
+        _directions(x, r, tx, r, rows, mask, gains, True, mu, trust, out, s, h, g, gbar, H)
     return out
 
 
@@ -259,7 +276,10 @@ def _smc(
     g: _A,
     z: _A,
     vref: _A,
-    c: _A,
+    ctl: _A,
+    r: int,
+    i: int,
+    tr: int,
     manifold: int,
     layer: bool,
     feedforward: bool,
@@ -267,37 +287,40 @@ def _smc(
     s: _A,
     znew: _A,
 ) -> bool:
-    """One tracker's sliding-mode step; returns whether ``|g| >= gamma`` (eq. 8).
+    """Tracker ``i`` of run ``r``: its sliding-mode step; returns whether ``|g| >= gamma``
+    (eq. 8).
 
     The manifold (``manifold`` 0: the proposed one with the paper's sat, eq. 28 outside
     the layer and eq. 31 inside; 1: the traditional ``v + alpha g + z``; 2: eq. 22 with the
     continuous sat ``g / max(|g|, gamma)``) on ``v - w v_ref`` with the feed-forward; the
     force of eq. 24, ``-u0 sign(s)`` or with ``layer`` ``-u0 clip(s / phi, -1, 1)``, plus
     ``f_known = drag v`` (eq. 20); the filter of eq. 26, ``decay z + (1 - decay) beta
-    sign(g)``. v, g, z, vref (3,); c: the run's gains (``CTL_*`` columns); out: force, s,
-    znew (3,)."""
-    n2 = g[0] * g[0] + g[1] * g[1]
-    n2 = n2 + g[2] * g[2]
-    outside = n2 >= c[CTL_BOUND]
+    sign(g)``. v, g, z, force, s, znew (B, m, 3) at [r, i]; vref (., 3) at [tr]; ctl (B,
+    11) at [r] (``CTL_*`` columns)."""
+    g0, g1, g2 = g[r, i, 0], g[r, i, 1], g[r, i, 2]
+    n2 = g0 * g0 + g1 * g1
+    n2 = n2 + g2 * g2
+    outside = n2 >= ctl[r, CTL_BOUND]
     den = 0.0
     if manifold == 2:
-        den = max(math.sqrt(n2), c[CTL_GAMMA])
+        den = max(math.sqrt(n2), ctl[r, CTL_GAMMA])
+    alpha, neg_u0, drag = ctl[r, CTL_ALPHA], ctl[r, CTL_NEG_U0], ctl[r, CTL_DRAG]
     for q in range(3):
-        vs = v[q] - c[CTL_FEEDFORWARD] * vref[q] if feedforward else v[q]
+        gq, vq, zq = g[r, i, q], v[r, i, q], z[r, i, q]
+        vs = vq - ctl[r, CTL_FEEDFORWARD] * vref[tr, q] if feedforward else vq
         if manifold == 1 or (manifold == 0 and outside):
-            sq = (vs + c[CTL_ALPHA] * g[q]) + z[q]
+            sq = (vs + alpha * gq) + zq
         elif manifold == 0:
-            sq = vs + c[CTL_LAYER_GAIN] * g[q]
+            sq = vs + ctl[r, CTL_LAYER_GAIN] * gq
         else:
-            sq = (vs + c[CTL_ALPHA] * g[q]) + c[CTL_BETA] * (g[q] / den)
-        s[q] = sq
+            sq = (vs + alpha * gq) + ctl[r, CTL_BETA] * (gq / den)
+        s[r, i, q] = sq
         if layer:
-            force[q] = c[CTL_NEG_U0] * min(max(sq * c[CTL_INV_PHI], -1.0), 1.0) + (
-                c[CTL_DRAG] * v[q]
-            )
+            sw = min(max(sq * ctl[r, CTL_INV_PHI], -1.0), 1.0)
+            force[r, i, q] = neg_u0 * sw + drag * vq
         else:
-            force[q] = c[CTL_NEG_U0] * _sign(sq) + c[CTL_DRAG] * v[q]
-        znew[q] = c[CTL_DECAY] * z[q] + c[CTL_GAIN_IN] * _sign(g[q])
+            force[r, i, q] = neg_u0 * _sign(sq) + drag * vq
+        znew[r, i, q] = ctl[r, CTL_DECAY] * zq + ctl[r, CTL_GAIN_IN] * _sign(gq)
     return outside
 
 
@@ -316,17 +339,7 @@ def smc_rows(
     for r in range(B):
         for k in range(m):
             outside[r, k] = _smc(
-                v[r, k],
-                grad[r, k],
-                z[r, k],
-                vref[r],
-                ctl[r],
-                manifold,
-                layer,
-                feedforward,
-                force[r, k],
-                s[r, k],
-                znew[r, k],
+                v, grad, z, vref, ctl, r, k, r, manifold, layer, feedforward, force, s, znew
             )
     return force, s, znew, outside
 
@@ -346,21 +359,25 @@ def _plant(
 def plant_rows(
     x: _A, v: _A, force: _A, dist: _A, mass: _A, drag: _A, h: float, half_h2: float
 ) -> tuple[_A, _A]:
-    """:func:`_plant` for every coordinate: x, v, force, dist, mass (B, n, 3); drag (B,).
-    Returns the next positions and velocities (B, n, 3)."""
+    """:func:`_plant` for every coordinate: x, v, force (B, n, 3); dist and mass of that
+    shape or with axes of length 1 (broadcast); drag (B,) or (1,). Returns the next
+    positions and velocities (B, n, 3)."""
     B, n = x.shape[0], x.shape[1]
     xn = np.empty((B, n, 3))
     vn = np.empty((B, n, 3))
+    db, dn, dq = dist.shape[0] > 1, dist.shape[1] > 1, dist.shape[2] > 1
+    mb, mn, mq = mass.shape[0] > 1, mass.shape[1] > 1, mass.shape[2] > 1
     for r in range(B):
+        dr = drag[r] if drag.shape[0] > 1 else drag[0]
         for i in range(n):
             for q in range(3):
                 xn[r, i, q], vn[r, i, q] = _plant(
                     x[r, i, q],
                     v[r, i, q],
                     force[r, i, q],
-                    dist[r, i, q],
-                    mass[r, i, q],
-                    drag[r],
+                    dist[r if db else 0, i if dn else 0, q if dq else 0],
+                    mass[r if mb else 0, i if mn else 0, q if mq else 0],
+                    dr,
                     h,
                     half_h2,
                 )
@@ -418,46 +435,51 @@ def simulate_steps(
     B, n = x.shape[0], x.shape[1]
     rows = np.arange(n)
     nomask = np.zeros((0, n, n), dtype=np.bool_)
-    work = np.empty(17)
-    H = np.empty((3, 3))
-    znew = np.empty(3)
+    sc, hc, gc, gbar, H = _scratch()
+    force, surface, grad, zold = held[0], held[1], held[2], held[3]
     for t in range(steps):
         k = k0 + t
         if not have_out or k % hold == 0:
+            tx, tv = tpos[t], tvel[t]
             for r in range(B):
                 tr = tindex[r]
                 _directions(
                     x,
                     r,
-                    tpos[t, tr],
+                    tx,
+                    tr,
                     rows,
                     nomask,
                     gains,
                     block,
                     mu,
                     trust,
-                    held[2, r],
-                    work,
+                    grad,
+                    sc,
+                    hc,
+                    gc,
+                    gbar,
                     H,
                 )
                 for i in range(n):
                     for q in range(3):
-                        held[3, r, i, q] = z[r, i, q]
+                        zold[r, i, q] = z[r, i, q]
                     outside[r, i] = _smc(
-                        v[r, i],
-                        held[2, r, i],
-                        z[r, i],
-                        tvel[t, tr],
-                        ctl[r],
+                        v,
+                        grad,
+                        zold,
+                        tv,
+                        ctl,
+                        r,
+                        i,
+                        tr,
                         manifold,
                         layer,
                         feedforward,
-                        held[0, r, i],
-                        held[1, r, i],
-                        znew,
+                        force,
+                        surface,
+                        z,
                     )
-                    for q in range(3):
-                        z[r, i, q] = znew[q]
             have_out = True
         if record and k % every == 0:
             j = (i0 + t) // every
@@ -471,17 +493,17 @@ def simulate_steps(
                     for q in range(3):
                         rec_x[j, r, i, q] = x[r, i, q]
                         rec_v[j, r, i, q] = v[r, i, q]
-                        rec_u[j, r, i, q] = held[0, r, i, q]
-                        rec_s[j, r, i, q] = held[1, r, i, q]
-        d = dist[t] if dist.shape[0] > 1 else dist[0]
+                        rec_u[j, r, i, q] = force[r, i, q]
+                        rec_s[j, r, i, q] = surface[r, i, q]
+        dd = 1 if dist.shape[0] > 1 else 0
         for r in range(B):
             for i in range(n):
                 for q in range(3):
                     x[r, i, q], v[r, i, q] = _plant(
                         x[r, i, q],
                         v[r, i, q],
-                        held[0, r, i, q],
-                        d[r, i, q],
+                        force[r, i, q],
+                        dist[t * dd, r, i, q],
                         mass[r, i, q],
                         drag[r],
                         h,
@@ -545,10 +567,28 @@ def warm() -> None:
             5e-7,
             1,
             steps == 1,
-            *rec,
+            rec[0],
+            rec[1],
+            rec[2],
+            rec[3],
             sat,
-            *trec,
+            trec[0],
+            trec[1],
         )
+
+
+def as_kernel(
+    arr: ArrayLike, shape: tuple[int, ...] | None = None, dtype: type = np.float64
+) -> NDArray[Any]:
+    """``arr`` (broadcast to ``shape``) as the kernels take it: C-contiguous, writeable, of
+    ``dtype``; a copy only where it is not already. (A read-only or strided array is
+    another numba type: the kernel would be compiled again, at run time, for it.)"""
+    a: NDArray[Any] = np.asarray(arr, dtype=dtype)
+    if shape is not None and a.shape != shape:
+        a = np.broadcast_to(a, shape)
+    if not (a.flags.c_contiguous and a.flags.writeable):
+        a = np.array(a, dtype=dtype, order='C')
+    return a
 
 
 class Args(NamedTuple):
@@ -572,7 +612,7 @@ def _rows(rows: Rows, n: int) -> tuple[NDArray[np.int64], bool]:
     if type(rows) is list and all(type(r) is int and 0 <= r < n for r in rows):
         return np.array(rows, dtype=np.int64), False
     idx = np.arange(n, dtype=np.int64)[rows]
-    return np.ascontiguousarray(idx.reshape(-1)), idx.ndim == 0
+    return as_kernel(idx.reshape(-1), dtype=np.int64), idx.ndim == 0
 
 
 def _no_mask(m: int, n: int) -> NDArray[np.bool_]:
@@ -606,8 +646,8 @@ def kernel_args(
             pass
         else:
             return Args(
-                np.ascontiguousarray(x).reshape(1, n, 3),
-                tx.reshape(1, 3),
+                as_kernel(x).reshape(1, n, 3),
+                as_kernel(tx).reshape(1, 3),
                 idx,
                 _no_mask(m, n),
                 g,
@@ -633,14 +673,14 @@ def kernel_args(
         if mk is not None and mk.ndim > 2:
             mk = np.broadcast_to(mk, (*lead, m, n))
     runs = math.prod(lead)
-    xs = np.ascontiguousarray(x).reshape(runs, n, 3)
-    ts = np.ascontiguousarray(tx).reshape(runs, 3)
+    xs = as_kernel(x).reshape(runs, n, 3)
+    ts = as_kernel(tx).reshape(runs, 3)
     if mk is None:
         ms = _no_mask(m, n)
     elif mk.ndim <= 2:
-        ms = np.ascontiguousarray(np.broadcast_to(mk, (1, m, n)))
+        ms = as_kernel(mk, (1, m, n), np.bool_)
     else:
-        ms = np.ascontiguousarray(mk).reshape(runs, m, n)
+        ms = as_kernel(mk, dtype=np.bool_).reshape(runs, m, n)
     g = np.empty((runs, len(arrays)))
     for q, v in enumerate(arrays):
         g[:, q] = v.reshape(runs) if v.ndim else v

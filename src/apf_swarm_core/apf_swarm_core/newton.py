@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
-from .kernels import block_steps, hessian_rows, kernel_args
+from .kernels import as_kernel, block_steps, hessian_rows, kernel_args
 from .potential import Rows
 
 __all__ = [
@@ -259,10 +259,10 @@ def block_direction(
     lead = np.broadcast_shapes(g.shape[:-2], np.shape(centroid_grad)[:-1], np.shape(k_n))
     m, runs = g.shape[-2], math.prod(lead)
     out = block_steps(
-        np.ascontiguousarray(np.broadcast_to(blocks, (*lead, m, 3, 3))).reshape(runs, m, 3, 3),
-        np.ascontiguousarray(np.broadcast_to(g, (*lead, m, 3))).reshape(runs, m, 3),
-        np.ascontiguousarray(np.broadcast_to(centroid_grad, (*lead, 3))).reshape(runs, 3),
-        np.ascontiguousarray(np.broadcast_to(np.asarray(k_n, dtype=float), lead)).reshape(runs),
+        as_kernel(blocks, (*lead, m, 3, 3)).reshape(runs, m, 3, 3),
+        as_kernel(g, (*lead, m, 3)).reshape(runs, m, 3),
+        as_kernel(centroid_grad, (*lead, 3)).reshape(runs, 3),
+        as_kernel(np.asarray(k_n, dtype=float), lead).reshape(runs),
         float(mu),
         float(trust),
     )

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .kernels import plant_rows
+from .kernels import as_kernel, plant_rows
 from .laws import known_force
 
 __all__ = [
@@ -236,7 +236,10 @@ def plant_step(
     runs = math.prod(lead)
 
     def rows(arr: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.ascontiguousarray(np.broadcast_to(arr, shape)).reshape(runs, n, 3)
+        """(runs, n, 3), or (1, 1, 1) for one value (the kernel broadcasts it)."""
+        if not arr.ndim:
+            return as_kernel(arr.reshape(1, 1, 1))
+        return as_kernel(arr, shape).reshape(runs, n, 3)
 
     xn, vn = plant_rows(
         rows(x),
@@ -244,9 +247,7 @@ def plant_step(
         rows(force),
         rows(disturbance),
         rows(mass),
-        np.ascontiguousarray(np.broadcast_to(drag.reshape(drag.shape[: len(lead)]), lead)).reshape(
-            runs
-        ),
+        as_kernel(drag.reshape(1)) if not drag.ndim else as_kernel(drag, lead).reshape(runs),
         float(dt),
         0.5 * float(dt) * float(dt),
     )

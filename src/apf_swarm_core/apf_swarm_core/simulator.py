@@ -46,7 +46,7 @@ from .control import (
 from .controller import ControlOutput
 from .formation import design_pair_sets
 from .gains import per_run
-from .kernels import simulate_steps
+from .kernels import as_kernel, simulate_steps
 from .metrics import summarize
 from .neighbours import neighbour_mask
 from .plant import DisturbanceSource, plant_step, uniform_ball
@@ -162,6 +162,11 @@ def summarize_run(
         steady_fraction=cfg.steady_fraction,
         warnings=warnings,
     )
+
+
+#: tracker-steps a step (runs x trackers) up to which :meth:`BatchSimulator.run` takes the
+#: compiled loop (docs/PERFORMANCE.md, "Headless simulator")
+COMPILED_LOOP_MAX = 1024
 
 
 class BatchSimulator:
@@ -354,13 +359,16 @@ class BatchSimulator:
         return rec
 
     def _compiled(self) -> bool:
-        """Whether :meth:`run` can take the compiled loop
-        (:func:`~apf_swarm_core.kernels.simulate_steps`): every command acts at its own
-        sample, no prediction, every tracker a neighbour, the gradient or the block
+        """Whether :meth:`run` takes the compiled loop
+        (:func:`~apf_swarm_core.kernels.simulate_steps`): for at most
+        :data:`COMPILED_LOOP_MAX` tracker-steps a step (beyond, the step-by-step kernels'
+        own loops are faster and Python's overhead per step is small); every command acts
+        at its own sample, no prediction, every tracker a neighbour, the gradient or the block
         direction (the realtime emulation's delays, a limited neighbour set and the Newton
         direction step in Python, with the same kernels)."""
         return (
-            self.actuator is None
+            self.R * self.n <= COMPILED_LOOP_MAX
+            and self.actuator is None
             and self.predictor is None
             and not self.neighbour_rule
             and (self.precondition is None or isinstance(self.precondition, BlockPreconditioner))
@@ -385,8 +393,8 @@ class BatchSimulator:
             gains[:, q] = np.broadcast_to(np.asarray(value, dtype=np.float64), (R,))
         pre = self.precondition
         mu, trust = (pre.mu, pre.trust) if isinstance(pre, BlockPreconditioner) else (0.0, 0.0)
-        mass = np.ascontiguousarray(np.broadcast_to(self.mass, (R, n, 3)), dtype=float)
-        drag = np.ascontiguousarray(np.broadcast_to(self.drag, (R,)), dtype=float)
+        mass = as_kernel(self.mass, (R, n, 3))
+        drag = as_kernel(self.drag, (R,))
         target = self.target
         if target.identity:
             tindex = np.arange(R, dtype=np.int64)
@@ -445,8 +453,8 @@ class BatchSimulator:
                 count,
                 self.hold,
                 dist,
-                np.ascontiguousarray(pos[k - base : k - base + count]),
-                np.ascontiguousarray(vel[k - base : k - base + count]),
+                as_kernel(pos[k - base : k - base + count]),
+                as_kernel(vel[k - base : k - base + count]),
                 tindex,
                 gains,
                 pre is not None,
