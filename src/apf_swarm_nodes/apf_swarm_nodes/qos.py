@@ -18,21 +18,12 @@ __all__ = [
     'make_profile',
     'profile_to_dict',
     'qos_from_dict',
-    'qos_to_dict',
     'recording_profile',
     'replay_profile',
 ]
 
 #: an infinite duration as rosbag2 writes it
 INFINITE = {'sec': 0x7FFFFFFF, 'nsec': 0xFFFFFFFF}
-
-
-def qos_to_dict(qos: Any) -> dict[str, Any]:
-    """A rosbags ``Qos`` as the metadata.yaml v9 mapping."""
-    from rosbags.rosbag2.metadata import dump_qos_v9
-
-    out: dict[str, Any] = dict(dump_qos_v9([qos])[0])
-    return out
 
 
 def qos_from_dict(d: Mapping[str, Any]) -> Any:

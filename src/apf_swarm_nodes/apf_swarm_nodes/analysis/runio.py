@@ -13,14 +13,11 @@ from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import to_ros_params
 from apf_swarm_core.simulator import TRAJECTORY_KEYS, summarize_run
 
-from ..errors import CliError
-
 __all__ = [
     'RUN_ARRAYS',
     'TARGET_SILENT_AGE',
     'fault_report',
     'format_summary',
-    'read_trajectory',
     'run_summary',
     'write_run',
 ]
@@ -164,19 +161,6 @@ def run_summary(
     )
     summary['faults'] = faults
     return summary
-
-
-def read_trajectory(path: Path) -> dict[str, np.ndarray]:
-    """Load a ``trajectory.npz`` and check it has every array of the schema."""
-    try:
-        with np.load(path) as data:
-            traj = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as exc:
-        raise CliError(f'{path}: not a readable trajectory.npz ({exc})') from None
-    missing = [k for k in TRAJECTORY_KEYS if k not in traj]
-    if missing:
-        raise CliError(f'{path}: missing arrays {", ".join(missing)}; expected {TRAJECTORY_KEYS}')
-    return traj
 
 
 def _fmt(v: Any) -> str:
