@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from .advice import PLAIN, Advice
 from .config import SwarmConfig
 from .design import expected_spacing, triangle_spacing
 from .gain_bounds import GainBound, gain_bounds, gain_bounds_from_run
@@ -103,7 +104,9 @@ def _bound_findings(
     return out
 
 
-def sampled_findings(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> list[Finding]:
+def sampled_findings(
+    cfg: SwarmConfig, run: dict[str, Any] | None = None, advice: Advice = PLAIN
+) -> list[Finding]:
     """The real-time findings: :func:`apf_swarm_core.sampled.predict` at ``cfg.control_rate``
     and ``cfg.latency`` in words (its warnings as warnings), and, with ``run`` (the emulation
     at that rate and latency), whether it flew by :data:`~apf_swarm_core.metrics.
@@ -112,7 +115,7 @@ def sampled_findings(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> lis
     from .metrics import flight
     from .sampled import predict
 
-    pred = predict(cfg)
+    pred = predict(cfg, advice=advice)
     T = pred.control_period
     out = [
         Finding(
@@ -154,7 +157,11 @@ def sampled_findings(cfg: SwarmConfig, run: dict[str, Any] | None = None) -> lis
 
 
 def check_config(
-    cfg: SwarmConfig, run: dict[str, Any] | None = None, *, realtime: bool = False
+    cfg: SwarmConfig,
+    run: dict[str, Any] | None = None,
+    *,
+    realtime: bool = False,
+    advice: Advice = PLAIN,
 ) -> CheckReport:
     """Every condition for ``cfg``, in words: what holds, what fails, and what will happen.
 
@@ -162,7 +169,8 @@ def check_config(
     only those can turn a failed gain bound into a warning, because the a priori estimates of
     ``J_bar_s`` are far too conservative to decide (they assume worst-case relative speeds).
     ``realtime``: also the sampled-data prediction at ``cfg.control_rate`` and ``cfg.latency``
-    (:func:`sampled_findings`; ``run`` is then the emulation at that rate).
+    (:func:`sampled_findings`; ``run`` is then the emulation at that rate). ``advice``: the
+    words of the remedies the warnings propose (a command line's name its commands).
     """
     rep = CheckReport()
     add = rep.findings.append
@@ -206,7 +214,7 @@ def check_config(
                         else 'The repulsion is too weak to balance the target attraction, so '
                     )
                     + 'the trackers collapse onto the target and onto each other. Choose '
-                    f'b > {thr:g} (apf-swarm design --spacing D gives b for a spacing D).',
+                    f'b > {thr:g} ({advice.spacing()}).',
                 )
             )
         else:
@@ -302,5 +310,5 @@ def check_config(
             )
         )
     if realtime:
-        rep.findings += sampled_findings(cfg, run)
+        rep.findings += sampled_findings(cfg, run, advice)
     return rep

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .advice import PLAIN, Advice
 from .config import SwarmConfig
 from .metrics import FLIGHT_CRITERIA
 from .modes import (
@@ -155,10 +156,11 @@ def predict(
     control_rate: float | None = None,
     latency: float | None = None,
     spectrum: NDArray[np.float64] | None = None,
+    advice: Advice = PLAIN,
 ) -> SampledPrediction:
     """Predict the sampled loop of ``cfg`` at ``control_rate`` [Hz] (default its own, else
     1/dt) with ``latency`` [s] (default its own); ``spectrum``: a precomputed
-    :func:`design_hessian_spectrum`."""
+    :func:`design_hessian_spectrum`; ``advice``: the words of the warnings' remedies."""
     rate = cfg.control_rate if control_rate is None else control_rate
     T = 1.0 / rate if rate and rate > 0 else cfg.dt
     tau = cfg.latency if latency is None else float(latency)
@@ -207,8 +209,8 @@ def predict(
             f'the stiffest mode of {cfg.n_trackers} trackers has the rate K lambda_max = '
             f'{K:.3g} x {lam_max:.3g} = {K * lam_max:.3g} 1/s, and a control period of '
             f'{T * 1e3:g} ms with that delay allows {limit:g} / (T + tau) = '
-            f'{allowed:.3g} 1/s: {fix}, raise the control rate, or run `apf-swarm design '
-            f'--control-rate {1.0 / T:g} --latency {tau:g} --n-trackers {cfg.n_trackers}`'
+            f'{allowed:.3g} 1/s: {fix}, raise the control rate, or '
+            f'{advice.redesign(1.0 / T, tau, cfg.n_trackers)}'
         )
     inner_stable = True
     if cfg.switching == 'layer' and g >= CASCADE * K * lam_max:
@@ -225,7 +227,7 @@ def predict(
                 f'its linear loop (rate u0 / (phi M) = {g:.3g} 1/s) is unstable; use phi >= '
                 f'{LAYER_WIDTH * cfg.u0 * (T + tau) / mass:.3g} m/s and K <= '
                 f'{cfg.u0 / (LAYER_WIDTH * cfg.u0 * (T + tau)) / (CASCADE * lam_max):.3g} '
-                f'1/s, or run `apf-swarm design --control-rate {1.0 / T:g} --latency {tau:g}`'
+                f'1/s, or {advice.redesign(1.0 / T, tau)}'
             )
         elif mode_radius(centroid, latency=jitter, **kw) >= 1.0:
             warnings.append(
@@ -350,14 +352,14 @@ def propose_gains(
 
 
 def schedule_gains(
-    cfg: SwarmConfig, *, latency: float
+    cfg: SwarmConfig, *, latency: float, advice: Advice = PLAIN
 ) -> tuple[SwarmConfig, SampledPrediction, dict[str, Any] | None, list[str]]:
     """The configuration a realtime run flies at ``cfg.control_rate`` (> 0) with ``latency``:
     the prediction of ``cfg``; when it does not hold, :func:`propose_gains` replaces gamma,
     phi (and what they need) if the proposal predicts a smaller spectral radius or a smaller
     steady lag. Returns ``(cfg, prediction, gains or None, warnings)``; the warnings are the
-    kept prediction's plus a failed proposal's reason."""
-    pred = predict(cfg, latency=latency)
+    kept prediction's plus a failed proposal's reason (``advice``: their remedies' words)."""
+    pred = predict(cfg, latency=latency, advice=advice)
     if pred.holds:
         return cfg, pred, None, list(pred.warnings)
     try:
@@ -365,7 +367,7 @@ def schedule_gains(
     except ValueError as exc:
         return cfg, pred, None, [*pred.warnings, str(exc)]
     tuned = cfg.replace(**gains)
-    tuned_pred = predict(tuned, latency=latency)
+    tuned_pred = predict(tuned, latency=latency, advice=advice)
     if (
         tuned_pred.spectral_radius < pred.spectral_radius
         or tuned_pred.steady_lag < pred.steady_lag

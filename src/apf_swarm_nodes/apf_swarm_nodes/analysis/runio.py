@@ -142,7 +142,9 @@ def run_summary(
     """
     from apf_swarm_core.checks import check_config
 
-    warnings = list(check_config(cfg).warnings)
+    from ..advice import CLI_ADVICE
+
+    warnings = list(check_config(cfg, advice=CLI_ADVICE).warnings)
     if status != 'completed':
         n = len(traj['t']) if n_samples is None else n_samples
         warnings.append(f'incomplete run ({status}): {n} samples')

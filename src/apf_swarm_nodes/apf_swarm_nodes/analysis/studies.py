@@ -14,6 +14,7 @@ from apf_swarm_core.config_files import apply_overrides
 from apf_swarm_core.formation import design_pair_sets
 from apf_swarm_core.simulator import BATCHABLE, simulate, simulate_batch
 
+from ..advice import CLI_ADVICE
 from ..errors import CliError
 from .plots import paper_figures, plot_tradeoff
 from .runio import write_run
@@ -218,14 +219,14 @@ def reproduce(
             c = cfg.replace(law=law)
             prog = progress_factory(f'{name}/{law}') if progress_factory else None
             res = simulate(c, progress=prog)
-            check = check_config(c, res.trajectory)
+            check = check_config(c, res.trajectory, advice=CLI_ADVICE)
             summaries[law] = res.summary(warnings=check.warnings)
             trajs[law] = res.trajectory
             write_run(out / name / law, res.trajectory, summaries[law], c)
         figs = paper_figures(trajs, out, prefix=f'{name}_')
         if animations and name == next(iter(presets)):
             figs += _animations(out, name, cfg, trajs, progress_factory)
-        check = check_config(cfg, trajs['proposed'])
+        check = check_config(cfg, trajs['proposed'], advice=CLI_ADVICE)
         everything[name] = {'summaries': summaries, 'check': check.as_dict()}
         report += [
             f'## Preset `{name}`',

@@ -34,6 +34,7 @@ class RealtimePrediction:
         from apf_swarm_core.sampled import predict, schedule_gains
 
         from .. import probe
+        from ..advice import CLI_ADVICE
 
         cfg = self.cfg
         try:
@@ -68,9 +69,9 @@ class RealtimePrediction:
                 + ') or fewer trackers'
             )
         if getattr(self.args, 'gains', 'auto') == 'auto':
-            cfg, pred, gains, warnings = schedule_gains(cfg, latency=latency)
+            cfg, pred, gains, warnings = schedule_gains(cfg, latency=latency, advice=CLI_ADVICE)
         else:
-            pred = predict(cfg, latency=latency)
+            pred = predict(cfg, latency=latency, advice=CLI_ADVICE)
             gains, warnings = None, list(pred.warnings)
         if gains:
             self.say(

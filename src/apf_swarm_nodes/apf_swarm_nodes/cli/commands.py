@@ -18,6 +18,7 @@ from apf_swarm_core.errors import ApfSwarmError
 from apf_swarm_core.formation import design_pair_sets
 from apf_swarm_core.simulator import simulate
 
+from ..advice import CLI_ADVICE
 from ..analysis.runio import format_summary, write_run
 from ..argtypes import nonneg_float
 from ..progress import Progress
@@ -122,7 +123,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         from ..analysis.animate import check_path
 
         check_path(args.animate)
-    report = check_config(cfg)
+    report = check_config(cfg, advice=CLI_ADVICE)
     res = simulate(cfg, progress=_progress(args, 'simulate'), latency_samples=samples)
     summary = res.summary(warnings=report.warnings)
     write_run(args.out, res.trajectory, summary, cfg)
@@ -167,7 +168,7 @@ def cmd_check(args: argparse.Namespace) -> int:
             cfg, progress=_progress(args, 'check run'), latency_samples=samples
         ).trajectory
     )
-    rep = check_config(cfg, run, realtime=args.mode == 'realtime')
+    rep = check_config(cfg, run, realtime=args.mode == 'realtime', advice=CLI_ADVICE)
     if args.json:
         print(json.dumps(rep.as_dict(), indent=2))
     else:
@@ -197,7 +198,7 @@ def cmd_design_rate(args: argparse.Namespace, cfg: SwarmConfig) -> int:
     except ValueError as exc:
         raise ApfSwarmError(str(exc)) from None
     tuned = cfg.replace(control_rate=args.control_rate, latency=latency, **gains)
-    pred = predict(tuned)
+    pred = predict(tuned, advice=CLI_ADVICE)
     if args.json:
         print(
             json.dumps(
