@@ -118,10 +118,16 @@ def test_no_private_rclpy_api() -> None:
 
 
 def test_library_layers_raise_their_own_errors() -> None:
-    # the bags, the bring-up (but its command line) and the core raise BagError,
-    # BringupError, ConfigError...; only a command line speaks of CliError
+    # the analysis, the bags, the bring-up (but its command line) and the core raise
+    # AnalysisError, BagError, BringupError, ConfigError...; only a command line raises
+    # CliError
     nodes = SRC / 'apf_swarm_nodes' / 'apf_swarm_nodes'
-    layers = [nodes / 'bags', nodes / 'bringup', SRC / 'apf_swarm_core' / 'apf_swarm_core']
+    layers = [
+        nodes / 'analysis',
+        nodes / 'bags',
+        nodes / 'bringup',
+        SRC / 'apf_swarm_core' / 'apf_swarm_core',
+    ]
     found = []
     for path, tree in _modules():
         if not any(layer in path.parents for layer in layers) or path.name == 'cli.py':

@@ -11,6 +11,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from apf_swarm_nodes.analysis.errors import AnalysisError
 from apf_swarm_nodes.bringup import (
     Child,
     ProcessGroup,
@@ -19,7 +20,6 @@ from apf_swarm_nodes.bringup import (
     graph_missing,
 )
 from apf_swarm_nodes.bringup.graph import input_readers
-from apf_swarm_nodes.errors import CliError
 
 
 def complete_counts(n: int, mode: str) -> tuple[list[str], dict[str, tuple[int, int]]]:
@@ -157,7 +157,7 @@ def test_a_trajectory_refuses_samples_of_another_size() -> None:
     acc.add(sample(0))  # the publish timer repeated a step
     acc.add(sample(3, n=4))
     assert acc.messages()['repeated'] == 1
-    with pytest.raises(CliError, match='changed its number of trackers from 3'):
+    with pytest.raises(AnalysisError, match='changed its number of trackers from 3'):
         acc.trajectory()
     assert StateAccumulator('lockstep', 5).trajectory() is None
 

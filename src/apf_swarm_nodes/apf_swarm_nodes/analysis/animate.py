@@ -19,7 +19,7 @@ matplotlib.use('Agg')
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import CliError
+from .errors import AnalysisError
 from .style import STATE_COLOURS, TARGET_COLOUR, edge_colour
 
 __all__ = ['FORMATS', 'animate', 'auto_speed', 'check_path', 'frame_indices']
@@ -49,17 +49,17 @@ def auto_speed(duration: float, longest: float = 20.0) -> float:
 
 
 def check_path(path: Path) -> str:
-    """The matplotlib writer for ``path``'s suffix; CliError for an unknown format or an MP4
+    """The matplotlib writer for ``path``'s suffix; AnalysisError for an unknown format or an MP4
     without ffmpeg (checked before a run, so that nothing is computed for nothing)."""
     kind = FORMATS.get(path.suffix.lower())
     if kind is None:
-        raise CliError(
+        raise AnalysisError(
             f'{path}: unknown animation format {path.suffix!r}; use a .gif or .mp4 file name'
         )
     if kind == 'ffmpeg' and (
         shutil.which(str(matplotlib.rcParams['animation.ffmpeg_path'])) is None
     ):
-        raise CliError(
+        raise AnalysisError(
             f'{path}: writing MP4 needs ffmpeg, which is not installed here (apt-get install '
             'ffmpeg); or write a GIF (FILE.gif)'
         )
@@ -94,13 +94,13 @@ def animate(
     from matplotlib import animation
 
     if view not in ('3d', 'top'):
-        raise CliError(f'--projection {view!r}: expected 3d or top')
+        raise AnalysisError(f'--projection {view!r}: expected 3d or top')
     writer = _writer(path, fps)
     t = np.asarray(traj['t'], dtype=float)
     x = np.asarray(traj['x'], dtype=float)
     tx = np.asarray(traj['target_x'], dtype=float)
     if len(t) < 2:
-        raise CliError(f'{len(t)} sample: an animation needs two')
+        raise AnalysisError(f'{len(t)} sample: an animation needs two')
     active = np.asarray(traj.get('active', np.ones(x.shape[:2], dtype=bool)), dtype=bool)
     idx = frame_indices(t, speed, fps)
     n = x.shape[1]

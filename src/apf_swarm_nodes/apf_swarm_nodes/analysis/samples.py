@@ -8,7 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from ..errors import CliError
+from .errors import AnalysisError
 
 # --------------------------------------------------------------------------------------------
 # the run's data
@@ -139,7 +139,7 @@ class StateAccumulator:
         n = kept[0].x.shape[0]
         bad = [int(s.step) for s in kept if s.x.shape[0] != n]
         if bad:
-            raise CliError(
+            raise AnalysisError(
                 f'/swarm/state changed its number of trackers from {n} (steps '
                 f'{bad[:5]}...); cannot build one trajectory'
             )

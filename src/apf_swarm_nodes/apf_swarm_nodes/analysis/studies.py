@@ -15,7 +15,7 @@ from apf_swarm_core.formation import design_pair_sets
 from apf_swarm_core.simulator import BATCHABLE, simulate, simulate_batch
 
 from ..advice import CLI_ADVICE
-from ..errors import CliError
+from .errors import AnalysisError
 from .plots import paper_figures, plot_tradeoff
 from .runio import write_run
 
@@ -61,7 +61,7 @@ def sweep(
                         apply_overrides(base, {param: v, 'law': law, 'seed': base.seed + k})
                     )
                 except Exception as exc:  # ConfigError names the key and the value
-                    raise CliError(f'--values {v!r} for {param}: {exc}') from None
+                    raise AnalysisError(f'--values {v!r} for {param}: {exc}') from None
         groups: list[list[int]] = []
         if param in BATCHABLE:
             groups = [list(range(len(cfgs)))]
