@@ -5,6 +5,13 @@ import numpy as np
 from apf_swarm_core.agents import TrackerAgent
 from apf_swarm_core.formation import design_formation
 from apf_swarm_core.gradients import gradient
+from apf_swarm_core.laws import (
+    filter_step,
+    layer_switching_force,
+    sliding_surface_proposed,
+    sliding_surface_traditional,
+    switching_force,
+)
 from apf_swarm_core.newton import block_direction, hessian_blocks
 from apf_swarm_core.plant import plant_step
 from apf_swarm_core.simulator import BatchSimulator
@@ -18,6 +25,10 @@ KERNELS = (
     kernels.block_rows,
     kernels.smc_rows,
     kernels.plant_rows,
+    kernels.known_array,
+    kernels.filter_array,
+    kernels.surface_array,
+    kernels.switching_array,
     kernels.simulate_steps,
 )
 
@@ -46,6 +57,13 @@ def test_warm_compiles_every_type_the_hot_path_passes():
     ro = np.broadcast_to(x, (2, 5, 3))
     plant_step(ro, ro, ro, mass=np.ones((2, 5, 3)), dt=1e-3, drag=np.array([0.1, 0.2]))
     plant_step(x, x, x, mass=1.0, dt=1e-3, drag=0.1, disturbance=0.0)
+    # the public laws (the brake's switching force among them) on the same compiled functions
+    switching_force(ro, ro, u0=25.0, drag=0.1)
+    layer_switching_force(x, x, u0=25.0, phi=0.5)
+    sliding_surface_proposed(x, x, x, alpha=0.1, beta=2.0, gamma=0.2)
+    sliding_surface_proposed(x, x, x, alpha=0.1, beta=2.0, gamma=0.2, saturation='continuous')
+    sliding_surface_traditional(x, x, x, alpha=0.1)
+    filter_step(x, x, beta=2.0, lambda_filter=0.1, dt=1e-3)
     for preset in ('paper', 'realtime'):
         BatchSimulator([load_preset(preset)]).run(50)
         BatchSimulator([load_preset(preset)]).run(50, record=False)

@@ -270,6 +270,56 @@ def _sign(value: float) -> float:
     return value
 
 
+def _known_py(v: float, drag: float) -> float:
+    """Eq. 20's known term, ``f_known = drag v`` [N]."""
+    return drag * v
+
+
+def _filter_py(z: float, g: float, decay: float, gain_in: float) -> float:
+    """Eq. 26 over one step with the input held: ``decay z + gain_in sign(g)``, ``decay =
+    e^{-dt/lambda}``, ``gain_in = (1 - decay) beta``."""
+    return decay * z + gain_in * _sign(g)
+
+
+def _surface_filtered_py(vs: float, g: float, z: float, alpha: float) -> float:
+    """``s = v + alpha g + z``: eq. 28 (outside the layer) and the traditional law."""
+    return (vs + alpha * g) + z
+
+
+def _surface_layer_py(vs: float, g: float, gain: float) -> float:
+    """Eq. 31 inside the boundary layer: ``s = v + (alpha + beta / gamma) g``, ``gain`` the
+    bracket."""
+    return vs + gain * g
+
+
+def _surface_continuous_py(vs: float, g: float, alpha: float, beta: float, den: float) -> float:
+    """Eq. 22 with the continuous sat: ``s = v + alpha g + beta g / max(|g|, gamma)``,
+    ``den`` = ``max(|g|, gamma)``."""
+    return (vs + alpha * g) + beta * (g / den)
+
+
+def _switching_py(s: float, v: float, neg_u0: float, drag: float) -> float:
+    """Eq. 24, ``u = -u0 sign(s) + f_known(v)``, with ``neg_u0 = -u0``."""
+    return neg_u0 * _sign(s) + _known(v, drag)
+
+
+def _switching_layer_py(s: float, v: float, neg_u0: float, inv_phi: float, drag: float) -> float:
+    """Eq. 24 with a boundary layer (not in the paper), ``u = -u0 clip(s / phi, -1, 1) +
+    f_known(v)``, with ``inv_phi = 1 / phi``."""
+    return neg_u0 * min(max(s * inv_phi, -1.0), 1.0) + _known(v, drag)
+
+
+# each equation once, compiled; the kernels call them, and so do the numpy-facing public
+# functions of :mod:`apf_swarm_core.laws` through the ``*_array`` kernels below
+_known = _jit(_known_py)
+_filter = _jit(_filter_py)
+_surface_filtered = _jit(_surface_filtered_py)
+_surface_layer = _jit(_surface_layer_py)
+_surface_continuous = _jit(_surface_continuous_py)
+_switching = _jit(_switching_py)
+_switching_layer = _jit(_switching_layer_py)
+
+
 @_jit
 def _smc(
     v: _A,
@@ -309,18 +359,17 @@ def _smc(
         gq, vq, zq = g[r, i, q], v[r, i, q], z[r, i, q]
         vs = vq - ctl[r, CTL_FEEDFORWARD] * vref[tr, q] if feedforward else vq
         if manifold == 1 or (manifold == 0 and outside):
-            sq = (vs + alpha * gq) + zq
+            sq = _surface_filtered(vs, gq, zq, alpha)
         elif manifold == 0:
-            sq = vs + ctl[r, CTL_LAYER_GAIN] * gq
+            sq = _surface_layer(vs, gq, ctl[r, CTL_LAYER_GAIN])
         else:
-            sq = (vs + alpha * gq) + ctl[r, CTL_BETA] * (gq / den)
+            sq = _surface_continuous(vs, gq, alpha, ctl[r, CTL_BETA], den)
         s[r, i, q] = sq
         if layer:
-            sw = min(max(sq * ctl[r, CTL_INV_PHI], -1.0), 1.0)
-            force[r, i, q] = neg_u0 * sw + drag * vq
+            force[r, i, q] = _switching_layer(sq, vq, neg_u0, ctl[r, CTL_INV_PHI], drag)
         else:
-            force[r, i, q] = neg_u0 * _sign(sq) + drag * vq
-        znew[r, i, q] = ctl[r, CTL_DECAY] * zq + ctl[r, CTL_GAIN_IN] * _sign(gq)
+            force[r, i, q] = _switching(sq, vq, neg_u0, drag)
+        znew[r, i, q] = _filter(zq, gq, ctl[r, CTL_DECAY], ctl[r, CTL_GAIN_IN])
     return outside
 
 
@@ -350,7 +399,7 @@ def _plant(
 ) -> tuple[float, float]:
     """Eq. 19-21 for one coordinate over one step ``h`` with the force ``f`` held:
     ``acc = ((f - drag v) - d) / M``; returns ``x + v h + acc h^2 / 2`` and ``v + acc h``."""
-    acc = f - drag * v
+    acc = f - _known(v, drag)
     acc = (acc - d) / mass
     return (x + v * h) + half_h2 * acc, v + acc * h
 
@@ -512,6 +561,69 @@ def simulate_steps(
     return have_out
 
 
+@_jit
+def known_array(v: _A, drag: _A) -> _A:
+    """:func:`_known` elementwise over flat arrays of one length."""
+    out = np.empty(v.size)
+    for e in range(v.size):
+        out[e] = _known(v[e], drag[e])
+    return out
+
+
+@_jit
+def filter_array(z: _A, g: _A, decay: _A, gain_in: _A) -> _A:
+    """:func:`_filter` elementwise over flat arrays of one length."""
+    out = np.empty(z.size)
+    for e in range(z.size):
+        out[e] = _filter(z[e], g[e], decay[e], gain_in[e])
+    return out
+
+
+@_jit
+def surface_array(
+    vs: _A, g: _A, z: _A, outside: NDArray[np.bool_], alpha: _A, gain: _A, den: _A, kind: int
+) -> _A:
+    """The manifold elementwise over flat arrays of one length: ``kind`` 0, the proposed
+    one (eq. 28 where ``outside``, eq. 31 with the bracket ``gain`` elsewhere); 1, eq. 28 /
+    the traditional law everywhere; 2, eq. 22 with the continuous sat, ``gain`` = beta and
+    ``den`` = ``max(|g|, gamma)``."""
+    out = np.empty(vs.size)
+    for e in range(vs.size):
+        if kind == 1 or (kind == 0 and outside[e]):
+            out[e] = _surface_filtered(vs[e], g[e], z[e], alpha[e])
+        elif kind == 0:
+            out[e] = _surface_layer(vs[e], g[e], gain[e])
+        else:
+            out[e] = _surface_continuous(vs[e], g[e], alpha[e], gain[e], den[e])
+    return out
+
+
+@_jit
+def switching_array(s: _A, v: _A, neg_u0: _A, inv_phi: _A, drag: _A, layer: bool) -> _A:
+    """:func:`_switching` (or with ``layer`` :func:`_switching_layer`) elementwise over flat
+    arrays of one length."""
+    out = np.empty(s.size)
+    for e in range(s.size):
+        if layer:
+            out[e] = _switching_layer(s[e], v[e], neg_u0[e], inv_phi[e], drag[e])
+        else:
+            out[e] = _switching(s[e], v[e], neg_u0[e], drag[e])
+    return out
+
+
+def elementwise(kernel: Callable[..., _A], *args: ArrayLike, flags: tuple[Any, ...] = ()) -> _A:
+    """``kernel`` (one of the ``*_array`` kernels) on ``args`` broadcast together, then
+    ``flags``: the numpy-facing form of an equation's compiled function, any shapes."""
+    arrays = np.broadcast_arrays(*(np.asarray(a) for a in args))
+    shape = arrays[0].shape
+    flat = [
+        as_kernel(a, dtype=np.bool_ if a.dtype == np.bool_ else np.float64).reshape(-1)
+        for a in arrays
+    ]
+    out: _A = kernel(*flat, *flags).reshape(shape)
+    return out
+
+
 def warm() -> None:
     """Load (or compile, the first time on a machine) every kernel for the argument types
     the hot path uses, so that no control step pays for it: called by the zygote before it
@@ -533,6 +645,13 @@ def warm() -> None:
     for manifold in range(3):
         smc_rows(v, v, v, tx, ctl, manifold, manifold == 1, manifold == 2)
     plant_rows(x, v, v, v, np.ones((1, 2, 3)), np.ones(1), 0.001, 5e-7)
+    flat, flags = np.zeros(3), np.zeros(3, dtype=np.bool_)
+    known_array(flat, flat)
+    filter_array(flat, flat, flat, flat)
+    for kind in range(3):
+        surface_array(flat, flat, flat, flags, flat, flat, flat, kind)
+    for layer in (False, True):
+        switching_array(flat, flat, flat, flat, flat, layer)
     # the simulator's loop, recording into step-major views of (R, T, ...) arrays or not
     for steps in (0, 1):
         rec = [np.empty((1, steps, 2, 3)).swapaxes(0, 1) for _ in range(4)]

@@ -12,13 +12,12 @@ moving target. With ``switching='sign'`` and ``w = 0`` the laws are exactly the 
 Vectors are the last axis of arrays of shape ``(..., m, 3)`` (m trackers, optional leading
 batch dimensions); gains are floats or arrays of shape ``(...)`` (one value per run).
 
-Each equation is written once, in a private kernel (``_surface_filtered``, ``_surface_layer``,
-``_switching``, ``_known``, ``_filter``) that takes its gains already shaped for broadcasting;
-the public functions shape their arguments and call the kernel, and
-:class:`SlidingModeController` shapes its gains once (``_ControllerGains``) and calls the same
-kernels every step. Scalars are kept as 0-d float64 arrays rather than Python floats: on the
-arrays of a few elements of a single run, numpy's arithmetic with a 0-d array costs about half
-as much as with a Python float.
+Each equation is written once, as a compiled function of :mod:`apf_swarm_core.kernels`
+(``_surface_filtered``, ``_surface_layer``, ``_surface_continuous``, ``_switching``,
+``_switching_layer``, ``_known``, ``_filter``); the public functions here broadcast their
+arguments and call them elementwise, and :class:`SlidingModeController`, the simulator's loop
+and the tracker nodes call them in :func:`~apf_swarm_core.kernels.smc_rows` and
+:func:`~apf_swarm_core.kernels.simulate_steps`.
 """
 
 from __future__ import annotations
@@ -27,12 +26,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
-from .saturation import (
-    SATURATIONS,
-    outside_layer,
-    sat_continuous,
-    saturate,
+from .kernels import (
+    elementwise,
+    filter_array,
+    known_array,
+    surface_array,
+    switching_array,
 )
+from .saturation import SATURATIONS, _norm, outside_layer, saturate
 
 __all__ = [
     'LAWS',
@@ -57,103 +58,9 @@ def _check_saturation(kind: str) -> None:
         raise ValueError(f'saturation must be one of {SATURATIONS}, got {kind!r}')
 
 
-# --- kernels: one per equation, gains already shaped by _g -------------------------------
-# (np.sign is saturation.sign, sign(0) = 0, without its conversion of the argument)
-
-
 def _decay(lambda_filter: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
     """Per-step decay ``e^{-dt/lambda}`` of the discretized filter of eq. 26."""
     return np.exp(-dt / lambda_filter)
-
-
-def _filter(
-    z: NDArray[np.float64],
-    grad: NDArray[np.float64],
-    decay: NDArray[np.float64],
-    gain_in: NDArray[np.float64],
-) -> NDArray[np.float64]:
-    """Eq. 26 discretized: ``decay z + gain_in sign(grad)``, ``gain_in = (1 - decay) beta``."""
-    return decay * z + gain_in * np.sign(grad)
-
-
-def _surface_filtered(
-    v: NDArray[np.float64],
-    grad: NDArray[np.float64],
-    z: NDArray[np.float64],
-    alpha: NDArray[np.float64],
-) -> NDArray[np.float64]:
-    """``s = v + alpha grad + z``: eq. 28 (outside the layer) and the traditional law."""
-    return v + alpha * grad + z
-
-
-def _surface_layer(
-    v: NDArray[np.float64], grad: NDArray[np.float64], gain: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """Eq. 31 inside the boundary layer: ``s = v + (alpha + beta/gamma) grad``, ``gain`` the
-    bracket."""
-    return v + gain * grad
-
-
-def _surface_proposed(
-    v: NDArray[np.float64],
-    grad: NDArray[np.float64],
-    z: NDArray[np.float64],
-    outside: NDArray[np.bool_],
-    alpha: NDArray[np.float64],
-    gain: NDArray[np.float64],
-) -> NDArray[np.float64]:
-    """Proposed manifold with the paper's sat: eq. 28 where ``outside``, eq. 31 elsewhere.
-
-    When no tracker is outside the layer (the steady state) the eq. 28 branch is not
-    computed at all.
-    """
-    inner = _surface_layer(v, grad, gain)
-    # any True in the (canonical 0/1) bool mask: a byte search, cheaper than count_nonzero
-    if b'\x01' not in outside.tobytes():
-        return inner
-    outer = _surface_filtered(v, grad, z, alpha)
-    if inner.size > 96 and inner.shape == outer.shape == (*outside.shape, 3):
-        # a contiguous mask: np.where then runs one long loop instead of one per row
-        return np.where(np.repeat(outside, 3, axis=-1).reshape(inner.shape), outer, inner)
-    return np.where(outside[..., None], outer, inner)
-
-
-def _surface_continuous(
-    v: NDArray[np.float64],
-    grad: NDArray[np.float64],
-    alpha: NDArray[np.float64],
-    beta: NDArray[np.float64],
-    gamma: ArrayLike,
-) -> NDArray[np.float64]:
-    """Eq. 22 with the continuous sat: ``s = v + alpha grad + beta grad / max(|grad|, gamma)``."""
-    return v + alpha * grad + beta * sat_continuous(grad, gamma)
-
-
-def _known(v: NDArray[np.float64], drag: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Eq. 20's known term ``f_known = drag * v``."""
-    return drag * v
-
-
-def _switching(
-    s: NDArray[np.float64],
-    v: NDArray[np.float64],
-    neg_u0: NDArray[np.float64],
-    drag: NDArray[np.float64],
-) -> NDArray[np.float64]:
-    """Eq. 24, ``u = -u0 sign(s) + f_known(v)``, with ``neg_u0 = -u0``."""
-    return neg_u0 * np.sign(s) + _known(v, drag)
-
-
-def _switching_layer(
-    s: NDArray[np.float64],
-    v: NDArray[np.float64],
-    neg_u0: NDArray[np.float64],
-    inv_phi: NDArray[np.float64],
-    drag: NDArray[np.float64],
-) -> NDArray[np.float64]:
-    """Eq. 24 with a boundary layer, ``u = -u0 clip(s/phi, -1, 1) + f_known(v)``, with
-    ``inv_phi = 1/phi``."""
-    return neg_u0 * np.clip(s * inv_phi, -1.0, 1.0) + _known(v, drag)
 
 
 def kinematic_velocity(
@@ -207,12 +114,7 @@ def filter_step(
     z_next : array, shape (..., m, 3)
     """
     decay = _decay(shaped(lambda_filter), dt)
-    return _filter(
-        np.asarray(z, dtype=float),
-        np.asarray(grad, dtype=float),
-        decay,
-        (1.0 - decay) * shaped(beta),
-    )
+    return elementwise(filter_array, z, grad, decay, (1.0 - decay) * shaped(beta))
 
 
 def sliding_surface_proposed(
@@ -247,21 +149,18 @@ def sliding_surface_proposed(
     s : array, shape (..., m, 3) [m/s]
     outside : bool array, shape (..., m): True outside the boundary layer.
     """
-    v = np.asarray(v, dtype=float)
     grad = np.asarray(grad, dtype=float)
     outside = outside_layer(grad, gamma)
+    alpha, beta = shaped(alpha), shaped(beta)
     if saturation == 'paper':
-        s = _surface_proposed(
-            v,
-            grad,
-            np.asarray(z, dtype=float),
-            outside,
-            shaped(alpha),
-            shaped(alpha) + shaped(beta) / shaped(gamma),
+        gain = alpha + beta / shaped(gamma)
+        s = elementwise(
+            surface_array, v, grad, z, outside[..., None], alpha, gain, 1.0, flags=(0,)
         )
     else:
         _check_saturation(saturation)
-        s = _surface_continuous(v, grad, shaped(alpha), shaped(beta), gamma)
+        den = np.maximum(_norm(grad)[..., None], shaped(gamma))
+        s = elementwise(surface_array, v, grad, 0.0, False, alpha, beta, den, flags=(2,))
     return s, outside
 
 
@@ -276,12 +175,7 @@ def sliding_surface_traditional(
     -------
     s : array, shape (..., m, 3) [m/s]
     """
-    return _surface_filtered(
-        np.asarray(v, dtype=float),
-        np.asarray(grad, dtype=float),
-        np.asarray(z, dtype=float),
-        shaped(alpha),
-    )
+    return elementwise(surface_array, v, grad, z, False, shaped(alpha), 0.0, 1.0, flags=(1,))
 
 
 def known_force(v: ArrayLike, drag: ArrayLike) -> NDArray[np.float64]:
@@ -289,7 +183,7 @@ def known_force(v: ArrayLike, drag: ArrayLike) -> NDArray[np.float64]:
 
     A linear drag is the model this project uses for the known term; ``drag = 0`` removes it.
     """
-    return _known(np.asarray(v, dtype=float), shaped(drag))
+    return elementwise(known_array, v, shaped(drag))
 
 
 def switching_force(
@@ -300,9 +194,7 @@ def switching_force(
     The printed ``J_i^known`` is the known disturbance ``f_i^known`` of eq. 20
     (docs/THEORY.md section 1).
     """
-    return _switching(
-        np.asarray(s, dtype=float), np.asarray(v, dtype=float), -shaped(u0), shaped(drag)
-    )
+    return elementwise(switching_array, s, v, -shaped(u0), 1.0, shaped(drag), flags=(False,))
 
 
 def layer_switching_force(
@@ -325,10 +217,6 @@ def layer_switching_force(
         Velocities [m/s].
     u0 : float [N]; phi : float [m/s], > 0; drag : float [N s/m]
     """
-    return _switching_layer(
-        np.asarray(s, dtype=float),
-        np.asarray(v, dtype=float),
-        -shaped(u0),
-        1.0 / shaped(phi),
-        shaped(drag),
+    return elementwise(
+        switching_array, s, v, -shaped(u0), 1.0 / shaped(phi), shaped(drag), flags=(True,)
     )
