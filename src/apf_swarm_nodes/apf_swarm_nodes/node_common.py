@@ -3,7 +3,7 @@
 handle any message type (recorder, player), the message class of a type name and the
 start-up heap kept from the collector.
 
-QoS (documented in README, section "Topics and QoS"):
+QoS (documented in docs/ROS.md, section "Topics and QoS"):
 
 =====================  ==========================  =========================================
 topic                  lockstep                    realtime

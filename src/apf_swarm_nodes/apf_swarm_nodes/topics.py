@@ -1,7 +1,7 @@
 """Every ROS name of the swarm, said once: the topics (absolute, and relative to the node's
 namespace where a node names its own), the nodes' names and namespaces, and the channels of
 the Foxglove view. Plain strings, no rclpy: the bag tools use them too. Their QoS profiles
-are :mod:`.node_common`'s; the table is in README, section "Topics and QoS".
+are :mod:`.node_common`'s; the table is in docs/ROS.md, section "Topics and QoS".
 
 The core knows one name only, a tracker's (its parameter-file section):
 :mod:`apf_swarm_core.names`.
