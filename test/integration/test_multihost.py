@@ -30,7 +30,19 @@ pytestmark = pytest.mark.skipif(REASON is not None, reason=f'simulated hosts: {R
 
 
 def run_lab(out: Path, *args: str) -> tuple[subprocess.CompletedProcess, dict]:
-    p = subprocess.run(
+    for _ in range(2):
+        p = _run_lab(out, *args)
+        # a secure run whose graph never completed (Fast DDS 2.14's TCP: a node connected
+        # to the discovery server but never discovered; docs/RELIABILITY.md) runs again,
+        # once: a known upstream fault, not what these tests are about
+        if '--open' in args or p.returncode != 2 or 'graph was not complete' not in p.stderr:
+            break
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    return p, json.loads((out / 'multihost.json').read_text())
+
+
+def _run_lab(out: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
         [
             sys.executable,
             str(SCRIPT),
@@ -47,8 +59,6 @@ def run_lab(out: Path, *args: str) -> tuple[subprocess.CompletedProcess, dict]:
         timeout=240,
         cwd=ROOT,
     )
-    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
-    return p, json.loads((out / 'multihost.json').read_text())
 
 
 def no_namespaces_left(tag_text: str) -> bool:

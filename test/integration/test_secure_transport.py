@@ -38,14 +38,15 @@ _spec.loader.exec_module(multihost)
 NO_HOSTS = multihost.unavailable()
 pytestmark = pytest.mark.skipif(NO_HOSTS is not None, reason=f'simulated hosts: {NO_HOSTS}')
 
-#: a node that publishes /apf_secret and subscribes /apf_steer for SECONDS, then prints what
-#: it saw: the topics and nodes of the graph, the messages it received, and how many
-#: subscribers its publisher matched
+#: a node that publishes /apf_secret (the member) or /apf_steer (the others) and subscribes
+#: the other, then prints what it saw: the topics and nodes of the graph, the messages it
+#: received, how many subscribers its publisher matched, how long it looked. It looks for
+#: SECONDS at most, until the file STOP exists, or (the control) until it has seen it all
 PEER = r"""
-import json, sys, time
+import json, os, sys, time
 import rclpy
 from std_msgs.msg import String
-seconds, name = float(sys.argv[1]), sys.argv[2]
+seconds, name, stop = float(sys.argv[1]), sys.argv[2], sys.argv[3]
 rclpy.init()
 node = rclpy.create_node(name)
 got = []
@@ -53,22 +54,27 @@ node.create_subscription(String, '/apf_steer' if name == 'member' else '/apf_sec
                          lambda m: got.append(1), 10)
 pub = node.create_publisher(String, '/apf_secret' if name == 'member' else '/apf_steer', 10)
 topics, nodes, matched = set(), set(), 0
-end = time.monotonic() + seconds
-while time.monotonic() < end:
+t0 = time.monotonic()
+while time.monotonic() < t0 + seconds and not os.path.exists(stop):
     pub.publish(String(data=name))
     rclpy.spin_once(node, timeout_sec=0.02)
     topics |= {t for t, _ in node.get_topic_names_and_types()}
     nodes |= {n for n, _ in node.get_node_names_and_namespaces()}
     matched = max(matched, pub.get_subscription_count())
+    if name == 'control' and len(got) >= 5 and 'member' in nodes and matched:
+        break
 print(json.dumps({'topics': sorted(topics), 'nodes': sorted(nodes), 'received': len(got),
-                  'matched': matched}), flush=True)
+                  'matched': matched, 'seconds': time.monotonic() - t0}), flush=True)
 """
+#: outsiders look at least this much longer than the positive control needed to see it all
+MARGIN = 8.0
 
 ADMITS = r"""
 import json, sys
 from pathlib import Path
 from apf_swarm_nodes.secure import tls_admits
-print(json.dumps([tls_admits(a, p, cert=c and Path(c), key=k and Path(k))
+# outsiders knocking at the same ports slow every handshake there (RELIABILITY.md)
+print(json.dumps([tls_admits(a, p, cert=c and Path(c), key=k and Path(k), timeout=30.0)
                   for a, p, c, k in json.loads(sys.argv[1])]))
 """
 
@@ -151,6 +157,25 @@ def result(proc: subprocess.Popen[str], timeout: float) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
+def control_then_outsiders(
+    control: subprocess.Popen[str],
+    outsiders: list[tuple[str, subprocess.Popen[str]]],
+    stop: Path,
+    t0: float,
+) -> dict[str, dict]:
+    """The control's view (it stops once it has seen the swarm, 45 s at most), then the
+    outsiders', stopped :data:`MARGIN` s after the control was done (counted from ``t0``,
+    when they all started)."""
+    seen = {'control': result(control, 45.0)}
+    time.sleep(max(0.0, t0 + seen['control']['seconds'] + MARGIN - time.monotonic()))
+    stop.touch()
+    for name, proc in outsiders:
+        seen[name] = result(proc, 30.0)
+        # (each counts from its own start, a second or two after t0 on a loaded machine)
+        assert seen[name]['seconds'] >= seen['control']['seconds'] + MARGIN - 4.0, seen
+    return seen
+
+
 def base_env(domain: int) -> dict[str, str]:
     env = {
         k: v
@@ -168,7 +193,7 @@ def admits_all(ns: str, env: dict[str, str], tries: list[tuple]) -> list[bool]:
     p = subprocess.run(
         ['ip', 'netns', 'exec', ns, sys.executable, '-c', ADMITS,
          json.dumps([[a, port, c and str(c), k and str(k)] for a, port, c, k in tries])],
-        env=env, capture_output=True, text=True, timeout=60,
+        env=env, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert p.returncode == 0, p.stderr
     return json.loads(p.stdout)
@@ -214,14 +239,18 @@ def test_outsiders_without_the_runs_certificate_see_nothing(
         outsiders[name].write_text(text)
     env = base_env(d)
     run_env = {**env, **secure.secure_environment(pki.server_profile, pki.openssl)}
-    member = start(h1, run_env, '-c', PEER, '14', 'member')
-    procs = []
+    stop = tmp_path / 'stop'
+    member = start(h1, run_env, '-c', PEER, '120', 'member', str(tmp_path / 'never'))
+    procs: list[tuple[str, subprocess.Popen[str]]] = []
+    controls: list[tuple[str, subprocess.Popen[str]]] = []
     try:
+        t0 = time.monotonic()
         for name, profile in outsiders.items():
             out_env = {**env, **dict.fromkeys(dds.PROFILE_VARIABLES, str(profile))}
-            procs.append((name, start(h2, out_env, '-c', PEER, '8', name)))
+            procs.append((name, start(h2, out_env, '-c', PEER, '90', name, str(stop))))
         h2_env = {**env, **secure.secure_environment(mine.profile, pki.openssl)}
-        procs.append(('control', start(h2, h2_env, '-c', PEER, '8', 'control')))
+        control = start(h2, h2_env, '-c', PEER, '45', 'control', str(stop))
+        controls.append(('control', control))
         # meanwhile: every TCP port host 1 listens on refuses a client without the run's
         # certificate, with a self-signed one, with another authority's; admits the run's
         listening = set()
@@ -242,9 +271,9 @@ def test_outsiders_without_the_runs_certificate_see_nothing(
             ['ip', 'netns', 'exec', h1, 'ss', '-Hulpn'], capture_output=True, text=True
         ).stdout
         assert udp.strip() == '', udp
-        seen = {name: result(proc, 60.0) for name, proc in procs}
+        seen = control_then_outsiders(control, procs, stop, t0)
     finally:
-        for _, proc in procs:
+        for _, proc in [*procs, *controls]:
             stop_process(proc, ((signal.SIGKILL, 5.0),))
         stop_process(member, ((signal.SIGINT, 5.0), (signal.SIGKILL, 5.0)))
     for name in outsiders:
@@ -253,7 +282,7 @@ def test_outsiders_without_the_runs_certificate_see_nothing(
         assert set(s['topics']) <= {'/apf_secret', '/apf_steer', '/rosout', '/parameter_events'}
         assert s['received'] == 0 and s['matched'] == 0, (name, s)
     control = seen['control']
-    assert 'member' in control['nodes'] and control['received'] > 10, control
+    assert 'member' in control['nodes'] and control['received'] >= 5, control
     assert control['matched'] >= 1, control
 
 
@@ -277,7 +306,7 @@ def test_without_the_openssl_configuration_fast_dds_admits_anyone(
         run_env = {**env, **secure.secure_environment(pki.server_profile, pki.openssl)}
         if not with_conf:
             del run_env['OPENSSL_CONF']
-        member = start(h1, run_env, '-c', PEER, '20', 'member')
+        member = start(h1, run_env, '-c', PEER, '20', 'member', str(tmp_path / 'never'))
         try:
             for _ in range(100):
                 try:
@@ -295,10 +324,11 @@ def test_without_the_openssl_configuration_fast_dds_admits_anyone(
 # --------------------------------------------------------------------------------------------
 
 #: someone who wants to read or steer the swarm: subscribes /swarm/state, publishes
-#: /uav_1/force_cmd for SECONDS (as test_isolation's looker); with 'until' it stops as soon
-#: as it has seen the plant, some states and a subscriber of its commands
+#: /uav_1/force_cmd (as test_isolation's looker) for SECONDS at most, until the file STOP
+#: exists, or (with 'until', the control) until it has seen the plant, some states and a
+#: subscriber of its commands
 LOOKER = r"""
-import json, sys, time
+import json, os, sys, time
 import rclpy
 from apf_swarm_msgs.msg import ForceCommand, SwarmState
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -311,8 +341,8 @@ pub = node.create_publisher(ForceCommand, '/uav_1/force_cmd', 10)
 topics, nodes, matched = set(), set(), 0
 t0 = time.monotonic()
 end = t0 + float(sys.argv[1])
-until = len(sys.argv) > 2 and sys.argv[2] == 'until'
-while time.monotonic() < end:
+until, stop = sys.argv[2] == 'until', sys.argv[3]
+while time.monotonic() < end and not os.path.exists(stop):
     rclpy.spin_once(node, timeout_sec=0.05)
     topics |= {t for t, _ in node.get_topic_names_and_types()}
     nodes |= {ns.rstrip('/') + '/' + n for n, ns in node.get_node_names_and_namespaces()}
@@ -349,25 +379,38 @@ def test_a_secure_bringup_admits_only_its_hosts(lab3: multihost.Lab, tmp_path: P
     d = pick_domain_id(lo=102, hi=201)
     out = (tmp_path / 'run').resolve()
     err = tmp_path / 'bringup.stderr'
-    argv = [
-        'ip', 'netns', 'exec', h1, sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'),
-        '--preset', 'triangle', '--n-trackers', '3', '--duration', '120',
-        '--domain-id', str(d), '--out', str(out), '--no-plots', '--allow-overload',
-        '--discovery-range', 'SUBNET', '--secure', '--secure-address', lab3.addr[h1],
-        '--node-netns', f'tracker*={h2}',
-    ]  # fmt: skip
-    with open(err, 'wb') as f:
-        bring = subprocess.Popen(
-            argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=f, cwd=ROOT,
-            start_new_session=True,
-        )  # fmt: skip
     procs: list[tuple[str, subprocess.Popen[str]]] = []
+    controls: list[tuple[str, subprocess.Popen[str]]] = []
+    stop = tmp_path / 'stop'
+    bring = None
     try:
-        end = time.monotonic() + 90
-        while 'graph ready after' not in err.read_text(errors='replace'):
-            assert bring.poll() is None, err.read_text(errors='replace')
-            assert time.monotonic() < end, err.read_text(errors='replace')
-            time.sleep(0.1)
+        # a secure bring-up whose graph never completes (a node connected to the discovery
+        # server but never discovered: Fast DDS 2.14's TCP, RELIABILITY.md) is started again,
+        # once: that is a known upstream fault, not what this test is about
+        for attempt in range(2):
+            argv = [
+                'ip', 'netns', 'exec', h1, sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'),
+                '--preset', 'triangle', '--n-trackers', '3', '--duration', '120',
+                '--domain-id', str(d), '--out', str(out), '--no-plots', '--allow-overload',
+                '--discovery-range', 'SUBNET', '--secure', '--secure-address', lab3.addr[h1],
+                '--node-netns', f'tracker*={h2}', '--ready-timeout', '20',
+            ]  # fmt: skip
+            with open(err, 'wb') as f:
+                bring = subprocess.Popen(
+                    argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=f,
+                    cwd=ROOT, start_new_session=True,
+                )  # fmt: skip
+            end = time.monotonic() + 90
+            while 'graph ready after' not in err.read_text(errors='replace'):
+                if bring.poll() is not None:
+                    text = err.read_text(errors='replace')
+                    assert attempt == 0 and 'graph was not complete' in text, text
+                    out = out.with_name(f'{out.name}_again')
+                    break
+                assert time.monotonic() < end, err.read_text(errors='replace')
+                time.sleep(0.1)
+            else:
+                break
         text = err.read_text(errors='replace')
         assert 'OPEN TO THE NETWORK' not in text and 'secure: TCP with TLS only' in text
         dds_dir = out / 'dds'
@@ -388,21 +431,8 @@ def test_a_secure_bringup_admits_only_its_hosts(lab3: multihost.Lab, tmp_path: P
             ),
         }
         env = base_env(d)
-        for name, (with_cert, swap) in variants.items():
-            text = profile
-            for old, new in swap.items():
-                text = text.replace(str(old), str(new))
-            path = outsider_profile(tmp_path / f'{name}.xml', text, with_cert=with_cert)
-            out_env = {**env, **dict.fromkeys(dds.PROFILE_VARIABLES, str(path))}
-            procs.append((name, start(h3, out_env, '-c', LOOKER, '15')))
-        control_env = {
-            **env,
-            **secure.secure_environment(mine / secure.PROFILE_FILE, dds_dir / 'openssl.cnf'),
-        }
-        # the positive control sees the swarm well within the outsiders' 15 s (about 2 s
-        # on an idle machine: its start, the server, a connection to each participant)
-        procs.append(('control', start(h3, control_env, '-c', LOOKER, '15', 'until')))
-        # every TCP port of the run's hosts refuses the outsiders' certificates
+        # every TCP port of the run's hosts refuses the outsiders' certificates (probed
+        # before the outsiders knock: they slow every handshake, see RELIABILITY.md)
         ports = {h1: listening_tcp(h1), h2: listening_tcp(h2)}
         assert secure.server_port(d) in ports[h1] and len(ports[h1]) >= 3, ports  # + plant, target
         assert len(ports[h2]) >= 1, ports
@@ -418,11 +448,26 @@ def test_a_secure_bringup_admits_only_its_hosts(lab3: multihost.Lab, tmp_path: P
                 ['ip', 'netns', 'exec', ns, 'ss', '-Hulpn'], capture_output=True, text=True
             ).stdout
             assert udp.strip() == '', (ns, udp)
-        seen = {name: result(proc, 60.0) for name, proc in procs}
+        t0 = time.monotonic()
+        for name, (with_cert, swap) in variants.items():
+            text = profile
+            for old, new in swap.items():
+                text = text.replace(str(old), str(new))
+            path = outsider_profile(tmp_path / f'{name}.xml', text, with_cert=with_cert)
+            out_env = {**env, **dict.fromkeys(dds.PROFILE_VARIABLES, str(path))}
+            procs.append((name, start(h3, out_env, '-c', LOOKER, '90', '-', str(stop))))
+        control_env = {
+            **env,
+            **secure.secure_environment(mine / secure.PROFILE_FILE, dds_dir / 'openssl.cnf'),
+        }
+        control = start(h3, control_env, '-c', LOOKER, '45', 'until', str(stop))
+        controls.append(('control', control))
+        seen = control_then_outsiders(control, procs, stop, t0)
     finally:
-        for _, proc in procs:
+        for _, proc in [*procs, *controls]:
             stop_process(proc, ((signal.SIGKILL, 5.0),))
-        rc = stop_process(bring, ((signal.SIGINT, 30.0), (signal.SIGKILL, 5.0)))
+        if bring is not None:
+            rc = stop_process(bring, ((signal.SIGINT, 30.0), (signal.SIGKILL, 5.0)))
     for name in variants:
         s = seen[name]
         assert s['nodes'] == ['/looker'], (name, s)
@@ -431,7 +476,6 @@ def test_a_secure_bringup_admits_only_its_hosts(lab3: multihost.Lab, tmp_path: P
     control = seen['control']
     assert '/plant' in control['nodes'] and control['states'] > 0, control
     assert control['force_cmd_matched'] == 1, control
-    assert control['seconds'] < 12, control
     assert rc == 130, err.read_text(errors='replace')
     assert not list(dds_dir.glob('*/key.pem'))  # removed at the end
     assert (dds_dir / 'ca.pem').is_file() and (mine / 'cert.pem').is_file()
