@@ -3,21 +3,7 @@
 handle any message type (recorder, player), the message class of a type name and the
 start-up heap kept from the collector.
 
-QoS (documented in docs/ROS.md, section "Topics and QoS"):
-
-=====================  ==========================  =========================================
-topic                  lockstep                    realtime
-=====================  ==========================  =========================================
-/uav_<i>/odom          reliable, keep last 1000    best effort, keep last 1 (sensor data)
-/target/odom           reliable, keep last 1000    best effort, keep last 1
-/uav_<i>/force_cmd     reliable, keep last 1000    best effort, keep last 1 (latest wins)
-/clock                 reliable, keep last 1000    (not published)
-/target/request        reliable, transient local,  (not published)
-                       keep last 1
-/swarm/odom            reliable, keep last 1000    best effort, keep last 1
-/swarm/state           reliable, keep last 5000    reliable, keep last 5000 (recorded, summed)
-/swarm/start           reliable, transient local, keep last 1 (late joiners see the start)
-=====================  ==========================  =========================================
+QoS per topic: the table of docs/ROS.md, section "Topics and QoS" (the one table).
 
 ``/swarm/odom`` (apf_swarm_msgs/SwarmOdometry, flat arrays) carries every tracker's odometry
 and the target state the plant received, for step k, in one message: trackers with
