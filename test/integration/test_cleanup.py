@@ -173,8 +173,10 @@ def test_repeated_kills_of_publishing_nodes_then_a_stop_end_in_time_and_leave_no
     assert took < bound, (took, err)
     assert 'Traceback' not in err, err
     wait_for(lambda: run.left() == [], 5, f'no process of the run: {run.left()}')
-    assert re.search(r'removed \d+ stale Fast DDS shared-memory files', err), err
-    assert left_shm(before) == set()
+    # what the five killed participants left is gone: removed by this bring-up at its end
+    # ("removed N stale Fast DDS shared-memory files"), or already by another run's end on
+    # this machine (every run removes what no live process holds, its own or not)
+    assert left_shm(before) == set(), err
     summary = json.loads((run.out / 'summary.json').read_text())
     assert summary['respawns'] == 5 and summary['status'] == 'interrupted'
     assert summary['stop_signals'].get('SIGKILL', 0) == 0, summary['stop_signals']
