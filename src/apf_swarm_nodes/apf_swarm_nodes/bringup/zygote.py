@@ -407,6 +407,10 @@ def _running(procs: Sequence[psutil.Process]) -> list[psutil.Process]:
     return out
 
 
+#: seconds after an orphaned run's cleanup before it looks for stale shared memory again
+ORPHAN_SECOND_LOOK = 1.0
+
+
 def orphaned_cleanup(nodes: Sequence[psutil.Process] | None = None) -> None:
     """The bring-up died (SIGKILL: it could clean nothing up) and its nodes are stopping on
     their parent-death signal: once they are gone (at most :data:`ORPHAN_GRACE` s, and
@@ -432,6 +436,10 @@ def orphaned_cleanup(nodes: Sequence[psutil.Process] | None = None) -> None:
         time.sleep(0.05)
         pending = _running(pending)
     with contextlib.suppress(OSError):
+        shm.remove_stale()
+        # a node the dead bring-up had just started, and not yet told us of, ends on its
+        # parent-death signal meanwhile: what it held is free a moment later
+        time.sleep(ORPHAN_SECOND_LOOK)
         shm.remove_stale()
 
 
