@@ -23,7 +23,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -162,11 +162,18 @@ def control_then_outsiders(
     outsiders: list[tuple[str, subprocess.Popen[str]]],
     stop: Path,
     t0: float,
+    again: Callable[[], subprocess.Popen[str]] | None = None,
 ) -> dict[str, dict]:
     """The control's view (it stops once it has seen the swarm, 45 s at most), then the
     outsiders', stopped :data:`MARGIN` s after the control was done (counted from ``t0``,
-    when they all started)."""
-    seen = {'control': result(control, 45.0)}
+    when they all started). A control that saw no swarm is started ``again`` once: Fast DDS
+    2.14's TCP discovery now and then never discovers a participant that did connect
+    (docs/RELIABILITY.md), the member's own looker as much as a node."""
+    seen = {'control': result(control, 60.0)}
+    if again is not None and not (
+        '/plant' in seen['control']['nodes'] and seen['control']['states']
+    ):
+        seen['control'] = result(again(), 60.0)
     time.sleep(max(0.0, t0 + seen['control']['seconds'] + MARGIN - time.monotonic()))
     stop.touch()
     for name, proc in outsiders:
@@ -462,7 +469,13 @@ def test_a_secure_bringup_admits_only_its_hosts(lab3: multihost.Lab, tmp_path: P
         }
         control = start(h3, control_env, '-c', LOOKER, '45', 'until', str(stop))
         controls.append(('control', control))
-        seen = control_then_outsiders(control, procs, stop, t0)
+
+        def again() -> subprocess.Popen[str]:
+            proc = start(h3, control_env, '-c', LOOKER, '45', 'until', str(stop))
+            controls.append(('control, again', proc))
+            return proc
+
+        seen = control_then_outsiders(control, procs, stop, t0, again)
     finally:
         for _, proc in [*procs, *controls]:
             stop_process(proc, ((signal.SIGKILL, 5.0),))
