@@ -242,13 +242,21 @@ def profile_xml(
         what = "the network: the middleware's transports and discovery"
         transports = []
         rtps = ['<builtin>', *(f'  {line}' for line in discovery), '</builtin>']
+    return profiles_file(
+        f'apf_swarm, {what}; written by apf_swarm_nodes.dds', 'apf_swarm', transports, rtps
+    )
+
+
+def profiles_file(comment: str, name: str, transports: list[str], rtps: list[str]) -> str:
+    """A Fast DDS XML profiles file: the ``transports`` lines (transport descriptors) and
+    one default participant profile ``name`` with the ``rtps`` lines, under ``comment``."""
     lines = [
         '<?xml version="1.0" encoding="UTF-8"?>',
-        f'<!-- apf_swarm, {what}; written by apf_swarm_nodes.dds -->',
+        f'<!-- {comment} -->',
         '<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">',
         '  <profiles>',
         *(f'    {line}' for line in transports),
-        '    <participant profile_name="apf_swarm" is_default_profile="true">',
+        f'    <participant profile_name="{name}" is_default_profile="true">',
         '      <rtps>',
         *(f'        {line}' for line in rtps),
         '      </rtps>',

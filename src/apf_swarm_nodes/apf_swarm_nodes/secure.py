@@ -436,26 +436,15 @@ def profile_xml(
         *(f'  {line}' for line in builtin),
         '</builtin>',
     ]
+    from .dds import profiles_file
+
     what = 'discovery server' if is_server else 'node'
-    lines = [
-        '<?xml version="1.0" encoding="UTF-8"?>',
-        (
-            f'<!-- apf_swarm, secure multi-host run ({what}): TCPv4 with TLS only, peers '
-            "verified against the run's authority; written by apf_swarm_nodes.secure. Use "
-            f'with OPENSSL_CONF={Path(ca).resolve().parent / OPENSSL_FILE} -->'
-        ),
-        '<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">',
-        '  <profiles>',
-        *(f'    {line}' for line in transports),
-        '    <participant profile_name="apf_swarm_secure" is_default_profile="true">',
-        '      <rtps>',
-        *(f'        {line}' for line in rtps),
-        '      </rtps>',
-        '    </participant>',
-        '  </profiles>',
-        '</dds>',
-    ]
-    return '\n'.join(lines) + '\n'
+    comment = (
+        f'apf_swarm, secure multi-host run ({what}): TCPv4 with TLS only, peers '
+        "verified against the run's authority; written by apf_swarm_nodes.secure. Use "
+        f'with OPENSSL_CONF={Path(ca).resolve().parent / OPENSSL_FILE}'
+    )
+    return profiles_file(comment, 'apf_swarm_secure', transports, rtps)
 
 
 def secure_environment(profile: Path, openssl: Path) -> dict[str, str]:
