@@ -60,11 +60,13 @@ __all__ = [
     'DEFAULT_EXECUTOR',
     'EXECUTORS',
     'INPUTS',
+    'MATCH_RETRY',
     'REALTIME_RATE',
     'REQUEST_QOS',
     'START_QOS',
     'STATE_QOS',
     'TARGET_LOOKAHEAD',
+    'MatchGate',
     'RejectionLog',
     'control_qos',
     'freeze_startup_heap',
@@ -104,6 +106,57 @@ def control_qos(mode: str, depth: int = 1) -> QoSProfile:
 
 #: /clock: the lockstep control topics' profile
 CLOCK_QOS = control_qos('lockstep')
+
+
+#: how often a :class:`MatchGate` holding an action looks at its publisher again [s]
+MATCH_RETRY = 0.01
+
+
+class MatchGate:
+    """Lockstep: what a node publishes waits until its publisher has matched its readers.
+
+    Discovery is not symmetric: a reader (the plant's; the recorder's, which subscribes once
+    it sees a publisher) matches a writer as soon as it knows of it, but the writer sends a
+    reliable volatile sample only to the readers *it* has matched when the sample is written.
+    A first message sent in between is lost to that reader, and in lockstep nothing sends it
+    again. The gate runs an action at once when the publisher's own matched count is high
+    enough, else holds the newest one and retries every :data:`MATCH_RETRY` s: ``first``
+    readers for the first action (the plant's and the recorder's), ``need`` for every later
+    one (the plant's alone: a recorder that stops must not stop the run).
+    """
+
+    def __init__(self, node: Node, pub: Any, need: int = 1, first: int | None = None) -> None:
+        self.pub, self.need = pub, int(need)
+        self._want = self.need if first is None else int(first)
+        self._held: Callable[[], None] | None = None
+        # runs only while an action is held
+        self._timer = node.create_timer(MATCH_RETRY, self._retry)
+        self._timer.cancel()
+
+    def matched(self) -> bool:
+        """Whether the publisher has matched the readers the next action waits for."""
+        return bool(self.pub.get_subscription_count() >= self._want)
+
+    def __call__(self, action: Callable[[], None]) -> None:
+        """Run ``action`` now if :meth:`matched`, else hold it (replacing one held before)."""
+        if self.matched():
+            self._held = None
+            self._run(action)
+        else:
+            self._held = action
+            self._timer.reset()
+
+    def _run(self, action: Callable[[], None]) -> None:
+        self._want = self.need
+        action()
+
+    def _retry(self) -> None:
+        if self._held is None:
+            self._timer.cancel()
+        elif self.matched():
+            action, self._held = self._held, None
+            self._timer.cancel()
+            self._run(action)
 
 
 class RejectionLog:

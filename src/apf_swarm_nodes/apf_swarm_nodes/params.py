@@ -37,6 +37,7 @@ __all__ = [
     'MODES',
     'MODE_PARAM',
     'QOS_DEPTH_PARAM',
+    'RECORDED_PARAM',
     'RUN_PARAM',
     'SWARM_NODE_PARAMS',
     'NodeParam',
@@ -159,8 +160,15 @@ RUN_PARAM = NodeParam(
     lo=0,
     hi=2**63 - 1,
 )
+RECORDED_PARAM = NodeParam(
+    'recorded',
+    False,
+    'lockstep: a recorder reads every topic of this node (the bring-up sets it with '
+    '--record): each publisher holds its first message until it has matched the recorder '
+    'too, or the bag would miss the first steps',
+)
 #: what every node of the swarm (plant, target, tracker) declares before its own parameters
-SWARM_NODE_PARAMS = (EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODE_PARAM, RUN_PARAM)
+SWARM_NODE_PARAMS = (EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODE_PARAM, RUN_PARAM, RECORDED_PARAM)
 
 
 def declare_node_params(node: Node, params: tuple[NodeParam, ...]) -> dict[str, Any]:

@@ -129,6 +129,7 @@ class PlantNode(Node):
         self.mode = p['mode']
         self.timeout = float(p['command_timeout'])
         self.inputs = p['inputs']
+        self.recorded = bool(p['recorded'])
         self.waiting_for_match = False
         self.model = PlantModel(self.cfg, run=int(p['run']))
         self.dt_ns = dt_to_ns(self.cfg.dt)
@@ -208,7 +209,7 @@ class PlantNode(Node):
             return False
         if any(sub.get_publisher_count() < 1 for sub in self.force_subs):
             return False
-        return self.out.readers_matched(self.inputs)
+        return self.out.readers_matched(self.inputs, int(self.recorded))
 
     def _start_when_matched(self) -> None:
         if self.waiting_for_match and self._matched():

@@ -56,14 +56,21 @@ class PlantOutputs:
             self.request_pub = node.create_publisher(UInt64, TARGET_REQUEST, REQUEST_QOS)
             self._request = UInt64()
 
-    def readers_matched(self, inputs: str) -> bool:
+    def readers_matched(self, inputs: str, recorder: int = 0) -> bool:
         """Lockstep: the target reads the requests and every reader of step k is matched
-        (``inputs``: what the trackers read, ``aggregate`` or ``odom``)."""
-        if self.request_pub.get_subscription_count() < 1:
-            return False
-        if inputs == 'aggregate':
-            return self.swarm_odom_pub.get_subscription_count() >= len(self.model.ids)
-        return all(p.get_subscription_count() >= 1 for p in self.odom_pubs)
+        (``inputs``: what the trackers read, ``aggregate`` or ``odom``), on the writers' own
+        counts; ``recorder``: 1 if a recorder reads every topic too, and each writer must
+        have matched it before step 0 (see :class:`~.node_common.MatchGate`)."""
+        trackers = len(self.model.ids) if inputs == 'aggregate' else 0
+        per_uav = 1 if inputs == 'odom' else 0
+        need = [
+            (self.request_pub, 1),
+            (self.swarm_odom_pub, trackers),
+            (self.state_pub, 0),
+            (self.clock_pub, 0),
+            *((pub, per_uav) for pub in self.odom_pubs),
+        ]
+        return all(pub.get_subscription_count() >= n + recorder for pub, n in need)
 
     def request(self, step: int) -> None:
         """Lockstep: ask the target for its states up to ``step``."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import sys
 import time
+from functools import partial
 from typing import Any
 
 from apf_swarm_core.lockstep import target_window
@@ -28,6 +29,7 @@ from .node_common import (
     REQUEST_QOS,
     START_QOS,
     TARGET_LOOKAHEAD,
+    MatchGate,
     control_qos,
     run_node,
 )
@@ -56,6 +58,8 @@ class TargetNode(Node):
         self.next_step = 0
         self._msg = None
         if self.mode == 'lockstep':
+            #: an answer waits until the plant's reader (and the recorder's) matched
+            self.gate = MatchGate(self, self.pub, 1, first=1 + int(p['recorded']))
             self.create_subscription(UInt64, REQUEST, self._on_request, REQUEST_QOS)
         else:
             if p['wait_for_start']:
@@ -73,10 +77,12 @@ class TargetNode(Node):
         self.pub.publish(self._msg)
 
     def _on_request(self, msg: UInt64) -> None:
-        """The plant wants the states up to step K: publish the core's window of them
+        self.gate(partial(self._answer, int(msg.data)))
+
+    def _answer(self, last: int) -> None:
+        """The plant wants the states up to step ``last``: publish the core's window of them
         (:func:`~apf_swarm_core.lockstep.target_window`). The state of step k is exactly
         ``trajectory.state(k dt)`` whenever it is published."""
-        last = int(msg.data)
         for j in target_window(last, self.next_step, TARGET_LOOKAHEAD):
             self._publish(j * self.cfg.dt, step_stamp(j, self.dt_ns))
         self.next_step = max(self.next_step, last + 1)

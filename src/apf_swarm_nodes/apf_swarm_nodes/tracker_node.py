@@ -56,6 +56,7 @@ from .conversions import (
 from .node_common import (
     INPUTS,
     REALTIME_RATE,
+    MatchGate,
     RejectionLog,
     control_qos,
     run_node,
@@ -108,8 +109,6 @@ OUTPUTS = ('force', 'accel', 'velocity')
 #: rate): staleness is judged against input_timeout (0.5 s), and the brakes it sends while
 #: inputs are stale must come faster than the plant's stale_after (0.1 s)
 WATCHDOG_RATE = 20.0
-#: lockstep: how often a held command checks for its reader [s]
-HELD_RETRY = 0.01
 
 
 class TrackerNode(Node):
@@ -165,15 +164,11 @@ class TrackerNode(Node):
         self._neighbours = -1
         self._log_rejection = RejectionLog(self)
         self.instance = random.getrandbits(63)  # tells this process apart at the plant
-        #: lockstep: a command computed before the plant's reader matched, sent once it has
-        self._held: ForceCommand | None = None
+        #: lockstep: a command waits until the plant's reader (and the recorder's) matched
+        self.gate = MatchGate(self, self.pub, 1, first=1 + int(p['recorded']))
         if self.mode == 'realtime':
             rate = self.control_rate if not self.on_odom else min(self.control_rate, WATCHDOG_RATE)
             self.create_timer(1.0 / rate, self._on_timer)
-        else:
-            # runs only while a command is held
-            self._held_timer = self.create_timer(HELD_RETRY, self._send_held)
-            self._held_timer.cancel()
         self.get_logger().info(
             f'uav_{self.uav_id}: {self.cfg.law} law, {self.mode}, neighbours '
             f'{[j for j in self.agent.ids if j != self.uav_id]}, dt {self.cfg.dt:g} s'
@@ -353,14 +348,11 @@ class TrackerNode(Node):
 
     def _send(self, msg: ForceCommand, stamp: Time, force: Any) -> None:
         """Publish a command on every output the ``outputs`` parameter selected. Lockstep:
-        while no reader of it is matched yet (the graph can show this publisher to the plant
-        before the pair has matched), the command is held and sent once one is: the plant
-        waits for it, and a command published unmatched would be lost."""
-        if self.mode == 'lockstep' and self.pub.get_subscription_count() < 1:
-            self._held = msg
-            self._held_timer.reset()
+        the command goes through the :class:`~.node_common.MatchGate` (the plant waits for
+        it, and a command published before its reader matched would be lost)."""
+        if self.mode == 'lockstep':
+            self.gate(partial(self.pub.publish, msg))
         else:
-            self._held = None
             self.pub.publish(msg)
         if self.accel_pub is None and self.velocity_pub is None:
             return
@@ -369,14 +361,6 @@ class TrackerNode(Node):
             self.accel_pub.publish(accel_msg(stamp, a))
         if self.velocity_pub is not None:
             self.velocity_pub.publish(twist_msg(stamp, v))
-
-    def _send_held(self) -> None:
-        if self._held is None:
-            self._held_timer.cancel()
-        elif self.pub.get_subscription_count() >= 1:
-            msg, self._held = self._held, None
-            self._held_timer.cancel()
-            self.pub.publish(msg)
 
 
 def parse_outputs(text: str) -> set[str]:

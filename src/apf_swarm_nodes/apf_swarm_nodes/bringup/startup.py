@@ -191,7 +191,12 @@ class Startup:
             self.n,
             self.mode,
             # the run's identity: its nodes refuse the commands and states of another run
-            [*self.node_params, f'run:={self.run_id}'],
+            # recorded: each writer waits for the recorder's reader before its first message
+            [
+                *self.node_params,
+                f'run:={self.run_id}',
+                *(['recorded:=true'] if self.args.record else []),
+            ],
             per_process=self.args.trackers_per_process,
         )
         self.t_launch = time.monotonic()
