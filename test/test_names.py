@@ -112,10 +112,6 @@ def test_no_private_rclpy_api() -> None:
                 names = [node.module or ''] + [f'{node.module}.{a.name}' for a in node.names]
             else:
                 continue
-            # recorder_take.py: the recorder's wait set; on rclpy's public executor the
-            # recorder lost the first message of a topic in CI (docs/PERFORMANCE.md, Bags)
-            if path.name == 'recorder_take.py':
-                continue
             if any(n.startswith('rclpy.impl') or '_rclpy' in n for n in names):
                 found.append(f'{_where(path, node)}: {", ".join(names)}')
     assert not found, 'rclpy private API imported:\n' + '\n'.join(found)

@@ -15,9 +15,11 @@ recorded and whether every one of their publishers is matched (``ready``), and t
 bring-up waits on it before it starts the clock. The counts go into metadata.yaml
 ``custom_data`` (``apf_swarm.recorder``) and the last log line.
 
-Spinning: no executor; a take loop on a wait set (:mod:`.recorder_take`) takes every message
-with its reception time and publication sequence number, and runs the periodic work
-(discovery, flush, status) between waits.
+Spinning (:func:`spin`): a single-threaded executor hands each subscription's callback the
+message with its MessageInfo: the stamp is the DDS reception time (taken by the middleware when
+the sample arrived, not when the recorder got the CPU), and the publication sequence number
+shows losses (the events executor cannot hand a callback the MessageInfo). The periodic work
+(discovery, flush, status) runs between two turns of the executor.
 
 SIGINT / SIGTERM: stop, take what is still queued (bounded ``drain_timeout``), close the bag
 (summary, metadata.yaml), exit 0.
@@ -29,10 +31,12 @@ import json
 import signal
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import rclpy
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from std_msgs.msg import String
@@ -42,7 +46,6 @@ from .errors import CliError
 from .node_common import START_QOS, freeze_startup_heap, msg_class
 from .params import MODES, NodeParam, declare_node_params, declare_str_array
 from .qos import profile_to_dict, qos_from_dict, recording_profile
-from .recorder_take import never_called, spin
 from .recording import RecordedTopic, TopicSelection, recording_counts, recording_status
 from .stop_watchdog import NODE_STOP_BOUND, StopWatchdog
 from .topics import PRIVATE_STATUS
@@ -102,10 +105,21 @@ NODE_PARAMS = (
 )
 
 
+#: the pause after each turn of the executor [s]: a turn costs the CPU of several messages,
+#: and the next one takes at once what arrived meanwhile (the stamps are the middleware's
+#: reception times, which the pause does not change; bench/bench_bags.py measures it)
+TURN_PAUSE = 0.005
+#: no QoS event handlers on the subscriptions (see RecorderNode.__init__)
+NO_EVENTS = SubscriptionEventCallbacks(use_default_callbacks=False)
+
+
 class RecorderNode(Node):
     """Raw subscriptions to the selected topics, written as received into a bag."""
 
     def __init__(self, **kwargs: Any) -> None:
+        # parameter services and QoS event handlers would be waited on at every turn of the
+        # executor, whose cost is per message here (a recorder never served them)
+        kwargs.setdefault('start_parameter_services', False)
         super().__init__('recorder', **kwargs)
         wanted = declare_str_array(
             self,
@@ -138,7 +152,7 @@ class RecorderNode(Node):
         self.status_pub = self.create_publisher(String, PRIVATE_STATUS, START_QOS)
         self.selected.own.add(self.status_pub.topic_name)
         self._last_status = ''
-        #: [period, next due (monotonic), what]: run by :func:`~.recorder_take.spin` between waits
+        #: [period, next due (monotonic), what]: run by :func:`spin` between waits
         now = time.monotonic()
         self.periodic: list[list[Any]] = [
             [float(p['discovery_period']), now, self._discover],
@@ -200,8 +214,10 @@ class RecorderNode(Node):
             tl = qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
             t = RecordedTopic(topic, msgtype, conn)
             t.single_pub = len(pubs) == 1
-            # taken by spin(), never by an executor
-            t.sub = self.create_subscription(cls, topic, never_called, qos, raw=True)
+            # two arguments: the executor hands the callback the MessageInfo too
+            t.sub = self.create_subscription(
+                cls, topic, partial(self.on_message, t), qos, raw=True, event_callbacks=NO_EVENTS
+            )
             self.topics[topic] = t
             changed = True
             self.get_logger().info(
@@ -214,6 +230,16 @@ class RecorderNode(Node):
             t.single_pub = self.count_publishers(t.name) <= 1
         if changed:
             self._publish_status()
+
+    def take_all(self, t: RecordedTopic) -> int:
+        """Take every message queued on ``t`` (with its MessageInfo); returns how many."""
+        n = 0
+        handle = t.sub.handle
+        with handle:
+            while (got := handle.take_message(t.sub.msg_type, True)) is not None:
+                self.on_message(t, got[0], got[1])
+                n += 1
+        return n
 
     def on_message(self, t: RecordedTopic, raw: bytes, info: dict[str, Any]) -> None:
         """A message taken from ``t`` with its MessageInfo: counted, and written with its
@@ -257,6 +283,38 @@ class RecorderNode(Node):
         self.closed = True
         self.writer.close()
         return c
+
+
+def spin(node: RecorderNode, stop: list[int], drain: float) -> None:
+    """Run the subscriptions' callbacks and, between them, the periodic work; after a signal
+    (``stop`` not empty) take what is still queued until 0.2 s pass without a message (at
+    most ``drain`` seconds)."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        while not stop and node.context.ok():
+            now = time.monotonic()
+            for job in node.periodic:
+                if now >= job[1]:
+                    job[2]()
+                    job[1] = max(job[1] + job[0], now)
+            timeout = min(0.05, max(0.0, min(job[1] for job in node.periodic) - time.monotonic()))
+            # a turn runs one callback (one message): take every queue's others too
+            executor.spin_once(timeout_sec=timeout)
+            for t in list(node.topics.values()):
+                node.take_all(t)
+            time.sleep(TURN_PAUSE)
+        end = time.monotonic() + drain
+        quiet_since = time.monotonic()
+        while time.monotonic() < end and time.monotonic() - quiet_since < 0.2:
+            if sum(node.take_all(t) for t in list(node.topics.values())):
+                quiet_since = time.monotonic()
+            else:
+                time.sleep(0.01)
+    finally:
+        executor.shutdown()
 
 
 def main(args: list[str] | None = None) -> None:
