@@ -8,7 +8,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from apf_swarm_nodes.errors import CliError
+from apf_swarm_nodes.errors import DdsError
 
 from apf_swarm_nodes import dds, swarm_domain
 
@@ -137,7 +137,7 @@ def test_another_middleware_is_refused_for_a_localhost_run(
     tmp_path: Path, no_swarm: list[tuple[int, bool]]
 ) -> None:
     env = {'RMW_IMPLEMENTATION': 'rmw_cyclonedds_cpp'}
-    with pytest.raises(CliError, match='RMW_IMPLEMENTATION=rmw_cyclonedds_cpp'):
+    with pytest.raises(DdsError, match='RMW_IMPLEMENTATION=rmw_cyclonedds_cpp'):
         dds.isolate_dds(tmp_path, 3, 'LOCALHOST', processes=5, environ=env)
     dds.check_rmw({'RMW_IMPLEMENTATION': 'rmw_fastrtps_cpp'})
     dds.check_rmw({})
@@ -148,7 +148,7 @@ def test_the_refusal_names_the_domain_the_topics_and_what_to_do(
 ) -> None:
     found = [f'/uav_{i}/force_cmd (1 publishers: /uav_{i}/tracker)' for i in range(1, 5)]
     monkeypatch.setattr(swarm_domain, 'swarm_publishers', lambda domain, network=False: found)
-    with pytest.raises(CliError) as err:
+    with pytest.raises(DdsError) as err:
         swarm_domain.refuse_other_swarm(42)
     text = str(err.value)
     assert text.startswith('ROS_DOMAIN_ID=42 already carries a swarm: /uav_1/force_cmd')

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from apf_swarm_nodes.errors import CliError
+from apf_swarm_nodes.errors import NodeParameterError
 from apf_swarm_nodes.recording import (
     RecordedTopic,
     TopicSelection,
@@ -23,7 +23,7 @@ def test_the_selection_lists_matches_and_excludes() -> None:
     some = TopicSelection(['/a', '/b/c'], '^/b', 'c$')
     assert not some('/a') and not some('/b/c') and not some('/b')
     assert some.describe() == "topics /a, /b/c, regex '^/b', exclude 'c$'"
-    with pytest.raises(CliError, match='not a regular expression'):
+    with pytest.raises(NodeParameterError, match='not a regular expression'):
         TopicSelection([], '(', '')
 
 

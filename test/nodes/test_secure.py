@@ -11,7 +11,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
-from apf_swarm_nodes.errors import CliError
+from apf_swarm_nodes.errors import DdsError
 
 from apf_swarm_nodes import secure
 
@@ -68,7 +68,7 @@ def test_profile_is_tls_over_tcp_only(pki: secure.Pki) -> None:
 
 def check(pki: secure.Pki, host: str = 'h2', **kw: object) -> str:
     h = pki.hosts[host]
-    with pytest.raises(CliError) as err:
+    with pytest.raises(DdsError) as err:
         secure.check_files(pki.ca, h.cert, h.key, **kw)  # type: ignore[arg-type]
     return str(err.value)
 
@@ -83,11 +83,11 @@ def test_bad_input_names_the_file_and_the_fix(pki: secure.Pki, tmp_path: Path) -
     assert 'not valid before' in check(pki, now=earlier)
     # another run's certificate
     other = secure.make_pki(tmp_path / 'other', ['h2'], run='other')['h2']
-    with pytest.raises(CliError, match="not issued by the run's authority") as err:
+    with pytest.raises(DdsError, match="not issued by the run's authority") as err:
         secure.check_files(pki.ca, other[0], other[1])
     assert str(other[0]) in str(err.value)
     # a key that is not the certificate's
-    with pytest.raises(CliError, match='mismatched') as err:
+    with pytest.raises(DdsError, match='mismatched') as err:
         secure.check_files(pki.ca, h2.cert, pki.hosts['h1'].key)
     assert str(pki.hosts['h1'].key) in str(err.value)
     # a key others can read
@@ -203,7 +203,7 @@ def test_check_refuses_stops_a_port_that_admits_anyone(pki: secure.Pki) -> None:
             if require:
                 secure.check_refuses('127.0.0.1', port, timeout=5.0)
             else:
-                with pytest.raises(CliError, match='admitted a client without a certificate'):
+                with pytest.raises(DdsError, match='admitted a client without a certificate'):
                     secure.check_refuses('127.0.0.1', port, timeout=5.0)
         finally:
             listener.close()

@@ -140,11 +140,11 @@ def test_server_sends_scene_frames_and_metrics_that_decode_to_the_sample(
 
 
 def test_a_busy_port_is_a_clear_error() -> None:
-    from apf_swarm_nodes.errors import CliError
+    from apf_swarm_nodes.view.errors import ViewError
 
     view = LiveView(port=0)
     try:
-        with pytest.raises(CliError, match=f'cannot serve the view on 127.0.0.1:{view.port}'):
+        with pytest.raises(ViewError, match=f'cannot serve the view on 127.0.0.1:{view.port}'):
             LiveView(port=view.port)
     finally:
         view.close()

@@ -45,7 +45,7 @@ from collections.abc import Callable, Iterator, Mapping, MutableMapping, Sequenc
 from pathlib import Path
 from typing import Any
 
-from .errors import CliError
+from .errors import DdsError
 from .swarm_domain import MAX_PARTICIPANTS, refuse_other_swarm
 
 __all__ = [
@@ -284,10 +284,10 @@ def localhost_environment(profile: Path) -> dict[str, str]:
 
 
 def check_rmw(environ: MutableMapping[str, str]) -> None:
-    """The profile is Fast DDS's: refuse another middleware (CliError)."""
+    """The profile is Fast DDS's: refuse another middleware (DdsError)."""
     rmw = environ.get('RMW_IMPLEMENTATION', '')
     if rmw and not rmw.startswith('rmw_fastrtps'):
-        raise CliError(
+        raise DdsError(
             f'RMW_IMPLEMENTATION={rmw}: a localhost run is kept on this machine by a Fast DDS '
             'profile, which another middleware ignores; unset RMW_IMPLEMENTATION (the '
             'wheels ship rmw_fastrtps_cpp), or run with --discovery-range SUBNET knowing '
@@ -311,7 +311,7 @@ def isolate_dds(
 ) -> Path | None:
     """Set a run's DDS up in ``environ`` (default ``os.environ``, which the bring-up's own
     node and every child inherit): write its profile into ``directory``, point Fast DDS at
-    it, then refuse ``domain`` if it already carries a swarm (CliError). Call it once
+    it, then refuse ``domain`` if it already carries a swarm (DdsError). Call it once
     ``ROS_DOMAIN_ID`` and ``ROS_AUTOMATIC_DISCOVERY_RANGE`` are set, before ``rclpy.init``.
 
     ``LOCALHOST``: the localhost profile (nothing from outside this machine); a profile file
@@ -352,7 +352,7 @@ def isolate_dds(
             )
             env.update(dict.fromkeys(PROFILE_VARIABLES, str(path)))
     else:
-        raise CliError(f'unknown discovery range {discovery_range!r}')
+        raise DdsError(f'unknown discovery range {discovery_range!r}')
     refuse_other_swarm(domain, network=discovery_range != 'LOCALHOST')
     return path
 

@@ -1,11 +1,19 @@
-"""Exceptions of :mod:`apf_swarm_nodes`; the CLI prints them as one line and exits 2."""
+"""Exceptions of :mod:`apf_swarm_nodes` outside its subpackages (which have their own
+``errors.py``). Each names the value and what to do; only a command line turns one into a
+message and an exit code (``apf-swarm: error: ...``, exit 2), a node into its exit status."""
 
 from __future__ import annotations
 
 from apf_swarm_core.errors import ApfSwarmError
 
-__all__ = ['CliError']
+__all__ = ['DdsError', 'NodeParameterError']
 
 
-class CliError(ApfSwarmError):
-    """A command-line usage or input problem (bad path, bad value, unknown topic...)."""
+class DdsError(ApfSwarmError):
+    """The middleware cannot carry the run as asked: not Fast DDS, an unknown discovery
+    range, a domain that already carries a swarm, a secure run's missing or wrong file."""
+
+
+class NodeParameterError(ApfSwarmError):
+    """A node cannot start with its parameters: a bag or a file missing, a regular
+    expression that does not compile, a message type not installed."""

@@ -51,7 +51,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
 
-from .errors import CliError
+from .errors import NodeParameterError
 from .qos import make_profile
 from .stop_watchdog import NODE_STOP_BOUND, StopWatchdog
 
@@ -178,12 +178,13 @@ class RejectionLog:
 
 
 def msg_class(msgtype: str) -> Any:
-    """The rclpy message class of ``pkg/msg/Name`` (CliError when it is not installed)."""
+    """The rclpy message class of ``pkg/msg/Name`` (NodeParameterError when it is not
+    installed)."""
     pkg, _, name = msgtype.partition('/msg/')
     try:
         return getattr(importlib.import_module(f'{pkg}.msg'), name)
     except (ImportError, AttributeError, ValueError):
-        raise CliError(
+        raise NodeParameterError(
             f'message type {msgtype} is not installed here (no Python module '
             f'{pkg}.msg with {name or "?"}); source the workspace that defines it, '
             'or leave its topic out with --topics'

@@ -29,7 +29,7 @@ from rclpy.qos import ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from .bags import BagInfo, iter_raw, open_bag
-from .errors import CliError
+from .errors import NodeParameterError
 from .node_common import CLOCK_QOS, freeze_startup_heap, msg_class, run_node, running
 from .params import EXECUTOR_PARAM, NodeParam, declare_node_params, declare_str_array
 from .qos import replay_profile
@@ -87,7 +87,9 @@ class PlayerNode(Node):
             'topics (as published, after remapping) has a subscriber',
         )
         if not p['bag']:
-            raise CliError('parameter bag: the bag directory to play is required (-p bag:=DIR)')
+            raise NodeParameterError(
+                'parameter bag: the bag directory to play is required (-p bag:=DIR)'
+            )
         self.info: BagInfo = open_bag(Path(p['bag']))
         for t in self.topic_filter:
             self.info.topic(t)
@@ -127,7 +129,7 @@ class PlayerNode(Node):
         by_name = {pub.topic_name: pub for pub in self.pubs.values()}
         missing = [t for t in topics if t not in by_name]
         if missing:
-            raise CliError(
+            raise NodeParameterError(
                 f'wait_for {missing}: not topics this player publishes '
                 f'({", ".join(sorted(by_name))})'
             )
@@ -136,7 +138,7 @@ class PlayerNode(Node):
             if not left:
                 return
             if time.monotonic() > end:
-                raise CliError(
+                raise NodeParameterError(
                     f'no subscriber on {", ".join(left)} after '
                     f'{self.p["wait_timeout"]:g} s (wait_timeout)'
                 )

@@ -42,7 +42,7 @@ from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from std_msgs.msg import String
 
 from .bags import CUSTOM_CONFIG, CUSTOM_MODE, CUSTOM_RECORDER, BagError, BagWriter
-from .errors import CliError
+from .errors import NodeParameterError
 from .node_common import START_QOS, freeze_startup_heap, msg_class
 from .params import MODES, NodeParam, declare_node_params, declare_str_array
 from .qos import profile_to_dict, qos_from_dict, recording_profile
@@ -144,7 +144,9 @@ class RecorderNode(Node):
             try:
                 text = Path(p['config_file']).read_text()
             except OSError as exc:
-                raise CliError(f'config_file {p["config_file"]}: {exc.strerror}') from None
+                raise NodeParameterError(
+                    f'config_file {p["config_file"]}: {exc.strerror}'
+                ) from None
             self.writer.set_custom_data(CUSTOM_CONFIG, text, early=True)
         self.topics: dict[str, RecordedTopic] = {}
         self.skipped: dict[str, str] = {}
@@ -194,7 +196,7 @@ class RecorderNode(Node):
             msgtype = types[0]
             try:
                 cls = msg_class(msgtype)
-            except CliError:
+            except NodeParameterError:
                 self._skip(
                     topic,
                     f'type {msgtype} is not installed (no Python module); build '

@@ -16,15 +16,15 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from .errors import CliError
+from .errors import NodeParameterError
 
 __all__ = ['RecordedTopic', 'TopicSelection', 'recording_counts', 'recording_status']
 
 
 class TopicSelection:
     """The topics to record: those listed in ``wanted`` (empty: all), matching ``regex``
-    (empty: all), never those matching ``exclude`` nor the recorder's ``own``; CliError when
-    ``regex`` or ``exclude`` is not a regular expression."""
+    (empty: all), never those matching ``exclude`` nor the recorder's ``own``;
+    NodeParameterError when ``regex`` or ``exclude`` is not a regular expression."""
 
     def __init__(self, wanted: Sequence[str], regex: str, exclude: str) -> None:
         self.wanted = list(wanted)
@@ -33,7 +33,9 @@ class TopicSelection:
             self.regex = re.compile(regex) if regex else None
             self.exclude = re.compile(exclude) if exclude else None
         except re.error as exc:
-            raise CliError(f'regex / exclude: not a regular expression ({exc})') from None
+            raise NodeParameterError(
+                f'regex / exclude: not a regular expression ({exc})'
+            ) from None
 
     def __call__(self, topic: str) -> bool:
         """Whether ``topic`` is recorded."""

@@ -50,7 +50,7 @@ from collections.abc import Callable, Mapping, MutableMapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import CliError
+from .errors import DdsError
 
 __all__ = [
     'CA_FILE',
@@ -249,27 +249,27 @@ def _load_cert(path: Path, what: str) -> object:
     from cryptography import x509
 
     if not path.is_file():
-        raise CliError(f'{path}: {what} missing; {_AGAIN}')
+        raise DdsError(f'{path}: {what} missing; {_AGAIN}')
     try:
         return x509.load_pem_x509_certificate(path.read_bytes())
     except (ValueError, OSError) as exc:
-        raise CliError(f'{path}: not a PEM certificate ({exc}); {_AGAIN}') from exc
+        raise DdsError(f'{path}: not a PEM certificate ({exc}); {_AGAIN}') from exc
 
 
 def _check_dates(cert: object, path: Path, now: dt.datetime) -> None:
     start = cert.not_valid_before_utc  # type: ignore[attr-defined]
     end = cert.not_valid_after_utc  # type: ignore[attr-defined]
     if now >= end:
-        raise CliError(f'{path}: certificate expired at {end:%Y-%m-%d %H:%M} UTC; {_AGAIN}')
+        raise DdsError(f'{path}: certificate expired at {end:%Y-%m-%d %H:%M} UTC; {_AGAIN}')
     if now < start:
-        raise CliError(
+        raise DdsError(
             f'{path}: certificate not valid before {start:%Y-%m-%d %H:%M} UTC (is this '
             "host's clock right?); set the clock, or " + _AGAIN
         )
 
 
 def check_files(ca: Path, cert: Path, key: Path, *, now: dt.datetime | None = None) -> None:
-    """CliError, naming the file and what to do, unless ``cert`` is a current certificate
+    """DdsError, naming the file and what to do, unless ``cert`` is a current certificate
     signed by the current authority ``ca``, ``key`` its private key, readable by its owner
     only."""
     from cryptography.exceptions import InvalidSignature
@@ -284,28 +284,28 @@ def check_files(ca: Path, cert: Path, key: Path, *, now: dt.datetime | None = No
     try:
         host_cert.verify_directly_issued_by(ca_cert)  # type: ignore[attr-defined]
     except (ValueError, TypeError, InvalidSignature) as exc:
-        raise CliError(
+        raise DdsError(
             f"{cert}: not issued by the run's authority {ca} (a certificate of another "
             f'run?); {_AGAIN}'
         ) from exc
     if not key.is_file():
-        raise CliError(f'{key}: private key missing (removed at the run end?); {_AGAIN}')
+        raise DdsError(f'{key}: private key missing (removed at the run end?); {_AGAIN}')
     mode = stat.S_IMODE(key.stat().st_mode)
     if mode & 0o077:
-        raise CliError(
+        raise DdsError(
             f'{key}: private key readable by others (mode {mode:04o}); '
             f'`chmod 600 {key}`, and start a new run if others may have read it'
         )
     try:
         private = serialization.load_pem_private_key(key.read_bytes(), password=None)
     except (ValueError, TypeError, OSError) as exc:
-        raise CliError(f'{key}: not an unencrypted PEM private key ({exc}); {_AGAIN}') from exc
+        raise DdsError(f'{key}: not an unencrypted PEM private key ({exc}); {_AGAIN}') from exc
     pem = serialization.Encoding.PEM
     spki = serialization.PublicFormat.SubjectPublicKeyInfo
     if private.public_key().public_bytes(pem, spki) != host_cert.public_key().public_bytes(  # type: ignore[attr-defined]
         pem, spki
     ):
-        raise CliError(f'{key}: not the key of the certificate {cert} (mismatched); {_AGAIN}')
+        raise DdsError(f'{key}: not the key of the certificate {cert} (mismatched); {_AGAIN}')
 
 
 # --------------------------------------------------------------------------------------------
@@ -476,7 +476,7 @@ def write_run_files(
 ) -> Pki:
     """Everything a secure run needs under ``directory`` (DIR/dds/): the authority, each
     host's certificate, key and profile, the server's profile (``server_host``'s files),
-    the OpenSSL configuration; each host's files checked (:func:`check_files`: CliError
+    the OpenSSL configuration; each host's files checked (:func:`check_files`: DdsError
     naming the file and what to do). ``reuse``: the DIR/dds/ of an earlier run whose keys
     were kept (``--keep-keys``): its authority and host files instead of new ones (the
     new profiles name them; nothing is copied), for hosts that hold them already."""
@@ -491,7 +491,7 @@ def write_run_files(
         issued = {}
         for host in hosts:
             if not (reuse / host).is_dir():
-                raise CliError(
+                raise DdsError(
                     f'--secure-pki {reuse}: no files for host {host!r} ({reuse / host} '
                     'missing); a kept authority cannot admit a new host: run without '
                     '--secure-pki to issue new files for every host'
@@ -530,14 +530,14 @@ def write_run_files(
 
 
 def first_address() -> str:
-    """This host's first non-loopback IPv4 address (CliError if it has none)."""
+    """This host's first non-loopback IPv4 address (DdsError if it has none)."""
     import psutil
 
     for addrs in psutil.net_if_addrs().values():
         for a in addrs:
             if a.family == socket.AF_INET and not a.address.startswith('127.'):
                 return str(a.address)
-    raise CliError(
+    raise DdsError(
         '--secure: this host has no IPv4 address but loopback; give the one the other hosts '
         'reach it at with --secure-address ADDR'
     )
@@ -568,7 +568,7 @@ def secure_dds(
 
     env = os.environ if environ is None else environ
     if discovery_range not in NETWORK_RANGES:
-        raise CliError(
+        raise DdsError(
             f'--secure with --discovery-range {discovery_range}: --secure is for a run '
             'across hosts (--discovery-range SUBNET); a LOCALHOST run admits nothing from '
             'outside this machine already'
@@ -578,7 +578,7 @@ def secure_dds(
     names = [THIS_HOST, *dict.fromkeys(h for h in hosts if h != THIS_HOST)]
     for name in names:
         if not name or '/' in name or name.startswith('.'):
-            raise CliError(f'--secure: {name!r} is not a usable host name')
+            raise DdsError(f'--secure: {name!r} is not a usable host name')
     pki = write_run_files(
         directory, names, THIS_HOST, (address, server_port(domain)), run=run,
         participants=processes, reuse=reuse,
@@ -623,7 +623,7 @@ def tls_admits(address: str, port: int, *, cert: Path | None = None, key: Path |
 
 
 def check_refuses(address: str, port: int, *, timeout: float = 10.0) -> None:
-    """CliError unless the TLS server at ``address``:``port`` (the bring-up's own) refuses
+    """DdsError unless the TLS server at ``address``:``port`` (the bring-up's own) refuses
     a client without a certificate; waits up to ``timeout`` s for it to listen."""
     import time
 
@@ -634,13 +634,13 @@ def check_refuses(address: str, port: int, *, timeout: float = 10.0) -> None:
             break
         except OSError as exc:
             if time.monotonic() > end:
-                raise CliError(
+                raise DdsError(
                     f'--secure: the discovery server {address}:{port} does not answer ({exc}); '
                     'another process holds the port? choose another --domain-id'
                 ) from exc
             time.sleep(0.1)
     if admitted:
-        raise CliError(
+        raise DdsError(
             f'--secure: the TLS port {address}:{port} admitted a client without a '
             "certificate: this OpenSSL ignores the run's configuration (OPENSSL_CONF); "
             'nothing was started. Run without --secure only on a network you trust'
@@ -667,8 +667,8 @@ def main(argv: Sequence[str] | None = None, environ: Mapping[str, str] | None = 
         check_files(d.parent / CA_FILE, d / CERT_FILE, d / KEY_FILE)
         for needed in (d / PROFILE_FILE, d.parent / OPENSSL_FILE):
             if not needed.is_file():
-                raise CliError(f'{needed}: missing; {_AGAIN}')
-    except CliError as exc:
+                raise DdsError(f'{needed}: missing; {_AGAIN}')
+    except DdsError as exc:
         print(f'apf-swarm: error: {exc}', file=sys.stderr)
         return 2
     if args.action == 'check':

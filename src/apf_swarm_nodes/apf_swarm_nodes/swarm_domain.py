@@ -5,7 +5,7 @@ here (:func:`domain_participant_ports`).
 :func:`refuse_other_swarm` looks at the domain before a run
 starts: a publisher of a topic only a swarm publishes (:data:`SWARM_PUBLISHED`), whatever
 its process (another bring-up, nodes started by hand, a bag being played), refuses the run
-with a :class:`~apf_swarm_nodes.errors.CliError` that names the domain and the topics;
+with a :class:`~apf_swarm_nodes.errors.DdsError` that names the domain and the topics;
 subscribers (a viewer, ``ros2 topic echo``, a recorder) do not. On a localhost run the
 domain's ports tell whether anything runs there at all, so a free domain costs no wait.
 """
@@ -18,7 +18,7 @@ import time
 from collections.abc import Iterable
 from typing import Any
 
-from .errors import CliError
+from .errors import DdsError
 from .topics import DISCOVERY_INFO, SWARM_PUBLISHED, UAV_TOPIC
 
 __all__ = [
@@ -166,11 +166,11 @@ def _swarm_topics(node: Any) -> list[str]:
 
 
 def refuse_other_swarm(domain: int, *, network: bool = False) -> None:
-    """CliError when ``domain`` already carries a swarm (:func:`swarm_publishers`)."""
+    """DdsError when ``domain`` already carries a swarm (:func:`swarm_publishers`)."""
     found = swarm_publishers(domain, network=network)
     if found:
         shown = '; '.join(found[:3]) + (f'; and {len(found) - 3} more' if len(found) > 3 else '')
-        raise CliError(
+        raise DdsError(
             f'ROS_DOMAIN_ID={domain} already carries a swarm: {shown}. Two swarms on one '
             "domain take each other's states and commands: choose another --domain-id (or "
             'none: the bring-up picks a free one), or stop that swarm first'

@@ -102,7 +102,7 @@ class Startup:
         # every ROS log file of the run (this node's and the children's) under DIR/logs/ros
         os.environ['ROS_LOG_DIR'] = str((self.out / 'logs' / 'ros').resolve())
         # DDS: in LOCALHOST nothing from outside this machine (a Fast DDS profile that binds
-        # 127.0.0.1), the discovery timing, and no second swarm on the domain (CliError)
+        # 127.0.0.1), the discovery timing, and no second swarm on the domain (DdsError)
         from ..dds import isolate_dds
 
         processes = 3 + -(-self.n // self.args.trackers_per_process) + int(self.args.record)

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.samples import RawSample
-from ..errors import CliError
+from .errors import ViewError
 from .server import VIEW_RATE, LiveView
 
 __all__ = ['bag_samples', 'live_view_of_bag', 'serve_bag']
@@ -88,7 +88,7 @@ def serve_bag(
     returns the number of frames sent.
 
     ``wait_client``: wait this long [s] (None: without limit) for a client to subscribe
-    before playing, so the run is seen from its start (CliError when none came); ``loop``:
+    before playing, so the run is seen from its start (ViewError when none came); ``loop``:
     play again until ``stop`` is set (or Ctrl-C)."""
     from ..bags import open_bag
 
@@ -109,7 +109,7 @@ def serve_bag(
             if stop.wait(0.05):
                 return 0
             if deadline is not None and time.monotonic() > deadline:
-                raise CliError(
+                raise ViewError(
                     f'no client subscribed within {wait_client:g} s; open {view.url} in '
                     'Foxglove, or give --wait-client more time'
                 )

@@ -19,8 +19,8 @@ from apf_swarm_core.realtime_plant import STALE_AFTER
 from numpy.typing import NDArray
 
 from ..analysis.samples import RawSample
-from ..errors import CliError
 from ..topics import FOXGLOVE_FRAMES, FOXGLOVE_METRICS, FOXGLOVE_SCENE
+from .errors import ViewError
 from .scene import SceneBuilder
 
 __all__ = ['DEFAULT_PORT', 'VIEW_RATE', 'LiveView', 'foxglove_url']
@@ -60,7 +60,7 @@ class LiveView:
         try:
             self.server = foxglove.start_server(name=name, host=host, port=port)
         except Exception as exc:  # the SDK raises its own error types for a busy port
-            raise CliError(
+            raise ViewError(
                 f'cannot serve the view on {host}:{port} ({exc}); choose another port '
                 '(--view PORT, 0 for any free one)'
             ) from None
