@@ -45,8 +45,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from apf_swarm_nodes.machine import process_cpu_seconds
-from apf_swarm_nodes.qos import qos_from_dict
+from apf_swarm_nodes.capacity.machine import process_cpu_seconds
+from apf_swarm_nodes.dds.qos import qos_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 

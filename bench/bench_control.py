@@ -59,7 +59,7 @@ from apf_swarm_core.agents import TrackerAgent
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import apply_overrides, load_preset
 from apf_swarm_core.formation import design_formation
-from apf_swarm_nodes.machine import cpu_model
+from apf_swarm_nodes.capacity.machine import cpu_model
 
 #: the command may grow at most this much from 32 to 128 trackers (linear is 4x)
 FLOOR_GROWTH = 6.0

@@ -56,7 +56,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from apf_swarm_nodes.machine import (
+from apf_swarm_nodes.capacity.machine import (
     cpu_model,
     machine_busy_seconds,
     process_cpu_seconds,
@@ -74,7 +74,7 @@ def log(msg: str) -> None:
 
 
 # --------------------------------------------------------------------------------------------
-# processes and machine (apf_swarm_nodes.machine)
+# processes and machine (apf_swarm_nodes.capacity.machine)
 # --------------------------------------------------------------------------------------------
 
 

@@ -76,7 +76,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_graph  # noqa: E402
 from _children import dying_with_parent, exit_on_signals  # noqa: E402
 from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
-from apf_swarm_nodes.machine import machine_busy_seconds, process_cpu_seconds  # noqa: E402
+from apf_swarm_nodes.capacity.machine import machine_busy_seconds, process_cpu_seconds  # noqa: E402
 from bench_graph import Case, machine, rss_mb, run_pingpong  # noqa: E402
 from soak import node_pids  # noqa: E402  (the same /proc lookup)
 
@@ -530,8 +530,8 @@ def run_ladder(
 ) -> list[UpCase]:
     """Climb n until the first size that does not fly (``climb``; else every size);
     ``k`` = 0: the bring-up's default trackers per process for each n
-    (:func:`apf_swarm_nodes.probe.trackers_per_process`)."""
-    from apf_swarm_nodes import probe
+    (:func:`apf_swarm_nodes.capacity.probe.trackers_per_process`)."""
+    from apf_swarm_nodes.capacity import probe
 
     cases = []
     for n in sizes:

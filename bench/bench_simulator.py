@@ -49,7 +49,7 @@ from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import load_preset
 from apf_swarm_core.plant import DisturbanceSource
 from apf_swarm_core.simulator import BatchSimulator, initial_positions
-from apf_swarm_nodes.machine import cpu_model
+from apf_swarm_nodes.capacity.machine import cpu_model
 
 #: floors: the simulator against the naive loop of the same law, single runs
 FLOOR_N3 = 5.0  # 3 trackers (the paper's swarm)

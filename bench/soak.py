@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _children import dying_with_parent, exit_on_signals  # noqa: E402
 from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
-from apf_swarm_nodes.machine import process_args, process_cpu_seconds  # noqa: E402
+from apf_swarm_nodes.capacity.machine import process_args, process_cpu_seconds  # noqa: E402
 from bench_graph import machine, rss_mb  # noqa: E402
 
 GROWTH_LIMIT = 5.0  # percent

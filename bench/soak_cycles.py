@@ -14,7 +14,7 @@ the nodes' parent-death signal must). Per cycle it records whether the bring-up 
 within ``duration + 90`` s (else: a hang, and it is killed), whether any process of the run
 is still alive 15 s after (a leftover, killed; the bring-up's zygote included), and how
 many Fast DDS entries of ``/dev/shm`` created during the cycle no live process holds 15 s
-after that (``apf_swarm_nodes.shm.unheld``: ``/dev/shm`` is the machine's, and the entries
+after that (``apf_swarm_nodes.dds.shm.unheld``: ``/dev/shm`` is the machine's, and the entries
 other jobs' live participants create meanwhile are held by them; what a run of another job
 on another domain left meanwhile is told apart by its ports' domain and reported apart).
 
@@ -55,14 +55,14 @@ def cpu_model() -> str:
 
 
 def shm_entries() -> set[str]:
-    from apf_swarm_nodes.shm import fastdds_entries
+    from apf_swarm_nodes.dds.shm import fastdds_entries
 
     return fastdds_entries()
 
 
 def shm_left(before: set[str]) -> set[str]:
     """The entries created since ``before`` that no live process holds."""
-    from apf_swarm_nodes.shm import unheld
+    from apf_swarm_nodes.dds.shm import unheld
 
     return unheld(shm_entries() - before)
 

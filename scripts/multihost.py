@@ -10,7 +10,7 @@ process's id, so two labs never share one), plugged into the bridge by a veth pa
 multicast route. Host 1 runs the plant, the target and the bring-up (which observes
 ``/swarm/state`` and writes the usual outputs into ``--out``); the trackers (``K`` per
 process with ``--trackers-per-process``) go round-robin to hosts 2..H. By default the run
-is secure (``swarm_up.py --secure``, :mod:`apf_swarm_nodes.secure`): TCP with TLS only, a
+is secure (``swarm_up.py --secure``, :mod:`apf_swarm_nodes.dds.secure`): TCP with TLS only, a
 certificate per host from the run's own authority, discovery through the bring-up's server.
 ``--open``: DDS uses UDP only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``: ``/dev/shm`` is shared
 between namespaces) and discovers either by multicast on the subnet
@@ -160,7 +160,7 @@ class HostCpu:
         self.procs: dict[str, set[int]] = {ns: set() for ns in lab.hosts}
 
     def sample(self) -> None:
-        from apf_swarm_nodes.machine import process_cpu_seconds
+        from apf_swarm_nodes.capacity.machine import process_cpu_seconds
 
         for entry in os.listdir('/proc'):
             if not entry.isdigit():
@@ -280,7 +280,7 @@ def main(argv: list[str] | None = None) -> int:
             # whole graph, so every participant is a super client (sees everything)
             env['ROS_SUPER_CLIENT'] = 'TRUE'
         if args.trackers_per_process <= 0:
-            from apf_swarm_nodes import probe
+            from apf_swarm_nodes.capacity import probe
 
             args.trackers_per_process = probe.trackers_per_process(
                 probe.load(), args.n_trackers, args.rate

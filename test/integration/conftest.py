@@ -37,7 +37,7 @@ def _no_shared_memory_left_behind():
     hand) leave its Fast DDS files: removed once the tests are done, as a run removes its
     own (only what no live process holds)."""
     yield
-    from apf_swarm_nodes.shm import remove_stale
+    from apf_swarm_nodes.dds.shm import remove_stale
 
     remove_stale()
 

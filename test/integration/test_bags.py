@@ -19,7 +19,7 @@ import pytest
 from apf_swarm_core.metrics import SUMMARY_KEYS
 from apf_swarm_nodes.bags.recover import _scan_mcap
 from apf_swarm_nodes.bringup import pick_domain_id, stop_process
-from apf_swarm_nodes.qos import qos_from_dict
+from apf_swarm_nodes.dds.qos import qos_from_dict
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 

@@ -600,7 +600,7 @@ def test_a_respawned_tracker_rejoins_and_the_triangle_recovers_lockstep(bringup)
     # the killed tracker never left DDS: the bring-up removed the shared memory it held, and
     # nothing any participant of the run created is left (entries of other runs may come
     # and go meanwhile; the run's own are the new ones, and they existed: see the log)
-    from apf_swarm_nodes.shm import unheld
+    from apf_swarm_nodes.dds.shm import unheld
 
     # /dev/shm is the machine's: other jobs' live participants hold what they created
     left = unheld(_shm_entries() - before)

@@ -27,7 +27,7 @@ from pathlib import Path
 import psutil
 import pytest
 from apf_swarm_nodes.bringup import pick_domain_id
-from apf_swarm_nodes.shm import fastdds_entries, unheld
+from apf_swarm_nodes.dds.shm import fastdds_entries, unheld
 
 ROOT = Path(__file__).resolve().parents[2]
 SWARM_UP = ROOT / 'scripts' / 'swarm_up.py'
@@ -286,7 +286,7 @@ def test_a_sigkilled_bring_up_leaves_no_process_and_no_shared_memory(start, spaw
 ORPHAN_MAKER = textwrap.dedent(
     """
     import os, subprocess, sys
-    from apf_swarm_nodes.cleanup import BRINGUP_ENV, bringup_mark
+    from apf_swarm_nodes.dds.cleanup import BRINGUP_ENV, bringup_mark
     env = dict(os.environ, **{BRINGUP_ENV: bringup_mark()})  # as a bring-up marks its nodes
     node = subprocess.Popen(
         [sys.executable, '-c', 'import time; time.sleep(120)', sys.argv[1]],
@@ -339,7 +339,7 @@ def test_a_killed_probe_leaves_no_echo_process() -> None:
     itself) ends with the probe, however the probe ends: here SIGKILL mid-measure."""
     env = {**os.environ, 'ROS_DOMAIN_ID': str(pick_domain_id(lo=102, hi=201))}
     probe = subprocess.Popen(
-        [sys.executable, '-m', 'apf_swarm_nodes.probe', '--measure'],
+        [sys.executable, '-m', 'apf_swarm_nodes.capacity.probe', '--measure'],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         env=env,

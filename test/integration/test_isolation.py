@@ -1,4 +1,4 @@
-"""A run's isolation (apf_swarm_nodes.dds): nothing from outside the machine reaches a
+"""A run's isolation (apf_swarm_nodes.dds.profiles): nothing from outside the machine reaches a
 localhost run, one swarm per domain, and the repeated announcements that make a graph
 ready as soon as its nodes are up.
 
@@ -27,8 +27,8 @@ from pathlib import Path
 import psutil
 import pytest
 from apf_swarm_nodes.bringup import pick_domain_id, stop_process
-
-from apf_swarm_nodes import dds, swarm_domain
+from apf_swarm_nodes.dds import profiles as dds
+from apf_swarm_nodes.dds import swarm_domain
 
 ROOT = Path(__file__).resolve().parents[2]
 SWARM_UP = ROOT / 'scripts' / 'swarm_up.py'

@@ -1,5 +1,5 @@
-"""The capacity probe (apf_swarm_nodes.probe and probe_measure): a real ping-pong between two
-rclpy processes, cached; and what follows from a probe (ROS-free)."""
+"""The capacity probe (apf_swarm_nodes.capacity: probe and measure): a real ping-pong between
+two rclpy processes, cached; and what follows from a probe (ROS-free)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 from apf_swarm_nodes.bringup import pick_domain_id
-from apf_swarm_nodes.machine import identity
-
-from apf_swarm_nodes import probe, probe_measure
+from apf_swarm_nodes.capacity import measure as probe_measure
+from apf_swarm_nodes.capacity import probe
+from apf_swarm_nodes.capacity.machine import identity
 
 APF = shutil.which('apf-swarm')
 

@@ -1,4 +1,4 @@
-"""The transport of a secure multi-host run (apf_swarm_nodes.secure), without the bring-up:
+"""The transport of a secure multi-host run (apf_swarm_nodes.dds.secure), without the bring-up:
 a member of the run on simulated host 1 (the discovery server's profile, publishing and
 subscribing), outsiders on host 2, each a real rclpy process in its own network namespace
 (no shared memory can carry data between them: the profiles have none).
@@ -28,8 +28,8 @@ from pathlib import Path
 
 import pytest
 from apf_swarm_nodes.bringup import pick_domain_id, stop_process
-
-from apf_swarm_nodes import dds, secure
+from apf_swarm_nodes.dds import profiles as dds
+from apf_swarm_nodes.dds import secure
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location('multihost', ROOT / 'scripts' / 'multihost.py')
@@ -72,7 +72,7 @@ MARGIN = 8.0
 ADMITS = r"""
 import json, sys
 from pathlib import Path
-from apf_swarm_nodes.secure import tls_admits
+from apf_swarm_nodes.dds.secure import tls_admits
 # outsiders knocking at the same ports slow every handshake there (RELIABILITY.md)
 print(json.dumps([tls_admits(a, p, cert=c and Path(c), key=k and Path(k), timeout=30.0)
                   for a, p, c, k in json.loads(sys.argv[1])]))

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from apf_swarm_nodes.qos import qos_from_dict
+from apf_swarm_nodes.dds.qos import qos_from_dict
 
 from apf_swarm_nodes import bags
 

@@ -204,8 +204,7 @@ def test_the_stop_reports_each_process_with_the_signal_that_stopped_it(
     (a second pass over the whole group once reported every tracker as 'exited', hiding a
     SIGKILL), and the stop is said in one line."""
     from apf_swarm_nodes.bringup.supervision import Signals, Supervision
-
-    from apf_swarm_nodes import shm
+    from apf_swarm_nodes.dds import shm
 
     monkeypatch.setattr(shm, 'remove_stale', lambda: 0)
     said: list[str] = []

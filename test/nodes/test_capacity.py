@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import pytest
 from apf_swarm_nodes.bringup.errors import BringupError
+from apf_swarm_nodes.capacity import probe
 
-from apf_swarm_nodes import bringup, probe
+from apf_swarm_nodes import bringup
 
 PROBE = {
     'machine': {'cpu': 'x', 'cores': 2, 'host': 'h'},

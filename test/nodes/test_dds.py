@@ -1,5 +1,5 @@
-"""The DDS side of a run's isolation without a ROS graph (apf_swarm_nodes.dds): the Fast DDS
-profile's content, the environment a run gets, the refusal's message, the port mapping."""
+"""The DDS side of a run's isolation without a ROS graph (apf_swarm_nodes.dds.profiles): the
+Fast DDS profile's content, the environment a run gets, the refusal's message, the port mapping."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from apf_swarm_nodes.errors import DdsError
-
-from apf_swarm_nodes import dds, swarm_domain
+from apf_swarm_nodes.dds import profiles as dds
+from apf_swarm_nodes.dds import swarm_domain
+from apf_swarm_nodes.dds.errors import DdsError
 
 NS = {'f': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
 
@@ -217,7 +217,7 @@ def test_own_participant_sets_the_udp_only_environment_then_restores_it(monkeypa
     while Fast DDS reads its transports, the run's environment as before afterwards."""
     import os
 
-    from apf_swarm_nodes.dds import own_participant
+    from apf_swarm_nodes.dds.profiles import own_participant
 
     monkeypatch.delenv('FASTDDS_BUILTIN_TRANSPORTS', raising=False)
     monkeypatch.delenv('FASTRTPS_DEFAULT_PROFILES_FILE', raising=False)

@@ -1,4 +1,4 @@
-"""A secure run's files (apf_swarm_nodes.secure): the authority and host certificates, the
+"""A secure run's files (apf_swarm_nodes.dds.secure): the authority and host certificates, the
 profile, and bad input (missing, expired, mismatched, another run's, a key others can read)
 named with its file and what to do."""
 
@@ -11,9 +11,8 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
-from apf_swarm_nodes.errors import DdsError
-
-from apf_swarm_nodes import secure
+from apf_swarm_nodes.dds import secure
+from apf_swarm_nodes.dds.errors import DdsError
 
 NS = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
 

@@ -1,4 +1,4 @@
-"""Stale Fast DDS shared-memory files (apf_swarm_nodes.shm) on fake files: what a live process
+"""Stale Fast DDS shared-memory files (apf_swarm_nodes.dds.shm) on fake files: what a live process
 holds stays, what no one holds goes."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from apf_swarm_nodes.shm import count_fastdds_files, stale_fastdds_files
+from apf_swarm_nodes.dds.shm import count_fastdds_files, stale_fastdds_files
 
 
 def _touch(d: Path, name: str, age: float = 0.0) -> Path:
@@ -90,8 +90,7 @@ def test_orphans_are_our_nodes_whose_parent_is_gone(monkeypatch) -> None:
     """Only a node executable's process reparented to init is an orphan (a node under a live
     bring-up, test or benchmark has that process as its parent)."""
     import psutil
-
-    from apf_swarm_nodes import cleanup
+    from apf_swarm_nodes.dds import cleanup
 
     class P:
         def __init__(self, pid: int, ppid: int, cmd: str, mark: str | None = None) -> None:
@@ -123,7 +122,7 @@ def test_orphans_are_our_nodes_whose_parent_is_gone(monkeypatch) -> None:
 def test_clean_dry_run_changes_nothing(tmp_path: Path, monkeypatch, capsys) -> None:
     import argparse
 
-    from apf_swarm_nodes import cleanup, shm
+    from apf_swarm_nodes.dds import cleanup, shm
 
     _touch(tmp_path, 'fastrtps_0123456789abcdef')
     _touch(tmp_path, 'fastrtps_0123456789abcdef_el')
@@ -141,8 +140,7 @@ def test_clean_dry_run_changes_nothing(tmp_path: Path, monkeypatch, capsys) -> N
 
 def test_expired_domain_leases_are_found(tmp_path: Path, monkeypatch) -> None:
     from apf_swarm_nodes.bringup import isolation
-
-    from apf_swarm_nodes import cleanup
+    from apf_swarm_nodes.dds import cleanup
 
     monkeypatch.setattr(isolation, '_lease_dir', lambda: tmp_path)
     _touch(tmp_path, '17', age=isolation.DOMAIN_LEASE + 5)  # expired
@@ -154,7 +152,7 @@ def test_expired_domain_leases_are_found(tmp_path: Path, monkeypatch) -> None:
 def test_ports_too_young_to_judge_are_judged_again_once_old_enough(tmp_path: Path) -> None:
     """A port segment without a lock file that the run's last process wrote just before it
     ended is too young at the run's end: remove_stale looks again once it is old enough."""
-    from apf_swarm_nodes.shm import remove_stale
+    from apf_swarm_nodes.dds.shm import remove_stale
 
     _touch(tmp_path, 'fastrtps_port7421')
     _touch(tmp_path, 'sem.fastrtps_port7421_mutex')

@@ -157,7 +157,7 @@ def swarm_bag(path: Path, duration: float = 2.0) -> tuple[Path, dict[str, Any], 
     """A bag of /swarm/state as the recorder writes it, from a simulator run."""
     from apf_swarm_core.config_files import to_ros_params
     from apf_swarm_nodes.conversions import step_stamp, swarm_state_msg
-    from apf_swarm_nodes.qos import qos_from_dict
+    from apf_swarm_nodes.dds.qos import qos_from_dict
     from rclpy.serialization import serialize_message
 
     cfg = load_preset('triangle').replace(duration=duration)

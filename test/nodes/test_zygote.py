@@ -25,7 +25,7 @@ import json, os, signal, sys, time
 from pathlib import Path
 from apf_swarm_nodes.bringup.processes import Child, ProcessGroup
 from apf_swarm_nodes.bringup.zygote import Zygote
-from apf_swarm_nodes.machine import process_args
+from apf_swarm_nodes.capacity.machine import process_args
 
 tmp, exe = Path(sys.argv[1]), sys.argv[2]
 zygote = Zygote()
@@ -198,8 +198,7 @@ def test_an_orphaned_zygote_kills_the_nodes_that_do_not_stop_then_cleans(
 
     import psutil
     from apf_swarm_nodes.bringup import zygote
-
-    from apf_swarm_nodes import shm
+    from apf_swarm_nodes.dds import shm
 
     stubborn = subprocess.Popen(
         [sys.executable, '-c', 'import signal, time; signal.signal(2, 1); time.sleep(60)'],

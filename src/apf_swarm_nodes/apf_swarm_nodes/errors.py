@@ -6,12 +6,7 @@ from __future__ import annotations
 
 from apf_swarm_core.errors import ApfSwarmError
 
-__all__ = ['DdsError', 'NodeParameterError']
-
-
-class DdsError(ApfSwarmError):
-    """The middleware cannot carry the run as asked: not Fast DDS, an unknown discovery
-    range, a domain that already carries a swarm, a secure run's missing or wrong file."""
+__all__ = ['NodeParameterError']
 
 
 class NodeParameterError(ApfSwarmError):

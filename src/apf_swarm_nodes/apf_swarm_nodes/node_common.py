@@ -51,8 +51,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
 
+from .dds.qos import make_profile
 from .errors import NodeParameterError
-from .qos import make_profile
 from .stop_watchdog import NODE_STOP_BOUND, StopWatchdog
 
 __all__ = [

@@ -29,10 +29,10 @@ from rclpy.qos import ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from .bags import BagInfo, iter_raw, open_bag
+from .dds.qos import replay_profile
 from .errors import NodeParameterError
 from .node_common import CLOCK_QOS, freeze_startup_heap, msg_class, run_node, running
 from .params import EXECUTOR_PARAM, NodeParam, declare_node_params, declare_str_array
-from .qos import replay_profile
 from .topics import CLOCK
 
 __all__ = ['PRELOAD_BYTES', 'PlayerNode', 'main']

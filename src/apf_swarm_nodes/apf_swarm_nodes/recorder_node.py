@@ -42,10 +42,10 @@ from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from std_msgs.msg import String
 
 from .bags import CUSTOM_CONFIG, CUSTOM_MODE, CUSTOM_RECORDER, BagError, BagWriter
+from .dds.qos import profile_to_dict, qos_from_dict, recording_profile
 from .errors import NodeParameterError
 from .node_common import START_QOS, freeze_startup_heap, msg_class
 from .params import MODES, NodeParam, declare_node_params, declare_str_array
-from .qos import profile_to_dict, qos_from_dict, recording_profile
 from .recording import RecordedTopic, TopicSelection, recording_counts, recording_status
 from .stop_watchdog import NODE_STOP_BOUND, StopWatchdog
 from .topics import PRIVATE_STATUS

@@ -9,7 +9,7 @@ What a run does, in order:
    1..101, never the inherited one) and ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (``LOCALHOST``
    unless ``--discovery-range`` says otherwise), set in this process's environment before
    ``rclpy.init`` and inherited by every child, with the run's Fast DDS profile
-   (:func:`apf_swarm_nodes.dds.isolate_dds`: in LOCALHOST every socket on 127.0.0.1, the
+   (:func:`apf_swarm_nodes.dds.profiles.isolate_dds`: in LOCALHOST every socket on 127.0.0.1, the
    discovery timing; a domain that already carries a swarm is refused);
 3. start one OS process per node (``target``, ``plant``, ``tracker`` x n), each in its own
    process group, output to ``DIR/logs/<name>.log``;

@@ -13,7 +13,6 @@ from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import resolve
 from apf_swarm_core.errors import ApfSwarmError
 
-from .. import probe
 from ..argtypes import (
     add_config_args,
     add_view_args,
@@ -22,7 +21,8 @@ from ..argtypes import (
     positive_float,
     positive_int,
 )
-from ..probe import PROCESSES_PER_CORE
+from ..capacity import probe
+from ..capacity.probe import PROCESSES_PER_CORE
 from .isolation import check_capacity
 from .processes import DISCOVERY_RANGES, EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from .session import Bringup
@@ -219,7 +219,7 @@ def _per_process(text: str) -> int:
 
 
 def _auto_per_process(cfg: SwarmConfig) -> int:
-    """The default trackers per process (:func:`apf_swarm_nodes.probe.
+    """The default trackers per process (:func:`apf_swarm_nodes.capacity.probe.
     trackers_per_process`), from the cached probe if there is one; the bring-up measures
     the machine later when it needs the probe."""
     machine = probe.load()

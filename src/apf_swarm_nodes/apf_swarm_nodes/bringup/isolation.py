@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from ..swarm_domain import bound_udp_ports, domain_port_range
+from ..dds.swarm_domain import bound_udp_ports, domain_port_range
 from .errors import BringupError
 
 # --------------------------------------------------------------------------------------------
@@ -31,10 +31,11 @@ def check_capacity(
     """Refuse more tracker processes than this machine runs (BringupError naming the limit).
 
     The limit counts processes (``ceil(n_trackers / per_process)``) and comes from the
-    machine's probe (:func:`apf_swarm_nodes.probe.process_limit`: CPU at the lowest rate and
-    memory); a process of K trackers takes far less CPU and memory than K processes, but its
-    trackers share one core. Without a probe (it failed) nothing is refused, with a warning."""
-    from .. import probe
+    machine's probe (:func:`~apf_swarm_nodes.capacity.probe.process_limit`: CPU at the
+    lowest rate and memory); a process of K trackers takes far less CPU and memory than K
+    processes, but its trackers share one core. Without a probe (it failed) nothing is
+    refused, with a warning."""
+    from ..capacity import probe
 
     if allow_overload:
         return

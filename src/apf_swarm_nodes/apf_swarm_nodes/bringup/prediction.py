@@ -33,8 +33,8 @@ class RealtimePrediction:
         summary.json); with ``--gains auto`` a failing one is replaced by designed gains."""
         from apf_swarm_core.sampled import predict, schedule_gains
 
-        from .. import probe
         from ..advice import CLI_ADVICE
+        from ..capacity import probe
 
         cfg = self.cfg
         try:

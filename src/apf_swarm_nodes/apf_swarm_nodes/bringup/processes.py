@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
-from ..machine import group_members
+from ..capacity.machine import group_members
 
 if TYPE_CHECKING:
     from .janitor import Janitor

@@ -199,7 +199,7 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
     def execute(self) -> int:
         # every process of the run names its bring-up: `apf-swarm clean` stops those whose
         # bring-up is gone, wherever they were reparented
-        from ..cleanup import BRINGUP_ENV, bringup_mark
+        from ..dds.cleanup import BRINGUP_ENV, bringup_mark
 
         os.environ[BRINGUP_ENV] = bringup_mark()
         self.start_zygote()  # its imports overlap the preparation

@@ -20,7 +20,7 @@ from .isolation import env_domain, pick_domain_id
 from .processes import Child, ProcessGroup
 
 if TYPE_CHECKING:
-    from ..secure import Pki
+    from ..dds.secure import Pki
     from .janitor import Janitor
     from .zygote import Zygote
 
@@ -103,12 +103,12 @@ class Startup:
         os.environ['ROS_LOG_DIR'] = str((self.out / 'logs' / 'ros').resolve())
         # DDS: in LOCALHOST nothing from outside this machine (a Fast DDS profile that binds
         # 127.0.0.1), the discovery timing, and no second swarm on the domain (DdsError)
-        from ..dds import isolate_dds
+        from ..dds.profiles import isolate_dds
 
         processes = 3 + -(-self.n // self.args.trackers_per_process) + int(self.args.record)
         if getattr(self.args, 'secure', False):
             # a multi-host run that admits only its hosts: TLS, a per-run authority
-            from ..secure import secure_dds
+            from ..dds.secure import secure_dds
 
             self.pki = secure_dds(
                 self.out / 'dds',
@@ -136,7 +136,7 @@ class Startup:
         the discovery server) refuses a TLS client without the run's certificate."""
         if self.pki is None:
             return
-        from ..secure import check_refuses, first_address, server_port
+        from ..dds.secure import check_refuses, first_address, server_port
 
         assert self.domain_id is not None
         address = getattr(self.args, 'secure_address', None) or first_address()
@@ -146,7 +146,7 @@ class Startup:
         """A secure run's end: the hosts' private keys removed, unless kept (--keep-keys)."""
         if self.pki is None or getattr(self.args, 'keep_keys', False):
             return
-        from ..secure import remove_keys
+        from ..dds.secure import remove_keys
 
         remove_keys(self.out / 'dds')
 
@@ -155,7 +155,7 @@ class Startup:
         take that host's files."""
         if self.pki is None or netns is None or netns not in self.pki.hosts:
             return env
-        from ..secure import secure_environment
+        from ..dds.secure import secure_environment
 
         host = self.pki.hosts[netns]
         return {**env, **secure_environment(host.profile, self.pki.openssl)}

@@ -220,7 +220,7 @@ class Supervision:
                 + ', '.join(f'{n} pid {p}' for n, p in self.leftovers)
             )
         # the shared memory of participants that did not leave DDS cleanly (a killed node)
-        from ..shm import remove_stale
+        from ..dds.shm import remove_stale
 
         removed = remove_stale()
         if removed:

@@ -419,7 +419,7 @@ def orphaned_cleanup(nodes: Sequence[psutil.Process] | None = None) -> None:
     node that missed or could not act on its SIGINT; all of them are orphans, wherever
     they were reparented), wait until they are gone, then remove the Fast DDS shared memory
     no live process holds, as the bring-up would have at its end."""
-    from .. import shm
+    from ..dds import shm
     from .processes import STOP_CPU_PER_PROCESS
 
     pending = _running(FORKED if nodes is None else nodes)

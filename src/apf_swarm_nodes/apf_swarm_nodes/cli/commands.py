@@ -82,7 +82,7 @@ def _realtime_extra(args: argparse.Namespace) -> tuple[dict[str, Any], np.ndarra
 def machine_latency(n: int, rate: float | None = None) -> float:
     """The control-loop latency of this machine for n trackers at ``rate`` from its cached
     probe (``apf-swarm probe``), else DEFAULT_LATENCY (said on stderr)."""
-    from .. import probe
+    from ..capacity import probe
 
     cached = probe.load()
     if cached is None:
@@ -98,7 +98,7 @@ def machine_latency(n: int, rate: float | None = None) -> float:
 def machine_rate(n: int) -> float:
     """The default realtime rate for n trackers from this machine's cached probe, else
     REALTIME_RATE."""
-    from .. import probe
+    from ..capacity import probe
 
     cached = probe.load()
     return REALTIME_RATE if cached is None else float(probe.derive(cached, n)['rate'])

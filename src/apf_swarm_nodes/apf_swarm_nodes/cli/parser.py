@@ -131,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bringup.add_arguments(p)
     p.set_defaults(func=lambda args: bringup.run(args, prog=f'{PROG} up'))
-    from .. import probe
+    from ..capacity import probe
 
     p = sub.add_parser(
         'probe',
@@ -140,7 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     probe.add_arguments(p)
     p.set_defaults(func=probe.run)
-    from .. import cleanup
+    from ..dds import cleanup
 
     p = sub.add_parser(
         'clean',

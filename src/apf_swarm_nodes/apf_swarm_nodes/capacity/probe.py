@@ -2,7 +2,7 @@
 cached, and what follows from them (``apf-swarm probe``).
 
 Machines of one kind differ 3-4x in speed, so the realtime defaults come from a measurement
-of the machine in use (:mod:`.probe_measure`: the round trip, the CPU per message, the
+of the machine in use (:mod:`.measure`: the round trip, the CPU per message, the
 command cost and the memory per process), not from constants measured elsewhere.
 
 From them (:func:`derive`): the control-loop latency ``check`` and ``design`` assume (the
@@ -14,8 +14,8 @@ starts (:func:`process_limit`): as many one-tracker processes as fit in the CPU 
 lowest rate, and in :data:`MEMORY_BUDGET` of the memory available now. The cache is
 ``$XDG_CACHE_HOME/apf_swarm/probe.json`` (``~/.cache``), or ``$APF_SWARM_CACHE/probe.json``;
 it is measured again when the machine (CPU model, cores, host name) differs, or with
-``--refresh``. ``python -m apf_swarm_nodes.probe --measure`` measures in a process of its own
-(JSON on stdout), ``--echo`` is the measurement's echo process.
+``--refresh``. ``python -m apf_swarm_nodes.capacity.probe --measure`` measures in a process
+of its own (JSON on stdout), ``--echo`` is the measurement's echo process.
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> d
     """The cached probe, measured (and cached) first when missing or ``refresh``."""
     probe = None if refresh else load()
     if probe is None:
-        from .bringup.isolation import pick_domain_id
+        from ..bringup.isolation import pick_domain_id
 
         if say is not None:
             say(f'measuring this machine (capacity probe, about 6 s; cached in {cache_path()})')
@@ -95,11 +95,13 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> d
             'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
         }
         env.pop('ROS_STATIC_PEERS', None)
-        from .bringup.processes import dying_with_parent
+        from ..bringup.processes import dying_with_parent
 
         # it ends with this process, however this one ends (a killed `apf-swarm probe`)
         done = subprocess.run(
-            dying_with_parent([sys.executable, '-m', 'apf_swarm_nodes.probe', '--measure'], 'INT'),
+            dying_with_parent(
+                [sys.executable, '-m', 'apf_swarm_nodes.capacity.probe', '--measure'], 'INT'
+            ),
             env=env,
             capture_output=True,
             text=True,
@@ -255,7 +257,7 @@ def run(args: Any) -> int:
 
 if __name__ == '__main__':
     # ``--measure``: the probe's own process (JSON on stdout); ``--echo``: its echo
-    from .probe_measure import echo, measure
+    from .measure import echo, measure
 
     if sys.argv[1:] == ['--measure']:
         print(json.dumps(measure()))

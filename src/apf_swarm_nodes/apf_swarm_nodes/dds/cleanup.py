@@ -88,7 +88,7 @@ def orphan_nodes() -> list[psutil.Process]:
 
 def expired_leases() -> list[Path]:
     """Domain leases (``bringup.isolation.pick_domain_id``) older than their term."""
-    from .bringup.isolation import DOMAIN_LEASE, _lease_dir
+    from ..bringup.isolation import DOMAIN_LEASE, _lease_dir
 
     now, out = time.time(), []
     with contextlib.suppress(OSError):

@@ -96,12 +96,14 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
 
     from apf_swarm_msgs.msg import SwarmOdometry
 
-    from .bringup.processes import dying_with_parent, stop_process
-    from .conversions import swarm_odom_msg
+    from ..bringup.processes import dying_with_parent, stop_process
+    from ..conversions import swarm_odom_msg
 
     # it ends with this process, however this one ends (rclpy's SIGINT handler stops it)
     echo = subprocess.Popen(
-        dying_with_parent([sys.executable, '-m', 'apf_swarm_nodes.probe', '--echo'], 'INT'),
+        dying_with_parent(
+            [sys.executable, '-m', 'apf_swarm_nodes.capacity.probe', '--echo'], 'INT'
+        ),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         start_new_session=True,
@@ -185,8 +187,8 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
 
 
 def measure(seconds: float = 4.0, rate: float = 100.0, n: int = 16) -> dict[str, Any]:
-    """Run the probe in this process (``python -m apf_swarm_nodes.probe --measure`` does it
-    in a process of its own, on a free domain, localhost only: :func:`.probe.ensure`)."""
+    """Run the probe in this process (``python -m apf_swarm_nodes.capacity.probe --measure``
+    does it in a process of its own, on a free domain, localhost only: :func:`.probe.ensure`)."""
     import rclpy
 
     measured = {str(k): command_cost(k) for k in COMMAND_SIZES}

@@ -31,8 +31,8 @@ once the likelier. The profile lets every participant repeat its announcement ev
 start-up of the whole run), so that a lost answer costs one period. docs/PERFORMANCE.md,
 "Discovery", has the measurements.
 
-``python -m apf_swarm_nodes.dds`` writes the localhost profile for nodes started by hand and
-prints the environment they need (docs/RELIABILITY.md, "Isolation").
+``python -m apf_swarm_nodes.dds.profiles`` writes the localhost profile for nodes started by
+hand and prints the environment they need (docs/RELIABILITY.md, "Isolation").
 """
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def own_participant_environment(environ: Mapping[str, str] | None = None) -> dic
         if udp.is_file():
             return dict.fromkeys(PROFILE_VARIABLES, str(udp))
     if own is not None and Path(own).name == 'fastdds_secure.xml':
-        # a secure run (apf_swarm_nodes.secure): the bring-up's participant is its
+        # a secure run (apf_swarm_nodes.dds.secure): the bring-up's participant is its
         # discovery server, on TCP with TLS as every other
         server = Path(own).parent.parent / 'fastdds_secure_server.xml'
         if server.is_file():
@@ -243,7 +243,10 @@ def profile_xml(
         transports = []
         rtps = ['<builtin>', *(f'  {line}' for line in discovery), '</builtin>']
     return profiles_file(
-        f'apf_swarm, {what}; written by apf_swarm_nodes.dds', 'apf_swarm', transports, rtps
+        f'apf_swarm, {what}; written by apf_swarm_nodes.dds.profiles',
+        'apf_swarm',
+        transports,
+        rtps,
     )
 
 
@@ -358,7 +361,7 @@ def isolate_dds(
 
 
 # --------------------------------------------------------------------------------------------
-# python -m apf_swarm_nodes.dds
+# python -m apf_swarm_nodes.dds.profiles
 # --------------------------------------------------------------------------------------------
 
 
@@ -366,10 +369,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Write the localhost profile and print the shell lines that put it in effect."""
     cache = Path(os.environ.get('XDG_CACHE_HOME') or Path.home() / '.cache') / 'apf_swarm'
     p = argparse.ArgumentParser(
-        prog='python -m apf_swarm_nodes.dds',
+        prog='python -m apf_swarm_nodes.dds.profiles',
         description='Write the Fast DDS profile of a localhost run (the one the bring-up '
         'writes into DIR/dds/) for nodes started by hand, and print the environment they '
-        'need: eval "$(python -m apf_swarm_nodes.dds)"',
+        'need: eval "$(python -m apf_swarm_nodes.dds.profiles)"',
     )
     p.add_argument(
         '--out',

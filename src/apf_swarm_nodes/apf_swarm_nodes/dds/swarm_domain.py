@@ -18,8 +18,8 @@ import time
 from collections.abc import Iterable
 from typing import Any
 
+from ..topics import DISCOVERY_INFO, SWARM_PUBLISHED, UAV_TOPIC
 from .errors import DdsError
-from .topics import DISCOVERY_INFO, SWARM_PUBLISHED, UAV_TOPIC
 
 __all__ = [
     'MAX_PARTICIPANTS',
@@ -99,7 +99,7 @@ def swarm_publishers(
     import rclpy
     from rclpy.context import Context
 
-    from .dds import own_participant
+    from .profiles import own_participant
 
     ctx = Context()
     # on UDP only, as the bring-up's own node: a shared-memory port whose mutex a killed

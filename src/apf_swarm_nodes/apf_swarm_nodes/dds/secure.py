@@ -32,8 +32,8 @@ A process of the run therefore needs both variables (:func:`secure_environment`)
 bring-up checks, before it starts any node, that its own listening port refuses a TLS
 client without a certificate (:func:`check_refuses`).
 
-``python -m apf_swarm_nodes.secure check DIR/dds/HOST`` checks a host's files before it
-joins; ``python -m apf_swarm_nodes.secure env DIR/dds/HOST`` prints its environment.
+``python -m apf_swarm_nodes.dds.secure check DIR/dds/HOST`` checks a host's files before it
+joins; ``python -m apf_swarm_nodes.dds.secure env DIR/dds/HOST`` prints its environment.
 """
 
 from __future__ import annotations
@@ -318,7 +318,7 @@ def openssl_conf() -> str:
     and, when it accepts, requires a certificate (the module's docstring says why)."""
     return '\n'.join(
         [
-            '# apf_swarm, written by apf_swarm_nodes.secure: every TLS context of the',
+            '# apf_swarm, written by apf_swarm_nodes.dds.secure: every TLS context of the',
             "# process verifies its peer and requires the peer's certificate (Fast DDS 2.14",
             "# does not apply the profile's verify mode to the connections it accepts)",
             'openssl_conf = apf_swarm_init',
@@ -363,7 +363,7 @@ def profile_xml(
     participant, the discovery server, listening on ``server``'s port): TCPv4 with TLS
     only, discovery through the server at ``server`` (address, port) whose GUID prefix is
     ``prefix``."""
-    from .dds import LEASE_ANNOUNCEMENT, LEASE_DURATION, discovery_timing
+    from .profiles import LEASE_ANNOUNCEMENT, LEASE_DURATION, discovery_timing
 
     period, _, _ = discovery_timing(participants)
     address, port = server
@@ -436,12 +436,12 @@ def profile_xml(
         *(f'  {line}' for line in builtin),
         '</builtin>',
     ]
-    from .dds import profiles_file
+    from .profiles import profiles_file
 
     what = 'discovery server' if is_server else 'node'
     comment = (
         f'apf_swarm, secure multi-host run ({what}): TCPv4 with TLS only, peers '
-        "verified against the run's authority; written by apf_swarm_nodes.secure. Use "
+        "verified against the run's authority; written by apf_swarm_nodes.dds.secure. Use "
         f'with OPENSSL_CONF={Path(ca).resolve().parent / OPENSSL_FILE}'
     )
     return profiles_file(comment, 'apf_swarm_secure', transports, rtps)
@@ -450,7 +450,7 @@ def profile_xml(
 def secure_environment(profile: Path, openssl: Path) -> dict[str, str]:
     """The variables a process of a secure run needs (with ``ROS_DOMAIN_ID``; no
     ``ROS_STATIC_PEERS`` / ``ROS_DISCOVERY_SERVER``, which would add UDP)."""
-    from .dds import PROFILE_VARIABLES
+    from .profiles import PROFILE_VARIABLES
 
     env = dict.fromkeys(PROFILE_VARIABLES, str(Path(profile).resolve()))
     env['OPENSSL_CONF'] = str(Path(openssl).resolve())
@@ -564,7 +564,7 @@ def secure_dds(
     (:func:`~.dds.own_participant`), at ``address`` (default :func:`first_address`),
     port :func:`server_port`. A secure run skips the domain check: no participant of
     another run can reach it."""
-    from .dds import NETWORK_RANGES, check_rmw
+    from .profiles import NETWORK_RANGES, check_rmw
 
     env = os.environ if environ is None else environ
     if discovery_range not in NETWORK_RANGES:
@@ -648,15 +648,15 @@ def check_refuses(address: str, port: int, *, timeout: float = 10.0) -> None:
 
 
 # --------------------------------------------------------------------------------------------
-# python -m apf_swarm_nodes.secure
+# python -m apf_swarm_nodes.dds.secure
 # --------------------------------------------------------------------------------------------
 
 
 def main(argv: Sequence[str] | None = None, environ: Mapping[str, str] | None = None) -> int:
     p = argparse.ArgumentParser(
-        prog='python -m apf_swarm_nodes.secure',
+        prog='python -m apf_swarm_nodes.dds.secure',
         description="A secure run's host files (DIR/dds/HOST/): check them, or print the "
-        'environment a process on that host needs: eval "$(python -m apf_swarm_nodes.secure '
+        'environment a process on that host needs: eval "$(python -m apf_swarm_nodes.dds.secure '
         'env DIR/dds/HOST)"',
     )
     p.add_argument('action', choices=('check', 'env'))

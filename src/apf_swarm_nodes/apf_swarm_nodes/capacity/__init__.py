@@ -1,0 +1,1 @@
+"""What this machine carries: its identity and costs, and the capacity probe that measures them."""
