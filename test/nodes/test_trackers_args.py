@@ -42,7 +42,7 @@ def test_node_commands_group_the_trackers(tmp_path) -> None:
 
 def test_outputs_parameter() -> None:
     from apf_swarm_core.errors import ConfigError
-    from apf_swarm_nodes.tracker_node import parse_outputs
+    from apf_swarm_nodes.params import parse_outputs
 
     assert parse_outputs('force') == {'force'}
     assert parse_outputs('accel, velocity') == {'force', 'accel', 'velocity'}

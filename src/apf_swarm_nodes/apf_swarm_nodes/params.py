@@ -30,22 +30,26 @@ from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from .node_common import DEFAULT_EXECUTOR, EXECUTORS
+from .node_common import DEFAULT_EXECUTOR, EXECUTORS, INPUTS
 
 __all__ = [
     'EXECUTOR_PARAM',
     'MODES',
     'MODE_PARAM',
+    'OUTPUTS',
     'QOS_DEPTH_PARAM',
     'RECORDED_PARAM',
     'RUN_PARAM',
     'SWARM_NODE_PARAMS',
+    'TRACKER_PARAMS',
+    'WATCHDOG_RATE',
     'NodeParam',
     'declare_config',
     'declare_node_params',
     'declare_str_array',
     'declare_swarm_node',
     'install_validator',
+    'parse_outputs',
     'read_config',
 ]
 
@@ -169,6 +173,60 @@ RECORDED_PARAM = NodeParam(
 )
 #: what every node of the swarm (plant, target, tracker) declares before its own parameters
 SWARM_NODE_PARAMS = (EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODE_PARAM, RUN_PARAM, RECORDED_PARAM)
+
+
+#: what a tracker can publish (the ``outputs`` parameter)
+OUTPUTS = ('force', 'accel', 'velocity')
+#: realtime with ``trigger:=odom``: the stale-input watchdog's rate [Hz] (at most the control
+#: rate): staleness is judged against input_timeout (0.5 s), and the brakes it sends while
+#: inputs are stale must come faster than the plant's stale_after (0.1 s)
+WATCHDOG_RATE = 20.0
+#: the tracker node's own parameters
+TRACKER_PARAMS = (
+    NodeParam(
+        'inputs',
+        'aggregate',
+        'aggregate: one /swarm/odom message per step; odom: '
+        'the n odometry topics and /target/odom',
+        choices=INPUTS,
+    ),
+    NodeParam('uav_id', 1, 'id i of this tracker (namespace /uav_<i>)', lo=1, hi=10000),
+    NodeParam(
+        'trigger',
+        'odom',
+        'realtime: odom computes on every new own odometry (lowest '
+        'latency); timer computes at control_rate on the latest inputs',
+        choices=('odom', 'timer'),
+    ),
+    NodeParam(
+        'outputs',
+        'force',
+        'what the tracker publishes, comma-separated: force (force_cmd, '
+        'apf_swarm_msgs/ForceCommand, always: the plant and the bring-up read it), accel '
+        '(accel_cmd, geometry_msgs/AccelStamped), velocity (velocity_cmd, '
+        'geometry_msgs/TwistStamped): setpoints in the world frame for a flight-stack bridge',
+    ),
+    NodeParam(
+        'input_timeout',
+        0.5,
+        'an input older than this is stale and the safe brake '
+        "is sent [s; lockstep: of simulated time, which only the target's state can "
+        'exceed when the target is silent]',
+        lo=0.001,
+        hi=60.0,
+    ),
+)
+
+
+def parse_outputs(text: str) -> set[str]:
+    """The ``outputs`` parameter as a set, ``force`` always in it (ConfigError naming what
+    is wrong)."""
+    got = {part.strip() for part in str(text).split(',') if part.strip()}
+    if got - set(OUTPUTS):
+        raise ConfigError(
+            f'outputs = {text!r}: expected a comma-separated subset of {", ".join(OUTPUTS)}'
+        )
+    return got | {'force'}
 
 
 def declare_node_params(node: Node, params: tuple[NodeParam, ...]) -> dict[str, Any]:

@@ -12,7 +12,7 @@ holds what they share. Import the names from here.
 
 from __future__ import annotations
 
-from .commands import LAW_CODES, ForceArrays, force_arrays, force_msg
+from .commands import LAW_CODES, ForceArrays, force_arrays, force_msg, reply_msg
 from .fields import WORLD, is_finite
 from .markers import markers_msg
 from .odometry import SwarmOdom, odom_arrays, odom_msg, swarm_odom_arrays, swarm_odom_msg
@@ -36,6 +36,7 @@ __all__ = [
     'markers_msg',
     'odom_arrays',
     'odom_msg',
+    'reply_msg',
     'stamp_ns',
     'step_of',
     'step_stamp',

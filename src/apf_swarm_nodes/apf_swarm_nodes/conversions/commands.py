@@ -1,11 +1,13 @@
 """Force commands as arrays and back: ``apf_swarm_msgs/ForceCommand`` from one tracker's
-controller output, and its numbers (:class:`ForceArrays`) at the plant."""
+controller output or reply, and its numbers (:class:`ForceArrays`) at the plant."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from apf_swarm_core.tracker_modes import Reply
 from builtin_interfaces.msg import Time
 from numpy.typing import NDArray
 
@@ -14,7 +16,7 @@ from apf_swarm_msgs.msg import ForceCommand
 from .fields import WORLD, set_vec, vec
 from .stamps import stamp_ns
 
-__all__ = ['LAW_CODES', 'ForceArrays', 'force_arrays', 'force_msg']
+__all__ = ['LAW_CODES', 'ForceArrays', 'force_arrays', 'force_msg', 'reply_msg']
 
 LAW_CODES = {'proposed': ForceCommand.LAW_PROPOSED, 'traditional': ForceCommand.LAW_TRADITIONAL}
 
@@ -54,6 +56,52 @@ def force_msg(
     msg.instance = int(instance)
     msg.run = int(run)
     return msg
+
+
+def reply_msg(
+    r: Reply,
+    *,
+    stamp: Time,
+    uav_id: int,
+    law: str,
+    rejected_inputs: int,
+    instance: int,
+    run: int,
+    out: ForceCommand | None = None,
+) -> ForceCommand:
+    """The ForceCommand of a tracker's :class:`~apf_swarm_core.tracker_modes.Reply`: its
+    command's row, or the safe brake flagged ``stale`` with zero surface, gradient and
+    filter; ``out`` (commands only) a previous message to update in place."""
+    common: dict[str, Any] = {
+        'uav_id': uav_id,
+        'step': r.step,
+        'law': law,
+        'stamp': stamp,
+        'rejected_inputs': rejected_inputs,
+        'instance': instance,
+        'run': run,
+    }
+    if r.output is None:
+        zero = r.force * 0.0
+        return force_msg(
+            force=r.force,
+            sliding_surface=zero,
+            gradient=zero,
+            filter_state=zero,
+            saturated=False,
+            stale=True,
+            **common,
+        )
+    o = r.output
+    return force_msg(
+        out=out,
+        force=o.force[0],
+        sliding_surface=o.sliding_surface[0],
+        gradient=o.gradient[0],
+        filter_state=o.filter_state[0],
+        saturated=bool(o.saturated[0]),
+        **common,
+    )
 
 
 @dataclass(frozen=True)

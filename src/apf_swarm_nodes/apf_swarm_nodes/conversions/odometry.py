@@ -4,9 +4,9 @@ whole swarm's ``apf_swarm_msgs/SwarmOdometry`` (what the trackers read)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
+from apf_swarm_core.tracker_modes import SwarmOdom
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from numpy.typing import NDArray
@@ -79,23 +79,6 @@ def swarm_odom_msg(
         msg.command_latency = np.asarray(command_latency, dtype=float).tolist()
     msg.run = int(run)
     return msg
-
-
-@dataclass(frozen=True)
-class SwarmOdom:
-    """One SwarmOdometry as arrays: x, v (n, 3), target (3,), per-row active flags."""
-
-    step: int
-    stamp_ns: int
-    uav_ids: list[int]
-    x: NDArray[np.float64]
-    v: NDArray[np.float64]
-    target_x: NDArray[np.float64]
-    target_v: NDArray[np.float64]
-    active: list[bool]
-    target_age: float
-    command_latency: NDArray[np.float64]
-    run: int = 0
 
 
 def swarm_odom_arrays(msg: SwarmOdometry) -> SwarmOdom:
