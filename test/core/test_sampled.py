@@ -185,7 +185,9 @@ def test_control_rate_must_divide_the_step() -> None:
         load_preset('realtime').replace(control_rate=300.0)
 
 
-#: points of the grid away from the boundary kappa (T + tau) = RELAY_LIMIT: (n, rate, latency)
+#: points of the grid away from the boundary kappa (T + tau) = RELAY_LIMIT: (n, rate, latency),
+#: for the landscape of b_growth 1.25 (the test pins it: with the preset's 1.4, 16 trackers at
+#: 500 Hz sit on the boundary)
 GRID = [
     (3, 100.0, 0.0),
     (3, 50.0, 0.004),
@@ -208,6 +210,7 @@ def test_prediction_agrees_with_the_emulation_of_the_sign_law(n, rate, latency) 
         switching='sign',
         feedforward=0.0,
         precondition='none',
+        b_growth=1.25,
     )
     pred = predict(cfg)
     margin = abs(pred.formation_rate * (pred.control_period + latency) / RELAY_LIMIT - 1.0)
@@ -553,7 +556,9 @@ def test_the_block_spectrum_stays_bounded_whatever_the_size() -> None:
 
 #: the block direction, 32 trackers: (rate, latency, K mu_max (T + tau)); the prediction
 #: holds below BLOCK_LIMIT = 1.5 and the emulation flies there; at 4 both fail (between 2.2
-#: and 3 the emulation flies in some cases, the prediction is conservative)
+#: and 3 the emulation flies in some cases, the prediction is conservative). The landscape of
+#: b_growth 1.25, pinned: with 1.4 the 20 Hz point settles at 0.89-0.93 of the design's
+#: closest pair (seeds 1-4), on the flight floor, which is J's minima, not the loop
 BLOCK_GRID = [(100.0, 0.005, None, True), (20.0, 0.03, 1.0, True), (20.0, 0.03, 4.0, False)]
 
 
@@ -562,7 +567,13 @@ def test_prediction_agrees_with_the_emulation_of_the_block_direction(
     rate, latency, x, holds
 ) -> None:
     cfg = load_preset('realtime').replace(
-        n_trackers=32, seed=2, duration=25.0, record_every=10, control_rate=rate, latency=latency
+        n_trackers=32,
+        seed=2,
+        duration=25.0,
+        record_every=10,
+        control_rate=rate,
+        latency=latency,
+        b_growth=1.25,
     )
     if x is not None:
         K = x / (predict(cfg).hessian_max * (1 / rate + latency))
@@ -577,13 +588,13 @@ def test_prediction_agrees_with_the_emulation_of_the_block_direction(
 def test_a_fixed_b_squeezes_a_large_swarm_that_the_growth_lets_fly() -> None:
     """32 trackers at 50 Hz along the block direction: with b = 6 they sit on a sphere of
     radius 1.15 m whose arrangement J barely sets (the Hessian's condition number ~1e5) and
-    do not reach the design's closest pair; with b (n/3)^1.25 they fly."""
+    do not reach the design's closest pair; with b (n/3)^1.4 (the preset's growth) they fly."""
     from apf_swarm_core.formation import design_formation
 
     cfg = load_preset('realtime').replace(
         n_trackers=32, seed=1, duration=25.0, record_every=10, control_rate=50.0, latency=0.01
     )
-    assert cfg.swarm_b() == pytest.approx(6.0 * (32 / 3) ** 1.25)
+    assert cfg.swarm_b() == pytest.approx(6.0 * (32 / 3) ** 1.4)
     fixed = cfg.replace(b_growth=0.0)
     r = np.linalg.norm(design_formation(fixed).relative_positions, axis=-1)
     assert r.min() > 1.1 and r.max() < 1.2  # a sphere
