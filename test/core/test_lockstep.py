@@ -110,3 +110,22 @@ def test_target_window_sends_new_states_and_repeats_a_late_window():
     # the plant repeats a request for states already out: that window again
     assert list(target_window(95, 96)) == list(range(32, 96))
     assert list(target_window(10, 11)) == list(range(11))
+
+
+def test_the_shared_events_refuse_bad_inputs_and_finish_the_step():
+    from apf_swarm_core.plant_model import Command
+
+    cfg, model, bar = make()
+    assert bar.needs_match and not bar.reports_latency
+    bar.start(0.0)
+    bad = bar.take_target(np.full(3, np.nan), np.zeros(3), 0, 0.0, 0.0)
+    assert kinds(bad) == ['refuse'] and 'target state' in bad[0].text and model.rejected == 1
+    x, v = target_state(cfg, 0)
+    assert 'swarm_odom' in kinds(bar.take_target(x, v, 0, 0.0, 0.0))  # stamp 0 ns: step 0
+    ok, out = bar.take_command(Command(1, 0, np.full(3, np.inf), np.zeros(3), False), 0.0, 0.0)
+    assert not ok and kinds(out) == ['refuse'] and model.rejected == 2
+    for i in (1, 2, 3):
+        ok, out = bar.take_command(Command(i, 0, np.zeros(3), np.zeros(3), False), 0.0, 0.0)
+        assert ok
+    # the last command finishes step 0: step 1 goes out, then the state of step 0
+    assert model.k == 1 and kinds(out)[-1] == 'state'

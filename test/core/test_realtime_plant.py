@@ -67,3 +67,22 @@ def test_the_physics_runs_the_configurations_steps_then_is_done() -> None:
     assert not rt.command_arrives(0.3)
     sample = rt.state_sample(0.3)
     assert sample['step'] == rt.model.k and rt.final_published
+
+
+def test_the_shared_events_refuse_stale_commands_and_bad_targets() -> None:
+    from apf_swarm_core.plant_model import Command
+
+    rt = make()
+    assert not rt.needs_match and rt.reports_latency
+    rt.start(100.0)
+    ok, out = rt.take_command(Command(1, -1, np.zeros(3), np.zeros(3), False), 2.0, 100.1)
+    assert not ok and [a.kind for a in out] == ['refuse'] and 'stale' in out[0].text
+    ok, out = rt.take_command(Command(1, -1, np.zeros(3), np.zeros(3), False), 0.01, 100.1)
+    assert ok and out == []
+    assert [a.kind for a in rt.take_target(np.full(3, np.nan), np.zeros(3), 5, 0.0, 100.2)] == [
+        'refuse'
+    ]
+    assert rt.take_target(np.zeros(3), np.zeros(3), 5, 0.0, 100.2) == []
+    (late,) = rt.take_target(np.zeros(3), np.zeros(3), 4, 0.0, 100.3)
+    assert late.kind == 'refuse' and 'out of order' in late.text
+    assert rt.model.rejected == 3

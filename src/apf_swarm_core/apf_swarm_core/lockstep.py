@@ -19,20 +19,28 @@ node converts messages and publishes, nothing more.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .agents import Sample
-from .plant_model import PlantModel
+from .inputs import input_problem
+from .plant_model import Command, PlantModel
 
-__all__ = ['LOOKAHEAD', 'Action', 'LockstepBarrier', 'target_window']
+__all__ = [
+    'LOOKAHEAD',
+    'Action',
+    'LockstepBarrier',
+    'take_command',
+    'target_problem',
+    'target_window',
+]
 
 #: how many steps ahead the plant asks for the target's states
 LOOKAHEAD = 64
 
-Kind = Literal['request', 'swarm_odom', 'step', 'state', 'info', 'warn']
+Kind = Literal['request', 'swarm_odom', 'step', 'state', 'info', 'warn', 'refuse']
 
 
 @dataclass(frozen=True)
@@ -41,12 +49,43 @@ class Action:
     ``swarm_odom`` of ``step`` (the held target state, :attr:`LockstepBarrier.target`);
     publish ``step`` (``/clock`` and every UAV's odometry of the model's current state);
     publish the ``state`` sample ``data`` of ``step`` (:meth:`LockstepBarrier.snapshot`);
-    log ``text`` at ``info`` or ``warn``."""
+    log ``text`` at ``info`` or ``warn``; ``refuse``: an input was refused (counted in the
+    model), ``text`` says why."""
 
     kind: Kind
     step: int = -1
     data: Any = None
     text: str = ''
+
+
+def take_command(
+    model: PlantModel, running: bool, c: Command, *, latency: float, now: float
+) -> tuple[bool, list[Action]]:
+    """Offer a tracker's command to ``model`` (both modes): whether it was accepted, and the
+    actions: why it was refused, or that its tracker, inactive, commands again."""
+    was_active = bool(model.active[c.uav_id - 1])
+    if not model.offer_command(
+        c.uav_id, c.step, c.force, c.sliding_surface, c.stale,
+        now=now, instance=c.instance, latency=latency, run=c.run,
+    ):  # fmt: skip
+        return False, [Action('refuse', text=model.last_rejection)]
+    if was_active or not running:
+        return True, []
+    text = f'uav_{c.uav_id} commands again: active, back in the neighbour sets'
+    return True, [Action('info', text=text)]
+
+
+def target_problem(
+    model: PlantModel, x: NDArray[np.float64], v: NDArray[np.float64]
+) -> list[Action]:
+    """A target state the plant cannot use (not finite, out of range): refused and counted
+    in ``model``; [] when it is usable."""
+    problem = input_problem(x=x, v=v)
+    if problem is None:
+        return []
+    why = f'target state: {problem}'
+    model.refuse(why)
+    return [Action('refuse', text=why)]
 
 
 @dataclass
@@ -67,10 +106,15 @@ class LockstepBarrier:
     odom_sent: bool = False
     target: Sample = field(init=False)
     targets: dict[int, Sample] = field(default_factory=dict)  # by step, k..requested
+    #: step 0 goes out only once every reader of it is matched, or it would be lost
+    needs_match: ClassVar[bool] = True
+    #: /swarm/odom carries no command latencies (simulated time)
+    reports_latency: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
         self.target = Sample(-1, np.zeros(3), np.zeros(3), 0.0)
         self.steps = self.model.cfg.steps
+        self.dt_ns = int(round(self.model.cfg.dt * 1e9))
 
     # --- events ----------------------------------------------------------------------
     def start(self, now: float) -> list[Action]:
@@ -93,6 +137,20 @@ class LockstepBarrier:
         out += self._maybe_swarm_odom()
         out += self._maybe_finish(now)
         return out
+
+    def take_command(self, c: Command, age: float, now: float) -> tuple[bool, list[Action]]:
+        """A tracker's command arrived (``age``: unused, simulated time): offered to the
+        model, then the step finished if it was the last one missing."""
+        ok, out = take_command(self.model, self.running, c, latency=0.0, now=now)
+        return ok, (out + self.on_command(now)) if ok else out
+
+    def take_target(
+        self, x: NDArray[np.float64], v: NDArray[np.float64], stamp_ns: int, age: float, now: float
+    ) -> list[Action]:
+        """A target state stamped with its step's time (``age``: unused)."""
+        return target_problem(self.model, x, v) or self.on_target(
+            stamp_ns // self.dt_ns, x, v, now
+        )
 
     def on_command(self, now: float) -> list[Action]:
         """The model accepted a command
@@ -123,8 +181,8 @@ class LockstepBarrier:
             ['target'] if self._target_late() else []
         )
 
-    def target_age(self) -> float:
-        """Age of the held target state [s of simulated time]."""
+    def target_age(self, now: float | None = None) -> float:
+        """Age of the held target state [s of simulated time; ``now``, wall time, unused]."""
         return max(0, self.model.k - self.target.step) * self.model.cfg.dt
 
     def snapshot(self, k: int) -> dict[str, Any]:

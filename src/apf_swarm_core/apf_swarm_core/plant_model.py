@@ -21,7 +21,24 @@ from .plant import DisturbanceSource
 from .potential import potential
 from .simulator import initial_positions, integrate
 
-__all__ = ['PlantModel']
+__all__ = ['Command', 'PlantModel']
+
+
+@dataclass(frozen=True)
+class Command:
+    """One tracker's command as the plant receives it: its ``uav_id`` and ``step``, force and
+    sliding surface (3,), whether it is the safe brake (``stale``), the tracker's count of
+    refused inputs, its stamp [ns], its process (``instance``) and run identity."""
+
+    uav_id: int
+    step: int
+    force: NDArray[np.float64]
+    sliding_surface: NDArray[np.float64]
+    stale: bool
+    rejected_inputs: int = 0
+    stamp_ns: int = 0
+    instance: int = 0
+    run: int = 0
 
 
 @dataclass

@@ -15,14 +15,14 @@ monotonic clock [s]; what to log comes back as the core's lockstep
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .agents import Sample
-from .lockstep import Action
-from .plant_model import PlantModel
+from .lockstep import Action, take_command, target_problem
+from .plant_model import Command, PlantModel
 
 __all__ = ['STALE_AFTER', 'RealtimePlant']
 
@@ -47,9 +47,15 @@ class RealtimePlant:
     arm_deadline: float = 0.0
     done: bool = False
     final_published: bool = False  # the state at the end of the run went out
+    running: bool = False  # started (the clock may still wait: :meth:`arm`)
+    #: the run starts at once; :meth:`arm` waits for the trackers
+    needs_match: ClassVar[bool] = False
+    #: /swarm/odom carries the latencies of the trackers' latest commands
+    reports_latency: ClassVar[bool] = True
 
     def start(self, now: float) -> list[Action]:
         """The run starts at ``now``: the clock waits at most ``arm_timeout`` from here."""
+        self.running = True
         self.arm_deadline = now + self.arm_timeout
         return self.arm(now)
 
@@ -90,6 +96,29 @@ class RealtimePlant:
             return False
         self.model.advance_to(now - self.wall0)
         return True
+
+    def take_command(self, c: Command, age: float, now: float) -> tuple[bool, list[Action]]:
+        """A tracker's command stamped ``age`` seconds ago arrived at ``now``: refused if
+        stale, else offered to the model with its latency (once the clock runs)."""
+        why = self.stale_command(c.uav_id, age)
+        if why is not None:
+            self.model.refuse(why)
+            return False, [Action('refuse', text=why)]
+        latency = age if self.command_arrives(now) else 0.0
+        return take_command(self.model, self.running, c, latency=latency, now=now)
+
+    def take_target(
+        self, x: NDArray[np.float64], v: NDArray[np.float64], stamp_ns: int, age: float, now: float
+    ) -> list[Action]:
+        """A target state stamped ``stamp_ns``, ``age`` seconds ago: held, or refused."""
+        refused = target_problem(self.model, x, v)
+        if refused:
+            return refused
+        why = self.offer_target(x, v, stamp_ns, age, now)
+        if why is None:
+            return []
+        self.model.refuse(why)
+        return [Action('refuse', text=why)]
 
     def offer_target(
         self,

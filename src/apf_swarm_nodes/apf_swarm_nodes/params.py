@@ -19,6 +19,7 @@ from typing import Any
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import config_from_mapping
 from apf_swarm_core.errors import ConfigError
+from apf_swarm_core.realtime_plant import STALE_AFTER
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -214,6 +215,63 @@ TRACKER_PARAMS = (
         'exceed when the target is silent]',
         lo=0.001,
         hi=60.0,
+    ),
+)
+
+#: the plant node's own parameters
+PLANT_PARAMS = (
+    NodeParam('wait_for_start', False, 'wait for /swarm/start before step 0'),
+    NodeParam(
+        'inputs',
+        'aggregate',
+        'what the trackers read (as their inputs parameter): '
+        'lockstep step 0 waits until those subscriptions are matched',
+        choices=INPUTS,
+    ),
+    NodeParam(
+        'command_timeout',
+        1.0,
+        'lockstep: a command later than this is sent for '
+        'again, then missed; realtime: a tracker silent for this long is inactive, and '
+        'a command or target state stamped longer ago is refused [s of wall time]',
+        lo=0.001,
+        hi=600.0,
+    ),
+    NodeParam(
+        'stale_after',
+        STALE_AFTER,
+        'realtime: a tracker whose latest command arrived longer '
+        'ago than this gets zero force instead of its held bang-bang command (25 N held '
+        'for 1 s would fling a 1 kg UAV 12 m) [s of wall time]',
+        lo=0.001,
+        hi=60.0,
+    ),
+    NodeParam('physics_rate', 200.0, 'realtime: physics timer rate [Hz]', lo=1.0, hi=5000.0),
+    NodeParam(
+        'arm_timeout',
+        10.0,
+        'realtime: after the start the clock waits until every '
+        'tracker has commanded from its inputs (odometry goes out, the UAVs hold '
+        'still), at most this long; then it starts without the silent ones (warned) '
+        '[s of wall time]',
+        lo=0.0,
+        hi=600.0,
+    ),
+    NodeParam(
+        'markers_rate',
+        10.0,
+        '/swarm/markers (visualization_msgs/MarkerArray) per second '
+        'of simulated (lockstep) or wall (realtime) time; 0 turns them off',
+        lo=0.0,
+        hi=1000.0,
+    ),
+    NodeParam(
+        'publish_rate',
+        0.0,
+        'realtime: odometry and state rate [Hz]; 0: the '
+        "configuration's control_rate, or 100 Hz when that is 0",
+        lo=0.0,
+        hi=2000.0,
     ),
 )
 

@@ -1,13 +1,8 @@
-"""Tracker node: one tracking UAV's sliding-mode controller.
-
-Reads ``/swarm/odom`` (``inputs:=aggregate``, default) or its own ``odom``, its neighbours'
-``/uav_<j>/odom`` and ``/target/odom`` (``inputs:=odom``); publishes ``force_cmd`` and, as
-``outputs`` selects, ``accel_cmd`` / ``velocity_cmd`` setpoints for a flight stack. What it
-sends and when (lockstep: step k once its inputs are in; realtime: on each own state or at
-the control rate; the safe brake for a stale input; refused inputs) is decided by the core's
-:mod:`apf_swarm_core.tracker_modes`; every command carries the process's random
-``instance`` so that the plant tells two trackers of one ``uav_id`` apart (docs/ROS.md).
-"""
+"""Tracker node: one tracking UAV's sliding-mode controller. Reads ``/swarm/odom`` (or, with
+``inputs:=odom``, every ``odom`` and ``/target/odom``); publishes ``force_cmd`` and, as
+``outputs`` selects, ``accel_cmd`` / ``velocity_cmd`` setpoints. What to send and when (a
+command, the safe brake, a refusal) is decided by :mod:`apf_swarm_core.tracker_modes`; each
+command carries the process's random ``instance`` (docs/ROS.md)."""
 
 from __future__ import annotations
 
@@ -67,8 +62,7 @@ class TrackerNode(Node):
         # the configuration's control_rate (0: the realtime default) sets the control timer
         # (trigger timer) or the stale-input watchdog (trigger odom)
         rate = self.cfg.control_rate or REALTIME_RATE
-        #: the control period the setpoints hold for [s]
-        self.period = self.cfg.dt if self.mode == 'lockstep' else 1.0 / rate
+        self.period = self.cfg.dt if self.mode == 'lockstep' else 1.0 / rate  # setpoints' [s]
         self.agent = TrackerAgent(self.cfg, self.uav_id, run=int(p['run']))
         self.core = tracker_mode(
             self.mode,

@@ -12,7 +12,7 @@ holds what they share. Import the names from here.
 
 from __future__ import annotations
 
-from .commands import LAW_CODES, ForceArrays, force_arrays, force_msg, reply_msg
+from .commands import LAW_CODES, force_arrays, force_msg, reply_msg
 from .fields import WORLD, is_finite
 from .markers import markers_msg
 from .odometry import SwarmOdom, odom_arrays, odom_msg, swarm_odom_arrays, swarm_odom_msg
@@ -23,7 +23,6 @@ from .state import SwarmSample, swarm_state_arrays, swarm_state_msg, swarm_state
 __all__ = [
     'LAW_CODES',
     'WORLD',
-    'ForceArrays',
     'SwarmOdom',
     'SwarmSample',
     'accel_msg',

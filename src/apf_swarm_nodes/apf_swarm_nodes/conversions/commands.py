@@ -3,10 +3,10 @@ controller output or reply, and its numbers (:class:`ForceArrays`) at the plant.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from apf_swarm_core.plant_model import Command
 from apf_swarm_core.tracker_modes import Reply
 from builtin_interfaces.msg import Time
 from numpy.typing import NDArray
@@ -16,7 +16,7 @@ from apf_swarm_msgs.msg import ForceCommand
 from .fields import WORLD, set_vec, vec
 from .stamps import stamp_ns
 
-__all__ = ['LAW_CODES', 'ForceArrays', 'force_arrays', 'force_msg', 'reply_msg']
+__all__ = ['LAW_CODES', 'force_arrays', 'force_msg', 'reply_msg']
 
 LAW_CODES = {'proposed': ForceCommand.LAW_PROPOSED, 'traditional': ForceCommand.LAW_TRADITIONAL}
 
@@ -104,24 +104,9 @@ def reply_msg(
     )
 
 
-@dataclass(frozen=True)
-class ForceArrays:
-    """The numeric content of a ForceCommand."""
-
-    uav_id: int
-    step: int
-    force: NDArray[np.float64]
-    sliding_surface: NDArray[np.float64]
-    stale: bool
-    rejected_inputs: int = 0
-    stamp_ns: int = 0
-    instance: int = 0
-    run: int = 0
-
-
-def force_arrays(msg: ForceCommand) -> ForceArrays:
-    """Numbers of a ``ForceCommand``."""
-    return ForceArrays(
+def force_arrays(msg: ForceCommand) -> Command:
+    """Numbers of a ``ForceCommand`` (the core's :class:`~apf_swarm_core.plant_model.Command`)."""
+    return Command(
         int(msg.uav_id),
         int(msg.step),
         vec(msg.force),
