@@ -69,3 +69,18 @@ def test_derive_counts_the_shared_state_once_per_process_and_the_tail() -> None:
     assert eight['latency'] == pytest.approx((0.002 + 8 * 1600e-6) / (1 - use), rel=1e-4)
     # beyond the measured sizes the cost grows linearly (the block direction)
     assert probe.derive(tails, 64, 50.0)['per_tracker_cpu'] == pytest.approx(3 * 50e-6 + 1600e-6)
+
+
+def test_the_largest_swarm_is_the_last_size_that_fits() -> None:
+    most = probe.largest_swarm(PROBE)
+    assert most >= 1
+
+    def fits(n: int) -> bool:
+        k = probe.trackers_per_process(PROBE, n, 20.0)
+        return probe.derive(PROBE, n, 20.0, k)['capacity']['20'] >= n
+
+    assert fits(most) and not fits(most + 1)
+    # a faster rate carries fewer
+    assert probe.largest_swarm(PROBE, 100.0) < most
+    slow = {**PROBE, 'cpu_per_message': 1.0}
+    assert probe.largest_swarm(slow) == 0

@@ -59,7 +59,15 @@ class RealtimePrediction:
             )
         latency = cfg.latency or measured['latency'] or DEFAULT_LATENCY
         fits = measured['capacity'].get(f'{cfg.control_rate:g}')
-        if fits is not None and self.n > fits:
+        most = probe.largest_swarm(machine) if machine else None
+        if most is not None and self.n > most:
+            self.say(
+                f'warning: {self.n} trackers cannot fly on this machine: at {probe.RATES[-1]:g} '
+                f'Hz, the lowest rate it runs them at, {most} fit in '
+                f'{probe.CPU_BUDGET:.0%} of its cores (`apf-swarm probe`); fly at most {most} '
+                'here, or spread the swarm over hosts (scripts/multihost.py)'
+            )
+        elif fits is not None and self.n > fits:
             self.say(
                 f'warning: {self.n} trackers at {cfg.control_rate:g} Hz are more than '
                 f"the {fits} that fit in {probe.CPU_BUDGET:.0%} of this machine's cores "

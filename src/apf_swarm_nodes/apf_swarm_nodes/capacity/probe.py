@@ -181,6 +181,27 @@ def derive(
     }
 
 
+def largest_swarm(probe: dict[str, Any], rate: float | None = None) -> int:
+    """The most trackers this machine carries at ``rate`` [Hz] (default the lowest of
+    :data:`RATES`, where the most fit): the largest n whose :func:`derive` capacity, hosted as
+    the bring-up hosts them by default (:func:`trackers_per_process`), is at least n; 0 if not
+    even one fits. The capacity falls as n grows (a command costs more, the state is
+    larger), so the search is a bisection."""
+    rate = float(rate or RATES[-1])
+
+    def fits(n: int) -> bool:
+        k = trackers_per_process(probe, n, rate)
+        return bool(derive(probe, n, rate, k)['capacity'][f'{rate:g}'] >= n)
+
+    if not fits(1):
+        return 0
+    lo, hi = 1, 1 << 16
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if fits(mid) else (lo, mid - 1)
+    return lo
+
+
 def process_limit(probe: dict[str, Any], available: int | None = None) -> dict[str, int]:
     """The most tracker processes the bring-up starts without ``--allow-overload``.
 
