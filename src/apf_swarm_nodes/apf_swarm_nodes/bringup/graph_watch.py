@@ -7,12 +7,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
-
-from apf_swarm_core.config import (
-    SwarmConfig,
-)
 
 from ..analysis.samples import StateAccumulator
 from ..topics import RECORDER_NODE, RECORDER_STATUS
@@ -29,35 +26,27 @@ from .processes import (
 
 
 class GraphWatch:
-    """What :class:`~.session.Bringup` does on the ROS graph (a mixin)."""
+    """The bring-up's node on the graph (the bring-up holds one): ``say`` and ``warn_once``
+    print its lines, ``acc`` takes the ``/swarm/state`` samples."""
 
-    args: argparse.Namespace
-    cfg: SwarmConfig
-    mode: str
-    n: int
-    node_params: list[str]
-    acc: StateAccumulator
-    rec_status: dict[str, Any] | None
-    node: Any
-    executor: Any
-    state_sub: Any
-    start_pub: Any
-    t_launch: Any
-    t_start: Any
-    domain_id: int | None
-    out: Path
-
-    def say(self, text: str) -> None:
-        raise NotImplementedError
-
-    def warn_once(self, key: str, text: str) -> None:
-        raise NotImplementedError
-
-    def check_signals(self) -> None:
-        raise NotImplementedError
-
-    def supervise(self) -> None:
-        raise NotImplementedError
+    def __init__(
+        self,
+        args: argparse.Namespace,
+        n: int,
+        node_params: list[str],
+        acc: StateAccumulator,
+        say: Callable[[str], None],
+        warn_once: Callable[[str, str], None],
+    ) -> None:
+        self.args, self.mode, self.n, self.node_params = args, args.mode, n, node_params
+        self.acc, self.say, self.warn_once = acc, say, warn_once
+        #: the recorder's last ``/recorder/status`` document (``--record``), None before one
+        self.rec_status: dict[str, Any] | None = None
+        # rclpy objects, made by init_ros() once rclpy is imported (this module does not)
+        self.node: Any = None
+        self.executor: Any = None
+        self.state_sub: Any = None
+        self.start_pub: Any = None
 
     def init_ros(self) -> None:
         import rclpy
@@ -102,7 +91,7 @@ class GraphWatch:
     def spin(self, timeout: float) -> None:
         self.executor.spin_once(timeout_sec=timeout)
 
-    def missing(self) -> list[str]:
+    def missing(self, domain_id: int | None = None) -> list[str]:
         node = self.node
         present = {
             (ns.rstrip('/') + '/' + name) for name, ns in node.get_node_names_and_namespaces()
@@ -125,7 +114,7 @@ class GraphWatch:
                     'pubs' + t.topic,
                     f'{t.topic} has {counts[t.topic][0]} publishers (expected '
                     f'{t.publishers}): another graph on ROS_DOMAIN_ID='
-                    f'{self.domain_id}, or a respawned node not yet forgotten?',
+                    f'{domain_id}, or a respawned node not yet forgotten?',
                 )
         # our own endpoints: matched counts, not mere discovery
         nstate = self.state_sub.get_publisher_count()
@@ -148,19 +137,24 @@ class GraphWatch:
             )
         return miss
 
-    def wait_ready(self) -> None:
+    def publish_start(self) -> None:
+        """``/swarm/start``: the run begins."""
+        self.start_pub.publish(self._empty_msg())
+
+    def wait_ready(self, between: Callable[[], None], domain_id: int | None, logs: Path) -> None:
+        """Spin until :meth:`missing` finds nothing, calling ``between`` (the bring-up's
+        signal and process checks) each turn; StopRun after ``--ready-timeout``."""
         t0 = time.monotonic()
         deadline = t0 + self.args.ready_timeout
         last_check, last_report = 0.0, t0
         miss = ['(not checked yet)']
         while True:
             self.spin(0.05)
-            self.check_signals()
-            self.supervise()
+            between()
             now = time.monotonic()
             if now - last_check >= 0.1:
                 last_check = now
-                miss = self.missing()
+                miss = self.missing(domain_id)
                 if not miss:
                     return
             if now - last_report >= 5.0:
@@ -174,10 +168,10 @@ class GraphWatch:
                     EXIT_BAD_INPUT,
                     'not_ready',
                     f'the ROS graph was not complete after {self.args.ready_timeout:g} s '
-                    f'(--ready-timeout, ROS_DOMAIN_ID={self.domain_id}); '
+                    f'(--ready-timeout, ROS_DOMAIN_ID={domain_id}); '
                     f'{len(miss)} never appeared:\n'
                     + ''.join(f'    {m}\n' for m in miss)
-                    + f'  node logs: {self.out / "logs"}',
+                    + f'  node logs: {logs}',
                 )
 
     def drain(self, seconds: float = 0.2) -> None:

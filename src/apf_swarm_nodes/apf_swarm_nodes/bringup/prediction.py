@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import subprocess
+from collections.abc import Callable
 from typing import Any
 
 from apf_swarm_core.config import (
@@ -16,27 +17,28 @@ from apf_swarm_core.config import (
 
 
 class RealtimePrediction:
-    """What :class:`~.session.Bringup` does for a realtime run's prediction (a mixin)."""
+    """A realtime run's prediction (the bring-up holds one): :meth:`check` before the run,
+    :meth:`judged` after it; ``say`` prints a line of the bring-up."""
 
-    args: argparse.Namespace
-    cfg: SwarmConfig
-    n: int
-    capacity: dict[str, Any] | None
-    prediction: Any
-    gains_scheduled: dict[str, Any]
+    def __init__(self, args: argparse.Namespace, say: Callable[[str], None]) -> None:
+        self.args, self.say = args, say
+        #: what the probe implies for this run (:func:`~..capacity.probe.derive`)
+        self.capacity: dict[str, Any] | None = None
+        #: the sampled-data prediction before the run, None until :meth:`check`
+        self.prediction: Any = None
+        self.gains_scheduled: dict[str, Any] = {}
+        self.cfg: SwarmConfig | None = None
 
-    def say(self, text: str) -> None:
-        raise NotImplementedError
-
-    def realtime_check(self) -> None:
-        """Realtime: the sampled-data prediction before the run (printed, and kept for
-        summary.json); with ``--gains auto`` a failing one is replaced by designed gains."""
+    def check(self, cfg: SwarmConfig) -> SwarmConfig:
+        """The sampled-data prediction before the run (printed, and kept for summary.json);
+        returns the configuration to fly: with ``--gains auto`` a failing one's gains are
+        replaced by designed ones."""
         from apf_swarm_core.sampled import predict, schedule_gains
 
         from ..advice import CLI_ADVICE
         from ..capacity import probe
 
-        cfg = self.cfg
+        n = cfg.n_trackers
         try:
             machine = probe.ensure(say=self.say)
         except (RuntimeError, OSError, ValueError, subprocess.TimeoutExpired) as exc:
@@ -46,7 +48,7 @@ class RealtimePrediction:
             )
             machine = None
         measured = (
-            probe.derive(machine, self.n, cfg.control_rate or None, self.args.trackers_per_process)
+            probe.derive(machine, n, cfg.control_rate or None, self.args.trackers_per_process)
             if machine
             else {'rate': cfg.control_rate or REALTIME_RATE, 'latency': None, 'capacity': {}}
         )
@@ -54,22 +56,22 @@ class RealtimePrediction:
         if cfg.control_rate <= 0:
             cfg = cfg.replace(control_rate=measured['rate'])
             self.say(
-                f'control rate {measured["rate"]:g} Hz for {self.n} trackers on this '
+                f'control rate {measured["rate"]:g} Hz for {n} trackers on this '
                 f'machine (`apf-swarm probe`)'
             )
         latency = cfg.latency or measured['latency'] or DEFAULT_LATENCY
         fits = measured['capacity'].get(f'{cfg.control_rate:g}')
         most = probe.largest_swarm(machine) if machine else None
-        if most is not None and self.n > most:
+        if most is not None and n > most:
             self.say(
-                f'warning: {self.n} trackers cannot fly on this machine: at {probe.RATES[-1]:g} '
+                f'warning: {n} trackers cannot fly on this machine: at {probe.RATES[-1]:g} '
                 f'Hz, the lowest rate it runs them at, {most} fit in '
                 f'{probe.CPU_BUDGET:.0%} of its cores (`apf-swarm probe`); fly at most {most} '
                 'here, or spread the swarm over hosts (scripts/multihost.py)'
             )
-        elif fits is not None and self.n > fits:
+        elif fits is not None and n > fits:
             self.say(
-                f'warning: {self.n} trackers at {cfg.control_rate:g} Hz are more than '
+                f'warning: {n} trackers at {cfg.control_rate:g} Hz are more than '
                 f"the {fits} that fit in {probe.CPU_BUDGET:.0%} of this machine's cores "
                 f'(`apf-swarm probe`): expect late commands; a lower rate (--set '
                 f'control_rate=HZ: '
@@ -98,8 +100,9 @@ class RealtimePrediction:
             self.say(f'warning: {w}')
         self.cfg = cfg
         self.prediction = pred
+        return cfg
 
-    def predicted(self, traj: dict[str, Any]) -> dict[str, Any]:
+    def judged(self, traj: dict[str, Any]) -> dict[str, Any]:
         """Realtime: the run judged by flight next to its headless emulation at the same
         rate with the latencies the plant measured (and the prediction before the run)."""
         import numpy as np
@@ -107,6 +110,7 @@ class RealtimePrediction:
         from apf_swarm_core.metrics import flight
         from apf_swarm_core.simulator import simulate
 
+        assert self.cfg is not None  # check() ran before the run
         pairs = design_pair_sets(self.cfg)
         lat = np.asarray(traj.get('command_latency', np.zeros((0,))), dtype=float).ravel()
         lat = lat[(lat > 0) & np.isfinite(lat)]

@@ -19,9 +19,9 @@ from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.realtime_plant import STALE_AFTER
 
 from ..analysis.samples import StateAccumulator
-from .graph import RECORDER_STOP_SEQUENCE
+from .graph import RECORDER_STOP_SEQUENCE, recording_fields
 from .graph_watch import GraphWatch
-from .outputs import RunOutputs
+from .outputs import write_outputs
 from .prediction import RealtimePrediction
 from .processes import (
     EXIT_CHILD_DIED,
@@ -31,6 +31,7 @@ from .processes import (
     EXIT_STALLED,
     ProcessGroup,
     StopRun,
+    describe_rc,
 )
 from .startup import Startup
 from .supervision import Signals, Supervision
@@ -38,10 +39,9 @@ from .supervision import Signals, Supervision
 __all__ = ['Bringup']
 
 
-class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
-    """One run; see the module docstring. :meth:`execute` returns the exit code.
-
-    Supervision comes before GraphWatch, whose stubs of its methods it replaces."""
+class Bringup(Startup, Supervision):
+    """One run; see the module docstring. :meth:`execute` returns the exit code. It holds
+    its node on the graph (:attr:`graph`) and, realtime, its prediction (:attr:`pred`)."""
 
     def __init__(
         self,
@@ -52,10 +52,6 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         stream: TextIO | None = None,
     ) -> None:
         self.args, self.cfg, self.prog = args, cfg, prog
-        # realtime: what the probe implies, the prediction before the run, scheduled gains
-        self.capacity: dict[str, Any] | None = None
-        self.prediction: Any = None
-        self.gains_scheduled: dict[str, Any] = {}
         self.err = stream if stream is not None else sys.stderr
         self.mode: str = args.mode
         self.node_params: list[str] = list(getattr(args, 'node_params', []) or [])
@@ -65,17 +61,14 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         #: the recorder: started first, stopped last, given time to close the bag
         self.rec_group = ProcessGroup(RECORDER_STOP_SEQUENCE)
         self.recorder_lost: dict[str, int] = {}  # recorder died, run went on: its exit code
-        self.rec_status: dict[str, Any] | None = None
         self.signals = Signals()
         self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
+        #: the bring-up's node on the graph; realtime, the prediction before and after the run
+        self.graph = GraphWatch(args, self.n, self.node_params, self.acc, self.say, self.warn_once)
+        self.pred = RealtimePrediction(args, self.say)
         self.domain_id: int | None = None
         #: the run's identity (the nodes' ``run`` parameter), random, never 0
         self.run_id = random.getrandbits(62) + 1
-        # rclpy objects, made by run() once rclpy is imported (this module does not import it)
-        self.node: Any = None
-        self.executor: Any = None
-        self.state_sub: Any = None
-        self.start_pub: Any = None
         # monotonic times of this bring-up's start, the launch, the start and the end of the
         # run [s]
         self.t_begin = time.monotonic()
@@ -101,6 +94,11 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
             self.warned.add(key)
             self.say(f'warning: {text}')
 
+    def between(self) -> None:
+        """What the bring-up checks while it waits: signals, then its processes."""
+        self.check_signals()
+        self.supervise()
+
     # --- the run --------------------------------------------------------------------------
     def progress_line(self, rate: float) -> str:
         s = self.acc.last
@@ -118,14 +116,14 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         )
 
     def run_loop(self) -> None:
-        self.start_pub.publish(self._empty_msg())
+        self.graph.publish_start()
         self.t_start = time.monotonic()
         self.say(f'graph ready after {self.t_start - self.t_launch:.2f} s; published /swarm/start')
         last_progress = self.t_start
         last_poll = 0.0
         prev_step, prev_recv = 0, 0
         while True:
-            self.spin(0.05)
+            self.graph.spin(0.05)
             now = time.monotonic()
             self.check_signals()
             if now - last_poll >= 0.1:
@@ -226,15 +224,15 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
             self.start_view()
             try:
                 self.check_signals()
-                self.init_ros()
+                self.graph.init_ros()
                 self.launch()
                 # a stop from now on ends within its grace, which grows with the load
                 self.signals.bound = self.stop_bound()
                 self.check_signals()
-                self.wait_ready()
+                self.graph.wait_ready(self.between, self.domain_id, self.out / 'logs')
                 self.run_loop()
                 if self.mode == 'realtime':
-                    self.drain()
+                    self.graph.drain()
                 self.t_end = time.monotonic()
             except StopRun as stop:
                 self.t_end = time.monotonic()
@@ -246,7 +244,7 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
                 try:
                     self.stop_children()
                 finally:
-                    self.shutdown_ros()
+                    self.graph.shutdown_ros()
         finally:
             if self.view is not None:
                 self.view.close()
@@ -262,5 +260,66 @@ class Bringup(Startup, Supervision, GraphWatch, RealtimePrediction, RunOutputs):
         if status in ('not_ready',):
             return code
         if self.t_start is not None:
-            self.write_outputs(status)
+            write_outputs(
+                args=self.args,
+                cfg=self.cfg,
+                out=self.out,
+                acc=self.acc,
+                status=status,
+                fields=self.run_fields(status),
+                respawned=[c.name for c in self.group if c.respawns],
+                judged=self.pred.judged if self.pred.prediction is not None else None,
+                say=self.say,
+            )
         return code
+
+    def run_fields(self, status: str) -> dict[str, Any]:
+        """The run's own fields of summary.json: status, timing, stops, recording."""
+        last = self.acc.last
+        run_s = (self.t_end - self.t_start) if self.t_start is not None else 0.0
+        return {
+            'status': status,
+            'mode': self.mode,
+            'domain_id': self.domain_id,
+            'run_id': f'{self.run_id:x}',
+            'wall_time': round(run_s, 3),
+            'missed_deadlines': int(last.missed_deadlines) if last is not None else 0,
+            'stale_inputs': int(last.stale_inputs) if last is not None else 0,
+            'rejected_inputs': int(last.rejected_inputs) if last is not None else 0,
+            'respawns': sum(c.respawns for c in self.group),
+            'respawned': {c.name: c.respawns for c in self.group if c.respawns},
+            'messages': self.acc.messages(),
+            'timing': {
+                'ready': round(self.t_start - self.t_launch, 3)
+                if self.t_start is not None and self.t_launch is not None
+                else None,
+                # the bring-up's own start to graph ready (preparation, isolation included)
+                'startup': round(self.t_start - self.t_begin, 3)
+                if self.t_start is not None
+                else None,
+                'run': round(run_s, 3),
+                'shutdown': round(self.stop_seconds, 3),
+                'rate': round(len(self.acc.samples) / run_s, 1) if run_s > 0 else None,
+            },
+            'stopped_by': self.stop_how,
+            # how many needed which signal: SIGKILL is the exception (a node that never left
+            # DDS leaves shared memory behind, which the bring-up then removes)
+            'stop_signals': {
+                how: sum(1 for v in self.stop_how.values() if v == how)
+                for how in sorted(set(self.stop_how.values()))
+            },
+            **(
+                {
+                    'recording': {
+                        **recording_fields(self.out / 'bag'),
+                        **(
+                            {'recorder_died': describe_rc(list(self.recorder_lost.values())[-1])}
+                            if self.recorder_lost
+                            else {}
+                        ),
+                    }
+                }
+                if self.args.record
+                else {}
+            ),
+        }

@@ -22,6 +22,7 @@ from .processes import Child, ProcessGroup
 if TYPE_CHECKING:
     from ..dds.secure import Pki
     from .janitor import Janitor
+    from .prediction import RealtimePrediction
     from .zygote import Zygote
 
 __all__ = ['Startup']
@@ -49,17 +50,16 @@ class Startup:
     pki: Pki | None = None
 
     if TYPE_CHECKING:  # the other parts of Bringup
+        pred: RealtimePrediction
 
         def say(self, text: str) -> None: ...
-
-        def realtime_check(self) -> None: ...
 
     def prepare(self) -> None:
         """Checks that need no process: executables, recorder, output directory, config."""
         import yaml
 
         if self.mode == 'realtime':
-            self.realtime_check()
+            self.cfg = self.pred.check(self.cfg)
         elif self.cfg.control_rate > 0:
             raise BringupError(
                 f'control_rate = {self.cfg.control_rate:g} Hz: lockstep commands '
