@@ -139,11 +139,10 @@ def test_clean_dry_run_changes_nothing(tmp_path: Path, monkeypatch, capsys) -> N
 
 
 def test_expired_domain_leases_are_found(tmp_path: Path, monkeypatch) -> None:
-    from apf_swarm_nodes.bringup import isolation
-    from apf_swarm_nodes.dds import cleanup
+    from apf_swarm_nodes.dds import cleanup, domains
 
-    monkeypatch.setattr(isolation, '_lease_dir', lambda: tmp_path)
-    _touch(tmp_path, '17', age=isolation.DOMAIN_LEASE + 5)  # expired
+    monkeypatch.setattr(domains, 'lease_dir', lambda: tmp_path)
+    _touch(tmp_path, '17', age=domains.DOMAIN_LEASE + 5)  # expired
     _touch(tmp_path, '18')  # a run picked it just now
     _touch(tmp_path, '.lock', age=3600.0)  # the pickers' lock, never removed
     assert [p.name for p in cleanup.expired_leases()] == ['17']

@@ -43,6 +43,7 @@ the process supervision (:class:`Child`, :class:`ProcessGroup`), the graph expec
 """
 
 from ..analysis.samples import StateAccumulator
+from ..lifetime import stop_process
 from .cli import add_arguments, build_parser, main, resolve_config, run
 from .commands import node_commands
 from .graph import TopicExpectation, expected_graph, graph_missing
@@ -55,7 +56,6 @@ from .processes import (
     EXIT_STALLED,
     Child,
     ProcessGroup,
-    stop_process,
 )
 
 __all__ = [

@@ -56,7 +56,7 @@ class GraphWatch:
 
         from apf_swarm_msgs.msg import SwarmState
 
-        from ..dds.profiles import own_participant
+        from ..dds.participant import own_participant
         from ..node_common import START_QOS, STATE_QOS
         from ..topics import SWARM_START, SWARM_STATE
 

@@ -4,18 +4,17 @@ and the bring-up's exit codes."""
 
 from __future__ import annotations
 
-import contextlib
 import os
-import shutil
 import signal
 import subprocess
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 from ..capacity.machine import group_members
+from ..lifetime import STOP_CPU_PER_PROCESS, Process, describe_rc, dying_with_parent
 
 if TYPE_CHECKING:
     from .janitor import Janitor
@@ -31,10 +30,6 @@ EXIT_INTERRUPTED = 130
 
 #: escalation of :meth:`ProcessGroup.stop_all`: (signal, seconds to wait after it)
 STOP_SEQUENCE = ((signal.SIGINT, 5.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0))
-#: CPU seconds a node takes to leave DDS after SIGINT: the first stage of a stop waits this
-#: much longer per process still running, shared over the cores, so that a loaded machine
-#: does not turn a stop into SIGKILLs (66 processes on 2 cores: 55 SIGKILLs at 5 s)
-STOP_CPU_PER_PROCESS = 0.3
 
 DISCOVERY_RANGES = ('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF')
 
@@ -42,58 +37,6 @@ DISCOVERY_RANGES = ('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF')
 # --------------------------------------------------------------------------------------------
 # process supervision (no ROS)
 # --------------------------------------------------------------------------------------------
-
-
-class Process(Protocol):
-    """What supervision needs of a started process: a :class:`subprocess.Popen`, or a
-    :class:`~.zygote.ForkedProcess`."""
-
-    pid: int
-
-    def poll(self) -> int | None: ...
-
-    def wait(self, timeout: float | None = None) -> int: ...
-
-
-def describe_rc(rc: int) -> str:
-    if rc < 0:
-        try:
-            return f'killed by {signal.Signals(-rc).name}'
-        except ValueError:
-            return f'killed by signal {-rc}'
-    return f'exit code {rc}'
-
-
-def dying_with_parent(argv: Sequence[str], sig: str = 'KILL') -> list[str]:
-    """``argv`` run so that it gets SIGKILL when the bring-up that started it dies, even by
-    SIGKILL: util-linux ``setpriv --pdeathsig`` (no ``preexec_fn``, unsafe in a process with
-    DDS threads); unchanged where there is no setpriv. SIGKILL, not SIGINT: a node busy in a
-    callback may not see one SIGINT, and with the bring-up gone nothing would escalate (a
-    forked node gets SIGINT, and its zygote escalates); the shared memory it leaves is
-    removed by the next run or ``apf-swarm clean``. ``sig``: another signal, for a process
-    whose own stop is bounded (the probe's processes: ``INT``)."""
-    setpriv = shutil.which('setpriv')
-    return [setpriv, '--pdeathsig', sig, '--', *argv] if setpriv else list(argv)
-
-
-def stop_process(
-    popen: Process,
-    sequence: Sequence[tuple[int, float]] = ((signal.SIGINT, 30.0), (signal.SIGKILL, 5.0)),
-) -> int | None:
-    """Stop one process started with ``start_new_session=True``: each signal of ``sequence``
-    to its process group, then wait at most that many seconds, until it has exited. Returns
-    its exit code (None if it outlived every signal). :meth:`ProcessGroup.stop_all` does the
-    same for a whole graph, and also waits for every member of each group."""
-    for sig, wait_s in sequence:
-        if popen.poll() is not None:
-            break
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(popen.pid, sig)
-        try:
-            popen.wait(wait_s)
-        except subprocess.TimeoutExpired:
-            continue
-    return popen.poll()
 
 
 def _group_alive(pgid: int) -> bool:

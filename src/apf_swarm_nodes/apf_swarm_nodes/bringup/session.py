@@ -19,6 +19,7 @@ from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.realtime_plant import STALE_AFTER
 
 from ..analysis.samples import StateAccumulator
+from ..lifetime import describe_rc
 from .graph import RECORDER_STOP_SEQUENCE, recording_fields
 from .graph_watch import GraphWatch
 from .outputs import write_outputs
@@ -31,7 +32,6 @@ from .processes import (
     EXIT_STALLED,
     ProcessGroup,
     StopRun,
-    describe_rc,
 )
 from .startup import Startup
 from .supervision import Signals, Supervision

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..lifetime import describe_rc
 from ..stop_watchdog import HARD_STOP_AFTER, StopWatchdog
 from .processes import (
     EXIT_CHILD_DIED,
@@ -18,7 +19,6 @@ from .processes import (
     Child,
     ProcessGroup,
     StopRun,
-    describe_rc,
 )
 
 __all__ = ['Signals', 'Supervision']

@@ -414,13 +414,13 @@ ORPHAN_SECOND_LOOK = 1.0
 def orphaned_cleanup(nodes: Sequence[psutil.Process] | None = None) -> None:
     """The bring-up died (SIGKILL: it could clean nothing up) and its nodes are stopping on
     their parent-death signal: once they are gone (at most :data:`ORPHAN_GRACE` s, and
-    :data:`~.processes.STOP_CPU_PER_PROCESS` more per node over the cores, as the
+    :data:`~..lifetime.STOP_CPU_PER_PROCESS` more per node over the cores, as the
     bring-up's own stop waits), SIGKILL the process group of every one still running (a
     node that missed or could not act on its SIGINT; all of them are orphans, wherever
     they were reparented), wait until they are gone, then remove the Fast DDS shared memory
     no live process holds, as the bring-up would have at its end."""
     from ..dds import shm
-    from .processes import STOP_CPU_PER_PROCESS
+    from ..lifetime import STOP_CPU_PER_PROCESS
 
     pending = _running(FORKED if nodes is None else nodes)
     deadline = time.monotonic() + ORPHAN_GRACE

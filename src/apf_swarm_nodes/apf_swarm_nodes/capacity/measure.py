@@ -96,8 +96,8 @@ def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
 
     from apf_swarm_msgs.msg import SwarmOdometry
 
-    from ..bringup.processes import dying_with_parent, stop_process
     from ..conversions import swarm_odom_msg
+    from ..lifetime import dying_with_parent, stop_process
 
     # it ends with this process, however this one ends (rclpy's SIGINT handler stops it)
     echo = subprocess.Popen(

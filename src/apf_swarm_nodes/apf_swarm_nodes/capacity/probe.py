@@ -85,7 +85,7 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> d
     """The cached probe, measured (and cached) first when missing or ``refresh``."""
     probe = None if refresh else load()
     if probe is None:
-        from ..bringup.isolation import pick_domain_id
+        from ..dds.domains import pick_domain_id
 
         if say is not None:
             say(f'measuring this machine (capacity probe, about 6 s; cached in {cache_path()})')
@@ -95,7 +95,7 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> d
             'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
         }
         env.pop('ROS_STATIC_PEERS', None)
-        from ..bringup.processes import dying_with_parent
+        from ..lifetime import dying_with_parent
 
         # it ends with this process, however this one ends (a killed `apf-swarm probe`)
         done = subprocess.run(

@@ -88,11 +88,11 @@ def orphan_nodes() -> list[psutil.Process]:
 
 def expired_leases() -> list[Path]:
     """Domain leases (``bringup.isolation.pick_domain_id``) older than their term."""
-    from ..bringup.isolation import DOMAIN_LEASE, _lease_dir
+    from .domains import DOMAIN_LEASE, lease_dir
 
     now, out = time.time(), []
     with contextlib.suppress(OSError):
-        for p in _lease_dir().iterdir():
+        for p in lease_dir().iterdir():
             if p.name.isdigit():
                 with contextlib.suppress(OSError):
                     if now - p.stat().st_mtime >= DOMAIN_LEASE:

@@ -38,14 +38,19 @@ hand and prints the environment they need (docs/RELIABILITY.md, "Isolation").
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import sys
-from collections.abc import Callable, Iterator, Mapping, MutableMapping, Sequence
+from collections.abc import Callable, MutableMapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from .errors import DdsError
+from .participant import (
+    OWN_PROFILE,
+    PROFILE_VARIABLES,
+    own_participant,
+    own_participant_environment,
+)
 from .swarm_domain import MAX_PARTICIPANTS, refuse_other_swarm
 
 __all__ = [
@@ -65,7 +70,6 @@ __all__ = [
 
 #: the variables Fast DDS reads its XML profile from: 2.14 (these wheels) the first, 3.x
 #: the second
-PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
 #: the discovery ranges that reach other hosts
 NETWORK_RANGES = ('SUBNET', 'SYSTEM_DEFAULT')
 #: what a localhost run does not take from the environment: it would name other hosts
@@ -92,48 +96,6 @@ OPEN_WARNING = (
     'every state and steer the swarm (a run id in clear does not stop it). Use --secure to '
     'admit only the hosts of this run (docs/RELIABILITY.md, "Multi-host runs: threat model")'
 )
-#: the profile of the bring-up's own participant, beside the run's (UDP on 127.0.0.1 only)
-OWN_PROFILE = 'fastdds_localhost_udp.xml'
-
-
-def own_participant_environment(environ: Mapping[str, str] | None = None) -> dict[str, str]:
-    """The variables that put the bring-up's own participant on UDP only, never on shared
-    memory: a participant whose call blocks on a shared-memory mutex that a killed node
-    held cannot stop the run then. Localhost runs: the run's profile without its SHM
-    transport (written beside it by :func:`isolate_dds`); secure runs: the discovery
-    server's profile (:mod:`.secure`); otherwise ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``. Set
-    them for ``rclpy.init`` only: the nodes keep shared memory."""
-    env = os.environ if environ is None else environ
-    own = next((env[v] for v in PROFILE_VARIABLES if env.get(v)), None)
-    if own is not None and Path(own).name == 'fastdds_localhost.xml':
-        udp = Path(own).with_name(OWN_PROFILE)
-        if udp.is_file():
-            return dict.fromkeys(PROFILE_VARIABLES, str(udp))
-    if own is not None and Path(own).name == 'fastdds_secure.xml':
-        # a secure run (apf_swarm_nodes.dds.secure): the bring-up's participant is its
-        # discovery server, on TCP with TLS as every other
-        server = Path(own).parent.parent / 'fastdds_secure_server.xml'
-        if server.is_file():
-            return dict.fromkeys(PROFILE_VARIABLES, str(server))
-    return {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
-
-
-@contextlib.contextmanager
-def own_participant() -> Iterator[None]:
-    """``os.environ`` with :func:`own_participant_environment` while a participant of the
-    bring-up's own is made (``rclpy.init`` and the node: Fast DDS reads its transports
-    then), as before afterwards: the bring-up's node and its domain probe."""
-    own = own_participant_environment()
-    saved = {k: os.environ.get(k) for k in own}
-    os.environ.update(own)
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 # --------------------------------------------------------------------------------------------

@@ -450,7 +450,7 @@ def profile_xml(
 def secure_environment(profile: Path, openssl: Path) -> dict[str, str]:
     """The variables a process of a secure run needs (with ``ROS_DOMAIN_ID``; no
     ``ROS_STATIC_PEERS`` / ``ROS_DISCOVERY_SERVER``, which would add UDP)."""
-    from .profiles import PROFILE_VARIABLES
+    from .participant import PROFILE_VARIABLES
 
     env = dict.fromkeys(PROFILE_VARIABLES, str(Path(profile).resolve()))
     env['OPENSSL_CONF'] = str(Path(openssl).resolve())
@@ -561,7 +561,7 @@ def secure_dds(
     ``hosts`` (or name those of ``reuse``, see :func:`write_run_files`), and put this
     host's environment into ``environ`` (default ``os.environ``), dropping what would add
     UDP. The discovery server is this process's own participant
-    (:func:`~.dds.own_participant`), at ``address`` (default :func:`first_address`),
+    (:func:`~.participant.own_participant`), at ``address`` (default :func:`first_address`),
     port :func:`server_port`. A secure run skips the domain check: no participant of
     another run can reach it."""
     from .profiles import NETWORK_RANGES, check_rmw

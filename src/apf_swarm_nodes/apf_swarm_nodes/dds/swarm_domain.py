@@ -87,7 +87,7 @@ def swarm_publishers(
     each as ``'topic (N publishers: /node, ...)'``.
 
     An rclpy participant of its own, made with this process's environment (call it once the
-    run's profile is set) but on UDP only (:func:`~.dds.own_participant`), watches the
+    run's profile is set) but on UDP only (:func:`~.participant.own_participant`), watches the
     graph until a swarm publisher shows (then ``settle`` s more, for the names), or
     ``timeout`` s. Localhost (``network`` False): nothing bound on the domain's ports here
     means nothing to see, [] at once; otherwise the watch also ends ``settle`` s after every
@@ -99,7 +99,7 @@ def swarm_publishers(
     import rclpy
     from rclpy.context import Context
 
-    from .profiles import own_participant
+    from .participant import own_participant
 
     ctx = Context()
     # on UDP only, as the bring-up's own node: a shared-memory port whose mutex a killed

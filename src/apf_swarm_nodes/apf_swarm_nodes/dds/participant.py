@@ -1,0 +1,62 @@
+"""The bring-up's own DDS participant: on UDP only, never on shared memory (a participant
+whose call blocks on a shared-memory mutex that a killed node held cannot stop the run), and
+the variables that name a Fast DDS profile file."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+
+__all__ = [
+    'OWN_PROFILE',
+    'PROFILE_VARIABLES',
+    'own_participant',
+    'own_participant_environment',
+]
+
+#: the variables that name a Fast DDS profile file (both names Fast DDS 2.x reads)
+PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+#: the profile of the bring-up's own participant, beside the run's (UDP on 127.0.0.1 only)
+OWN_PROFILE = 'fastdds_localhost_udp.xml'
+
+
+def own_participant_environment(environ: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The variables that put the bring-up's own participant on UDP only, never on shared
+    memory: a participant whose call blocks on a shared-memory mutex that a killed node
+    held cannot stop the run then. Localhost runs: the run's profile without its SHM
+    transport (written beside it by :func:`~.profiles.isolate_dds`); secure runs: the discovery
+    server's profile (:mod:`.secure`); otherwise ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``. Set
+    them for ``rclpy.init`` only: the nodes keep shared memory."""
+    env = os.environ if environ is None else environ
+    own = next((env[v] for v in PROFILE_VARIABLES if env.get(v)), None)
+    if own is not None and Path(own).name == 'fastdds_localhost.xml':
+        udp = Path(own).with_name(OWN_PROFILE)
+        if udp.is_file():
+            return dict.fromkeys(PROFILE_VARIABLES, str(udp))
+    if own is not None and Path(own).name == 'fastdds_secure.xml':
+        # a secure run (apf_swarm_nodes.dds.secure): the bring-up's participant is its
+        # discovery server, on TCP with TLS as every other
+        server = Path(own).parent.parent / 'fastdds_secure_server.xml'
+        if server.is_file():
+            return dict.fromkeys(PROFILE_VARIABLES, str(server))
+    return {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
+
+
+@contextlib.contextmanager
+def own_participant() -> Iterator[None]:
+    """``os.environ`` with :func:`own_participant_environment` while a participant of the
+    bring-up's own is made (``rclpy.init`` and the node: Fast DDS reads its transports
+    then), as before afterwards: the bring-up's node and its domain probe."""
+    own = own_participant_environment()
+    saved = {k: os.environ.get(k) for k in own}
+    os.environ.update(own)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
