@@ -54,7 +54,7 @@ def test_the_aggregate_inputs_count_for_the_per_uav_readers() -> None:
     # a realtime process of 4 trackers reads the aggregate once
     assert input_readers(16, 'realtime', 4) == 4
     assert input_readers(16, 'lockstep', 4) == 16
-    assert input_readers(16, 'realtime', 4, ['inputs:=odom']) == 16
+    assert input_readers(16, 'realtime', 4, 'odom') == 16
 
 
 def wait_until(cond, timeout: float) -> bool:
@@ -222,3 +222,14 @@ def test_the_stop_reports_each_process_with_the_signal_that_stopped_it(
     assert list(sup.stop_how)[:2] == ['tracker_1', 'tracker_2']  # the trackers first
     assert any('stopped 4 processes' in s and '4 SIGINT' in s for s in said), said
     assert sup.leftovers == []
+
+
+def test_a_node_param_must_read_name_value() -> None:
+    import argparse
+
+    from apf_swarm_nodes.argtypes import node_param
+
+    assert node_param('stale_after:=0.2') == 'stale_after:=0.2'
+    for bad in ('stale_after=0.2', 'stale_after:=', ':=3', 'a b:=1'):
+        with pytest.raises(argparse.ArgumentTypeError, match='expected NAME:=VALUE'):
+            node_param(bad)

@@ -15,6 +15,7 @@ __all__ = [
     'add_config_args',
     'add_view_args',
     'domain_id',
+    'node_param',
     'nonneg_float',
     'nonneg_int',
     'port_number',
@@ -41,6 +42,17 @@ positive_float = _number(float, 0.0, True, 'must be a positive number')
 nonneg_float = _number(float, 0.0, False, 'must be >= 0')
 positive_int = _number(int, 1, False, 'must be >= 1')
 nonneg_int = _number(int, 0, False, 'must be >= 0')
+
+
+def node_param(text: str) -> str:
+    """``--node-param NAME:=VALUE``: a parameter name (letters, digits, ``_``, ``.``) and a
+    value (ArgumentTypeError naming the form otherwise)."""
+    name, sep, value = text.partition(':=')
+    if not sep or not value or not name.replace('_', 'a').replace('.', 'a').isalnum():
+        raise argparse.ArgumentTypeError(
+            f'{text!r}: expected NAME:=VALUE, e.g. executor:=events or stale_after:=0.2'
+        )
+    return text
 
 
 def port_number(text: str) -> int:

@@ -17,6 +17,7 @@ from ..argtypes import (
     add_config_args,
     add_view_args,
     domain_id,
+    node_param,
     nonneg_int,
     positive_float,
     positive_int,
@@ -207,6 +208,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action='append',
         default=[],
         metavar='NAME:=VALUE',
+        type=node_param,
         dest='node_params',
         help='a node parameter for every node (repeatable), e.g. executor:=events, inputs:=odom',
     )

@@ -70,15 +70,11 @@ def expected_graph(
     return nodes, topics
 
 
-def input_readers(n: int, mode: str, per_process: int, node_params: Sequence[str] = ()) -> int:
+def input_readers(n: int, mode: str, per_process: int, inputs: str = 'aggregate') -> int:
     """How many subscribers read the trackers' inputs: one per tracker, except in realtime
-    with the aggregate inputs, where a process of several trackers subscribes to
-    ``/swarm/odom`` once and hands each message to its other nodes (the ``trackers``
-    executable): one per process."""
-    inputs = next(
-        (p.split(':=', 1)[1] for p in reversed(node_params) if p.startswith('inputs:=')),
-        'aggregate',
-    )
+    with the aggregate inputs (the nodes' ``inputs`` parameter), where a process of several
+    trackers subscribes to ``/swarm/odom`` once and hands each message to its other nodes
+    (the ``trackers`` executable): one per process."""
     if mode == 'realtime' and per_process > 1 and inputs == 'aggregate':
         return -(-n // per_process)
     return n

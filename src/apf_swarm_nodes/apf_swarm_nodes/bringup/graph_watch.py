@@ -33,12 +33,12 @@ class GraphWatch:
         self,
         args: argparse.Namespace,
         n: int,
-        node_params: list[str],
+        node_values: dict[str, str],
         acc: StateAccumulator,
         say: Callable[[str], None],
         warn_once: Callable[[str, str], None],
     ) -> None:
-        self.args, self.mode, self.n, self.node_params = args, args.mode, n, node_params
+        self.args, self.mode, self.n, self.node_values = args, args.mode, n, node_values
         self.acc, self.say, self.warn_once = acc, say, warn_once
         #: the recorder's last ``/recorder/status`` document (``--record``), None before one
         self.rec_status: dict[str, Any] | None = None
@@ -99,7 +99,12 @@ class GraphWatch:
         nodes, topics = expected_graph(
             self.n,
             self.mode,
-            input_readers(self.n, self.mode, self.args.trackers_per_process, self.node_params),
+            input_readers(
+                self.n,
+                self.mode,
+                self.args.trackers_per_process,
+                self.node_values.get('inputs', 'aggregate'),
+            ),
         )
         if self.args.record:
             nodes = [*nodes, f'/{RECORDER_NODE}']

@@ -55,6 +55,8 @@ class Bringup(Startup, Supervision):
         self.err = stream if stream is not None else sys.stderr
         self.mode: str = args.mode
         self.node_params: list[str] = list(getattr(args, 'node_params', []) or [])
+        #: the same, read once: name -> value (the last one given wins, as for ROS)
+        self.node_values: dict[str, str] = dict(p.split(':=', 1) for p in self.node_params)
         self.out: Path = args.out
         self.n = cfg.n_trackers
         self.group = ProcessGroup()
@@ -64,7 +66,7 @@ class Bringup(Startup, Supervision):
         self.signals = Signals()
         self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
         #: the bring-up's node on the graph; realtime, the prediction before and after the run
-        self.graph = GraphWatch(args, self.n, self.node_params, self.acc, self.say, self.warn_once)
+        self.graph = GraphWatch(args, self.n, self.node_values, self.acc, self.say, self.warn_once)
         self.pred = RealtimePrediction(args, self.say)
         self.domain_id: int | None = None
         #: the run's identity (the nodes' ``run`` parameter), random, never 0
@@ -183,14 +185,8 @@ class Bringup(Startup, Supervision):
             host=getattr(self.args, 'view_host', '127.0.0.1'),
             port=port,
             designs=design_pair_sets(self.cfg),
-            stale_after=float(
-                next(
-                    (p.split(':=', 1)[1] for p in reversed(self.node_params)
-                     if p.startswith('stale_after:=')),
-                    STALE_AFTER,
-                )
-            ),
-        )  # fmt: skip
+            stale_after=float(self.node_values.get('stale_after', STALE_AFTER)),
+        )
         self.view.follow(lambda: self.acc.newest)
         self.say(f'view: {self.view.url} (Foxglove: Open connection, Foxglove WebSocket)')
 
