@@ -38,13 +38,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from .config import DEFAULT_LATENCY, SwarmConfig
 from .control import (
-    CONTROLLER_GAINS,
     control_step,
     make_controller,
     make_preconditioner,
     make_predictor,
 )
-from .controller import ControlOutput
+from .controller import CONTROLLER_GAINS, ControlOutput
 from .inputs import input_problem
 from .kernels import warm
 from .laws import switching_force

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .config import SwarmConfig
-from .controller import ControlOutput, SlidingModeController
+from .controller import CONTROLLER_GAINS, ControlOutput, SlidingModeController
 from .gains import per_run
 from .gradients import gradient, obstacle_gradient
 from .kernels import block_rows, kernel_args
@@ -20,7 +20,6 @@ from .potential import PotentialParams, Rows
 from .prediction import Predictor, compensation_horizon
 
 __all__ = [
-    'CONTROLLER_GAINS',
     'BlockPreconditioner',
     'Preconditioner',
     'control_step',
@@ -28,12 +27,6 @@ __all__ = [
     'make_preconditioner',
     'make_predictor',
 ]
-
-
-#: the configuration keys of the controller's gains (eq. 22-28, 31, 24, 26): one value per
-#: run of a batch, and a running tracker takes them over (:meth:`~apf_swarm_core.agents.
-#: TrackerAgent.retune`)
-CONTROLLER_GAINS = ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'phi', 'feedforward')
 
 
 def make_controller(

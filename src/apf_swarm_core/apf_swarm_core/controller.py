@@ -32,7 +32,7 @@ from .kernels import (
 from .laws import LAWS, SWITCHINGS, _check_saturation, _decay
 from .saturation import _layer_bound
 
-__all__ = ['ControlOutput', 'SlidingModeController']
+__all__ = ['CONTROLLER_GAINS', 'ControlOutput', 'SlidingModeController']
 
 
 @dataclass(frozen=True, init=False)
@@ -63,23 +63,12 @@ class ControlOutput:
         d['saturated'] = saturated
 
 
+#: the configuration keys of the controller's gains (eq. 22-28, 31, 24, 26), each a number
+#: that may differ from run to run of a batch; a running tracker takes them over
+#: (:meth:`~apf_swarm_core.agents.TrackerAgent.retune`)
+CONTROLLER_GAINS = ('alpha', 'beta', 'gamma', 'lambda_filter', 'u0', 'drag', 'phi', 'feedforward')
 #: controller fields its prepared gains are derived from
-_GAIN_FIELDS = frozenset(
-    {
-        'law',
-        'alpha',
-        'beta',
-        'gamma',
-        'lambda_filter',
-        'u0',
-        'dt',
-        'drag',
-        'saturation',
-        'switching',
-        'phi',
-        'feedforward',
-    }
-)
+_GAIN_FIELDS = frozenset({*CONTROLLER_GAINS, 'law', 'dt', 'saturation', 'switching'})
 
 
 @dataclass(frozen=True)

@@ -36,14 +36,13 @@ from numpy.typing import ArrayLike, NDArray
 from .command_hold import CommandHold
 from .config import KEYS, SwarmConfig
 from .control import (
-    CONTROLLER_GAINS,
     BlockPreconditioner,
     control_step,
     make_controller,
     make_preconditioner,
     make_predictor,
 )
-from .controller import ControlOutput
+from .controller import CONTROLLER_GAINS, ControlOutput
 from .formation import design_pair_sets
 from .gains import per_run
 from .kernels import as_kernel, simulate_steps
