@@ -3,6 +3,7 @@ subprocesses, no ROS) and the accumulation of /swarm/state samples."""
 
 from __future__ import annotations
 
+import argparse
 import signal
 import sys
 import time
@@ -165,22 +166,21 @@ def test_a_trajectory_refuses_samples_of_another_size() -> None:
 def test_the_stop_bound_is_the_grace_of_each_stage_and_grows_with_the_load(
     tmp_path: Path, monkeypatch
 ) -> None:
-    """The bring-up's watchdog bound (Supervision.stop_bound): the trackers' stop, then the
+    """The bring-up's watchdog bound (Supervisor.stop_bound): the trackers' stop, then the
     plant's and target's, then the recorder's, each at its longest, and a margin; the first
     stage waits STOP_CPU_PER_PROCESS more per process, shared over the cores."""
     import os
 
     from apf_swarm_nodes.bringup import processes
     from apf_swarm_nodes.bringup.graph import RECORDER_STOP_SEQUENCE
-    from apf_swarm_nodes.bringup.supervision import STOP_MARGIN, Supervision
+    from apf_swarm_nodes.bringup.supervision import STOP_MARGIN, Signals, Supervisor
 
     monkeypatch.setattr(os, 'cpu_count', lambda: 2)
     per = processes.STOP_CPU_PER_PROCESS / 2
     waits = sum(w for _, w in processes.STOP_SEQUENCE)
 
-    def run(n_trackers: int, record: bool) -> Supervision:
-        sup = Supervision()
-        sup.group, sup.rec_group = ProcessGroup(), ProcessGroup(RECORDER_STOP_SEQUENCE)
+    def run(n_trackers: int, record: bool) -> Supervisor:
+        sup = Supervisor(argparse.Namespace(mode='lockstep'), tmp_path, Signals(), print)
         for name in ['target', 'plant', *[f'tracker_{i}' for i in range(n_trackers)]]:
             sup.group.add(Child(name, ['true'], tmp_path / f'{name}.log'))
         if record:
@@ -203,15 +203,12 @@ def test_the_stop_reports_each_process_with_the_signal_that_stopped_it(
     """Trackers first, then the others: each keeps the signal that stopped it in stopped_by
     (a second pass over the whole group once reported every tracker as 'exited', hiding a
     SIGKILL), and the stop is said in one line."""
-    from apf_swarm_nodes.bringup.supervision import Signals, Supervision
+    from apf_swarm_nodes.bringup.supervision import Signals, Supervisor
     from apf_swarm_nodes.dds import shm
 
     monkeypatch.setattr(shm, 'remove_stale', lambda: 0)
     said: list[str] = []
-    sup = Supervision()
-    sup.group, sup.rec_group = ProcessGroup(), ProcessGroup()
-    sup.signals = Signals()
-    sup.say = said.append  # type: ignore[method-assign]
+    sup = Supervisor(argparse.Namespace(mode='lockstep'), tmp_path, Signals(), said.append)
     for name in ('target', 'plant', 'tracker_1', 'tracker_2'):
         sup.group.add(Child(name, [sys.executable, '-c', POLITE], tmp_path / f'{name}.log'))
     sup.group.start_all()

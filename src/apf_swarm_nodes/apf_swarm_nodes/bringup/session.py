@@ -20,7 +20,7 @@ from apf_swarm_core.realtime_plant import STALE_AFTER
 
 from ..analysis.samples import StateAccumulator
 from ..lifetime import describe_rc
-from .graph import RECORDER_STOP_SEQUENCE, recording_fields
+from .graph import recording_fields
 from .graph_watch import GraphWatch
 from .outputs import write_outputs
 from .prediction import RealtimePrediction
@@ -30,18 +30,18 @@ from .processes import (
     EXIT_LOST_SAMPLES,
     EXIT_OK,
     EXIT_STALLED,
-    ProcessGroup,
     StopRun,
 )
 from .startup import Startup
-from .supervision import Signals, Supervision
+from .supervision import Signals, Supervisor
 
 __all__ = ['Bringup']
 
 
-class Bringup(Startup, Supervision):
+class Bringup(Startup):
     """One run; see the module docstring. :meth:`execute` returns the exit code. It holds
-    its node on the graph (:attr:`graph`) and, realtime, its prediction (:attr:`pred`)."""
+    its node on the graph (:attr:`graph`), its processes (:attr:`sup`) and, realtime, its
+    prediction (:attr:`pred`); what comes before the run is its base, :class:`Startup`."""
 
     def __init__(
         self,
@@ -59,11 +59,10 @@ class Bringup(Startup, Supervision):
         self.node_values: dict[str, str] = dict(p.split(':=', 1) for p in self.node_params)
         self.out: Path = args.out
         self.n = cfg.n_trackers
-        self.group = ProcessGroup()
-        #: the recorder: started first, stopped last, given time to close the bag
-        self.rec_group = ProcessGroup(RECORDER_STOP_SEQUENCE)
-        self.recorder_lost: dict[str, int] = {}  # recorder died, run went on: its exit code
         self.signals = Signals()
+        #: the node processes and the recorder, watched and stopped
+        self.sup = Supervisor(args, self.out, self.signals, self.say)
+        self.group, self.rec_group = self.sup.group, self.sup.rec_group
         self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
         #: the bring-up's node on the graph; realtime, the prediction before and after the run
         self.graph = GraphWatch(args, self.n, self.node_values, self.acc, self.say, self.warn_once)
@@ -77,9 +76,6 @@ class Bringup(Startup, Supervision):
         self.t_launch: Any = None
         self.t_start: Any = None
         self.t_end: Any = None
-        self.stop_how: dict[str, str] = {}
-        self.stop_seconds = 0.0
-        self.leftovers: list[tuple[str, int]] = []
         self.warned: set[str] = set()
         #: ``--view``: the live view (:class:`~apf_swarm_nodes.view.LiveView`)
         self.view: Any = None
@@ -98,8 +94,8 @@ class Bringup(Startup, Supervision):
 
     def between(self) -> None:
         """What the bring-up checks while it waits: signals, then its processes."""
-        self.check_signals()
-        self.supervise()
+        self.sup.check_signals()
+        self.sup.supervise()
 
     # --- the run --------------------------------------------------------------------------
     def progress_line(self, rate: float) -> str:
@@ -127,10 +123,10 @@ class Bringup(Startup, Supervision):
         while True:
             self.graph.spin(0.05)
             now = time.monotonic()
-            self.check_signals()
+            self.sup.check_signals()
             if now - last_poll >= 0.1:
                 last_poll = now
-                self.supervise()
+                self.sup.supervise()
             if self.acc.complete:
                 return
             # realtime: the plant's clock starts once every tracker commands, so the run
@@ -219,12 +215,12 @@ class Bringup(Startup, Supervision):
         try:
             self.start_view()
             try:
-                self.check_signals()
+                self.sup.check_signals()
                 self.graph.init_ros()
                 self.launch()
                 # a stop from now on ends within its grace, which grows with the load
-                self.signals.bound = self.stop_bound()
-                self.check_signals()
+                self.signals.bound = self.sup.stop_bound()
+                self.sup.check_signals()
                 self.graph.wait_ready(self.between, self.domain_id, self.out / 'logs')
                 self.run_loop()
                 if self.mode == 'realtime':
@@ -238,14 +234,14 @@ class Bringup(Startup, Supervision):
                 if self.t_end is None:
                     self.t_end = time.monotonic()
                 try:
-                    self.stop_children()
+                    self.sup.stop_children()
                 finally:
                     self.graph.shutdown_ros()
         finally:
             if self.view is not None:
                 self.view.close()
             self.signals.restore()
-        if self.leftovers and code == EXIT_OK:
+        if self.sup.leftovers and code == EXIT_OK:
             code, status = EXIT_CHILD_DIED, 'leftover_processes'
         if code == EXIT_OK and self.mode == 'lockstep' and self.acc.dropped:
             code, status = EXIT_LOST_SAMPLES, 'lost_samples'
@@ -294,23 +290,27 @@ class Bringup(Startup, Supervision):
                 if self.t_start is not None
                 else None,
                 'run': round(run_s, 3),
-                'shutdown': round(self.stop_seconds, 3),
+                'shutdown': round(self.sup.stop_seconds, 3),
                 'rate': round(len(self.acc.samples) / run_s, 1) if run_s > 0 else None,
             },
-            'stopped_by': self.stop_how,
+            'stopped_by': self.sup.stop_how,
             # how many needed which signal: SIGKILL is the exception (a node that never left
             # DDS leaves shared memory behind, which the bring-up then removes)
             'stop_signals': {
-                how: sum(1 for v in self.stop_how.values() if v == how)
-                for how in sorted(set(self.stop_how.values()))
+                how: sum(1 for v in self.sup.stop_how.values() if v == how)
+                for how in sorted(set(self.sup.stop_how.values()))
             },
             **(
                 {
                     'recording': {
                         **recording_fields(self.out / 'bag'),
                         **(
-                            {'recorder_died': describe_rc(list(self.recorder_lost.values())[-1])}
-                            if self.recorder_lost
+                            {
+                                'recorder_died': describe_rc(
+                                    list(self.sup.recorder_lost.values())[-1]
+                                )
+                            }
+                            if self.sup.recorder_lost
                             else {}
                         ),
                     }

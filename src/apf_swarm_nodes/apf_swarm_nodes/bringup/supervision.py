@@ -1,6 +1,6 @@
 """The node processes while the run lasts and at its end: SIGINT / SIGTERM to the bring-up
 (:class:`Signals`), a child's death (respawned, or the run stopped, by the rules of
-:meth:`Supervision.supervise`), and every child stopped, the recorder last."""
+:meth:`Supervisor.supervise`), and every child stopped, the recorder last."""
 
 from __future__ import annotations
 
@@ -8,11 +8,13 @@ import argparse
 import contextlib
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ..lifetime import describe_rc
 from ..stop_watchdog import HARD_STOP_AFTER, StopWatchdog
+from .graph import RECORDER_STOP_SEQUENCE
 from .processes import (
     EXIT_CHILD_DIED,
     EXIT_INTERRUPTED,
@@ -21,7 +23,7 @@ from .processes import (
     StopRun,
 )
 
-__all__ = ['Signals', 'Supervision']
+__all__ = ['Signals', 'Supervisor']
 
 
 class Signals:
@@ -93,23 +95,28 @@ def _is_tracker(child: Child) -> bool:
     return 'tracker' in child.name
 
 
-class Supervision:
-    """What :class:`~.session.Bringup` does with its children (a mixin)."""
+class Supervisor:
+    """The run's node processes (:attr:`group`) and recorder (:attr:`rec_group`) while the run
+    lasts and at its end (the bring-up holds one): deaths reported, respawned or the run
+    stopped, signals turned into a stop, and the stop itself; ``say`` prints a line."""
 
-    args: argparse.Namespace
-    mode: str
-    out: Path
-    group: ProcessGroup
-    rec_group: ProcessGroup
-    recorder_lost: dict[str, int]
-    signals: Signals
-    stop_how: dict[str, str]
-    stop_seconds: float
-    leftovers: list[tuple[str, int]]
-
-    if TYPE_CHECKING:  # the other parts of Bringup
-
-        def say(self, text: str) -> None: ...
+    def __init__(
+        self,
+        args: argparse.Namespace,
+        out: Path,
+        signals: Signals,
+        say: Callable[[str], None],
+    ) -> None:
+        self.args, self.mode, self.out, self.signals, self.say = args, args.mode, out, signals, say
+        self.group = ProcessGroup()
+        #: the recorder: started first, stopped last, given time to close the bag
+        self.rec_group = ProcessGroup(RECORDER_STOP_SEQUENCE)
+        #: a recorder that died while the run went on: its exit code
+        self.recorder_lost: dict[str, int] = {}
+        #: how each process was stopped, how long the stop took [s], who outlived it
+        self.stop_how: dict[str, str] = {}
+        self.stop_seconds = 0.0
+        self.leftovers: list[tuple[str, int]] = []
 
     def check_signals(self) -> None:
         sig = self.signals.first
