@@ -58,6 +58,37 @@ def test_the_aggregate_inputs_count_for_the_per_uav_readers() -> None:
     assert input_readers(16, 'realtime', 4, 'odom') == 16
 
 
+def test_hosted_nodes_invert_the_process_names_of_node_commands() -> None:
+    from apf_swarm_nodes.bringup.commands import hosted_nodes
+
+    assert hosted_nodes('trackers_3-5') == ['/uav_3/tracker', '/uav_4/tracker', '/uav_5/tracker']
+    assert hosted_nodes('tracker_7') == ['/uav_7/tracker']
+    assert hosted_nodes('plant') == ['/plant'] and hosted_nodes('target') == ['/target/target']
+    assert hosted_nodes('recorder') == [] and hosted_nodes('trackers_x') == []
+
+
+def test_a_process_never_seen_while_the_graph_stalls_is_restarted_at_most_twice() -> None:
+    from apf_swarm_nodes.bringup.graph import UnseenRestart
+
+    hosted = {
+        'trackers_1-2': ['/uav_1/tracker', '/uav_2/tracker'],
+        'trackers_3-4': ['/uav_3/tracker', '/uav_4/tracker'],
+    }
+    watch = UnseenRestart(hosted, stall=5.0, limit=2)
+    unseen = ['node /uav_3/tracker', 'node /uav_4/tracker', 'topic /uav_3/force_cmd: ...']
+    # progress (fewer missing) resets the clock; no restart before the stall
+    assert watch.due(0.0, [*unseen, 'node /uav_1/tracker']) == []
+    assert watch.due(4.0, unseen) == []
+    assert watch.due(8.9, unseen) == []
+    assert watch.due(9.0, unseen) == ['trackers_3-4']
+    # the restarted process gets its own stall; a partly seen one is never restarted
+    assert watch.due(13.0, [*unseen, 'node /uav_2/tracker']) == []
+    assert watch.due(18.0, [*unseen, 'node /uav_2/tracker']) == ['trackers_3-4']
+    assert watch.due(40.0, unseen) == []
+    assert watch.due(60.0, unseen) == []  # the limit
+    assert watch.restarts == {'trackers_3-4': 2}
+
+
 def wait_until(cond, timeout: float) -> bool:
     end = time.monotonic() + timeout
     while time.monotonic() < end:

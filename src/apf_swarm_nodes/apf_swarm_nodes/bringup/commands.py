@@ -6,7 +6,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..topics import PLANT_NODE, TARGET_NAMESPACE, TARGET_NODE, TRACKER_NODE, uav_namespace
+from ..topics import (
+    PLANT_NODE,
+    TARGET_NAMESPACE,
+    TARGET_NODE,
+    TRACKER_NODE,
+    tracker_node_name,
+    uav_namespace,
+)
 from .errors import BringupError
 from .processes import PACKAGE
 
@@ -126,6 +133,22 @@ def node_commands(
             )
         )
     return cmds
+
+
+def hosted_nodes(name: str) -> list[str]:
+    """The fully qualified names of the nodes a process of :func:`node_commands` hosts, from
+    its log name (``plant``, ``target``, ``tracker_3``, ``trackers_1-16``); [] for another."""
+    if name == 'plant':
+        return [f'/{PLANT_NODE}']
+    if name == 'target':
+        return [f'{TARGET_NAMESPACE}/{TARGET_NODE}']
+    kind, _, ids = name.partition('_')
+    first, _, last = ids.partition('-')
+    if kind == 'tracker' and first.isdigit() and not last:
+        return [tracker_node_name(int(first))]
+    if kind == 'trackers' and first.isdigit() and last.isdigit():
+        return [tracker_node_name(i) for i in range(int(first), int(last) + 1)]
+    return []
 
 
 def node_netns(name: str, rules: Sequence[str] | None) -> str | None:

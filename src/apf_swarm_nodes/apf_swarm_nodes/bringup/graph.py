@@ -109,6 +109,59 @@ def graph_missing(
     return out
 
 
+#: no fewer entities missing for this long [s], and a process none of whose nodes was ever
+#: seen is restarted (:class:`UnseenRestart`)
+STALL = 5.0
+#: restarts of one process while the graph comes up
+MAX_UNSEEN_RESTARTS = 2
+
+
+class UnseenRestart:
+    """Which node processes to restart while the graph comes up: those none of whose nodes
+    the graph shows, once the count of missing entities has not fallen for ``stall``
+    seconds, each at most ``limit`` times.
+
+    Over Fast DDS's TCP transport (the secure mode) a node process sometimes never reaches
+    the discovery server although it runs; everything else comes up around it and the run
+    would wait for it until ``--ready-timeout``. A restarted process is discovered like the
+    others. ``hosted``: each process's node names (:func:`.commands.hosted_nodes`).
+    """
+
+    def __init__(
+        self,
+        hosted: Mapping[str, Sequence[str]],
+        stall: float = STALL,
+        limit: int = MAX_UNSEEN_RESTARTS,
+    ) -> None:
+        self.hosted = {name: list(nodes) for name, nodes in hosted.items() if nodes}
+        self.stall, self.limit = stall, limit
+        self.restarts: dict[str, int] = {}
+        self._best: int | None = None
+        self._since = 0.0
+
+    def due(self, now: float, missing: Sequence[str]) -> list[str]:
+        """The processes to restart now [names], given the graph's ``missing`` entities (the
+        lines of :func:`graph_missing`) at time ``now`` [s]; each one returned is counted
+        as restarted."""
+        if self._best is None or len(missing) < self._best:
+            self._best, self._since = len(missing), now
+            return []
+        if now - self._since < self.stall:
+            return []
+        gone = {line[len('node ') :] for line in missing if line.startswith('node ')}
+        names = [
+            name
+            for name, nodes in self.hosted.items()
+            if all(n in gone for n in nodes) and self.restarts.get(name, 0) < self.limit
+        ]
+        for name in names:
+            self.restarts[name] = self.restarts.get(name, 0) + 1
+        if names:
+            # the restarted processes get their own time to come up
+            self._best, self._since = None, now
+        return names
+
+
 #: the recorder drains its queues and writes the MCAP summary after SIGINT
 RECORDER_STOP_SEQUENCE = ((signal.SIGINT, 20.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0))
 

@@ -13,7 +13,9 @@ from typing import Any
 
 from ..analysis.samples import StateAccumulator
 from ..topics import RECORDER_NODE, RECORDER_STATUS
+from .commands import hosted_nodes
 from .graph import (
+    UnseenRestart,
     expected_graph,
     graph_missing,
     input_readers,
@@ -146,9 +148,19 @@ class GraphWatch:
         """``/swarm/start``: the run begins."""
         self.start_pub.publish(self._empty_msg())
 
-    def wait_ready(self, between: Callable[[], None], domain_id: int | None, logs: Path) -> None:
+    def wait_ready(
+        self,
+        between: Callable[[], None],
+        domain_id: int | None,
+        logs: Path,
+        processes: list[str] | None = None,
+        restart: Callable[[list[str], str], None] | None = None,
+    ) -> None:
         """Spin until :meth:`missing` finds nothing, calling ``between`` (the bring-up's
-        signal and process checks) each turn; StopRun after ``--ready-timeout``."""
+        signal and process checks) each turn; StopRun after ``--ready-timeout``. With
+        ``restart``, the ``processes`` (log names) none of whose nodes ever appear while
+        the graph stalls are restarted (:class:`~.graph.UnseenRestart`)."""
+        unseen = UnseenRestart({p: hosted_nodes(p) for p in processes or ()})
         t0 = time.monotonic()
         deadline = t0 + self.args.ready_timeout
         last_check, last_report = 0.0, t0
@@ -162,6 +174,15 @@ class GraphWatch:
                 miss = self.missing(domain_id)
                 if not miss:
                     return
+                names = unseen.due(now, miss) if restart is not None else []
+                if names and restart is not None:
+                    times = max(unseen.restarts[n] for n in names)
+                    restart(
+                        names,
+                        f'none of its nodes appeared in {now - t0:.0f} s while the graph '
+                        f'stalled for {unseen.stall:g} s (restart {times} of at most '
+                        f'{unseen.limit})',
+                    )
             if now - last_report >= 5.0:
                 last_report = now
                 self.say(

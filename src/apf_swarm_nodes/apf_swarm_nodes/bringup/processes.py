@@ -82,6 +82,8 @@ class Child:
     janitor: Janitor | None = None
     popen: Process | None = None
     starts: int = 0
+    #: of those, restarts while the graph came up (before the run; not respawns)
+    unseen_restarts: int = 0
     stopping: bool = False
     pids: list[int] = field(default_factory=list)
 
@@ -124,7 +126,7 @@ class Child:
 
     @property
     def respawns(self) -> int:
-        return max(0, self.starts - 1)
+        return max(0, self.starts - 1 - self.unseen_restarts)
 
     def poll(self) -> int | None:
         """The exit code once the process ended (reaped), else None (also when never started)."""

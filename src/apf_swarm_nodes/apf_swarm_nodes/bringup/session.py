@@ -221,7 +221,13 @@ class Bringup(Startup):
                 # a stop from now on ends within its grace, which grows with the load
                 self.signals.bound = self.sup.stop_bound()
                 self.sup.check_signals()
-                self.graph.wait_ready(self.between, self.domain_id, self.out / 'logs')
+                self.graph.wait_ready(
+                    self.between,
+                    self.domain_id,
+                    self.out / 'logs',
+                    [c.name for c in self.group],
+                    self.sup.restart,
+                )
                 self.run_loop()
                 if self.mode == 'realtime':
                     self.graph.drain()
@@ -280,6 +286,9 @@ class Bringup(Startup):
             'rejected_inputs': int(last.rejected_inputs) if last is not None else 0,
             'respawns': sum(c.respawns for c in self.group),
             'respawned': {c.name: c.respawns for c in self.group if c.respawns},
+            'restarted_unseen': {
+                c.name: c.unseen_restarts for c in self.group if c.unseen_restarts
+            },
             'messages': self.acc.messages(),
             'timing': {
                 'ready': round(self.t_start - self.t_launch, 3)

@@ -175,6 +175,19 @@ class Supervisor:
                 f'most {self.args.max_respawns})'
             )
 
+    def restart(self, names: list[str], why: str) -> None:
+        """Stop the named node processes (SIGINT, SIGTERM, SIGKILL, within seconds) and start
+        them again, before the run begins (:class:`~.graph.UnseenRestart`)."""
+        chosen = set(names)
+        how = self.group.stop_all(select=lambda c: c.name in chosen)
+        for child in self.group:
+            if child.name in chosen:
+                child.start()
+                child.unseen_restarts += 1
+                self.say(
+                    f'restarted {child.name} (pid {child.pid}, after {how.get(child.name)}): {why}'
+                )
+
     def not_respawnable(self, name: str) -> str:
         """Why a dead node must not be restarted ('' when it may be): the plant holds the
         state of the whole swarm, and a realtime target restarts its trajectory from t = 0."""

@@ -87,6 +87,8 @@ SERVER_PORT_BASE = 20000
 #: how long a run's certificates are valid, and how far back (hosts' clocks differ)
 VALIDITY = dt.timedelta(days=7)
 BACKDATE = dt.timedelta(minutes=10)
+#: the TCP sockets' send and receive buffers [bytes]
+SOCKET_BUFFER = 4 * 2**20
 #: the Fast DDS transport id in the profile
 TRANSPORT_ID = 'apf_swarm_tls'
 
@@ -398,6 +400,13 @@ def profile_xml(
         # the server on its known port; a node on one the system picks (announced)
         f'    <listening_ports><port>{port if is_server else 0}</port></listening_ports>',
         '    <enable_tcp_nodelay>true</enable_tcp_nodelay>',
+        # a blocking send on a full socket deadlocks the discovery of a large swarm (at 128
+        # trackers, node processes hung while creating their nodes; eProsima/Fast-DDS#5235):
+        # a send that would block drops its message, which reliability sends again; and
+        # buffers large enough that a discovery burst does not fill them
+        '    <non_blocking_send>true</non_blocking_send>',
+        f'    <sendBufferSize>{SOCKET_BUFFER}</sendBufferSize>',
+        f'    <receiveBufferSize>{SOCKET_BUFFER}</receiveBufferSize>',
         *(f'    {line}' for line in tls),
         '  </transport_descriptor>',
         '</transport_descriptors>',
