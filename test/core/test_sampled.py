@@ -168,6 +168,19 @@ def test_command_hold_delays_each_command_and_drops_overtaken_ones() -> None:
     assert np.all(jitter.applied(6) == 2.0)  # the older command arrives late: dropped
 
 
+def test_command_hold_replays_a_runs_own_delays_in_their_order() -> None:
+    # two trackers: the first late at every other submission, the second never
+    seq = np.array([[0.004, 0.0], [0.0, 0.0]])
+    hold = CommandHold((1, 2), 0.0, 0.001, latency_samples=seq)
+    for k in range(4):
+        hold.submit(k, np.full((1, 2, 3), float(k + 1)))
+        got = hold.applied(k)[0, :, 0]
+        # submissions 0, 2 of the first tracker wait 4 steps; 1 and 3 act at once
+        assert got[1] == k + 1 and got[0] == (0.0 if k == 0 else 2.0 if k < 3 else 4.0)
+    with pytest.raises(ValueError, match='one column per tracker'):
+        CommandHold((1, 3), 0.0, 0.001, latency_samples=seq)
+
+
 def test_the_emulation_holds_each_command_for_the_period_and_delays_it() -> None:
     cfg = load_preset('realtime').replace(
         duration=0.2, control_rate=50.0, latency=0.004, noise='none'

@@ -18,8 +18,11 @@ class CommandHold:
     """The plant's side of a sampled, delayed control loop: which command each UAV holds.
 
     :meth:`submit` hands over the commands computed at step k; each tracker's takes effect at
-    step ``k + d``, d its delay in steps (a fixed ``latency`` or one drawn from
-    ``latency_samples`` per tracker and sample, both rounded to steps of dt). Until then the
+    step ``k + d``, d its delay in steps (a fixed ``latency``; one drawn from
+    ``latency_samples`` per tracker and sample; or, with ``latency_samples`` of shape (m, n),
+    a run's own delays replayed in their order, row ``c mod m`` for the c-th submission, so
+    that delays correlated in time and across trackers stay so; all rounded to steps of
+    dt). Until then the
     UAV keeps the command it holds (zero force before the first). A command that arrives
     after a newer one of the same tracker is dropped (out of order).
 
@@ -27,7 +30,7 @@ class CommandHold:
     ----------
     shape : (R, n): runs and trackers.
     latency : float or array (R,) [s]; dt : float [s]
-    latency_samples : array (k,) [s], optional; rng : numpy Generator for them
+    latency_samples : array (k,) or (m, n) [s], optional; rng : numpy Generator for them
     """
 
     def __init__(
@@ -49,6 +52,15 @@ class CommandHold:
         )
         if self.samples is not None and (self.samples.size == 0 or np.any(self.samples < 0)):
             raise ValueError('latency_samples must be a non-empty array of delays >= 0 s')
+        if (
+            self.samples is not None
+            and self.samples.ndim == 2
+            and self.samples.shape[1] != shape[1]
+        ):
+            raise ValueError(
+                f'latency_samples of shape {self.samples.shape}: a replayed sequence needs '
+                f'one column per tracker ({shape[1]})'
+            )
         self.rng = rng if rng is not None else np.random.default_rng()
         self.force = np.zeros((*shape, 3))
         self.seq = np.full(shape, -1, dtype=np.int64)
@@ -62,9 +74,12 @@ class CommandHold:
 
     def submit(self, k: int, force: NDArray[np.float64]) -> None:
         """The commands computed from the state of step k, shape (R, n, 3)."""
-        delay = (
-            self.fixed if self.samples is None else self.rng.choice(self.samples, size=self.shape)
-        )
+        if self.samples is None:
+            delay = self.fixed
+        elif self.samples.ndim == 2:
+            delay = np.broadcast_to(self.samples[self.count % len(self.samples)], self.shape)
+        else:
+            delay = self.rng.choice(self.samples, size=self.shape)
         self.pending.append((self.count, k + delay, np.array(force, dtype=float)))
         self.count += 1
 

@@ -85,8 +85,8 @@ def write_outputs(
         print(f'  flight           run {verdict(pr["run"])}')
         if 'emulation' in pr:
             print(
-                f"  headless         {verdict(pr['emulation'])} (same rate, the run's "
-                f'latencies p50 {1e3 * pr["latency"]["p50"]:.2g} ms, p99 '
+                f"  headless         {verdict(pr['emulation'])} (same rate, the run's own "
+                f'delays replayed: p50 {1e3 * pr["latency"]["p50"]:.2g} ms, p99 '
                 f'{1e3 * pr["latency"]["p99"]:.2g} ms)'
             )
     m = summary['messages']

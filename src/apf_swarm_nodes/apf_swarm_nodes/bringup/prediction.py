@@ -112,8 +112,12 @@ class RealtimePrediction:
 
         assert self.cfg is not None  # check() ran before the run
         pairs = design_pair_sets(self.cfg)
-        lat = np.asarray(traj.get('command_latency', np.zeros((0,))), dtype=float).ravel()
-        lat = lat[(lat > 0) & np.isfinite(lat)]
+        # the run's delays, tracker by tracker in their order (a late process delays its
+        # trackers together and for several periods; drawn independently, the same delays
+        # would average out); a step without a measured delay takes the median
+        seq = np.asarray(traj.get('command_latency', np.zeros((0, 0))), dtype=float)
+        good = np.isfinite(seq) & (seq > 0)
+        lat = seq[good]
         out: dict[str, Any] = {
             'before_run': self.prediction.to_dict(),
             'gains_scheduled': self.gains_scheduled,
@@ -129,7 +133,7 @@ class RealtimePrediction:
                 duration=float(traj['t'][-1] - traj['t'][0]) or self.cfg.duration,
                 latency=float(np.median(lat)),
             )
-            emu = simulate(emu_cfg, latency_samples=lat)
+            emu = simulate(emu_cfg, latency_samples=np.where(good, seq, np.median(lat)))
             out['emulation'] = flight(emu.trajectory, pairs)
             out['latency_samples'] = np.round(lat[:: max(1, lat.size // 2000)], 6).tolist()
         return out
