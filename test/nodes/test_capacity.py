@@ -64,9 +64,19 @@ def test_derive_counts_the_shared_state_once_per_process_and_the_tail() -> None:
     assert one['per_tracker_cpu'] == pytest.approx(3 * 50e-6 + 800e-6, rel=1e-4)
     assert eight['per_tracker_cpu'] == pytest.approx(50e-6 / 8 + 2 * 50e-6 + 800e-6, rel=1e-4)
     assert eight['capacity']['50'] >= one['capacity']['50']
-    # the latency a process of 8 adds: its 8 commands at the p99
-    use = 32 * 50.0 * (50e-6 / 8 + 2 * 50e-6 + 800e-6) / 2
-    assert eight['latency'] == pytest.approx((0.002 + 8 * 1600e-6) / (1 - use), rel=1e-4)
+    # the latency a process of 8 adds: its 8 commands at the p99, or the swarm's burst of
+    # work on the 2 cores when that is longer
+    each = 50e-6 / 8 + 2 * 50e-6 + 800e-6
+    use = 32 * 50.0 * each / 2
+    longer = max(8 * 1600e-6, 32 * each / 2)
+    assert eight['latency'] == pytest.approx((0.002 + longer) / (1 - use), rel=1e-4)
+    slow = probe.derive(tails, 8, 50.0, per_process=8)
+    tail8 = 8 * probe._command_cost_at(tails, 8, 'command_cost_p99')
+    assert tail8 > 8 * slow['per_tracker_cpu'] / 2  # here the process's commands are longer
+    assert slow['latency'] == pytest.approx((0.002 + tail8) / (1 - slow['utilization']), rel=1e-3)
+    cheap = {**tails, 'command_cost_p99': {'3': 10e-6, '16': 10e-6, '32': 10e-6}}
+    burst = probe.derive(cheap, 32, 50.0, per_process=8)['latency']
+    assert burst == pytest.approx((0.002 + 32 * each / 2) / (1 - use), rel=1e-4)
     # beyond the measured sizes the cost grows linearly (the block direction)
     assert probe.derive(tails, 64, 50.0)['per_tracker_cpu'] == pytest.approx(3 * 50e-6 + 1600e-6)
 

@@ -156,9 +156,12 @@ def derive(
     ``capacity`` (trackers that fit in CPU_BUDGET of the cores, per rate), ``rate`` (the
     given one, or the default: the highest of RATES that fits n, else the lowest), the
     swarm's CPU ``utilization`` at that rate (mean costs), and the ``latency`` [s] check
-    and design assume: the idle round trip's p90 plus the process's commands at their p99,
+    and design assume: the idle round trip's p90 plus the longer of the process's commands
+    at their p99 and the swarm's burst (every tracker wakes on the same state, so the last
+    command waits until the cores have done the work of all n: ``n per_tracker / cores``),
     stretched by ``1 / (1 - utilization)`` for the queueing of a busy machine (capped at
-    0.9)."""
+    0.9). At 128 trackers and 20 Hz on 2 cores this is 36 ms where the runs measure a
+    median of 29-39 ms (docs/PERFORMANCE.md); the process's commands alone gave 7 ms."""
     cores = int(probe['machine']['cores'])
     msg = float(probe['cpu_per_message'])
     cmd = _command_cost_at(probe, n)
@@ -170,7 +173,8 @@ def derive(
         rate = next((r for r in RATES if capacity[f'{r:g}'] >= n), RATES[-1])
     use = min(0.9, n * rate * per_tracker / cores)
     tail = k * _command_cost_at(probe, n, 'command_cost_p99')
-    latency = (float(probe['rtt']['p90']) + tail) / (1.0 - use)
+    burst = n * per_tracker / cores
+    latency = (float(probe['rtt']['p90']) + max(tail, burst)) / (1.0 - use)
     return {
         'latency': round(latency, 6),
         'capacity': capacity,
