@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from apf_swarm_core.command_hold import CommandHold
+from apf_swarm_core.command_hold import CommandHold, answers
 from apf_swarm_core.config_files import load_preset
 from apf_swarm_core.errors import ConfigError
 from apf_swarm_core.formation import expected_pairs
@@ -179,6 +179,38 @@ def test_command_hold_replays_a_runs_own_delays_in_their_order() -> None:
         assert got[1] == k + 1 and got[0] == (0.0 if k == 0 else 2.0 if k < 3 else 4.0)
     with pytest.raises(ValueError, match='one column per tracker'):
         CommandHold((1, 3), 0.0, 0.001, latency_samples=seq)
+
+
+def test_answers_recover_each_states_delay_and_the_skipped_states() -> None:
+    # states every 0.05 s; tracker 0 answers each within 0.02 s; tracker 1 answers state 0
+    # after 0.07 s (seen at row 2), skips state 1, answers state 2 after 0.03 s (row 3); a
+    # held age seen again is the same command (measured ages differ in their microseconds)
+    t = np.array([0.0, 0.05, 0.10, 0.15, 0.20])
+    held = np.array([[0, 0], [0.02, 0], [0.021, 0.07], [0.022, 0.03], [0.023, 0.03]])
+    got = answers(t, held)
+    assert np.allclose(got[:, 0], [0.02, 0.021, 0.022, 0.023, np.inf])
+    assert got[0, 1] == pytest.approx(0.07) and got[2, 1] == pytest.approx(0.03)
+    assert np.isinf(got[1, 1]) and np.isinf(got[3, 1])
+
+
+def test_command_hold_zeroes_a_command_that_answers_a_state_older_than_stale_after() -> None:
+    # states every 10 steps; only the first is answered (at once), then none
+    seq = np.array([[0.0], [np.inf], [np.inf], [0.0]])
+    hold = CommandHold((1, 1), 0.0, 0.001, latency_samples=seq, stale_after=0.015)
+    forces = []
+    for k in range(40):
+        if k % 10 == 0:
+            hold.submit(k, np.full((1, 1, 3), 1.0 + k))
+        forces.append(hold.applied(k)[0, 0, 0])
+    # held until the unanswered state of step 10 is 15 steps old, then zero until the next
+    assert forces[0] == 1.0 and forces[24] == 1.0 and forces[25] == 0.0 and forces[29] == 0.0
+    assert forces[30] == 31.0
+    # without stale_after the command is held however late
+    keep = CommandHold((1, 1), 0.0, 0.001, latency_samples=seq)
+    for k in range(30):
+        if k % 10 == 0:
+            keep.submit(k, np.full((1, 1, 3), 1.0))
+        assert keep.applied(k)[0, 0, 0] == 1.0
 
 
 def test_the_emulation_holds_each_command_for_the_period_and_delays_it() -> None:

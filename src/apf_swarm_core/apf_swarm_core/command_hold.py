@@ -8,10 +8,41 @@ the latest command of each tracker and refuses one that arrives out of order.
 
 from __future__ import annotations
 
+import bisect
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['CommandHold']
+__all__ = ['STALE_AFTER', 'CommandHold', 'answers']
+
+#: the plant's default ``stale_after`` [s]: a tracker that has not answered a state published
+#: this long ago gets zero force instead of its held command (the live view draws a UAV whose
+#: command answered an older state as stale)
+STALE_AFTER = 0.1
+
+
+#: the delay [steps] of a command that never arrives
+NEVER = 2**40
+
+
+def answers(t: ArrayLike, held: ArrayLike) -> NDArray[np.float64]:
+    """Each tracker's delay for each published state, from a realtime run's record: ``t``
+    (m,) [s] the publications, ``held`` (m, n) [s] the age of each tracker's held command
+    when each was published (``command_latency`` of the plant's trajectory), so that a
+    command arrived in (t[r-1], t[r]] and answered the state published ``held[r]`` before
+    its arrival. Returns (m, n) [s]: the delay of the answer to each state, ``inf`` for a
+    state the tracker never answered (it skipped it), for :class:`CommandHold` to replay.
+    """
+    t = np.asarray(t, dtype=float)
+    held = np.asarray(held, dtype=float)
+    out = np.full(held.shape, np.inf)
+    for r in range(1, len(t)):
+        new = np.isfinite(held[r]) & (held[r] > 0) & (held[r] != held[r - 1])
+        # the state it answered: the last publication at or before t[r] - held[r]
+        s = np.searchsorted(t, t[r] - held[r][new] + 1e-9, side='right') - 1
+        ok = s >= 0
+        out[s[ok], np.flatnonzero(new)[ok]] = held[r][new][ok]
+    return out
 
 
 class CommandHold:
@@ -24,13 +55,17 @@ class CommandHold:
     that delays correlated in time and across trackers stay so; all rounded to steps of
     dt). Until then the
     UAV keeps the command it holds (zero force before the first). A command that arrives
-    after a newer one of the same tracker is dropped (out of order).
+    after a newer one of the same tracker is dropped (out of order). With ``stale_after``,
+    as the realtime plant does (:meth:`~apf_swarm_core.plant_model.PlantModel.expire`), a UAV
+    whose held command answers a state older than the newest one submitted ``stale_after``
+    ago or earlier gets zero force until a newer command arrives.
 
     Parameters
     ----------
     shape : (R, n): runs and trackers.
     latency : float or array (R,) [s]; dt : float [s]
     latency_samples : array (k,) or (m, n) [s], optional; rng : numpy Generator for them
+    stale_after : float [s], optional
     """
 
     def __init__(
@@ -40,16 +75,20 @@ class CommandHold:
         dt: float,
         latency_samples: ArrayLike | None = None,
         rng: np.random.Generator | None = None,
+        stale_after: float | None = None,
     ) -> None:
         self.shape = shape
+        self.stale_steps = None if stale_after is None else int(np.rint(stale_after / dt))
         self.fixed = np.broadcast_to(
             np.rint(np.asarray(latency, dtype=float) / dt).astype(np.int64).reshape(-1, 1), shape
         )
-        self.samples = (
-            None
-            if latency_samples is None
-            else np.rint(np.asarray(latency_samples, dtype=float) / dt).astype(np.int64)
-        )
+        self.samples = None
+        if latency_samples is not None:
+            delays = np.asarray(latency_samples, dtype=float)
+            # an unanswered state (inf): its command never arrives
+            self.samples = np.where(
+                np.isposinf(delays), NEVER, np.rint(np.nan_to_num(delays, posinf=0.0) / dt)
+            ).astype(np.int64)
         if self.samples is not None and (self.samples.size == 0 or np.any(self.samples < 0)):
             raise ValueError('latency_samples must be a non-empty array of delays >= 0 s')
         if (
@@ -64,6 +103,9 @@ class CommandHold:
         self.rng = rng if rng is not None else np.random.default_rng()
         self.force = np.zeros((*shape, 3))
         self.seq = np.full(shape, -1, dtype=np.int64)
+        #: the step of the state each held command answers, and of every state submitted
+        self.source = np.full(shape, -1, dtype=np.int64)
+        self.states: list[int] = []
         self.pending: list[tuple[int, NDArray[np.int64], NDArray[np.float64]]] = []
         self.count = 0
 
@@ -81,6 +123,7 @@ class CommandHold:
         else:
             delay = self.rng.choice(self.samples, size=self.shape)
         self.pending.append((self.count, k + delay, np.array(force, dtype=float)))
+        self.states.append(k)
         self.count += 1
 
     def applied(self, k: int) -> NDArray[np.float64]:
@@ -92,7 +135,13 @@ class CommandHold:
             if newer.any():
                 self.force[newer] = force[newer]
                 self.seq[newer] = seq
+                self.source[newer] = self.states[seq]
             if not arrived.all():
                 keep.append((seq, at, force))
         self.pending = keep
+        if self.stale_steps is not None:
+            # the newest state submitted stale_after ago or earlier: not answered, zero force
+            ref = bisect.bisect_right(self.states, k - self.stale_steps) - 1
+            if ref >= 0:
+                self.force[self.source < self.states[ref]] = 0.0
         return self.force

@@ -21,14 +21,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .agents import Sample
+from .command_hold import STALE_AFTER
 from .lockstep import Action, take_command, target_problem
 from .plant_model import Command, PlantModel
 
 __all__ = ['STALE_AFTER', 'RealtimePlant']
-
-#: the plant's default ``stale_after`` [s]: a tracker whose latest command is older gets zero
-#: force; the live view draws a UAV whose command answered an older state as stale
-STALE_AFTER = 0.1
 
 
 @dataclass

@@ -33,7 +33,7 @@ from typing import Any, cast
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .command_hold import CommandHold
+from .command_hold import STALE_AFTER, CommandHold
 from .config import KEYS, SwarmConfig
 from .control import (
     BlockPreconditioner,
@@ -178,11 +178,18 @@ class BatchSimulator:
     latency_samples : array (k,) [s], optional
         Measured control-loop latencies: each tracker's command at each sample takes effect
         after one of them, drawn with stream ``[seed, 3]`` of the first run (instead of the
-        fixed ``latency``); needs ``control_rate`` > 0.
+        fixed ``latency``); needs ``control_rate`` > 0. Shape (m, n): a run's own delays
+        replayed in their order (:class:`~apf_swarm_core.command_hold.CommandHold`).
+    stale_after : float [s] or None
+        A delayed command that answers a state older than this gets zero force, as the
+        realtime plant does (None: held however late).
     """
 
     def __init__(
-        self, cfgs: Sequence[SwarmConfig], latency_samples: ArrayLike | None = None
+        self,
+        cfgs: Sequence[SwarmConfig],
+        latency_samples: ArrayLike | None = None,
+        stale_after: float | None = STALE_AFTER,
     ) -> None:
         if not cfgs:
             raise ValueError('a batch needs at least one configuration')
@@ -216,6 +223,7 @@ class BatchSimulator:
             self.dt,
             latency_samples,
             np.random.default_rng([first.seed, 3]),
+            stale_after,
         )
         #: the delayed commands in flight, or None when each acts at its own sample
         self.actuator = act if act.delayed else None
@@ -487,9 +495,10 @@ def simulate_batch(
     record: bool = True,
     progress: Callable[[int, int], None] | None = None,
     latency_samples: ArrayLike | None = None,
+    stale_after: float | None = STALE_AFTER,
 ) -> SimResult:
     """Run a batch; trajectory arrays carry a leading run axis (except ``t``)."""
-    sim = BatchSimulator(cfgs, latency_samples)
+    sim = BatchSimulator(cfgs, latency_samples, stale_after)
     traj = sim.run(record=record, progress=progress)
     return SimResult(traj, list(cfgs), {'x': sim.x, 'v': sim.v, 'z': sim.controller.z})
 
@@ -500,8 +509,15 @@ def simulate(
     record: bool = True,
     progress: Callable[[int, int], None] | None = None,
     latency_samples: ArrayLike | None = None,
+    stale_after: float | None = STALE_AFTER,
 ) -> SimResult:
     """Run one configuration: the batch of one, with the run axis removed."""
-    res = simulate_batch([cfg], record=record, progress=progress, latency_samples=latency_samples)
+    res = simulate_batch(
+        [cfg],
+        record=record,
+        progress=progress,
+        latency_samples=latency_samples,
+        stale_after=stale_after,
+    )
     traj = {k: (v if k == 't' else v[0]) for k, v in res.trajectory.items()}
     return SimResult(traj, cfg, {k: v[0] for k, v in res.final.items()})

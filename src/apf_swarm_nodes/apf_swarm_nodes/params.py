@@ -16,10 +16,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from apf_swarm_core.command_hold import STALE_AFTER
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import config_from_mapping
 from apf_swarm_core.errors import ConfigError
-from apf_swarm_core.realtime_plant import STALE_AFTER
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,

@@ -18,10 +18,13 @@ from apf_swarm_core.config import (
 
 class RealtimePrediction:
     """A realtime run's prediction (the bring-up holds one): :meth:`check` before the run,
-    :meth:`judged` after it; ``say`` prints a line of the bring-up."""
+    :meth:`judged` after it; ``say`` prints a line of the bring-up; ``stale_after``: the
+    plant's (its emulation zeroes a command as late as the plant does)."""
 
-    def __init__(self, args: argparse.Namespace, say: Callable[[str], None]) -> None:
-        self.args, self.say = args, say
+    def __init__(
+        self, args: argparse.Namespace, say: Callable[[str], None], stale_after: float
+    ) -> None:
+        self.args, self.say, self.stale_after = args, say, stale_after
         #: what the probe implies for this run (:func:`~..capacity.probe.derive`)
         self.capacity: dict[str, Any] | None = None
         #: the sampled-data prediction before the run, None until :meth:`check`
@@ -106,18 +109,19 @@ class RealtimePrediction:
         """Realtime: the run judged by flight next to its headless emulation at the same
         rate with the latencies the plant measured (and the prediction before the run)."""
         import numpy as np
+        from apf_swarm_core.command_hold import answers
         from apf_swarm_core.formation import design_pair_sets
         from apf_swarm_core.metrics import flight
         from apf_swarm_core.simulator import simulate
 
         assert self.cfg is not None  # check() ran before the run
         pairs = design_pair_sets(self.cfg)
-        # the run's delays, tracker by tracker in their order (a late process delays its
-        # trackers together and for several periods; drawn independently, the same delays
-        # would average out); a step without a measured delay takes the median
-        seq = np.asarray(traj.get('command_latency', np.zeros((0, 0))), dtype=float)
-        good = np.isfinite(seq) & (seq > 0)
-        lat = seq[good]
+        # the run's delays, tracker by tracker and state by state in their order (a late
+        # process delays its trackers together and for several periods, and skips states;
+        # drawn independently, the same delays would average out)
+        held = np.asarray(traj.get('command_latency', np.zeros((0, 0))), dtype=float)
+        seq = answers(traj['t'], held) if held.size else held
+        lat = seq[np.isfinite(seq)]
         out: dict[str, Any] = {
             'before_run': self.prediction.to_dict(),
             'gains_scheduled': self.gains_scheduled,
@@ -133,7 +137,11 @@ class RealtimePrediction:
                 duration=float(traj['t'][-1] - traj['t'][0]) or self.cfg.duration,
                 latency=float(np.median(lat)),
             )
-            emu = simulate(emu_cfg, latency_samples=np.where(good, seq, np.median(lat)))
+            emu = simulate(
+                emu_cfg,
+                latency_samples=seq,
+                stale_after=self.stale_after,
+            )
             out['emulation'] = flight(emu.trajectory, pairs)
             out['latency_samples'] = np.round(lat[:: max(1, lat.size // 2000)], 6).tolist()
         return out

@@ -15,8 +15,8 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
+from apf_swarm_core.command_hold import STALE_AFTER
 from apf_swarm_core.config import SwarmConfig
-from apf_swarm_core.realtime_plant import STALE_AFTER
 
 from ..analysis.samples import StateAccumulator
 from ..lifetime import describe_rc
@@ -66,7 +66,9 @@ class Bringup(Startup):
         self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
         #: the bring-up's node on the graph; realtime, the prediction before and after the run
         self.graph = GraphWatch(args, self.n, self.node_values, self.acc, self.say, self.warn_once)
-        self.pred = RealtimePrediction(args, self.say)
+        #: the plant's: a tracker whose command answers an older state gets zero force
+        self.stale_after = float(self.node_values.get('stale_after', STALE_AFTER))
+        self.pred = RealtimePrediction(args, self.say, self.stale_after)
         self.domain_id: int | None = None
         #: the run's identity (the nodes' ``run`` parameter), random, never 0
         self.run_id = random.getrandbits(62) + 1
@@ -181,7 +183,7 @@ class Bringup(Startup):
             host=getattr(self.args, 'view_host', '127.0.0.1'),
             port=port,
             designs=design_pair_sets(self.cfg),
-            stale_after=float(self.node_values.get('stale_after', STALE_AFTER)),
+            stale_after=self.stale_after,
         )
         self.view.follow(lambda: self.acc.newest)
         self.say(f'view: {self.view.url} (Foxglove: Open connection, Foxglove WebSocket)')

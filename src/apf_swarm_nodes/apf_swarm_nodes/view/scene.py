@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from apf_swarm_core.realtime_plant import STALE_AFTER
+from apf_swarm_core.command_hold import STALE_AFTER
 from numpy.typing import NDArray
 
 from ..analysis.style import STATE_COLOURS, TARGET_COLOUR, edge_colour

@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-from apf_swarm_core.realtime_plant import STALE_AFTER
+from apf_swarm_core.command_hold import STALE_AFTER
 from numpy.typing import NDArray
 
 from ..analysis.samples import RawSample
