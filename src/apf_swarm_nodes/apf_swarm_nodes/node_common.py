@@ -41,6 +41,7 @@ import rclpy
 from apf_swarm_core.config import REALTIME_RATE
 from apf_swarm_core.errors import ApfSwarmError
 from apf_swarm_core.lockstep import LOOKAHEAD
+from apf_swarm_core.match_gate import MatchGate as CoreMatchGate
 from rclpy.exceptions import ParameterException
 from rclpy.executors import (
     ExternalShutdownException,
@@ -113,50 +114,31 @@ MATCH_RETRY = 0.01
 
 
 class MatchGate:
-    """Lockstep: what a node publishes waits until its publisher has matched its readers.
-
-    Discovery is not symmetric: a reader (the plant's; the recorder's, which subscribes once
-    it sees a publisher) matches a writer as soon as it knows of it, but the writer sends a
-    reliable volatile sample only to the readers *it* has matched when the sample is written.
-    A first message sent in between is lost to that reader, and in lockstep nothing sends it
-    again. The gate runs an action at once when the publisher's own matched count is high
-    enough, else holds the newest one and retries every :data:`MATCH_RETRY` s: ``first``
-    readers for the first action (the plant's and the recorder's), ``need`` for every later
-    one (the plant's alone: a recorder that stops must not stop the run).
-    """
+    """Lockstep: what a node publishes waits until its publisher has matched its readers;
+    the decision is :class:`apf_swarm_core.match_gate.MatchGate`'s (``need``, ``first``),
+    this gives it the publisher's matched count and retries every :data:`MATCH_RETRY` s
+    while it holds an action."""
 
     def __init__(self, node: Node, pub: Any, need: int = 1, first: int | None = None) -> None:
-        self.pub, self.need = pub, int(need)
-        self._want = self.need if first is None else int(first)
-        self._held: Callable[[], None] | None = None
+        self.pub, self.gate = pub, CoreMatchGate(need, first)
         # runs only while an action is held
         self._timer = node.create_timer(MATCH_RETRY, self._retry)
         self._timer.cancel()
 
-    def matched(self) -> bool:
-        """Whether the publisher has matched the readers the next action waits for."""
-        return bool(self.pub.get_subscription_count() >= self._want)
-
     def __call__(self, action: Callable[[], None]) -> None:
-        """Run ``action`` now if :meth:`matched`, else hold it (replacing one held before)."""
-        if self.matched():
-            self._held = None
-            self._run(action)
-        else:
-            self._held = action
-            self._timer.reset()
-
-    def _run(self, action: Callable[[], None]) -> None:
-        self._want = self.need
-        action()
+        """Run ``action`` now if the readers are matched, else hold it."""
+        self._run(self.gate.offer(action, self.pub.get_subscription_count()))
 
     def _retry(self) -> None:
-        if self._held is None:
+        self._run(self.gate.retry(self.pub.get_subscription_count()))
+
+    def _run(self, action: Callable[[], None] | None) -> None:
+        if self.gate.holding:
+            self._timer.reset()
+        else:
             self._timer.cancel()
-        elif self.matched():
-            action, self._held = self._held, None
-            self._timer.cancel()
-            self._run(action)
+        if action is not None:
+            action()
 
 
 class RejectionLog:
