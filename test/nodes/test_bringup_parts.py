@@ -261,3 +261,28 @@ def test_a_node_param_must_read_name_value() -> None:
     for bad in ('stale_after=0.2', 'stale_after:=', ':=3', 'a b:=1'):
         with pytest.raises(argparse.ArgumentTypeError, match='expected NAME:=VALUE'):
             node_param(bad)
+
+
+def test_the_janitor_of_a_killed_bringup_removes_the_keys_and_a_goodbye_keeps_them(
+    tmp_path: Path,
+) -> None:
+    from apf_swarm_nodes.bringup.janitor import Janitor
+
+    def host_key(run: str) -> Path:
+        key = tmp_path / run / 'dds' / 'h1' / 'key.pem'
+        key.parent.mkdir(parents=True)
+        key.write_bytes(b'secret')
+        (key.parent / 'cert.pem').write_bytes(b'public')
+        return key
+
+    killed, closed = host_key('killed'), host_key('closed')
+    janitor = Janitor()
+    janitor.keys(killed.parents[1])
+    assert janitor.proc is not None and janitor.proc.stdin is not None
+    janitor.proc.stdin.close()  # its input ends without the goodbye: the bring-up died
+    janitor.proc.wait(30)
+    assert not killed.exists() and (killed.parent / 'cert.pem').exists()
+    polite = Janitor()
+    polite.keys(closed.parents[1])
+    polite.close()
+    assert closed.exists()

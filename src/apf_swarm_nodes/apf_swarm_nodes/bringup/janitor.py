@@ -6,9 +6,11 @@ starts this small process instead: it is told the pid of every node executed (a 
 its stdin) and ``"bye"`` when the bring-up closes it normally. An input that ends without
 the goodbye means the bring-up died (SIGKILL): the janitor then does what the zygote would,
 waits for those nodes to end on their parent-death signal, kills any still running, and
-removes the Fast DDS shared memory no live process holds. It imports no ROS (started in a
-fraction of a second) and ignores SIGINT (Ctrl-C is the bring-up's). Run as
-``python -m apf_swarm_nodes.bringup.janitor``.
+removes the Fast DDS shared memory no live process holds. A secure run's bring-up starts
+one with either spawn mode and tells it where the hosts' private keys lie (a line
+``keys DIR``): the janitor of a killed bring-up removes them, as its end would have. It
+imports no ROS (started in a fraction of a second) and ignores SIGINT (Ctrl-C is the
+bring-up's). Run as ``python -m apf_swarm_nodes.bringup.janitor``.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import contextlib
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import psutil
 
@@ -24,6 +27,8 @@ __all__ = ['BYE', 'Janitor', 'main']
 
 #: the line that ends a janitor's input when its bring-up closes it
 BYE = 'bye'
+#: the start of a line that names a directory of host keys (DIR/dds/)
+KEYS = 'keys '
 
 
 class Janitor:
@@ -39,11 +44,19 @@ class Janitor:
 
     def watch(self, pid: int) -> None:
         """A node process this bring-up started: the janitor's if the bring-up dies."""
+        self._tell(str(pid))
+
+    def keys(self, directory: Path) -> None:
+        """A secure run's host keys (under ``directory``, DIR/dds/): removed if the bring-up
+        dies."""
+        self._tell(KEYS + str(Path(directory).resolve()))
+
+    def _tell(self, line: str) -> None:
         proc = self.proc
         if proc is None or proc.stdin is None:
             return
         with contextlib.suppress(OSError, ValueError):
-            proc.stdin.write(b'%d\n' % pid)
+            proc.stdin.write(line.encode() + b'\n')
             proc.stdin.flush()
 
     def close(self) -> None:
@@ -65,14 +78,21 @@ class Janitor:
 def main() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     watched: list[psutil.Process] = []
+    keys: list[Path] = []
     for raw in sys.stdin:
         line = raw.strip()
         if line == BYE:
             return
+        if line.startswith(KEYS):
+            keys.append(Path(line[len(KEYS) :]))
+            continue
         with contextlib.suppress(ValueError, psutil.Error):
             watched.append(psutil.Process(int(line)))
+    from ..dds.secure import remove_keys
     from .zygote import orphaned_cleanup
 
+    for directory in keys:
+        remove_keys(directory)
     orphaned_cleanup(watched)
 
 

@@ -122,6 +122,13 @@ class Startup:
                 reuse=getattr(self.args, 'secure_pki', None),
                 say=self.say,
             )  # fmt: skip
+            if not getattr(self.args, 'keep_keys', False):
+                # a killed bring-up cannot remove the keys; its janitor does
+                if self.janitor is None:
+                    from .janitor import Janitor
+
+                    self.janitor = Janitor()
+                self.janitor.keys(self.out / 'dds')
             return
         isolate_dds(
             self.out / 'dds',
