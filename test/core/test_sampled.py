@@ -94,7 +94,7 @@ def test_mode_radius_is_the_growth_of_the_simulated_mode(lam, K, g, T, tau) -> N
 def test_mode_radius_with_prediction_is_the_growth_of_the_simulated_mode(
     lam, K, g, T, tau
 ) -> None:
-    from apf_swarm_core.prediction import compensation_horizon
+    from apf_swarm_core.compensation import compensation_horizon
 
     h = compensation_horizon(tau)
     rho = mode_radius(lam, layer_gain=K, inner_rate=g, period=T, latency=tau, horizon=h)
@@ -104,7 +104,7 @@ def test_mode_radius_with_prediction_is_the_growth_of_the_simulated_mode(
 def test_prediction_takes_a_delayed_mode_from_growing_to_decaying() -> None:
     """A layer loop at 50 Hz with 25 ms of latency (g (T + tau) = 1.8): unstable as sampled,
     stable on the state predicted by the latency."""
-    from apf_swarm_core.prediction import compensation_horizon
+    from apf_swarm_core.compensation import compensation_horizon
 
     kw = {'layer_gain': 10.0, 'inner_rate': 40.0, 'period': 0.02, 'latency': 0.025}
     assert compensation_horizon(0.025) == 0.025
@@ -113,7 +113,7 @@ def test_prediction_takes_a_delayed_mode_from_growing_to_decaying() -> None:
 
 
 def test_predicted_velocity_is_exact_under_the_held_force_and_positions_first_order() -> None:
-    from apf_swarm_core.prediction import Predictor, predict_positions, predict_velocity
+    from apf_swarm_core.compensation import Predictor, predict_positions, predict_velocity
 
     x, v, u, M, h = (
         np.array([1.0, 2.0, 3.0]),
@@ -136,7 +136,7 @@ def test_predicted_velocity_is_exact_under_the_held_force_and_positions_first_or
 
 
 def test_latency_estimate_is_the_running_median_and_ignores_unmeasured_commands() -> None:
-    from apf_swarm_core.prediction import LatencyEstimate
+    from apf_swarm_core.compensation import LatencyEstimate
 
     est = LatencyEstimate(0.005, window=5)
     assert est.value == 0.005  # nothing reported yet

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .compensation import LatencyEstimate, compensation_horizon
 from .config import DEFAULT_LATENCY, SwarmConfig
 from .control import (
     control_step,
@@ -50,7 +51,6 @@ from .laws import switching_force
 from .neighbours import neighbour_mask
 from .plant import acceleration_setpoint, velocity_setpoint
 from .potential import POTENTIAL_KEYS
-from .prediction import LatencyEstimate, compensation_horizon
 
 __all__ = [
     'Sample',
@@ -318,7 +318,7 @@ class TrackerAgent:
 
     def report_latency(self, latencies: ArrayLike) -> None:
         """The latencies the plant measured for the swarm's latest commands [s] (realtime,
-        :class:`~apf_swarm_core.prediction.LatencyEstimate`)."""
+        :class:`~apf_swarm_core.compensation.LatencyEstimate`)."""
         self.latency.add(latencies)
 
     def ready(self, step: int) -> bool:

@@ -26,12 +26,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+from .compensation import COMPENSATIONS
 from .config_schema import NON_NEGATIVE, POSITIVE, key, validate
 from .laws import LAWS, SWITCHINGS
 from .neighbours import NEIGHBOUR_RULES
 from .plant import NOISE_KINDS
 from .potential import PotentialParams
-from .prediction import COMPENSATIONS
 from .saturation import SATURATIONS
 from .target import TRAJECTORIES, Trajectory, make_trajectory
 

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .compensation import Predictor, compensation_horizon
 from .config import SwarmConfig
 from .controller import CONTROLLER_GAINS, ControlOutput, SlidingModeController
 from .gains import per_run
@@ -17,7 +18,6 @@ from .gradients import gradient, obstacle_gradient
 from .kernels import block_rows, kernel_args
 from .newton import newton_basis, newton_direction
 from .potential import PotentialParams, Rows
-from .prediction import Predictor, compensation_horizon
 
 __all__ = [
     'BlockPreconditioner',
@@ -181,7 +181,7 @@ def control_step(
         block) instead of the gradient.
     predictor : Predictor, optional
         ``compensation = predict``: the command is computed from the state predicted by the
-        predictor's horizon (:mod:`apf_swarm_core.prediction`), which then holds it.
+        predictor's horizon (:mod:`apf_swarm_core.compensation`), which then holds it.
     velocities : array (..., n, 3), optional
         Velocities of every tracker in ``x``, for a ``predictor`` (default ``v``, which
         then has to hold every row).
@@ -216,7 +216,7 @@ def control_step(
 
 
 def make_predictor(cfg: SwarmConfig, latency: float | None = None) -> Predictor | None:
-    """The :class:`~apf_swarm_core.prediction.Predictor` of a configuration with sampled
+    """The :class:`~apf_swarm_core.compensation.Predictor` of a configuration with sampled
     control (``compensation = predict`` and ``control_rate`` > 0), or None. ``latency``:
     the loop's [s] (default ``cfg.latency``)."""
     if cfg.compensation != 'predict' or cfg.control_rate <= 0:

@@ -69,7 +69,7 @@ def mode_matrix(
 
     State ``(e_k, e'_k, u_{k-1}, ..., u_{k-m-1})`` with ``latency = m T + r``; the command
     of sample k is ``u_k = -g M (e'_k + K lambda e_k)``, or with delay compensation
-    (``horizon`` h > 0, :mod:`apf_swarm_core.prediction`) the same of the predicted state
+    (``horizon`` h > 0, :mod:`apf_swarm_core.compensation`) the same of the predicted state
     ``e_k + h e'_k`` and ``e'_k + h u_{k-1} / M``.
 
     Parameters

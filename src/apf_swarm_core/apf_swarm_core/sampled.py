@@ -22,7 +22,7 @@ docs/THEORY.md, "Sampled-data control"):
    (``precondition = newton``) every mode has the curvature 1 near the equilibrium and the
    bound is ``K (T + tau) < NEWTON_LIMIT = 0.5``, also measured (16 and 32 trackers,
    20-200 Hz, 5-30 ms: 0.5 holds, 1.0 fails), with and without the delay compensation of
-   :mod:`apf_swarm_core.prediction` (``compensation = predict``, which the linear model
+   :mod:`apf_swarm_core.compensation` (``compensation = predict``, which the linear model
    carries: ``horizon`` of :func:`~apf_swarm_core.modes.mode_matrix`): the linear model
    would allow 2.5, but far from the equilibrium the direction turns with the state. The
    steady lag behind a target moving at v_N is ``(1 - w) v_N / (k_N K)`` (eq. 31 with s = 0
@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .advice import PLAIN, Advice
+from .compensation import compensation_horizon
 from .config import SwarmConfig
 from .metrics import FLIGHT_CRITERIA
 from .modes import (
@@ -52,7 +53,6 @@ from .modes import (
     inner_rate,
     mode_radius,
 )
-from .prediction import compensation_horizon
 
 __all__ = [
     'BLOCK_LIMIT',

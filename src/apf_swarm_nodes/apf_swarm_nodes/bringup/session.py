@@ -1,7 +1,7 @@
 """One run (:class:`Bringup`): its parts in order (:meth:`Bringup.execute`: set up, launch,
 wait for the graph, run, stop, write) and the run loop between ``/swarm/start`` and the end,
 with its progress line. The parts: :mod:`.startup` (before the run), :mod:`.graph_watch` (the
-bring-up's node on the graph), :mod:`.supervision` (signals and children), :mod:`.prediction`
+bring-up's node on the graph), :mod:`.supervision` (signals and children), :mod:`.flight_check`
 (realtime) and :mod:`.outputs` (the files at the end)."""
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ from apf_swarm_core.config import SwarmConfig
 
 from ..analysis.samples import StateAccumulator
 from ..lifetime import describe_rc
+from .flight_check import FlightCheck
 from .graph import recording_fields
 from .graph_watch import GraphWatch
 from .outputs import write_outputs
-from .prediction import RealtimePrediction
 from .processes import (
     EXIT_CHILD_DIED,
     EXIT_INTERRUPTED,
@@ -41,7 +41,7 @@ __all__ = ['Bringup']
 class Bringup(Startup):
     """One run; see the module docstring. :meth:`execute` returns the exit code. It holds
     its node on the graph (:attr:`graph`), its processes (:attr:`sup`) and, realtime, its
-    prediction (:attr:`pred`); what comes before the run is its base, :class:`Startup`."""
+    flight check (:attr:`flight`); what comes before the run is its base, :class:`Startup`."""
 
     def __init__(
         self,
@@ -64,11 +64,11 @@ class Bringup(Startup):
         self.sup = Supervisor(args, self.out, self.signals, self.say)
         self.group, self.rec_group = self.sup.group, self.sup.rec_group
         self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
-        #: the bring-up's node on the graph; realtime, the prediction before and after the run
+        #: the bring-up's node on the graph; realtime, the flight check before and after the run
         self.graph = GraphWatch(args, self.n, self.node_values, self.acc, self.say, self.warn_once)
         #: the plant's: a tracker whose command answers an older state gets zero force
         self.stale_after = float(self.node_values.get('stale_after', STALE_AFTER))
-        self.pred = RealtimePrediction(args, self.say, self.stale_after)
+        self.flight = FlightCheck(args, self.say, self.stale_after)
         self.domain_id: int | None = None
         #: the run's identity (the nodes' ``run`` parameter), random, never 0
         self.run_id = random.getrandbits(62) + 1
@@ -268,7 +268,7 @@ class Bringup(Startup):
                 status=status,
                 fields=self.run_fields(status),
                 respawned=[c.name for c in self.group if c.respawns],
-                judged=self.pred.judged if self.pred.prediction is not None else None,
+                judged=self.flight.judged if self.flight.prediction is not None else None,
                 say=self.say,
             )
         return code

@@ -21,8 +21,8 @@ from .processes import Child, ProcessGroup
 
 if TYPE_CHECKING:
     from ..dds.secure import Pki
+    from .flight_check import FlightCheck
     from .janitor import Janitor
-    from .prediction import RealtimePrediction
     from .zygote import Zygote
 
 __all__ = ['Startup']
@@ -50,7 +50,7 @@ class Startup:
     pki: Pki | None = None
 
     if TYPE_CHECKING:  # the other parts of Bringup
-        pred: RealtimePrediction
+        flight: FlightCheck
 
         def say(self, text: str) -> None: ...
 
@@ -59,7 +59,7 @@ class Startup:
         import yaml
 
         if self.mode == 'realtime':
-            self.cfg = self.pred.check(self.cfg)
+            self.cfg = self.flight.check(self.cfg)
         elif self.cfg.control_rate > 0:
             raise BringupError(
                 f'control_rate = {self.cfg.control_rate:g} Hz: lockstep commands '

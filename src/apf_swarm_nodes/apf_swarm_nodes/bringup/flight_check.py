@@ -1,6 +1,6 @@
-"""The realtime run's prediction: the sampled-data check before the run (gains scheduled
+"""A realtime run's flight check: the sampled-data check before the run (gains scheduled
 when the configuration's would lose the formation) and, after it, the run judged by flight
-next to its headless emulation at the measured latencies."""
+next to its headless emulation with the run's own delays (``summary.json``, ``prediction``)."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from apf_swarm_core.config import (
 )
 
 
-class RealtimePrediction:
-    """A realtime run's prediction (the bring-up holds one): :meth:`check` before the run,
+class FlightCheck:
+    """A realtime run's flight check (the bring-up holds one): :meth:`check` before the run,
     :meth:`judged` after it; ``say`` prints a line of the bring-up; ``stale_after``: the
     plant's (its emulation zeroes a command as late as the plant does)."""
 
