@@ -38,10 +38,11 @@ from .supervision import Signals, Supervisor
 __all__ = ['Bringup']
 
 
-class Bringup(Startup):
+class Bringup:
     """One run; see the module docstring. :meth:`execute` returns the exit code. It holds
-    its node on the graph (:attr:`graph`), its processes (:attr:`sup`) and, realtime, its
-    flight check (:attr:`flight`); what comes before the run is its base, :class:`Startup`."""
+    what comes before the run (:attr:`setup`: checks, isolation, launch), its node on the
+    graph (:attr:`graph`), its processes (:attr:`sup`) and, realtime, its flight check
+    (:attr:`flight`)."""
 
     def __init__(
         self,
@@ -69,20 +70,20 @@ class Bringup(Startup):
         #: the plant's: a tracker whose command answers an older state gets zero force
         self.stale_after = float(self.node_values.get('stale_after', STALE_AFTER))
         self.flight = FlightCheck(args, self.say, self.stale_after)
-        self.domain_id: int | None = None
         #: the run's identity (the nodes' ``run`` parameter), random, never 0
         self.run_id = random.getrandbits(62) + 1
+        #: before the run: checks, isolation (domain id, a secure run's files), the launch
+        self.setup = Startup(
+            args, cfg, self.run_id, self.node_params, self.sup, self.flight, self.say
+        )
         # monotonic times of this bring-up's start, the launch, the start and the end of the
         # run [s]
         self.t_begin = time.monotonic()
-        self.t_launch: Any = None
         self.t_start: Any = None
         self.t_end: Any = None
         self.warned: set[str] = set()
         #: ``--view``: the live view (:class:`~apf_swarm_nodes.view.LiveView`)
         self.view: Any = None
-        self.zygote: Any = None
-        self.janitor: Any = None
 
     # --- messages -------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -118,7 +119,9 @@ class Bringup(Startup):
     def run_loop(self) -> None:
         self.graph.publish_start()
         self.t_start = time.monotonic()
-        self.say(f'graph ready after {self.t_start - self.t_launch:.2f} s; published /swarm/start')
+        self.say(
+            f'graph ready after {self.t_start - self.setup.t_launch:.2f} s; published /swarm/start'
+        )
         last_progress = self.t_start
         last_poll = 0.0
         prev_step, prev_recv = 0, 0
@@ -194,22 +197,18 @@ class Bringup(Startup):
         from ..dds.cleanup import BRINGUP_ENV, bringup_mark
 
         os.environ[BRINGUP_ENV] = bringup_mark()
-        self.start_zygote()  # its imports overlap the preparation
+        self.setup.start_zygote()  # its imports overlap the preparation
         try:
-            self.prepare()
+            self.cfg = self.setup.prepare()
             return self.execute_prepared()
         finally:
-            if self.zygote is not None:
-                self.zygote.close()
-            if self.janitor is not None:
-                self.janitor.close()
-            self.end_secure()
+            self.setup.close()
 
     def execute_prepared(self) -> int:
         # the stop's bound from the start: the domain check already makes a participant
         self.signals.install()
         try:
-            self.isolate()
+            self.setup.isolate()
         except BaseException:
             self.signals.restore()
             raise
@@ -219,13 +218,13 @@ class Bringup(Startup):
             try:
                 self.sup.check_signals()
                 self.graph.init_ros()
-                self.launch()
+                self.setup.launch()
                 # a stop from now on ends within its grace, which grows with the load
                 self.signals.bound = self.sup.stop_bound()
                 self.sup.check_signals()
                 self.graph.wait_ready(
                     self.between,
-                    self.domain_id,
+                    self.setup.domain_id,
                     self.out / 'logs',
                     [c.name for c in self.group],
                     self.sup.restart,
@@ -280,7 +279,7 @@ class Bringup(Startup):
         return {
             'status': status,
             'mode': self.mode,
-            'domain_id': self.domain_id,
+            'domain_id': self.setup.domain_id,
             'run_id': f'{self.run_id:x}',
             'wall_time': round(run_s, 3),
             'missed_deadlines': int(last.missed_deadlines) if last is not None else 0,
@@ -293,8 +292,8 @@ class Bringup(Startup):
             },
             'messages': self.acc.messages(),
             'timing': {
-                'ready': round(self.t_start - self.t_launch, 3)
-                if self.t_start is not None and self.t_launch is not None
+                'ready': round(self.t_start - self.setup.t_launch, 3)
+                if self.t_start is not None and self.setup.t_launch is not None
                 else None,
                 # the bring-up's own start to graph ready (preparation, isolation included)
                 'startup': round(self.t_start - self.t_begin, 3)

@@ -7,8 +7,9 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import to_ros_params
@@ -17,45 +18,54 @@ from ..topics import RECORDER_NODE
 from .commands import executable_path, node_commands, node_netns, package_prefix
 from .errors import BringupError
 from .isolation import env_domain, pick_domain_id
-from .processes import Child, ProcessGroup
+from .processes import Child
 
 if TYPE_CHECKING:
     from ..dds.secure import Pki
     from .flight_check import FlightCheck
     from .janitor import Janitor
+    from .supervision import Supervisor
     from .zygote import Zygote
 
 __all__ = ['Startup']
 
 
 class Startup:
-    """What :class:`~.session.Bringup` does before the run (a mixin)."""
+    """What a run does before it starts (the bring-up holds one): the checks that need no
+    process (:meth:`prepare`), the isolation (:meth:`isolate`: :attr:`domain_id`, a secure
+    run's :attr:`pki`), the zygote or janitor (:meth:`start_zygote`), the launch of the node
+    processes into ``sup``'s groups (:meth:`launch`), and what it started, stopped
+    (:meth:`close`)."""
 
-    args: argparse.Namespace
-    cfg: SwarmConfig
-    mode: str
-    n: int
-    node_params: list[str]
-    out: Path
-    group: ProcessGroup
-    rec_group: ProcessGroup
-    domain_id: int | None
-    run_id: int
-    zygote: Zygote | None
-    janitor: Janitor | None
-    t_launch: Any
-    prefix: Path
-    config_file: Path
-    #: a secure run's files (--secure), else None
-    pki: Pki | None = None
+    def __init__(
+        self,
+        args: argparse.Namespace,
+        cfg: SwarmConfig,
+        run_id: int,
+        node_params: list[str],
+        sup: Supervisor,
+        flight: FlightCheck,
+        say: Callable[[str], None],
+    ) -> None:
+        self.args, self.cfg, self.run_id, self.node_params = args, cfg, run_id, node_params
+        self.mode: str = args.mode
+        self.n = cfg.n_trackers
+        self.out: Path = args.out
+        self.group, self.rec_group = sup.group, sup.rec_group
+        self.flight, self.say = flight, say
+        self.domain_id: int | None = None
+        #: a secure run's files (--secure), else None
+        self.pki: Pki | None = None
+        self.zygote: Zygote | None = None
+        self.janitor: Janitor | None = None
+        #: the monotonic time of the launch [s]
+        self.t_launch: float | None = None
+        self.prefix = Path()
+        self.config_file = Path()
 
-    if TYPE_CHECKING:  # the other parts of Bringup
-        flight: FlightCheck
-
-        def say(self, text: str) -> None: ...
-
-    def prepare(self) -> None:
-        """Checks that need no process: executables, recorder, output directory, config."""
+    def prepare(self) -> SwarmConfig:
+        """Checks that need no process: executables, recorder, output directory, config.
+        Returns the configuration to fly (realtime: the flight check's)."""
         import yaml
 
         if self.mode == 'realtime':
@@ -88,6 +98,7 @@ class Startup:
         (self.out / 'logs').mkdir(parents=True, exist_ok=True)
         self.config_file = self.out / 'config.yaml'
         self.config_file.write_text(yaml.safe_dump(to_ros_params(self.cfg), sort_keys=False))
+        return self.cfg
 
     def isolate(self) -> None:
         """Domain id and discovery range into os.environ (before rclpy.init; children inherit)."""
@@ -149,8 +160,13 @@ class Startup:
         address = getattr(self.args, 'secure_address', None) or first_address()
         check_refuses(address, server_port(self.domain_id))
 
-    def end_secure(self) -> None:
-        """A secure run's end: the hosts' private keys removed, unless kept (--keep-keys)."""
+    def close(self) -> None:
+        """The run's end: the zygote and the janitor told goodbye, then a secure run's
+        private keys removed, unless kept (--keep-keys)."""
+        if self.zygote is not None:
+            self.zygote.close()
+        if self.janitor is not None:
+            self.janitor.close()
         if self.pki is None or getattr(self.args, 'keep_keys', False):
             return
         from ..dds.secure import remove_keys
