@@ -1,23 +1,21 @@
-"""What every benchmark that starts processes does so that none outlives it: each child dies
-with the benchmark (:func:`apf_swarm_nodes.lifetime.dying_with_parent`: the kernel's
-parent-death signal, even when the benchmark is killed with SIGKILL), and SIGTERM / SIGHUP
-end the benchmark through its ``finally`` blocks, which stop the children it started."""
+"""What every benchmark that starts processes uses so that none outlives it: children die
+with the benchmark (:func:`apf_swarm_nodes.lifetime.dying_with_parent`) and are stopped by
+process group (:func:`apf_swarm_nodes.lifetime.stop_process`); SIGTERM / SIGHUP end the
+benchmark through its ``finally`` blocks. A module, not a benchmark."""
 
 from __future__ import annotations
 
-import argparse
 import signal
-import sys
+import subprocess
 from typing import Any
 
-from apf_swarm_nodes.lifetime import dying_with_parent
+from apf_swarm_nodes.lifetime import dying_with_parent, stop_process
 
-__all__ = ['dying_with_parent', 'exit_on_signals']
+__all__ = ['dying_with_parent', 'exit_on_signals', 'start', 'stop']
 
 
 def exit_on_signals() -> None:
-    """SIGTERM and SIGHUP raise SystemExit in the main thread (exit status 128 + signal),
-    so that ``finally`` blocks stop what the benchmark started."""
+    """SIGTERM and SIGHUP raise SystemExit (128 + signal), so ``finally`` blocks run."""
 
     def handler(signum: int, _frame: Any) -> None:
         raise SystemExit(128 + signum)
@@ -26,9 +24,12 @@ def exit_on_signals() -> None:
         signal.signal(sig, handler)
 
 
-if __name__ == '__main__':
-    argparse.ArgumentParser(
-        description='A module of the benchmarks (imported by them), not a benchmark: '
-        'it has nothing to run.'
-    ).parse_args()
-    sys.exit('bench/_children.py is a module of the benchmarks, not a benchmark')
+def start(argv: list[str], sig: str = 'TERM', **kw: Any) -> subprocess.Popen[bytes]:
+    """``argv`` in its own session, dying with this process."""
+    return subprocess.Popen(dying_with_parent(argv, sig), start_new_session=True, **kw)
+
+
+def stop(p: subprocess.Popen[bytes], grace: float = 30.0) -> int | None:
+    """SIGINT to its group, SIGTERM, then SIGKILL; its exit code (None if it outlived all)."""
+    seq = ((signal.SIGINT, grace), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0))
+    return stop_process(p, seq)
