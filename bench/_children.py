@@ -11,7 +11,7 @@ from typing import Any
 
 from apf_swarm_nodes.lifetime import dying_with_parent, stop_process
 
-__all__ = ['dying_with_parent', 'exit_on_signals', 'start', 'stop']
+__all__ = ['dying_with_parent', 'exit_on_signals', 'start', 'stop', 'table']
 
 
 def exit_on_signals() -> None:
@@ -33,3 +33,12 @@ def stop(p: subprocess.Popen[bytes], grace: float = 30.0) -> int | None:
     """SIGINT to its group, SIGTERM, then SIGKILL; its exit code (None if it outlived all)."""
     seq = ((signal.SIGINT, grace), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0))
     return stop_process(p, seq)
+
+
+def table(header: str, rows: list[list[Any]]) -> str:
+    """A Markdown table: ``header`` is 'a | b | c' (a trailing ':' right-aligns)."""
+    cols = [c.strip() for c in header.split('|')]
+    head = '| ' + ' | '.join(c.rstrip(':') for c in cols) + ' |'
+    rule = '|' + '|'.join('---:' if c.endswith(':') else '---' for c in cols) + '|'
+    body = ['| ' + ' | '.join(str(v) for v in r) + ' |' for r in rows]
+    return '\n'.join([head, rule, *body])
