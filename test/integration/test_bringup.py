@@ -384,6 +384,30 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     assert summary['stale_inputs'] == 0 and summary['faults']['stale'] == [], summary['faults']
 
 
+def test_batched_commands_fly_the_realtime_swarm(bringup) -> None:
+    """``batch_commands``: each process of 2 trackers answers a state with one
+    /swarm/force_cmds message (what a secure run does); the plant takes every command from
+    it: its clock starts with every tracker commanding, no deadline is missed, and the run
+    flies as the emulation with its delays does."""
+    run = bringup(
+        'batch',
+        *('--preset', 'realtime', '--mode', 'realtime', '--n-trackers', '4'),
+        *('--trackers-per-process', '2', '--node-param', 'batch_commands:=true'),
+        *('--duration', '12'),
+    )
+    rc = run.wait(150)
+    assert rc == 0, run.stderr()
+    assert run.left_behind() == [] and run.exception_lines() == []
+    logs = run.out / 'logs'
+    for name in ('trackers_1-2', 'trackers_3-4'):
+        assert 'commands together on /swarm/force_cmds' in (logs / f'{name}.log').read_text()
+    assert 'clock started: every tracker commands' in (logs / 'plant.log').read_text()
+    summary = run.summary()
+    assert summary['missed_deadlines'] == 0 and summary['messages']['dropped'] == 0
+    pred = summary['prediction']
+    assert pred['run']['flies'], (pred['run'], pred.get('emulation'), pred.get('latency'))
+
+
 def test_trackers_hosted_several_to_a_process_reproduce_the_simulator(bringup) -> None:
     """--trackers-per-process 2 with 5 trackers, each seeing only its 2 nearest neighbours:
     3 tracker processes (2 + 2 + 1), each node still /uav_<i>/tracker with its own

@@ -193,6 +193,13 @@ TRACKER_PARAMS = (
     ),
     NodeParam('uav_id', 1, 'id i of this tracker (namespace /uav_<i>)', lo=1, hi=10000),
     NodeParam(
+        'batch_commands',
+        False,
+        'realtime, several trackers to a process reading /swarm/odom: the commands the '
+        'process answers a state with go out as one /swarm/force_cmds message (one per '
+        'process instead of one per tracker: the TLS transport costs per message)',
+    ),
+    NodeParam(
         'trigger',
         'odom',
         'realtime: odom computes on every new own odometry (lowest '

@@ -1,10 +1,9 @@
 """Plant node: integrates every tracker's dynamics (eq. 19-21) with bounded noise.
 
 Publishes the odometry, ``/swarm/odom``, ``/swarm/state``, ``/swarm/markers`` and (lockstep)
-``/clock`` (:mod:`.plant_outputs`); subscribes ``/uav_<i>/force_cmd`` and ``/target/odom``.
-The core decides: a :class:`~apf_swarm_core.lockstep.LockstepBarrier` or a
-:class:`~apf_swarm_core.realtime_plant.RealtimePlant` returns the actions the node carries out
-(docs/ROS.md)."""
+``/clock`` (:mod:`.plant_outputs`); subscribes ``/uav_<i>/force_cmd``, (realtime)
+``/swarm/force_cmds`` and ``/target/odom``. The core decides: a ``LockstepBarrier`` or a
+``RealtimePlant`` returns the actions the node carries out (docs/ROS.md)."""
 
 from __future__ import annotations
 
@@ -21,13 +20,13 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from std_msgs.msg import Empty
 
-from apf_swarm_msgs.msg import ForceCommand
+from apf_swarm_msgs.msg import ForceCommand, ForceCommands
 
 from .conversions import dt_to_ns, force_arrays, odom_arrays, stamp_ns, step_stamp
 from .node_common import REALTIME_RATE, START_QOS, RejectionLog, control_qos, run_node
 from .params import PLANT_PARAMS, declare_swarm_node
 from .plant_outputs import PlantOutputs
-from .topics import SWARM_START, TARGET_ODOM, force_topic
+from .topics import SWARM_FORCE_CMDS, SWARM_START, TARGET_ODOM, force_topic
 
 __all__ = ['PlantNode', 'main']
 
@@ -52,6 +51,8 @@ class PlantNode(Node):
             self.create_subscription(ForceCommand, force_topic(i), partial(self._on_force, i), qos)
             for i in self.model.ids
         ]
+        if mode == 'realtime':  # a process's commands as one message (batch_commands)
+            self.create_subscription(ForceCommands, SWARM_FORCE_CMDS, self._on_forces, qos)
         self.tracker_rejected: dict[int, int] = {}
         self._log_rejection = RejectionLog(self)
         self.create_timer(1.0, self._check_duplicates)
@@ -78,13 +79,10 @@ class PlantNode(Node):
             f'dt {self.cfg.dt:g} s, {self.cfg.steps} steps'
         )
 
-    # --- start -------------------------------------------------------------------------
     def _autostart(self) -> None:
         """Without a start signal: start once every force_cmd topic has its publisher."""
-        if (
-            all(self.count_publishers(force_topic(i)) > 0 for i in self.model.ids)
-            and self.count_publishers(TARGET_ODOM) > 0
-        ):
+        topics = [TARGET_ODOM, *(force_topic(i) for i in self.model.ids)]
+        if all(self.count_publishers(t) > 0 for t in topics):
             self._start_timer.cancel()
             self._start()
 
@@ -100,9 +98,8 @@ class PlantNode(Node):
     def _matched(self) -> bool:
         """Every command publisher matched to this plant's readers, every reader of step k
         to its writers (the recorder's too when ``recorded``): else a first message is lost."""
-        if self.target_sub.get_publisher_count() < 1:
-            return False
-        if any(sub.get_publisher_count() < 1 for sub in self.force_subs):
+        subs = [self.target_sub, *self.force_subs]
+        if any(sub.get_publisher_count() < 1 for sub in subs):
             return False
         return self.out.readers_matched(self.inputs, int(self.recorded))
 
@@ -152,6 +149,10 @@ class PlantNode(Node):
             self.tracker_rejected[c.uav_id] = c.rejected_inputs
         self._carry_out(actions)
 
+    def _on_forces(self, msg: ForceCommands) -> None:
+        for c in msg.commands:
+            self._on_force(c.uav_id, c)
+
     def _on_target(self, msg: Odometry) -> None:
         x, v = odom_arrays(msg)
         t = msg.header.stamp
@@ -160,14 +161,12 @@ class PlantNode(Node):
     def _check_duplicates(self) -> None:
         """1 Hz: a force topic with more than one publisher means two trackers share an id."""
         for i in self.model.ids:
-            count = self.count_publishers(force_topic(i))
-            if count > 1:
+            if (count := self.count_publishers(force_topic(i))) > 1:
                 self.get_logger().error(
                     f'duplicate uav_id {i}: {count} publishers on {force_topic(i)}; '
                     'following the first tracker process that commanded, refusing the others'
                 )
 
-    # --- the timers of each mode -------------------------------------------------------
     def _check_deadline(self, barrier: LockstepBarrier) -> None:
         """Lockstep, 10 ms: start when matched; past the deadline re-send step k, then miss."""
         if self.starting:

@@ -28,6 +28,7 @@ __all__ = [
     'RECORDER_STATUS',
     'REQUEST',
     'STATUS',
+    'SWARM_FORCE_CMDS',
     'SWARM_MARKERS',
     'SWARM_ODOM',
     'SWARM_PUBLISHED',
@@ -73,6 +74,8 @@ TARGET_REQUEST = f'{TARGET_NAMESPACE}/{REQUEST}'
 SWARM_STATE = '/swarm/state'
 SWARM_ODOM = '/swarm/odom'
 SWARM_START = '/swarm/start'
+#: the force commands of a process's trackers as one message (``batch_commands``)
+SWARM_FORCE_CMDS = '/swarm/force_cmds'
 SWARM_MARKERS = '/swarm/markers'
 CLOCK = '/clock'
 RECORDER_STATUS = f'/{RECORDER_NODE}/{STATUS}'
@@ -85,6 +88,7 @@ SWARM_PUBLISHED = (
     SWARM_STATE,
     SWARM_ODOM,
     SWARM_START,
+    SWARM_FORCE_CMDS,
     SWARM_MARKERS,
     TARGET_ODOM,
     TARGET_REQUEST,

@@ -4,12 +4,54 @@
 from __future__ import annotations
 
 import sys
+from typing import Any
 
-from .node_common import run_nodes
-from .topics import uav_namespace
+from apf_swarm_msgs.msg import ForceCommand, ForceCommands
+
+from .node_common import control_qos, run_nodes
+from .topics import SWARM_FORCE_CMDS, uav_namespace
 from .tracker_node import TrackerNode
 
-__all__ = ['group_main', 'parse_uav_ids']
+
+class LeadTrackerNode(TrackerNode):
+    """The tracker node that reads ``/swarm/odom`` for its process and hands each state to
+    the others (:attr:`fanout`); with ``batch_commands``, the commands they answer it with
+    go out together as one ``/swarm/force_cmds`` message."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.batch: list[ForceCommand] | None = None
+        self.batch_pub = None
+        batching = self.get_parameter('batch_commands').value
+        if batching and self.mode == 'realtime' and self.inputs == 'aggregate':
+            depth = self.get_parameter('qos_depth').value
+            qos = control_qos(self.mode, depth)
+            self.batch_pub = self.create_publisher(ForceCommands, SWARM_FORCE_CMDS, qos)
+            self.join(self)
+            self.get_logger().info(
+                f'the process sends its commands together on {SWARM_FORCE_CMDS}'
+            )
+
+    def join(self, node: TrackerNode) -> None:
+        """``node``'s commands on a state go into the batch (its others, brakes on the
+        watchdog's timer, on its own topic as before)."""
+        alone = node._publish
+        node._publish = lambda msg: alone(msg) if self.batch is None else self.batch.append(msg)
+
+    def _on_swarm_odom(self, msg: Any) -> None:
+        if self.batch_pub is None:
+            super()._on_swarm_odom(msg)
+            return
+        self.batch = []
+        try:
+            super()._on_swarm_odom(msg)
+        finally:
+            batch, self.batch = self.batch, None
+        if batch:
+            self.batch_pub.publish(ForceCommands(commands=batch))
+
+
+__all__ = ['LeadTrackerNode', 'group_main', 'parse_uav_ids']
 
 
 def parse_uav_ids(text: str) -> list[int]:
@@ -53,17 +95,24 @@ def group_main(args: list[str] | None = None) -> None:
     # realtime with the aggregated inputs: one /swarm/odom subscription for the process, whose
     # node hands each message to the others (one delivery and one conversion per state
     # instead of one per tracker); lockstep keeps one per node, the readers the plant counts
-    lead: list[TrackerNode] = []  # the node that subscribes for the process, if any
+    lead: list[LeadTrackerNode] = []  # the node that subscribes for the process, if any
 
     def make(i: int) -> TrackerNode:
-        node = TrackerNode(
+        kind = TrackerNode if lead else LeadTrackerNode
+        node = kind(
             namespace=uav_namespace(i),
             parameter_overrides=[Parameter('uav_id', value=i)],
             swarm_odom=not lead,
         )
         if lead:
             lead[0].fanout.append(node)
-        elif node.mode == 'realtime' and node.inputs == 'aggregate':
+            if lead[0].batch_pub is not None:
+                lead[0].join(node)
+        elif (
+            isinstance(node, LeadTrackerNode)
+            and node.mode == 'realtime'
+            and node.inputs == 'aggregate'
+        ):
             lead.append(node)
         return node
 

@@ -11,6 +11,7 @@ from typing import Any
 
 from ..topics import (
     CLOCK,
+    SWARM_FORCE_CMDS,
     SWARM_ODOM,
     SWARM_STATE,
     TARGET_ODOM,
@@ -43,7 +44,7 @@ class TopicExpectation:
 
 
 def expected_graph(
-    n: int, mode: str, readers: int | None = None
+    n: int, mode: str, readers: int | None = None, batch_writers: int = 0
 ) -> tuple[list[str], list[TopicExpectation]]:
     """Fully qualified node names and topic endpoint counts of a swarm of ``n`` trackers.
 
@@ -51,7 +52,9 @@ def expected_graph(
     and ``/target/odom`` (``inputs:=odom``) or as the one aggregate ``/swarm/odom`` message per
     step (``inputs:=aggregate``); the counts accept either. ``readers``: how many subscribe
     to each (default n; a realtime process of several trackers reads ``/swarm/odom`` once,
-    see :func:`input_readers`). ``/swarm/start`` and this node's
+    see :func:`input_readers`). ``batch_writers``: the processes that send their commands
+    as one ``/swarm/force_cmds`` message (``batch_commands``), which the plant must read
+    before the start or their first commands are lost. ``/swarm/start`` and this node's
     ``/swarm/state`` subscription are checked on its own endpoints (matched counts), see
     :meth:`Bringup.missing`.
     """
@@ -67,6 +70,8 @@ def expected_graph(
         topics.append(TopicExpectation(CLOCK, 1, 0))
         topics.append(TopicExpectation(TARGET_REQUEST, 1, 1))
     topics.append(TopicExpectation(SWARM_STATE, 1, 1))
+    if batch_writers:
+        topics.append(TopicExpectation(SWARM_FORCE_CMDS, batch_writers, 1))
     return nodes, topics
 
 

@@ -42,6 +42,8 @@ class GraphWatch:
     ) -> None:
         self.args, self.mode, self.n, self.node_values = args, args.mode, n, node_values
         self.acc, self.say, self.warn_once = acc, say, warn_once
+        #: processes that send their commands as one message (``batch_commands``), or 0
+        self.batch_writers = 0
         #: the recorder's last ``/recorder/status`` document (``--record``), None before one
         self.rec_status: dict[str, Any] | None = None
         # rclpy objects, made by init_ros() once rclpy is imported (this module does not)
@@ -107,6 +109,7 @@ class GraphWatch:
                 self.args.trackers_per_process,
                 self.node_values.get('inputs', 'aggregate'),
             ),
+            self.batch_writers,
         )
         if self.args.record:
             nodes = [*nodes, f'/{RECORDER_NODE}']

@@ -209,6 +209,8 @@ class Bringup:
         self.signals.install()
         try:
             self.setup.isolate()
+            if self.setup.batch_commands:
+                self.graph.batch_writers = -(-self.n // self.args.trackers_per_process)
         except BaseException:
             self.signals.restore()
             raise

@@ -149,6 +149,22 @@ class Startup:
             say=self.say,
         )
 
+    @property
+    def batch_commands(self) -> bool:
+        """Whether the trackers send a process's commands as one message: by default in a
+        secure realtime run of several trackers to a process, not recorded; else as the
+        ``batch_commands`` node parameter says."""
+        values = dict(p.split(':=', 1) for p in self.node_params)
+        given = values.get('batch_commands')
+        several = (
+            self.mode == 'realtime'
+            and self.args.trackers_per_process > 1
+            and values.get('inputs', 'aggregate') == 'aggregate'
+        )
+        if given is not None:
+            return several and given.strip().lower() == 'true'
+        return several and self.pki is not None and not self.args.record
+
     def check_secure(self) -> None:
         """A secure run, before any node starts: the bring-up's own port (its participant,
         the discovery server) refuses a TLS client without the run's certificate."""
@@ -216,6 +232,10 @@ class Startup:
             # the run's identity: its nodes refuse the commands and states of another run
             # recorded: each writer waits for the recorder's reader before its first message
             [
+                # over TLS a message costs more than its bytes: one command message per
+                # process (docs/PERFORMANCE.md, "Secure multi-host runs"); a bag keeps the
+                # per-UAV topics, so not with --record
+                *(['batch_commands:=true'] if self.batch_commands else []),
                 *self.node_params,
                 f'run:={self.run_id}',
                 *(['recorded:=true'] if self.args.record else []),
