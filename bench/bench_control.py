@@ -1,37 +1,18 @@
 #!/usr/bin/env python3
 """Benchmark of one tracker's command against a naive numpy command of the same law.
 
-Run from the workspace root (numpy and psutil, no ROS graph):
-
     python bench/bench_control.py [--n 3,16,32,64,128] [--calls 200] [--precondition P]
                                   [--json FILE] [--smoke]
 
-What is timed, per swarm size n, with the ``realtime`` preset (its precondition and
-compensation, sampled at 50 Hz with 10 ms of latency) and the states of its designed
-formation around the target with 1 cm of noise a call (every call sees new positions):
-
-* ``command``: :meth:`TrackerAgent.command` of tracker 1 after
-  :meth:`TrackerAgent.offer_swarm` of every tracker's state and the target's (what a tracker
-  node computes per state, less the message conversion and the publication); the offer is
-  timed apart (``offer + command``);
-* ``naive``, the baseline measured in the same run: :class:`Naive`, the same law's
-  gradient-only command for one tracker written plainly in numpy -- the gradient row of eq. 2 /
-  44, the proposed manifold with the paper's saturation (eq. 28 / 31), the switching force of
-  eq. 24 (with the preset's boundary layer) and the filter of eq. 26; no preconditioning, no
-  delay compensation, no input checks. Before timing, it is checked against
-  ``TrackerAgent.command`` with ``precondition=none`` and ``compensation=none`` (the same
-  law): the forces must agree to 1e-9, else the bench fails.
-
-Each number is the mean, the median and the p99 over ``--calls`` calls after 20 of warm-up
-(the median resists the preemptions of a shared machine better than the mean), the command
-and the baseline alternating in slices of 10 calls so that a busy moment hits both.
-``--precondition`` overrides the preset's direction (any value the configuration accepts).
-Output: the CPU model, then a Markdown table on stdout; ``--json FILE`` writes
-``{"rows": [{"n": .., "mean_us": .., "p99_us": .., ...}, ...]}`` (``mean_us`` and ``p99_us``:
-the command; the other fields: the offer, the baseline, the ratios). ``--smoke``: n = 3 and 16,
-20 calls. Exit status 0; 1 when the baseline disagrees with the command, or when the block
-direction's command grows from 32 to 128 trackers by more than 6x (the floor; when both are
-measured); 2 for bad arguments.
+Per swarm size n, ``realtime`` preset (50 Hz, 10 ms), states at the designed formation with
+1 cm of noise a call: ``command`` = :meth:`TrackerAgent.command` of tracker 1 after
+:meth:`TrackerAgent.offer_swarm` (the offer timed apart); ``naive``, the baseline of the same
+run = :class:`Naive`, the gradient-only command in plain numpy (eq. 2 / 44, 28 / 31, 24, 26),
+checked against ``command`` with ``precondition=none, compensation=none`` to 1e-9 first.
+Mean, median and p99 over ``--calls`` calls after 20 of warm-up, the two alternating in slices
+of 10. ``--json FILE``: ``{"rows": [{"n": .., "mean_us": .., "p99_us": .., ...}, ...]}``.
+Exit 1 when the baseline disagrees, or the block direction's command grows more than 6x from
+32 to 128 trackers. ``--smoke``: n = 3 and 16, 20 calls.
 """
 
 from __future__ import annotations
@@ -40,26 +21,20 @@ import argparse
 import json
 import math
 import os
-import platform
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-try:
-    import apf_swarm_core  # noqa: F401
-    import apf_swarm_nodes  # noqa: F401
-except ImportError:  # run without the workspace's environment: its sources (numpy, psutil)
-    for pkg in ('apf_swarm_core', 'apf_swarm_nodes'):
-        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / pkg))
-
 from apf_swarm_core.agents import TrackerAgent
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import apply_overrides, load_preset
 from apf_swarm_core.formation import design_formation
 from apf_swarm_nodes.capacity.machine import cpu_model
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _children import table
 
 #: the command may grow at most this much from 32 to 128 trackers (linear is 4x)
 FLOOR_GROWTH = 6.0
@@ -178,71 +153,44 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--n', default='3,16,32,64,128', help='swarm sizes, comma-separated')
     ap.add_argument('--calls', type=int, default=200, help='timed calls per size')
-    ap.add_argument(
-        '--precondition',
-        default=None,
-        help="the direction, any value the configuration accepts (default: the preset's)",
-    )
+    ap.add_argument('--precondition', default=None, help="default: the preset's")
     ap.add_argument('--json', type=Path, default=None, metavar='FILE', help='rows as JSON')
     ap.add_argument('--smoke', action='store_true', help='n = 3 and 16, 20 calls (seconds)')
     args = ap.parse_args(argv)
     try:
         sizes = [3, 16] if args.smoke else [int(s) for s in args.n.split(',')]
-    except ValueError:
-        ap.error(f'--n {args.n!r}: comma-separated integers expected')
+        base = load_preset('realtime').replace(control_rate=50.0, latency=0.01)
+        if args.precondition:
+            base = apply_overrides(base, {'precondition': args.precondition})
+    except (ValueError, TypeError) as exc:  # ConfigError is a ValueError
+        ap.error(str(exc))
     calls = 20 if args.smoke else args.calls
     if calls < 1 or min(sizes) < 1:
         ap.error('--calls and every --n must be at least 1')
-    base = load_preset('realtime')
-    if args.precondition:
-        try:
-            base = apply_overrides(base, {'precondition': args.precondition})
-        except (ValueError, TypeError) as exc:  # ConfigError is a ValueError
-            ap.error(f'--precondition {args.precondition!r}: {exc}')
-    base = base.replace(control_rate=50.0, latency=0.01)
-    load = ' '.join(f'{x:.2f}' for x in os.getloadavg())
-    print(
-        f'CPU: {cpu_model()}, {os.cpu_count()} cores; Python {platform.python_version()}, '
-        f'numpy {np.__version__}; load average {load} at the start\n'
-        f'preset realtime: precondition {base.precondition}, compensation '
-        f'{base.compensation}, control_rate {base.control_rate:g} Hz, latency '
-        f'{base.latency * 1e3:g} ms; {calls} calls per size after {WARMUP} of warm-up',
-        flush=True,
-    )
+    print(f'CPU: {cpu_model()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}; '
+          f'realtime: precondition {base.precondition}, compensation {base.compensation}; '
+          f'{calls} calls after {WARMUP} of warm-up', flush=True)  # fmt: skip
     rows, worst = [], 0.0
     for n in sizes:
         cfg = base.replace(n_trackers=n)
-        err = check(cfg)
-        worst = max(worst, err)
-        if err > 1e-9:
+        worst = max(worst, check(cfg))
+        if worst > 1e-9:
             print(
-                f'bench_control: the baseline differs from TrackerAgent.command '
-                f'(precondition=none) at n = {n} by {err:.3g} (relative): broken',
-                file=sys.stderr,
+                f'bench_control: the baseline differs by {worst:.3g} at n = {n}', file=sys.stderr
             )
             return 1
         rows.append(measure(cfg, calls))
-        print(f'bench_control: n = {n} done', file=sys.stderr, flush=True)
-    print(
-        '\n| n | command mean / p50 / p99 [µs] | naive mean / p50 / p99 [µs] '
-        '| command / naive (means, medians) | offer + command mean / p99 [µs] |'
-    )
-    print('|---:|---:|---:|---:|---:|')
 
     def us(r: dict[str, Any], key: str, stats: tuple[str, ...]) -> str:
         return ' / '.join(f'{r[f"{key}_{q}_us"]:.0f}' for q in stats)
 
-    for r in rows:
-        print(
-            f'| {r["n"]} | {us(r, "command", ("mean", "p50", "p99"))} '
-            f'| {us(r, "naive", ("mean", "p50", "p99"))} '
-            f'| {r["ratio_to_naive"]:.2f}, {r["ratio_to_naive_p50"]:.2f} '
-            f'| {us(r, "offer_command", ("mean", "p99"))} |'
-        )
-    print(
-        f'\nBaseline against TrackerAgent.command with precondition=none, compensation=none: '
-        f'largest relative difference of the force {worst:.1e} (limit 1e-9).'
-    )
+    head = 'n: | command mean / p50 / p99 [µs]: | naive mean / p50 / p99 [µs]: | command / naive '
+    print('\n' + table(head + '(means, medians): | offer + command mean / p99 [µs]:', [
+        [r['n'], us(r, 'command', ('mean', 'p50', 'p99')), us(r, 'naive', ('mean', 'p50', 'p99')),
+         f'{r["ratio_to_naive"]:.2f}, {r["ratio_to_naive_p50"]:.2f}',
+         us(r, 'offer_command', ('mean', 'p99'))] for r in rows]))  # fmt: skip
+    print(f'\nBaseline against the command (precondition=none, compensation=none): largest '
+          f'relative difference of the force {worst:.1e} (limit 1e-9).')  # fmt: skip
     if args.json:
         args.json.write_text(json.dumps({'rows': rows}, indent=2) + '\n')
     by_n = {r['n']: r for r in rows}
