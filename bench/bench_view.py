@@ -1,23 +1,20 @@
 #!/usr/bin/env python3
-"""What the live view costs a realtime run: without ``--view``, with ``--view`` and no client,
-and with a Foxglove client subscribed to every channel.
+"""What the live view costs a realtime run: no ``--view`` (the baseline), a view nobody
+watches, and a Foxglove client subscribed to every channel.
 
-Run from the workspace root with the workspace sourced (``source scripts/activate.sh``):
+    source scripts/activate.sh
+    python bench/bench_view.py [--n 8] [--duration 15] [--rounds 2] [--json FILE] [--smoke]
 
-    python bench/bench_view.py [--n 8] [--duration 15] [--rounds 2] [--json FILE]
-
-Each round runs the three cases one after another (interleaved, so that a drift of the
-machine's speed falls on all of them), each a ``apf-swarm up --preset realtime --mode
-realtime`` run of ``--n`` trackers four to a process. Per case: the control loop's command
-latency (p50 / p99 over the flight, from ``trajectory.npz``), missed deadlines, the CPU of
-the bring-up process (the view lives there) and of all the run's processes, and for the
-watched case the frames the client received. Ratios are against the no-view case of the same
-round. Output: a Markdown table on stdout, progress on stderr.
+Each round runs the three cases interleaved (``apf-swarm up --preset realtime --mode realtime``,
+``--n`` trackers four to a process). Per case: command latency p50 / p99 (``trajectory.npz``),
+missed deadlines, CPU of the bring-up (the view lives there) and of every process of the run,
+frames the client received; the CPU ratio is against the no-view run of the same round.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -31,7 +28,10 @@ from typing import Any
 
 import numpy as np
 import psutil
-from _children import dying_with_parent, exit_on_signals
+from apf_swarm_nodes.capacity.machine import cpu_model
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _children import exit_on_signals, start, stop, table
 
 CASES = ('no view', 'view, no client', 'view, watched')
 
@@ -66,52 +66,38 @@ def watch(url: str, stop: threading.Event, counts: dict[str, int]) -> None:
 
 
 def run_case(case: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
-    cmd = [
-        'apf-swarm', 'up', '--preset', 'realtime', '--mode', 'realtime',
-        '--n-trackers', str(args.n), '--trackers-per-process', '4',
-        '--duration', str(args.duration), '--no-plots', '--out', str(out),
-    ]  # fmt: skip
-    if case != 'no view':
-        cmd += ['--view', '0']
-    proc = subprocess.Popen(
-        dying_with_parent(cmd), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
-    )
-    me = psutil.Process(proc.pid)
+    cmd = ['apf-swarm', 'up', '--preset', 'realtime', '--mode', 'realtime', '--n-trackers',
+           str(args.n), '--trackers-per-process', '4', '--duration', str(args.duration),
+           '--no-plots', '--out', str(out)]  # fmt: skip
+    cmd += ['--view', '0'] if case != 'no view' else []
+    proc = start(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     cpu: dict[int, float] = {}
-    stop, counts = threading.Event(), {'frames': 0}
+    done, counts = threading.Event(), {'frames': 0}
     client: threading.Thread | None = None
-    assert proc.stderr is not None
-    for line in proc.stderr:
-        found = re.search(r'view: (ws://\S+)', line)
-        if found and case == 'view, watched' and client is None:
-            client = threading.Thread(
-                target=watch, args=(found.group(1), stop, counts), daemon=True
-            )
-            client.start()
-        for p in [me, *me.children(recursive=True)]:
-            try:
-                t = p.cpu_times()
-                cpu[p.pid] = t.user + t.system
-            except psutil.Error:
-                pass
-    proc.wait()
-    stop.set()
+    try:
+        me = psutil.Process(proc.pid)
+        for line in proc.stderr or ():
+            found = re.search(r'view: (ws://\S+)', line)
+            if found and case == 'view, watched' and client is None:
+                client = threading.Thread(target=watch, args=(found[1], done, counts), daemon=True)
+                client.start()
+            for p in [me, *me.children(recursive=True)]:
+                with contextlib.suppress(psutil.Error):
+                    cpu[p.pid] = sum(p.cpu_times()[:2])
+        proc.wait()
+    finally:
+        stop(proc)
+        done.set()
     if client is not None:
         client.join(timeout=10)
     summary = json.loads((out / 'summary.json').read_text())
     with np.load(out / 'trajectory.npz') as npz:
         lat = np.asarray(npz['command_latency'], dtype=float)
-    lat = lat[lat > 0] * 1e3
-    return {
-        'case': case,
-        'p50': float(np.percentile(lat, 50)) if lat.size else float('nan'),
-        'p99': float(np.percentile(lat, 99)) if lat.size else float('nan'),
-        'missed': int(summary['missed_deadlines']),
-        'cpu_bringup': cpu.get(proc.pid, float('nan')),
-        'cpu_all': sum(cpu.values()),
-        'frames': counts['frames'],
-        'rc': proc.returncode,
-    }
+    lat = lat[lat > 0] * 1e3 if (lat > 0).any() else np.array([np.nan])
+    return {'case': case, 'p50': float(np.percentile(lat, 50)), 'rc': proc.returncode,
+            'p99': float(np.percentile(lat, 99)), 'missed': int(summary['missed_deadlines']),
+            'cpu_bringup': cpu.get(proc.pid, float('nan')), 'cpu_all': sum(cpu.values()),
+            'frames': counts['frames']}  # fmt: skip
 
 
 def main() -> int:
@@ -134,28 +120,19 @@ def main() -> int:
                 row = run_case(case, args, Path(tmp) / f'{r}-{k}')
                 row['round'] = r + 1
                 rows.append(row)
-    from bench_simulator import machine
-
-    print(f'\n{machine()}; {args.n} trackers four to a process, {args.duration:g} s each\n')
-    print(
-        '| case | latency p50 / p99 [ms] | missed deadlines | bring-up CPU [s] | '
-        'all CPU [s] | CPU ratio (all) | frames received |'
-    )
-    print('|---|---|---|---|---|---|---|')
+    med = statistics.median
+    out = []
     for case in CASES:
         mine = [r for r in rows if r['case'] == case]
         base = [r for r in rows if r['case'] == 'no view']
-        ratio = statistics.median(
-            m['cpu_all'] / b['cpu_all'] for m, b in zip(mine, base, strict=True)
-        )
-        print(
-            f'| {case} | {statistics.median(r["p50"] for r in mine):.1f} / '
-            f'{statistics.median(r["p99"] for r in mine):.1f} | '
-            f'{max(r["missed"] for r in mine)} | '
-            f'{statistics.median(r["cpu_bringup"] for r in mine):.1f} | '
-            f'{statistics.median(r["cpu_all"] for r in mine):.1f} | {ratio:.3f} | '
-            f'{statistics.median(r["frames"] for r in mine):.0f} |'
-        )
+        ratio = med(m['cpu_all'] / b['cpu_all'] for m, b in zip(mine, base, strict=True))
+        out.append([case, f'{med(r["p50"] for r in mine):.1f} / {med(r["p99"] for r in mine):.1f}',
+                    max(r['missed'] for r in mine), f'{med(r["cpu_bringup"] for r in mine):.1f}',
+                    f'{med(r["cpu_all"] for r in mine):.1f}', f'{ratio:.3f}',
+                    f'{med(r["frames"] for r in mine):.0f}'])  # fmt: skip
+    print(f'\n{cpu_model()}; {args.n} trackers four to a process, {args.duration:g} s each\n')
+    head = 'case | latency p50 / p99 [ms] | missed deadlines: | bring-up CPU [s]: | all CPU [s]: '
+    print(table(head + '| CPU ratio (all): | frames received:', out))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + '\n')
     return 0 if all(r['rc'] == 0 for r in rows) else 1
