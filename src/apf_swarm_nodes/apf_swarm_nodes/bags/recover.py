@@ -3,10 +3,11 @@ complete record recovered, the summary, indexes and metadata.yaml rebuilt)."""
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import time
-from collections import defaultdict
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -14,23 +15,21 @@ import yaml
 
 from .errors import BagError
 from .info import _read_metadata, bag_files
-from .types import DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME, ROS_DISTRO
-from .write import _write_metadata, build_metadata
-
-# --------------------------------------------------------------------------------------------
-# reindex
-# --------------------------------------------------------------------------------------------
+from .types import DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME, ROS_DISTRO, _one_line
+from .write import build_metadata, mcap_writer, write_metadata
 
 
 @dataclass
 class _Recovered:
-    schemas: dict[int, Any]
-    channels: dict[int, Any]
-    messages: list[Any]
-    metadata: dict[str, str]
-    compression: str
-    complete: bool
-    error: str
+    """What an MCAP file holds up to its first unreadable record."""
+
+    schemas: dict[int, Any] = field(default_factory=dict)
+    channels: dict[int, Any] = field(default_factory=dict)
+    messages: list[Any] = field(default_factory=list)
+    metadata: dict[str, str] = field(default_factory=dict)  # our MCAP metadata records
+    compression: str = ''
+    complete: bool = False
+    error: str = ''
 
 
 def _scan_mcap(file: Path) -> _Recovered:
@@ -38,56 +37,45 @@ def _scan_mcap(file: Path) -> _Recovered:
     from mcap.records import Channel, Chunk, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader, breakup_chunk
 
-    schemas: dict[int, Any] = {}
-    channels: dict[int, Any] = {}
-    messages: list[Any] = []
-    metadata: dict[str, str] = {}
-    compression = ''
-    error = ''
-    complete = False
+    out = _Recovered()
     with open(file, 'rb') as f:
-        reader = StreamReader(f, emit_chunks=True)
         try:
-            for rec in reader.records:
+            for rec in StreamReader(f, emit_chunks=True).records:
                 if isinstance(rec, Chunk):
-                    compression = compression or rec.compression
-                    inner = breakup_chunk(rec, validate_crc=True)
-                else:
-                    inner = [rec]
+                    out.compression = out.compression or rec.compression
+                inner = breakup_chunk(rec, validate_crc=True) if isinstance(rec, Chunk) else [rec]
                 for r in inner:
                     if isinstance(r, Schema):
-                        schemas[r.id] = r
+                        out.schemas[r.id] = r
                     elif isinstance(r, Channel):
-                        channels[r.id] = r
+                        out.channels[r.id] = r
                     elif isinstance(r, Message):
-                        messages.append(r)
+                        out.messages.append(r)
                     elif isinstance(r, Metadata) and r.name == MCAP_METADATA_NAME:
-                        metadata.update(r.metadata)
-            complete = True
+                        out.metadata.update(r.metadata)
+            out.complete = True
         except Exception as exc:  # the truncated tail: EndOfFile, struct.error, zstd errors
-            error = f'{type(exc).__name__}: {exc}' if str(exc) else type(exc).__name__
-    return _Recovered(schemas, channels, messages, metadata, compression, complete, error)
+            out.error = _one_line(exc)
+    return out
 
 
-def _rewrite_mcap(rec: _Recovered, dst: Path, chunk_size: int = DEFAULT_CHUNK_SIZE) -> None:
+def _rewrite_mcap(rec: _Recovered, dst: Path) -> None:
     """A complete MCAP file (summary, indexes, statistics) with mcap's writer."""
-    from mcap.writer import CompressionType, Writer
-
-    comp = CompressionType.ZSTD if rec.compression == 'zstd' else CompressionType.NONE
     with open(dst, 'xb') as f:
-        w = Writer(f, chunk_size=chunk_size, compression=comp)
-        w.start(profile='ros2', library='apf_swarm reindex (mcap)')
+        w = mcap_writer(
+            f, rec.compression == 'zstd', DEFAULT_CHUNK_SIZE, 'apf_swarm reindex (mcap)'
+        )
         sid = {
             old: w.register_schema(s.name, s.encoding, s.data)
             for old, s in sorted(rec.schemas.items())
         }
-        cid = {}
-        for old, c in sorted(rec.channels.items()):
-            if c.schema_id and c.schema_id not in sid:
-                continue  # its schema was in the lost part (cannot happen with rosbags)
-            cid[old] = w.register_channel(
+        cid = {
+            old: w.register_channel(
                 c.topic, c.message_encoding, sid.get(c.schema_id, 0), dict(c.metadata)
             )
+            for old, c in sorted(rec.channels.items())
+            if not c.schema_id or c.schema_id in sid  # a schema in the lost part: dropped
+        }
         for m in sorted(rec.messages, key=lambda m: m.log_time):
             if m.channel_id in cid:
                 w.add_message(cid[m.channel_id], m.log_time, m.data, m.publish_time, m.sequence)
@@ -96,16 +84,14 @@ def _rewrite_mcap(rec: _Recovered, dst: Path, chunk_size: int = DEFAULT_CHUNK_SI
         w.finish()
 
 
-def _hash_of(schema: Any, fallback: str = '') -> str:
-    if fallback:
-        return fallback
-    try:
-        from rosbags.typesys import get_types_from_msg
-        from rosbags.typesys.stores import Stores, get_typestore
+def _hash_of(schema: Any) -> str:
+    """The RIHS01 hash of a stored ``ros2msg`` definition ('' when it cannot be parsed)."""
+    from rosbags.typesys import get_types_from_msg
+    from rosbags.typesys.stores import Stores, get_typestore
 
+    try:
         store = get_typestore(Stores.EMPTY)
-        text = schema.data.decode()
-        store.register(get_types_from_msg(text, schema.name))
+        store.register(get_types_from_msg(schema.data.decode(), schema.name))
         return store.hash_rihs01(schema.name)
     except Exception:
         return ''
@@ -129,59 +115,52 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
     files = bag_files(path)
     if not files:
         raise BagError(f'{path} is not a bag: it has no .mcap file to rebuild metadata.yaml from')
+    meta_file = path / 'metadata.yaml'
     old_meta: dict[str, Any] = {}
-    if (path / 'metadata.yaml').is_file():
-        try:
+    if meta_file.is_file():
+        with contextlib.suppress(BagError):
             old_meta = _read_metadata(path)
-        except BagError:
-            old_meta = {}
-    old_topics = {
-        e.get('topic_metadata', {}).get('name'): e.get('topic_metadata', {})
+    old_hash = {
+        e.get('topic_metadata', {}).get('name'): e.get('topic_metadata', {}).get(
+            'type_description_hash', ''
+        )
         for e in (old_meta.get('topics_with_message_count') or [])
     }
     backup = path / f'reindex-backup-{time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())}'
     report: dict[str, Any] = {'path': str(path), 'files': [], 'backup': None}
-
-    def backup_dir() -> Path:
-        backup.mkdir(exist_ok=True)
-        report['backup'] = str(backup)
-        return backup
-
     file_stats: list[dict[str, Any]] = []
     topics: dict[str, dict[str, Any]] = {}
-    custom: dict[str, str] = {
-        str(k): str(v) for k, v in (old_meta.get('custom_data') or {}).items()
-    }
+    custom = {str(k): str(v) for k, v in (old_meta.get('custom_data') or {}).items()}
     for file in files:
         rec = _scan_mcap(file)
-        if not rec.complete:
-            if not rec.schemas and not rec.messages:
-                raise BagError(
-                    f'{file}: no complete MCAP record could be read ({rec.error}); '
-                    'nothing to recover (the recorder died before its first chunk?)'
-                )
+        action = 'kept' if rec.complete else 'rewritten'
+        if rec.complete:
+            say(f'{file.name}: complete, {len(rec.messages)} messages')
+        elif not rec.schemas and not rec.messages:
+            raise BagError(
+                f'{file}: no complete MCAP record could be read ({rec.error}); '
+                'nothing to recover (the recorder died before its first chunk?)'
+            )
+        else:
             tmp = file.with_name(file.name + '.reindex.tmp')
-            if tmp.exists():
-                tmp.unlink()
+            tmp.unlink(missing_ok=True)
             _rewrite_mcap(rec, tmp)
-            shutil.move(str(file), str(backup_dir() / file.name))
+            backup.mkdir(exist_ok=True)
+            report['backup'] = str(backup)
+            shutil.move(str(file), str(backup / file.name))
             tmp.replace(file)
             say(
                 f'{file.name}: truncated ({rec.error}); recovered {len(rec.messages)} messages '
                 f'of {len(rec.channels)} topics from its complete chunks, rewrote it '
                 f'(original in {backup.name}/)'
             )
-            action = 'rewritten'
-        else:
-            say(f'{file.name}: complete, {len(rec.messages)} messages')
-            action = 'kept'
         for k, v in rec.metadata.items():
             custom.setdefault(k, v)
         ts = [m.log_time for m in rec.messages]
         file_stats.append(
             {
                 'path': file.name,
-                'starting_time': {'nanoseconds_since_epoch': min(ts) if ts else 0},
+                'starting_time': {'nanoseconds_since_epoch': min(ts, default=0)},
                 'duration': {'nanoseconds': (max(ts) - min(ts)) if ts else 0},
                 'message_count': len(ts),
             }
@@ -189,44 +168,39 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
         report['files'].append(
             {'path': file.name, 'action': action, 'messages': len(ts), 'error': rec.error}
         )
-        per_channel: dict[int, int] = defaultdict(int)
-        for m in rec.messages:
-            per_channel[m.channel_id] += 1
-        for cid_, ch in sorted(rec.channels.items()):
+        per_channel = Counter(m.channel_id for m in rec.messages)
+        for cid, ch in sorted(rec.channels.items()):
             schema = rec.schemas.get(ch.schema_id)
+            qos = yaml.safe_load(ch.metadata.get('offered_qos_profiles', '') or '[]') or []
             t = topics.setdefault(
                 ch.topic,
                 {
-                    'name': ch.topic,
-                    'type': schema.name if schema else '',
-                    'serialization_format': ch.message_encoding,
-                    'offered_qos_profiles': yaml.safe_load(
-                        ch.metadata.get('offered_qos_profiles', '') or '[]'
-                    )
-                    or [],
-                    'type_description_hash': _hash_of(
-                        schema, old_topics.get(ch.topic, {}).get('type_description_hash', '')
-                    )
-                    if schema
-                    else '',
+                    'topic_metadata': {
+                        'name': ch.topic,
+                        'type': schema.name if schema else '',
+                        'serialization_format': ch.message_encoding,
+                        'offered_qos_profiles': qos,
+                        'type_description_hash': (
+                            old_hash.get(ch.topic) or (_hash_of(schema) if schema else '')
+                        ),
+                    },
                     'message_count': 0,
                 },
             )
-            t['message_count'] += per_channel.get(cid_, 0)
+            t['message_count'] += per_channel[cid]
     custom['apf_swarm.reindexed'] = time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())
     doc = build_metadata(
-        files=file_stats,
-        topics=list(topics.values()),
-        custom_data=custom,
-        ros_distro=str(old_meta.get('ros_distro', ROS_DISTRO)),
+        file_stats, list(topics.values()), custom, str(old_meta.get('ros_distro', ROS_DISTRO))
     )
-    if (path / 'metadata.yaml').is_file():
-        shutil.copy2(path / 'metadata.yaml', backup_dir() / 'metadata.yaml')
-    _write_metadata(path / 'metadata.yaml', doc)
+    if meta_file.is_file():
+        backup.mkdir(exist_ok=True)
+        report['backup'] = str(backup)
+        shutil.copy2(meta_file, backup / 'metadata.yaml')
+    write_metadata(path, doc)
     report['messages'] = doc['rosbag2_bagfile_information']['message_count']
-    report['topics'] = {t['name']: t['message_count'] for t in topics.values()}
+    report['topics'] = {name: t['message_count'] for name, t in topics.items()}
     say(
-        f'wrote {path / "metadata.yaml"}: {report["messages"]} messages on {len(topics)} topics'
+        f'wrote {meta_file}: {report["messages"]} messages on {len(topics)} topics'
         + (f'; backup of what was replaced in {backup}' if report['backup'] else '')
     )
     return report

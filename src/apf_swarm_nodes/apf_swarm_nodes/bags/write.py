@@ -1,5 +1,5 @@
-"""Writing a bag (:class:`BagWriter`): raw CDR bytes into rosbag2 MCAP files with mcap's
-public writer, flushed chunk by chunk, optionally compressed and split."""
+"""Writing a bag (:class:`BagWriter`): raw CDR bytes into rosbag2 MCAP files through mcap's
+public ``Writer``, flushed chunk by chunk, optionally compressed and split."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import yaml
 
@@ -21,91 +21,25 @@ from .types import (
     type_definition,
 )
 
-# --------------------------------------------------------------------------------------------
-# writing
-# --------------------------------------------------------------------------------------------
-
 
 @dataclass
 class Topic:
     """A topic of a bag being written: what :meth:`BagWriter.add_topic` returns and
     :meth:`BagWriter.write` takes."""
 
-    id: int
     topic: str
     msgtype: str
     msgdef: str
     rihs01: str
     offered_qos: list[Any]
-    qos_text: str
     count: int = 0
-
-
-class _McapFile:
-    """One MCAP file of a bag, written with mcap's public ``Writer``: the ``ros2`` profile, a
-    ``ros2msg`` schema per type, a ``cdr`` channel per topic with its offered QoS, chunks of
-    ``chunk_size`` bytes (zstd with ``compress``), and at the end the ``rosbag2``
-    ``serialized_metadata`` record that rosbag2 writes."""
-
-    def __init__(self, path: Path, compress: bool, chunk_size: int) -> None:
-        from mcap.writer import CompressionType, Writer
-
-        self.path = path
-        self._file = path.open('xb')
-        self._writer = Writer(
-            self._file,
-            chunk_size=chunk_size,
-            compression=CompressionType.ZSTD if compress else CompressionType.NONE,
-        )
-        self._writer.start(profile='ros2', library='apf_swarm (mcap)')
-        self._schemas: dict[str, int] = {}
-        self._channels: dict[int, int] = {}
-        self._pending = 0  # bytes added since the file last grew (the open chunk)
-        self._size = 0
-
-    def add_topic(self, t: Topic) -> None:
-        sid = self._schemas.get(t.msgtype)
-        if sid is None:
-            sid = self._schemas[t.msgtype] = self._writer.register_schema(
-                t.msgtype, 'ros2msg', t.msgdef.encode()
-            )
-        self._channels[t.id] = self._writer.register_channel(
-            t.topic, 'cdr', sid, {'offered_qos_profiles': t.qos_text}
-        )
-
-    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        """An MCAP Metadata record in the data section (it survives a killed writer)."""
-        self._writer.add_metadata(name, dict(data))
-
-    def write(self, t: Topic, timestamp: int, data: bytes | memoryview) -> None:
-        self._writer.add_message(self._channels[t.id], timestamp, bytes(data), timestamp)
-        size = self._file.tell()
-        if size != self._size:
-            self._size, self._pending = size, 0
-        self._pending += len(data) + 31  # the message record's header
-
-    def file_bytes(self) -> int:
-        """The file's size once the open chunk is written (uncompressed estimate)."""
-        return self._size + self._pending
-
-    def flush(self, fsync: bool = False) -> None:
-        """Close the open chunk (if any) and hand the file's buffer to the OS."""
-        self._writer.flush()
-        self._size, self._pending = self._file.tell(), 0
-        if fsync:
-            os.fsync(self._file.fileno())
-
-    def close(self, metadata: str) -> None:
-        self._writer.add_metadata(
-            'rosbag2', {'ros_distro': ROS_DISTRO, 'serialized_metadata': metadata}
-        )
-        self._writer.finish()
-        self._file.close()
+    channel: int = 0  # its MCAP channel in the current file
 
 
 @dataclass
 class _FileStats:
     path: str
+    first: int = 0  # the first message's timestamp (split_duration counts from it)
     start: int = 2**63 - 1
     end: int = 0
     count: int = 0
@@ -115,33 +49,37 @@ class _FileStats:
         return {
             'path': self.path,
             'starting_time': {'nanoseconds_since_epoch': start},
-            'duration': {'nanoseconds': max(0, self.end - start) if self.count else 0},
+            'duration': {'nanoseconds': max(0, self.end - start)},
             'message_count': self.count,
         }
 
 
+def mcap_writer(file: IO[bytes], compress: bool, chunk_size: int, library: str) -> Any:
+    """mcap's ``Writer`` started on ``file`` with the ``ros2`` profile (zstd chunks with
+    ``compress``)."""
+    from mcap.writer import CompressionType, Writer
+
+    comp = CompressionType.ZSTD if compress else CompressionType.NONE
+    writer = Writer(file, chunk_size=chunk_size, compression=comp)
+    writer.start(profile='ros2', library=library)
+    return writer
+
+
 def build_metadata(
-    *,
     files: Sequence[Mapping[str, Any]],
     topics: Sequence[Mapping[str, Any]],
-    custom_data: Mapping[str, str] | None = None,
+    custom_data: Mapping[str, str],
     ros_distro: str = ROS_DISTRO,
 ) -> dict[str, Any]:
-    """The ``rosbag2_bagfile_information`` document (version 9) of a bag.
-
-    ``files``: ``{path, starting_time, duration, message_count}`` per MCAP file (as
-    :class:`_FileStats`); ``topics``: ``{name, type, serialization_format,
-    offered_qos_profiles (list of v9 mappings), type_description_hash, message_count}``.
-    """
-    counted = [f for f in files if f['message_count']]
-    start = min((f['starting_time']['nanoseconds_since_epoch'] for f in counted), default=0)
-    end = max(
-        (
-            f['starting_time']['nanoseconds_since_epoch'] + f['duration']['nanoseconds']
-            for f in counted
-        ),
-        default=0,
-    )
+    """The ``rosbag2_bagfile_information`` document (version 9) of a bag from its ``files``
+    (as :meth:`_FileStats.as_dict`) and ``topics`` (``topics_with_message_count`` entries)."""
+    spans = [
+        (f['starting_time']['nanoseconds_since_epoch'], f['duration']['nanoseconds'])
+        for f in files
+        if f['message_count']
+    ]
+    start = min((s for s, _ in spans), default=0)
+    end = max((s + d for s, d in spans), default=0)
     return {
         'rosbag2_bagfile_information': {
             'version': BAG_VERSION,
@@ -150,37 +88,27 @@ def build_metadata(
             'duration': {'nanoseconds': max(0, end - start)},
             'starting_time': {'nanoseconds_since_epoch': start},
             'message_count': sum(int(f['message_count']) for f in files),
-            'topics_with_message_count': [
-                {
-                    'topic_metadata': {
-                        'name': t['name'],
-                        'type': t['type'],
-                        'serialization_format': t.get('serialization_format', 'cdr'),
-                        'offered_qos_profiles': list(t.get('offered_qos_profiles', [])),
-                        'type_description_hash': t.get('type_description_hash', ''),
-                    },
-                    'message_count': int(t['message_count']),
-                }
-                for t in topics
-            ],
+            'topics_with_message_count': list(topics),
             'compression_format': '',
             'compression_mode': '',
             'files': [dict(f) for f in files],
-            'custom_data': dict(custom_data) if custom_data else None,
+            'custom_data': dict(custom_data) or None,
             'ros_distro': ros_distro,
         }
     }
 
 
-def _write_metadata(path: Path, doc: Mapping[str, Any]) -> None:
-    tmp = path.with_suffix('.yaml.tmp')
+def write_metadata(path: Path, doc: Mapping[str, Any]) -> None:
+    """``path`` / metadata.yaml, replaced atomically."""
+    tmp = path / 'metadata.yaml.tmp'
     tmp.write_text(yaml.safe_dump(dict(doc), sort_keys=False, default_flow_style=False))
-    tmp.replace(path)
+    tmp.replace(path / 'metadata.yaml')
 
 
 class BagWriter:
-    """Raw CDR messages into a new rosbag2 bag (metadata.yaml v9, MCAP files written by
-    mcap's public ``Writer``).
+    """Raw CDR messages into a new rosbag2 bag: metadata.yaml v9 and MCAP files (the ``ros2``
+    profile, a ``ros2msg`` schema per type, a ``cdr`` channel per topic with its offered QoS,
+    the ``rosbag2`` metadata record at the end) written by mcap's public ``Writer``.
 
     Parameters
     ----------
@@ -197,11 +125,9 @@ class BagWriter:
 
     Notes
     -----
-    Topics are added with :meth:`add_topic` (type, full definition, RIHS01 hash, offered QoS);
-    :meth:`write` takes the bytes as received; :meth:`flush` closes the pending chunk, so a
-    writer killed afterwards loses nothing written before it (``apf-swarm bag reindex``
-    rebuilds the summary and metadata.yaml); :meth:`close` writes the summaries and
-    metadata.yaml.
+    :meth:`flush` closes the pending chunk, so a writer killed afterwards loses nothing
+    written before it (``apf-swarm bag reindex`` rebuilds the summary and metadata.yaml);
+    :meth:`close` writes the summaries and metadata.yaml.
     """
 
     def __init__(
@@ -226,32 +152,43 @@ class BagWriter:
         self.topics: list[Topic] = []
         self.custom_data: dict[str, str] = {}
         self.files: list[_FileStats] = []
-        self.storage: _McapFile | None = None
-        self._mcap_metadata: dict[str, str] = {}
+        self._early: dict[str, str] = {}  # custom_data also in an MCAP metadata record
+        self._file: IO[bytes] | None = None
+        self._writer: Any = None
+        self._schemas: dict[str, int] = {}
+        self._size = self._pending = 0  # file size, bytes added since it last grew
 
-    # --- set-up ---------------------------------------------------------------------------
     def open(self) -> BagWriter:
         self.path.mkdir(mode=0o755, parents=True)
-        self._new_storage()
+        self._new_file()
         return self
 
     def __enter__(self) -> BagWriter:
         return self.open()
 
     def __exit__(self, *exc: Any) -> None:
-        if self.storage is not None:
-            self.close()
+        self.close()
 
-    def _new_storage(self) -> _McapFile:
+    def _new_file(self) -> None:
         name = f'{self.path.name}_{len(self.files)}.mcap'
         self.files.append(_FileStats(name))
-        storage = self.storage = _McapFile(self.path / name, self.compress, self.chunk_size)
-        self._file_start: int | None = None
-        if self._mcap_metadata:
-            storage.add_metadata(MCAP_METADATA_NAME, self._mcap_metadata)
+        self._file = (self.path / name).open('xb')
+        self._writer = mcap_writer(self._file, self.compress, self.chunk_size, 'apf_swarm (mcap)')
+        self._schemas = {}
+        self._size = self._pending = 0
+        if self._early:
+            self._writer.add_metadata(MCAP_METADATA_NAME, dict(self._early))
         for t in self.topics:
-            storage.add_topic(t)
-        return storage
+            self._register(t)
+
+    def _register(self, t: Topic) -> None:
+        sid = self._schemas.get(t.msgtype)
+        if sid is None:
+            sid = self._schemas[t.msgtype] = self._writer.register_schema(
+                t.msgtype, 'ros2msg', t.msgdef.encode()
+            )
+        meta = {'offered_qos_profiles': _qos_text(t.offered_qos)}
+        t.channel = self._writer.register_channel(t.topic, 'cdr', sid, meta)
 
     def set_custom_data(self, key: str, value: str, *, early: bool = False) -> None:
         """A ``custom_data`` entry of metadata.yaml; ``early``: also an MCAP Metadata record
@@ -259,9 +196,9 @@ class BagWriter:
         bag whose writer was killed."""
         self.custom_data[key] = str(value)
         if early:
-            self._mcap_metadata[key] = str(value)
-            if self.storage is not None:
-                self.storage.add_metadata(MCAP_METADATA_NAME, {key: str(value)})
+            self._early[key] = str(value)
+            if self._writer is not None:
+                self._writer.add_metadata(MCAP_METADATA_NAME, {key: str(value)})
 
     def add_topic(
         self,
@@ -271,7 +208,7 @@ class BagWriter:
         msgdef: str | None = None,
         rihs01: str | None = None,
         offered_qos: Sequence[Any] = (),
-    ) -> Any:
+    ) -> Topic:
         """Register a topic; returns the connection to pass to :meth:`write`.
 
         Without ``msgdef`` / ``rihs01`` they come from :func:`type_definition` (BagError for a
@@ -282,87 +219,80 @@ class BagWriter:
             msgdef, rihs01 = msgdef or d, rihs01 or h
         if any(t.topic == topic for t in self.topics):
             raise BagError(f'{topic} is in the bag already; add each topic once')
-        t = Topic(
-            len(self.topics) + 1,
-            topic,
-            msgtype,
-            msgdef,
-            rihs01,
-            list(offered_qos),
-            _qos_text(offered_qos),
-        )
+        t = Topic(topic, msgtype, msgdef, rihs01, list(offered_qos))
         self.topics.append(t)
-        if self.storage is not None:
-            self.storage.add_topic(t)
+        if self._writer is not None:
+            self._register(t)
         return t
 
-    # --- data -----------------------------------------------------------------------------
     def write(self, conn: Topic, timestamp: int, data: bytes | memoryview) -> None:
         """One serialized message at ``timestamp`` (ns since the epoch)."""
-        if self.storage is None:
+        if self._writer is None:
             raise BagError(f'{self.path}: the bag is not open (use BagWriter.open or with)')
-        if self._file_start is None:
-            self._file_start = timestamp
-        elif (self.split_size and self.storage.file_bytes() >= self.split_size) or (
-            self.split_ns and timestamp - self._file_start >= self.split_ns
+        f = self.files[-1]
+        if f.count and (
+            (self.split_size and self._size + self._pending >= self.split_size)
+            or (self.split_ns and timestamp - f.first >= self.split_ns)
         ):
             self.split()
-            self._file_start = timestamp
-        assert self.storage is not None
-        self.storage.write(conn, timestamp, data)
+            f = self.files[-1]
+        self._writer.add_message(conn.channel, timestamp, bytes(data), timestamp)
+        if self.split_size:  # the file's size once the open chunk is written (uncompressed)
+            assert self._file is not None
+            if (size := self._file.tell()) != self._size:
+                self._size, self._pending = size, 0
+            self._pending += len(data) + 31  # the message record's header
         conn.count += 1
-        f = self.files[-1]
+        if not f.count:
+            f.first = timestamp
         f.count += 1
         f.start = min(f.start, timestamp)
         f.end = max(f.end, timestamp)
 
     def flush(self, fsync: bool = False) -> None:
         """Close the pending chunk and hand it to the OS (``fsync``: also to the disk)."""
-        if self.storage is not None:
-            self.storage.flush(fsync)
+        if self._writer is not None:
+            self._writer.flush()
+            if fsync:
+                assert self._file is not None
+                os.fsync(self._file.fileno())
 
     def split(self) -> None:
         """Close the current file and continue in ``BAG_<k+1>.mcap`` (same topics)."""
-        self._close_storage()
-        self._new_storage()
+        self._close_file()
+        self._new_file()
 
-    def _close_storage(self) -> None:
-        assert self.storage is not None
-        doc = self.metadata()['rosbag2_bagfile_information']
-        self.storage.close(yaml.safe_dump(doc, sort_keys=False).strip())
-        self.storage = None
-
-    # --- the end --------------------------------------------------------------------------
-    @property
-    def counts(self) -> dict[str, int]:
-        """Messages written per topic."""
-        return {t.topic: t.count for t in self.topics}
-
-    @property
-    def written(self) -> int:
-        return sum(t.count for t in self.topics)
+    def _close_file(self) -> None:
+        assert self._file is not None
+        doc = yaml.safe_dump(self.metadata()['rosbag2_bagfile_information'], sort_keys=False)
+        self._writer.add_metadata(
+            'rosbag2', {'ros_distro': ROS_DISTRO, 'serialized_metadata': doc.strip()}
+        )
+        self._writer.finish()
+        self._file.close()
+        self._writer = self._file = None
 
     def metadata(self) -> dict[str, Any]:
+        """metadata.yaml of what is written so far."""
         from rosbags.rosbag2.metadata import dump_qos_v9
 
         topics = [
             {
-                'name': t.topic,
-                'type': t.msgtype,
-                'serialization_format': 'cdr',
-                'offered_qos_profiles': dump_qos_v9(t.offered_qos),
-                'type_description_hash': t.rihs01,
+                'topic_metadata': {
+                    'name': t.topic,
+                    'type': t.msgtype,
+                    'serialization_format': 'cdr',
+                    'offered_qos_profiles': dump_qos_v9(t.offered_qos),
+                    'type_description_hash': t.rihs01,
+                },
                 'message_count': t.count,
             }
             for t in self.topics
         ]
-        return build_metadata(
-            files=[f.as_dict() for f in self.files], topics=topics, custom_data=self.custom_data
-        )
+        return build_metadata([f.as_dict() for f in self.files], topics, self.custom_data)
 
     def close(self) -> None:
-        """Write the MCAP summary and metadata.yaml."""
-        if self.storage is None:
-            return
-        self._close_storage()
-        _write_metadata(self.path / 'metadata.yaml', self.metadata())
+        """Write the MCAP summary and metadata.yaml (again: nothing)."""
+        if self._writer is not None:
+            self._close_file()
+            write_metadata(self.path, self.metadata())
