@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
 from pathlib import Path
@@ -11,13 +10,9 @@ from typing import Any, TextIO
 import numpy as np
 
 from .errors import BagError
-from .info import _read_error, open_bag
-from .read import _any_reader
+from .info import open_bag
+from .read import messages
 from .types import _one_line
-
-# --------------------------------------------------------------------------------------------
-# export
-# --------------------------------------------------------------------------------------------
 
 
 def flatten(msg: Any, prefix: str = '') -> dict[str, Any]:
@@ -60,28 +55,17 @@ def export_csv(path: Path | str, topic: str, out: TextIO, *, quiet: bool = True)
     t = info.topic(topic)
     rows: list[dict[str, Any]] = []
     columns: dict[str, None] = {'timestamp_ns': None}
-    try:
-        with contextlib.closing(_any_reader(info.path)) as reader:
-            conns = [c for c in reader.connections if c.topic == topic]
-            messages = reader.messages(connections=conns)
-            for conn, ts, raw in progress_iter(messages, topic, total=t.count, quiet=quiet):
-                try:
-                    msg = reader.deserialize(raw, conn.msgtype)
-                except Exception as exc:
-                    raise BagError(
-                        f'{topic}: cannot decode type {t.type} '
-                        f"({_one_line(exc)}); the bag's definition of it is "
-                        'missing or wrong'
-                    ) from None
-                row = {'timestamp_ns': int(ts), **flatten(msg)}
-                for k in row:
-                    if k not in columns:
-                        columns[k] = None
-                rows.append(row)
-    except BagError:
-        raise
-    except Exception as exc:
-        raise _read_error(info.path, exc, topic) from None
+    found = messages(info, [topic], topic)
+    for reader, conn, ts, raw in progress_iter(found, topic, total=t.count, quiet=quiet):
+        try:
+            msg = reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:
+            raise BagError(
+                f"{topic}: cannot decode type {t.type} ({_one_line(exc)}); the bag's "
+                'definition of it is missing or wrong'
+            ) from None
+        rows.append({'timestamp_ns': ts, **flatten(msg)})
+        columns.update(dict.fromkeys(rows[-1]))
     w = csv.DictWriter(out, fieldnames=list(columns), restval='', lineterminator='\n')
     w.writeheader()
     w.writerows(rows)

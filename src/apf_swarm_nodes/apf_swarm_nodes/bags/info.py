@@ -16,10 +16,6 @@ import yaml
 from .errors import BagError
 from .types import _FILE_RE, CUSTOM_RECORDER, _one_line
 
-# --------------------------------------------------------------------------------------------
-# reading: info
-# --------------------------------------------------------------------------------------------
-
 
 @dataclass
 class TopicInfo:
@@ -84,14 +80,6 @@ def bag_files(path: Path) -> list[Path]:
         return (m.group('stem'), int(m.group('index') or -1)) if m else (p.name, -1)
 
     return sorted((p for p in path.glob('*.mcap') if p.is_file()), key=key)
-
-
-def _read_error(path: Path, exc: BaseException, what: str = 'the messages') -> BagError:
-    """A failure while reading messages of an opened bag: a damaged file."""
-    return BagError(
-        f'{path}: cannot read {what}, the file is damaged ({_one_line(exc)}); '
-        f'{_reindex_hint(path)}'
-    )
 
 
 def _reindex_hint(path: Path) -> str:
@@ -233,11 +221,12 @@ def open_bag(path: Path | str) -> BagInfo:
 
 
 def _human_size(n: float) -> str:
-    for unit in ('B', 'KiB', 'MiB', 'GiB'):
-        if n < 1024 or unit == 'GiB':
-            return f'{n:.1f} {unit}' if unit != 'B' else f'{int(n)} B'
-        n /= 1024
-    return f'{n:.1f} TiB'
+    unit = 'B'
+    for bigger in ('KiB', 'MiB', 'GiB'):
+        if n < 1024:
+            break
+        n, unit = n / 1024, bigger
+    return f'{n:.1f} {unit}' if unit != 'B' else f'{int(n)} B'
 
 
 def _stamp(ns: int) -> str:

@@ -5,40 +5,56 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterable, Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 from ..topics import SWARM_STATE
 from .errors import BagError
-from .info import BagInfo, _read_error, open_bag
-from .types import (
-    CUSTOM_CONFIG,
-    CUSTOM_MODE,
-    SWARM_STATE_TYPE,
-    _one_line,
-    typestore,
-)
-
-# --------------------------------------------------------------------------------------------
-# reading: messages
-# --------------------------------------------------------------------------------------------
+from .info import BagInfo, _reindex_hint, open_bag
+from .types import CUSTOM_CONFIG, CUSTOM_MODE, SWARM_STATE_TYPE, _one_line, typestore
 
 
-def _any_reader(path: Path) -> Any:
-    """An opened rosbags AnyReader (types from the bag's own definitions); opening parses
-    every stored definition, so a failure here is a broken definition, not a damaged file."""
+@contextlib.contextmanager
+def _damaged(path: Path, what: str) -> Iterator[None]:
+    """Errors of rosbags and mcap (ReaderError, AnyReaderError...) as BagError: a damaged file."""
+    try:
+        yield
+    except Exception as exc:
+        raise BagError(
+            f'{path}: cannot read {what}, the file is damaged ({_one_line(exc)}); '
+            f'{_reindex_hint(path)}'
+        ) from None
+
+
+def messages(
+    info: BagInfo, topics: Iterable[str] | None = None, what: str = 'the messages'
+) -> Iterator[tuple[Any, Any, int, bytes]]:
+    """``(reader, connection, timestamp_ns, cdr)`` of every message on ``topics`` (None: all)
+    in time order, with rosbags' AnyReader and the types of the bag's own definitions.
+
+    The bag is opened at once: a definition that does not parse raises here; a damaged file
+    is a BagError that says ``cannot read {what}``.
+    """
     from rosbags.highlevel import AnyReader
 
-    reader = AnyReader([path], default_typestore=typestore())
+    with _damaged(info.path, what):
+        reader = AnyReader([info.path], default_typestore=typestore())
     try:
         reader.open()
     except Exception as exc:
         raise BagError(
-            f'{path}: cannot load the type definitions stored in the bag '
-            f'({_one_line(exc)}); it was not written with full, valid ros2msg '
-            'definitions'
+            f'{info.path}: cannot load the type definitions stored in the bag '
+            f'({_one_line(exc)}); it was not written with full, valid ros2msg definitions'
         ) from None
-    return reader
+
+    def read() -> Iterator[tuple[Any, Any, int, bytes]]:
+        with _damaged(info.path, what), contextlib.closing(reader):
+            conns = [c for c in reader.connections if topics is None or c.topic in topics]
+            for conn, ts, raw in reader.messages(connections=conns):
+                yield reader, conn, int(ts), raw
+
+    return read()
 
 
 def iter_raw(
@@ -49,20 +65,11 @@ def iter_raw(
     ``topics``: only these (BagError for a topic that is not in the bag).
     """
     info = info or open_bag(path)
-    wanted = None
-    if topics is not None:
-        wanted = set(topics)
-        for t in wanted:
-            info.topic(t)
-    try:
-        with contextlib.closing(_any_reader(info.path)) as reader:
-            conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
-            for conn, ts, raw in reader.messages(connections=conns):
-                yield conn.topic, conn.msgtype, int(ts), bytes(raw)
-    except BagError:
-        raise
-    except Exception as exc:  # rosbags raises ReaderError / AnyReaderError, mcap errors
-        raise _read_error(info.path, exc) from None
+    wanted = None if topics is None else set(topics)
+    for t in wanted or ():
+        info.topic(t)
+    for _reader, conn, ts, raw in messages(info, wanted):
+        yield conn.topic, conn.msgtype, ts, bytes(raw)
 
 
 def bag_config(info: BagInfo, config: Path | None = None) -> tuple[Any, str]:
@@ -89,12 +96,7 @@ def bag_config(info: BagInfo, config: Path | None = None) -> tuple[Any, str]:
 
 def swarm_state_decoder() -> Callable[[bytes], Any]:
     """A function that deserializes ``/swarm/state`` CDR bytes with rosbags (no rclpy)."""
-    store = typestore()
-
-    def decode(raw: bytes) -> Any:
-        return store.deserialize_cdr(raw, SWARM_STATE_TYPE)
-
-    return decode
+    return partial(typestore().deserialize_cdr, typename=SWARM_STATE_TYPE)
 
 
 def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str, *, quiet: bool = True) -> Any:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Sequence
-from functools import cache, lru_cache
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -28,20 +28,11 @@ SWARM_STATE_TYPE = 'apf_swarm_msgs/msg/SwarmState'
 _FILE_RE = re.compile(r'^(?P<stem>.*?)(?:_(?P<index>\d+))?\.mcap$')
 
 
-# --------------------------------------------------------------------------------------------
-# types and QoS
-# --------------------------------------------------------------------------------------------
-
-
 def _msg_search_dirs() -> list[Path]:
     """``share/`` directories of the ament index, then the repository's ``src/`` (a fresh
     checkout before ``make``)."""
-    dirs = []
-    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
-        if prefix:
-            dirs.append(Path(prefix) / 'share')
-    dirs.append(Path(__file__).resolve().parents[2])  # src/ of the repository
-    return dirs
+    prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)
+    return [Path(p) / 'share' for p in prefixes if p] + [Path(__file__).resolve().parents[2]]
 
 
 def _find_msg_file(msgtype: str) -> Path | None:
@@ -55,34 +46,24 @@ def _find_msg_file(msgtype: str) -> Path | None:
     return None
 
 
-@lru_cache(maxsize=1)
+@cache
 def typestore() -> Any:
     """The rosbags Jazzy type store with apf_swarm_msgs registered from their ``.msg`` files."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
-    types: dict[str, Any] = {}
     for name in ('ForceCommand', 'SwarmOdometry', 'SwarmState'):
-        path = _find_msg_file(f'apf_swarm_msgs/msg/{name}')
-        if path is not None:
-            types.update(get_types_from_msg(path.read_text(), f'apf_swarm_msgs/msg/{name}'))
-    store.register(types)
+        _register_from_index(store, f'apf_swarm_msgs/msg/{name}')
     return store
 
 
-def _register_from_index(store: Any, msgtype: str, seen: set[str] | None = None) -> bool:
-    """Register ``msgtype`` (and its dependencies) from ``.msg`` files of the ament index."""
+def _register_from_index(store: Any, msgtype: str) -> bool:
+    """Register ``msgtype`` from its ``.msg`` file in the ament index; False without one."""
     from rosbags.typesys import get_types_from_msg
 
-    seen = set() if seen is None else seen
-    if msgtype in store.fielddefs or msgtype in seen:
-        return True
-    seen.add(msgtype)
     path = _find_msg_file(msgtype)
-    if path is None:
-        return False
-    types = get_types_from_msg(path.read_text(), msgtype)
-    store.register(types)
+    if path is not None:
+        store.register(get_types_from_msg(path.read_text(), msgtype))
     return msgtype in store.fielddefs
 
 
