@@ -158,7 +158,7 @@ class RecorderNode(Node):
         now = time.monotonic()
         self.periodic: list[list[Any]] = [
             [float(p['discovery_period']), now, self._discover],
-            [float(p['flush_period']), now + float(p['flush_period']), self._flush],
+            [float(p['flush_period']), now + float(p['flush_period']), self.writer.flush],
             [0.5, now + 0.5, self._publish_status],
         ]
         self.get_logger().info(
@@ -253,10 +253,6 @@ class RecorderNode(Node):
         self.writer.write(t.conn, int(ts), raw)
         t.written += 1
 
-    def _flush(self) -> None:
-        if not self.closed:
-            self.writer.flush()
-
     # --- status and counts ----------------------------------------------------------------
     def counts(self) -> dict[str, Any]:
         return recording_counts(self.topics.values(), self.skipped)
@@ -349,10 +345,9 @@ def main(args: list[str] | None = None) -> None:
         if node is not None:
             try:
                 c = node.close()
-                lost = c['lost']
                 msg = (
                     f'closed {node.output}: received {c["received"]}, written {c["written"]}, '
-                    f'lost in transport {lost}, dropped {c["dropped"]} on '
+                    f'lost in transport {c["lost"]}, dropped {c["dropped"]} on '
                     f'{len(c["topics"])} topics'
                 )
                 print(
@@ -363,7 +358,6 @@ def main(args: list[str] | None = None) -> None:
             except Exception as exc:
                 print(f'recorder: error: closing {node.output}: {exc}', file=sys.stderr)
                 code = code or 1
-        if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
         watchdog.close()

@@ -87,8 +87,8 @@ def cmd_bag_export(args: argparse.Namespace) -> int:
     from ..bags import export_csv
 
     if args.csv is None:
-        n = export_csv(args.bag, args.topic, sys.stdout, quiet=args.quiet)
-        return 0 if n >= 0 else 1
+        export_csv(args.bag, args.topic, sys.stdout, quiet=args.quiet)
+        return 0
     if args.csv.exists() and not args.force:
         raise ApfSwarmError(f'{args.csv} exists; choose another file or pass --force')
     tmp = args.csv.with_name(args.csv.name + '.tmp')
@@ -122,23 +122,18 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
     for rule in args.remap:
         if ':=' not in rule:
             raise ApfSwarmError(f'--remap {rule!r}: expected FROM:=TO')
-    ros = [
-        '--ros-args',
-        '-p',
-        f'bag:={info.path.resolve()}',
-        '-p',
-        f'rate:={args.rate!r}',
-        '-p',
-        f'loop:={str(args.loop).lower()}',
-        '-p',
-        f'start_offset:={args.start_offset!r}',
-        '-p',
-        f'clock:={float(args.clock or 0.0)!r}',
-    ]
-    if args.topics:
-        ros += ['-p', 'topics:=[' + ','.join(args.topics) + ']']
-    if args.wait_for:
-        ros += ['-p', 'wait_for:=[' + ','.join(args.wait_for) + ']']
+    params = {
+        'bag': info.path.resolve(),
+        'rate': repr(args.rate),
+        'loop': str(args.loop).lower(),
+        'start_offset': repr(args.start_offset),
+        'clock': repr(float(args.clock or 0.0)),
+        'topics': f'[{",".join(args.topics)}]' if args.topics else None,
+        'wait_for': f'[{",".join(args.wait_for)}]' if args.wait_for else None,
+    }
+    ros = ['--ros-args']
+    for name, value in params.items():
+        ros += ['-p', f'{name}:={value}'] if value is not None else []
     for rule in args.remap:
         ros += ['-r', rule]
     from ..node_common import run_node
