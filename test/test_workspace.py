@@ -24,7 +24,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PY_PACKAGES = ('apf_swarm_core', 'apf_swarm_nodes')
 ALL_PACKAGES = ('apf_swarm_msgs', *PY_PACKAGES)
-MSG_NAMES = ('ForceCommand', 'SwarmOdometry', 'SwarmState')
+MSG_NAMES = ('ForceCommand', 'ForceCommands', 'SwarmOdometry', 'SwarmState')
 
 
 def _installed_console_scripts(pkg):

@@ -52,7 +52,7 @@ def typestore() -> Any:
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
-    for name in ('ForceCommand', 'SwarmOdometry', 'SwarmState'):
+    for name in ('ForceCommand', 'ForceCommands', 'SwarmOdometry', 'SwarmState'):
         _register_from_index(store, f'apf_swarm_msgs/msg/{name}')
     return store
 
