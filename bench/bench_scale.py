@@ -1,27 +1,17 @@
 #!/usr/bin/env python3
 """Scale benchmark: the swarm as the bring-up starts it, sizes climbed until it stops flying.
 
-    source scripts/activate.sh
     python bench/bench_scale.py [--quick | --smoke] [--only ladder,latency,discovery,lockstep]
         [--rates HZ ...] [--sizes N ...] [--ladder TEXT] [--flight S] [--keep DIR]
 
-Every case is one ``scripts/swarm_up.py`` run (``apf-swarm up``) in a domain of its own;
-the figures are its ``summary.json`` (graph ready, steps/s, latency, the flight verdict of
-``apf_swarm_core.metrics.flight``) plus the CPU and RSS of its processes (psutil, 0.5 s).
-
-* **ladder**: realtime, per rate and ladder ("EXECUTOR INPUTS K=k|auto depth=d", ``;``
-  between ladders), n climbs ``--sizes`` (3 .. 128) and stops at the first that does not
-  fly: exit 0, no missed deadline, >= 95 % of the states, the run's ``prediction.run.flies``.
-* **latency**: 3 trackers at 100 Hz, ``trigger:=odom``, inputs aggregate and odom, with the
-  capacity probe's raw rclpy ping-pong (``apf_swarm_nodes.capacity.measure``) running beside
-  it, and the ping-pong alone: control-loop p99 / ping-pong p99 (the baseline, same run).
-* **discovery**: graph ready against n, K = 1 and 4, nodes forked from the zygote against
-  executed (``--spawn exec``, the baseline of the same run).
-* **lockstep**: steps/s (``triangle``, dt 1 ms) for 3 (K = 1, 3; executor single, inputs
-  odom), 10 and 30 trackers; the 3-tracker default must make 500 steps/s (exit 1).
-
-Markdown tables on stdout, progress on stderr. Exit 1 when a case crashed (``--smoke``), a
-floor is missed or a process outlived its case.
+Every case is a ``scripts/swarm_up.py`` run read back from its ``summary.json``, plus its
+processes' CPU and RSS. **ladder**: per rate and ladder ("EXECUTOR INPUTS K=k|auto depth=d",
+``;`` between), n climbs ``--sizes`` until a size does not fly (exit, missed deadlines, 95 %
+of the states, ``prediction.run.flies``). **latency**: 3 trackers at 100 Hz, ``trigger:=odom``,
+against the capacity probe's raw rclpy ping-pong beside it and alone (the baselines).
+**discovery**: graph ready, nodes forked against executed (the baseline). **lockstep**:
+steps/s, the 3-tracker default must make 500. Exit 1 on a leftover process, a missed floor,
+or (``--smoke``) a crash.
 """
 
 from __future__ import annotations
@@ -30,8 +20,11 @@ import argparse
 import contextlib
 import json
 import os
+import re
+import statistics
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,7 +36,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'bench'))
 from _children import exit_on_signals, start, stop  # noqa: E402
 
-PARTS = ('ladder', 'latency', 'discovery', 'lockstep')
+PARTS = ('ladder', 'latency', 'discovery', 'lockstep', 'view')
+VIEWS = ('no view', 'view, no client', 'view, watched')
 FLOOR_LOCKSTEP = 500.0  # steps/s, 3 trackers
 DEFAULT_LADDER = 'events aggregate K=auto depth=1'
 
@@ -66,6 +60,8 @@ class Case:
     summary: dict[str, Any] = field(default_factory=dict)
     cpu: float = float('nan')  # % of one core, every process of the run
     rss_mb: float = float('nan')  # max of the summed RSS
+    cpu_s: tuple[float, float] = (0.0, 0.0)  # CPU seconds: the bring-up, the whole run
+    extra: tuple[str, ...] = ()  # more bring-up options
 
     def get(self, *path: str, default: Any = None) -> Any:
         d: Any = self.summary
@@ -106,7 +102,7 @@ class Bench:
         self.crashed = 0
 
     def up(self, case: Case, beside: Any = None) -> Case:
-        """Run the bring-up for ``case``; ``beside(domain)`` runs while it flies."""
+        """Run the bring-up for ``case``; ``beside(domain, out)`` runs once it started."""
         self.count += 1
         out = self.dir / f'{self.count:02d}_{case.mode}_{case.n}'
         domain = 202 + self.count % 29
@@ -120,6 +116,7 @@ class Bench:
             argv += ['--set', f'control_rate={case.rate:g}']
         if case.k != 'auto':
             argv += ['--trackers-per-process', case.k]
+        argv += case.extra
         for p in case.params:
             argv += ['--node-param', p]
         log(
@@ -134,7 +131,7 @@ class Bench:
             try:
                 if beside is not None:
                     time.sleep(2.0)
-                    beside(domain)
+                    beside(domain, out)
                 while proc.poll() is None:
                     if time.monotonic() - t0 > case.duration + 120:
                         log('  timed out: stopped')
@@ -150,6 +147,7 @@ class Bench:
                     self.leftover += 1
                     p.kill()
         case.cpu, case.rss_mb = 100 * sum(cpu.values()) / wall, rss / 2**20
+        case.cpu_s = (cpu.get(proc.pid, float('nan')), sum(cpu.values()))
         with contextlib.suppress(OSError, ValueError):
             case.summary = json.loads((out / 'summary.json').read_text())
         self.crashed += not case.summary
@@ -231,7 +229,7 @@ def latency(bench: Bench, seconds: float) -> list[str]:
         case = bench.up(
             Case(3, rate=100.0, duration=seconds + 4, k='1', label='latency',
                  params=('trigger:=odom', f'inputs:={inputs}')),
-            beside=lambda d, pp=pp: pp.update(ping_pong(d, seconds)),
+            beside=lambda d, _, pp=pp: pp.update(ping_pong(d, seconds)),
         )  # fmt: skip
         lat, rtt = case.get('prediction', 'latency', default={}), pp.get('rtt', {})
         p99 = lat.get('p99')
@@ -242,6 +240,67 @@ def latency(bench: Bench, seconds: float) -> list[str]:
             f'| {ms(rtt.get("p99"))} | - |'
         )
     return out
+
+
+def watch(out: Path, done: threading.Event, counts: dict[str, int]) -> None:
+    """A Foxglove client of the run's view, subscribed to every channel: scene frames."""
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    while not (url := re.search(r'view: (ws://\S+)', (out / 'bench.log').read_text())):
+        if done.wait(0.1):
+            return
+    client = connect(url[1], subprotocols=['foxglove.sdk.v1'], open_timeout=30)
+    with contextlib.suppress(ConnectionClosed), client as ws:
+        channels: list[dict[str, Any]] = []
+        while len(channels) < 3:
+            msg = json.loads(ws.recv(timeout=30))
+            channels += msg['channels'] if msg['op'] == 'advertise' else []
+        subs = [{'id': k, 'channelId': c['id']} for k, c in enumerate(channels)]
+        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+        scene = next(k for k, c in enumerate(channels) if c['topic'] == '/swarm/scene')
+        while not done.is_set():
+            with contextlib.suppress(TimeoutError):
+                m = ws.recv(timeout=0.5)
+                if (
+                    isinstance(m, bytes)
+                    and m[0] == 1
+                    and int.from_bytes(m[1:5], 'little') == scene
+                ):
+                    counts['frames'] += 1
+
+
+def views(bench: Bench, args: argparse.Namespace) -> list[str]:
+    """The live view's cost: rounds of no view (the baseline), unwatched, watched."""
+    rows: dict[str, list[tuple[Case, dict[str, int]]]] = {v: [] for v in VIEWS}
+    for _ in range(args.rounds):
+        for v in VIEWS:
+            done, counts, clients = threading.Event(), {'frames': 0}, []
+
+            def beside(_: int, out: Path, v: str = v, c: Any = (done, counts), t: Any = clients):
+                if v == 'view, watched':
+                    t.append(threading.Thread(target=watch, args=(out, *c), daemon=True))
+                    t[0].start()
+
+            extra = ('--view', '0') if v != 'no view' else ()
+            case = Case(args.sizes[0], duration=args.flight, k='4', extra=extra, label=v)
+            rows[v].append((bench.up(case, beside=beside), counts))
+            done.set()
+            for t in clients:
+                t.join(timeout=10)
+    med, out = statistics.median, []
+    for v, cases in rows.items():
+        lat = [c.get('prediction', 'latency', default={}) for c, _ in cases]
+        base = [b for b, _ in rows['no view']]
+        ratio = med(c.cpu_s[1] / b.cpu_s[1] for (c, _), b in zip(cases, base, strict=True))
+        cpu = [f'{med(c.cpu_s[k] for c, _ in cases):.1f}' for k in (0, 1)]
+        out.append(f'| {v} | {ms(med(x.get("p50", 0) for x in lat))} / '
+                   f'{ms(med(x.get("p99", 0) for x in lat))} | '
+                   f'{max(c.get("missed_deadlines", default=-1) for c, _ in cases)} | '
+                   f'{cpu[0]} | {cpu[1]} | {ratio:.3f} | {med(f["frames"] for _, f in cases)} |'
+                   )  # fmt: skip
+    head = '| case | latency p50 / p99 [ms] | missed | bring-up CPU [s] | all CPU [s] | CPU '
+    return [head + 'ratio (all) | frames |', '|---|---|---:|---:|---:|---:|---:|', *out]
 
 
 def discovery(bench: Bench, sizes: list[int]) -> list[str]:
@@ -286,6 +345,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--sizes', type=int, nargs='+', default=[3, 16, 32, 64, 128], metavar='N')
     ap.add_argument('--ladder', default=DEFAULT_LADDER, metavar='TEXT', help="';' between")
     ap.add_argument('--flight', type=float, default=25.0, metavar='S', help='seconds a case')
+    ap.add_argument('--rounds', type=int, default=2, help='view: rounds of the three cases')
     ap.add_argument('--keep', type=Path, default=None, metavar='DIR', help='keep the runs')
     args = ap.parse_args(argv)
     parts = [p for p in args.only.split(',') if p]
@@ -293,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f'--only: choose from {PARTS}')
     exit_on_signals()
     if args.smoke:
-        args.sizes, args.rates, args.flight = [3], [50.0], 3.0
+        args.sizes, args.rates, args.flight, args.rounds = [3], [50.0], 3.0, 1
         parts = parts if '--only' in (argv or sys.argv) else ['ladder']
     bench, ok = Bench(args.keep), True
     print(f'CPU: {psutil.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; runs in {bench.dir}\n')
@@ -301,6 +361,8 @@ def main(argv: list[str] | None = None) -> int:
         print('\n'.join(ladders(bench, args)) + '\n')
     if 'latency' in parts:
         print('\n'.join(latency(bench, 2.0 if args.smoke else 10.0)) + '\n')
+    if 'view' in parts:
+        print('\n'.join(views(bench, args)) + '\n')
     if 'discovery' in parts:
         print('\n'.join(discovery(bench, [3, 8] if args.quick else [3, 8, 16, 32])) + '\n')
     if 'lockstep' in parts:
