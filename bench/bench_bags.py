@@ -2,22 +2,14 @@
 """Benchmark of the bags: recorder against its ceiling, the realtime swarm recorded,
 playback timing, ``bag info`` on a big bag.
 
-    source scripts/activate.sh
     python bench/bench_bags.py [--quick | --smoke]
 
-* **ceiling** (the baseline): :class:`apf_swarm_nodes.bags.BagWriter` fed in this process with
-  the serialized ``nav_msgs/Odometry`` the recorder gets: msg/s and CPU per message.
-* **recorder**: the ``recorder`` executable while this process publishes those bytes (reliable,
-  keep last 1000) at a paced rate: received, written, lost (sequence gaps), CPU per message net
-  of idle, and its ratio to the ceiling's.
-* **swarm**: ``swarm_up.py --preset realtime --mode realtime --record``, plant publish_rate
-  100 (and 500) Hz: the recorder's counts, ``/swarm/state`` live against the bag.
-* **play**: ``std_msgs/Int64`` at 100 Hz by the ``player`` into this process: reception minus
-  schedule, minus its median (p50 / p99 / max), drift, the player's own lateness.
-* **info**: ``apf-swarm bag info`` (a new process) on 1 M messages against ``apf-swarm --help``
-  alone and ``open_bag`` in-process.
-
-Markdown tables on stdout. Exit 1 when a case failed to run.
+Ceiling (the baseline): ``apf_swarm_nodes.bags.BagWriter`` fed in-process. Recorder: the
+``recorder`` executable while this process publishes (reliable, keep last 1000) at paced
+rates: lost (sequence gaps), CPU per message net of idle, ratio to the ceiling. Swarm:
+``swarm_up.py --record`` at plant publish_rate 100 (500) Hz. Play: ``player`` at 100 Hz into
+this process, timing error against the schedule. Info: ``apf-swarm bag info`` against
+``apf-swarm --help`` alone and ``open_bag`` in-process. Exit 1 when a case failed.
 """
 
 from __future__ import annotations

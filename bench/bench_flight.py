@@ -5,12 +5,9 @@
         [--variants B C D E] [--variant NAME=KEY:VALUE,...] [--seeds 5] [--duration 25]
         [--set KEY=VALUE ...] [--json FILE] [--smoke]
 
-Each case: the ``realtime`` preset with a variant's keys (E, the preset itself, is the
-baseline of the run), n trackers, a rate and a fixed latency (``RATE:LATENCY``), gains
-scheduled as the bring-up does (``apf_swarm_core.sampled.schedule_gains``), ``--seeds`` seeds
-in one batch (``apf_swarm_core.simulator.simulate_batch``), judged by
-``apf_swarm_core.metrics.flight``: seeds that fly, formation error (median, worst), worst
-closest pair, time to converge (median, last), the gains flown.
+Each case: the ``realtime`` preset with a variant's keys (E, the preset, is the baseline),
+gains scheduled as the bring-up does, ``--seeds`` seeds in one ``simulate_batch``, judged by
+``apf_swarm_core.metrics.flight`` (seeds that fly, error, closest pair, convergence).
 """
 
 from __future__ import annotations

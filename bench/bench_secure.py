@@ -1,15 +1,12 @@
 #!/usr/bin/env python3
-"""What a secure multi-host run costs against an open one (the baseline), in one invocation:
-``scripts/multihost.py --hosts 3`` twice with the same swarm, ``--open`` (UDP, multicast) and
-secure (TCP with TLS, the bring-up's discovery server), in the order given.
+"""What a secure multi-host run costs against an open one (the baseline): ``scripts/
+multihost.py --hosts 3`` with ``--open`` and secure (TLS), in the order given.
 
     sudo python bench/bench_secure.py [--quick | --smoke] [--n-trackers 32 --duration 25]
         [--order open,secure] [--out runs/secure_cost]
 
-Per run, from its summary.json and multihost.json: graph ready, control latency p50 / p99,
-each simulated host's CPU, the flight verdict, missed deadlines, the rate. Writes
-``bench_secure.json`` into ``--out`` (default: a temporary directory). ``--quick``: 8
-trackers, 10 s; ``--smoke``: 3 trackers, 3 s. Without root and iproute2 it says why, exit 0.
+Per run: graph ready, latency, CPU per simulated host, flight, missed deadlines, rate;
+``bench_secure.json`` in ``--out``. Without root and iproute2 it says why and exits 0.
 """
 
 from __future__ import annotations

@@ -1,17 +1,13 @@
 #!/usr/bin/env python3
 """Soak test of the realtime swarm: memory and CPU per node over a long run.
 
-    source scripts/activate.sh
     python bench/soak.py [--duration 1800] [--n-trackers 3] [--every 5] [--out DIR] [--smoke]
 
-Brings up the realtime swarm (``scripts/swarm_up.py --preset realtime --mode realtime``),
-samples every node process (found by the run's config path in its command line) every
-``--every`` s (RSS, utime + stime), and prints per node: RSS after the warm-up and at the end
-(means over ``--window`` of the run), the growth between them (the run's own baseline), the
-maximum and the mean CPU; and the run's missed deadlines, stale and rejected inputs and
-dropped samples (summary.json). Writes ``soak.csv``, ``soak.json`` and ``soak_rss.png``.
-Exit 1 when a node grew by 5 % or more, a deadline was missed, a sample was dropped or the
-bring-up failed. ``--smoke``: 10 s, sampled every second.
+Samples every node process of a ``swarm_up.py --mode realtime`` run (RSS, CPU); per node the
+RSS after the warm-up against the end (the run's own baseline), its maximum and the mean CPU,
+and the run's deadlines and drops (summary.json); ``soak.csv``, ``soak.json``,
+``soak_rss.png`` in ``--out``. Exit 1 on 5 % growth, a missed deadline, a drop or a failed
+run. ``--smoke``: 10 s, sampled every second.
 """
 
 from __future__ import annotations

@@ -1,17 +1,13 @@
 #!/usr/bin/env python3
-"""Soak of starts and stops: many short runs, each ended a different way; none may hang or
-leave a process or shared memory behind.
+"""Soak of starts and stops: short runs ended four ways (it ends; a tracker, the bring-up
+SIGTERMed, the bring-up SIGKILLed); none may hang or leave a process or shared memory.
 
-    source scripts/activate.sh
     python bench/soak_cycles.py [--cycles 100] [--n-trackers 3] [--duration 3] [--smoke]
 
-Each cycle brings up the lockstep triangle (``swarm_up.py --respawn``, nodes forked or
-executed) and ends it one of four ways (seeded draw): it runs to its end; a tracker gets
-SIGKILL (respawned); the bring-up gets SIGTERM; the bring-up gets SIGKILL. Per cycle: a hang
-(not ended within duration + 90 s), processes of the run alive 15 s after (killed), and the
-Fast DDS ``/dev/shm`` entries of its domain created meanwhile that no live process holds
-(``apf_swarm_nodes.dds.shm``; other domains' are reported apart). Exit 1 on any of them.
-``--smoke``: one cycle of each way, 2 s runs.
+Lockstep triangle with ``--respawn``, forked or executed nodes. Per cycle: a hang (not ended
+within duration + 90 s), processes of the run alive 15 s after, Fast DDS ``/dev/shm``
+entries of its domain that no live process holds (``apf_swarm_nodes.dds.shm``). Exit 1 on
+any. ``--smoke``: one cycle of each way, 2 s runs.
 """
 
 from __future__ import annotations
