@@ -69,11 +69,12 @@ def write_bag(path: Path, topic: str, kind: str, msgs: list[bytes] | bytes, n: i
             w.write(conn, T0 + round(i * 1e9 / hz), msgs if isinstance(msgs, bytes) else msgs[i])
 
 
-def ceiling(tmp: Path, n: int) -> dict[str, float]:
+def ceiling(tmp: Path, n: int) -> list[Any]:
     c0, t0 = time.process_time(), time.perf_counter()
     write_bag(tmp / 'ceiling', '/bench/odom', 'nav_msgs/msg/Odometry', odom_bytes(), n, 1e6)
-    wall = time.perf_counter() - t0
-    return {'rate': n / wall, 'cpu_us': 1e6 * (time.process_time() - c0) / n}
+    wall, us = time.perf_counter() - t0, 1e6 * (time.process_time() - c0) / n
+    return ['ceiling: BagWriter in-process', '-', f'{n / wall:,.0f}', '-', n, '-', f'{us:.1f}',
+            '-', '1.0']  # fmt: skip
 
 
 class Ros:
@@ -116,7 +117,7 @@ class Ros:
         rclpy.try_shutdown(context=self.ctx)
 
 
-def recorder(tmp: Path, ros: Ros, rate: float, seconds: float) -> dict[str, Any]:
+def recorder(tmp: Path, ros: Ros, rate: float, seconds: float, ceil: float) -> list[Any]:
     from nav_msgs.msg import Odometry
     from rclpy.qos import QoSProfile
 
@@ -143,11 +144,13 @@ def recorder(tmp: Path, ros: Ros, rate: float, seconds: float) -> dict[str, Any]
     meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     c = json.loads(meta['custom_data']['apf_swarm.recorder'])
     busy = max(0.0, used - idle * (wall + 2.0))
-    c.update(rate=rate, achieved=n / wall, cpu_pct=100 * used / (wall + 2))
-    return {**c, 'cpu_us': 1e6 * busy / max(1, c['written'])}
+    us = 1e6 * busy / max(1, c['written'])
+    return ['recorder', f'{rate:,.0f}', f'{n / wall:,.0f}', c['received'], c['written'],
+            c['lost'], f'{us:.1f}', f'{100 * used / (wall + 2):.0f}',
+            f'{us / ceil:.1f}']  # fmt: skip
 
 
-def swarm(tmp: Path, publish_rate: float, seconds: float, domain: int) -> dict[str, Any] | None:
+def swarm(tmp: Path, publish_rate: float, seconds: float, domain: int) -> list[Any]:
     out = tmp / f'swarm_{publish_rate:.0f}'
     argv = [sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--preset', 'realtime',
             '--mode', 'realtime', '--duration', f'{seconds:g}', '--record', '--no-plots',
@@ -162,14 +165,14 @@ def swarm(tmp: Path, publish_rate: float, seconds: float, domain: int) -> dict[s
         stop(p)
     if p.returncode != 0:
         log(f'swarm at {publish_rate:g} Hz exited {p.returncode}: {err[-2000:].decode()}')
-        return None
+        return [f'{publish_rate:g} Hz', *(['failed'] * 6)]
     s, info = json.loads((out / 'summary.json').read_text()), bags.open_bag(out / 'bag')
-    return {**s['recording'], 'messages': info.count, 'live': s['messages']['received'],
-            'rate': info.count / max(info.duration, 1e-9),
-            'bag': info.topic('/swarm/state').count}  # fmt: skip
+    r, state = s['recording'], f'{s["messages"]["received"]} / {info.topic("/swarm/state").count}'
+    rate = f'{info.count / max(info.duration, 1e-9):,.0f}'
+    return [f'{publish_rate:g} Hz', info.count, rate, r['written'], r['lost'], r['dropped'], state]
 
 
-def play(tmp: Path, ros: Ros, n: int, hz: float) -> dict[str, Any]:
+def play(tmp: Path, ros: Ros, n: int, hz: float) -> list[Any]:
     from rclpy.qos import QoSProfile
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Int64
@@ -196,8 +199,8 @@ def play(tmp: Path, ros: Ros, n: int, hz: float) -> dict[str, Any]:
     e = np.abs(err - np.median(err)) / 1e6
     m = re.search(r'p99 ([\d.]+) ms, max ([\d.]+) ms', (tmp / 'player.log').read_text())
     drift, order = (err[-1] - err[0]) / 1e6, [d for d, _ in got] == list(range(n))
-    return {'n': n, 'in_order': order, 'p50': np.percentile(e, 50), 'p99': np.percentile(e, 99),
-            'max': e.max(), 'drift': drift, 'player': m.groups() if m else ('-', '-')}  # fmt: skip
+    return [n, order, *(f'{v:.3f} ms' for v in np.percentile(e, [50, 99, 100])),
+            f'{drift:+.3f} ms', ' / '.join(m.groups() if m else '--')]  # fmt: skip
 
 
 def info(tmp: Path, n: int) -> list[Any]:
@@ -233,61 +236,36 @@ def main(argv: list[str] | None = None) -> int:
     print(f'{os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}; domain {domain}\n')
     with tempfile.TemporaryDirectory(prefix='bench_bags_') as tmpd:
         tmp = Path(tmpd)
-        ceil = ceiling(tmp, 2000 if smoke else 20000 if quick else 100000)
         ros = Ros(domain)
         try:
-            recs = []
+            recs = [ceiling(tmp, 2000 if smoke else 20000 if quick else 100000)]
             for r in rates:
                 log(f'recorder at {r} msg/s')
-                recs.append(recorder(tmp, ros, float(r), seconds))
+                recs.append(recorder(tmp, ros, float(r), seconds, float(recs[0][6])))
             log('play at 100 Hz')
             pl = play(tmp, ros, 100 if smoke else 300 if quick else 1000, 100.0)
         finally:
             ros.close()
-        swarms = {}
+        swarms = []
         for pr in (100.0,) if quick else (100.0, 500.0):
             log(f'realtime swarm recorded, publish_rate {pr:g} Hz')
             other = pick_domain_id(exclude=[domain], lo=202, hi=232)
-            swarms[pr] = swarm(tmp, pr, 3.0 if smoke else 5.0 if quick else 10.0, other)
+            swarms.append(swarm(tmp, pr, 3.0 if smoke else 5.0 if quick else 10.0, other))
         log('bag info on a big bag')
         big = info(tmp, 10_000 if smoke else 100_000 if quick else 1_000_000)
-    rows = [['ceiling: BagWriter in-process', '-', f'{ceil["rate"]:,.0f}', '-', '-', '-',
-             f'{ceil["cpu_us"]:.1f}', '-', '1.0']]  # fmt: skip
-    rows += [
-        ['recorder', f'{r["rate"]:,.0f}', f'{r["achieved"]:,.0f}', r['received'], r['written'],
-         r['lost'], f'{r["cpu_us"]:.1f}', f'{r["cpu_pct"]:.0f}',
-         f'{r["cpu_us"] / ceil["cpu_us"]:.1f}']
-        for r in recs
-    ]  # fmt: skip
     print('### Recorder against its ceiling (nav_msgs/Odometry)\n')
     head = 'case | offered msg/s: | achieved msg/s: | received: | written: | lost: | '
-    print(table(head + 'CPU µs/msg: | CPU %: | recorder / ceiling:', rows) + '\n')
+    print(table(head + 'CPU µs/msg: | CPU %: | recorder / ceiling:', recs) + '\n')
     print('### Recording the realtime swarm\n')
-    rows = [
-        [f'{pr:g} Hz', *(['failed'] * 6)]
-        if s is None
-        else [
-            f'{pr:g} Hz',
-            s['messages'],
-            f'{s["rate"]:,.0f}',
-            s['written'],
-            s['lost'],
-            s['dropped'],
-            f'{s["live"]} / {s["bag"]}',
-        ]
-        for pr, s in swarms.items()
-    ]
     head = 'plant rate: | messages: | msg/s: | written: | lost: | dropped: | state live / bag:'
-    print(table(head, rows) + '\n')
+    print(table(head, swarms) + '\n')
     print('### Playback at 100 Hz\n')
-    row = [pl['n'], pl['in_order'], f'{pl["p50"]:.3f} ms', f'{pl["p99"]:.3f} ms',
-           f'{pl["max"]:.3f} ms', f'{pl["drift"]:+.3f} ms', ' / '.join(pl['player'])]  # fmt: skip
     head = 'messages: | in order | error p50: | p99: | max: | drift: | player late p99 / max [ms]:'
-    print(table(head, [row]) + '\n')
+    print(table(head, [pl]) + '\n')
     print('### `apf-swarm bag info` on a big bag\n')
     head = 'messages: | size: | write: | `bag info`: | `apf-swarm --help`: | `open_bag`:'
     print(table(head, [big]))
-    return 1 if None in swarms.values() or not pl['in_order'] else 0
+    return 1 if any('failed' in r for r in swarms) or not pl[1] else 0
 
 
 if __name__ == '__main__':
