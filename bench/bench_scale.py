@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
 import json
 import os
 import re
@@ -36,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'bench'))
 from _children import exit_on_signals, start, stop  # noqa: E402
 
-PARTS = ('ladder', 'latency', 'discovery', 'lockstep', 'view')
+PARTS = ('ladder', 'latency', 'discovery', 'lockstep', 'view', 'secure')
 VIEWS = ('no view', 'view, no client', 'view, watched')
 FLOOR_LOCKSTEP = 500.0  # steps/s, 3 trackers
 DEFAULT_LADDER = 'events aggregate K=auto depth=1'
@@ -66,19 +67,14 @@ class Case:
     def get(self, *path: str, default: Any = None) -> Any:
         d: Any = self.summary
         for key in path:
-            if not isinstance(d, dict) or key not in d:
-                return default
-            d = d[key]
-        return d
+            d = d.get(key) if isinstance(d, dict) else None
+        return default if d is None else d
 
     def flies(self) -> bool:
         expected = self.rate * self.duration
-        return (
-            self.rc == 0
-            and self.get('missed_deadlines') == 0
-            and self.get('messages', 'received', default=0) >= 0.95 * expected
-            and bool(self.get('prediction', 'run', 'flies'))
-        )
+        states = self.get('messages', 'received', default=0) >= 0.95 * expected
+        return self.rc == 0 and self.get('missed_deadlines') == 0 and states and bool(
+            self.get('prediction', 'run', 'flies'))  # fmt: skip
 
     def verdict(self) -> str:
         if not self.summary:
@@ -104,7 +100,7 @@ class Bench:
     def up(self, case: Case, beside: Any = None) -> Case:
         """Run the bring-up for ``case``; ``beside(domain, out)`` runs once it started."""
         self.count += 1
-        out = self.dir / f'{self.count:02d}_{case.mode}_{case.n}'
+        out = self.last = self.dir / f'{self.count:02d}_{case.mode}_{case.n}'
         domain = 202 + self.count % 29
         argv = [
             sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--no-plots',
@@ -112,7 +108,12 @@ class Bench:
             '--mode', case.mode, '--n-trackers', str(case.n), '--duration', f'{case.duration:g}',
             '--spawn', case.spawn, '--domain-id', str(domain), '--out', str(out),
         ]  # fmt: skip
-        if case.mode == 'realtime':
+        if case.label in ('open', 'secure'):  # scripts/multihost.py, the probe's rate
+            argv = [sys.executable, str(ROOT / 'scripts' / 'multihost.py'), '--hosts', '3',
+                    '--n-trackers', str(case.n), '--duration', f'{case.duration:g}',
+                    '--mode', 'realtime', '--out', str(out)]  # fmt: skip
+            argv += ['--open'] if case.label == 'open' else []
+        elif case.mode == 'realtime':
             argv += ['--set', f'control_rate={case.rate:g}']
         if case.k != 'auto':
             argv += ['--trackers-per-process', case.k]
@@ -187,19 +188,14 @@ def ms(v: float | None) -> str:
 
 
 def ladders(bench: Bench, args: argparse.Namespace) -> list[str]:
-    out = [
-        '| rate | ladder | trackers | K | latency p50 / p99 [ms] | states | CPU [%] | result |',
-        '|---:|---|---:|---:|---|---:|---:|---|',
-    ]
+    out = ['| rate | ladder | trackers | K | latency p50 / p99 [ms] | states | CPU [%] | result |',
+           '|---:|---|---:|---:|---|---:|---:|---|']  # fmt: skip
     for rate in args.rates:
         for text in args.ladder.split(';'):
             words = dict(w.split('=', 1) for w in text.split() if '=' in w)
             executor, inputs = [w for w in text.split() if '=' not in w][:2]
-            params = (
-                f'executor:={executor}',
-                f'inputs:={inputs}',
-                f'qos_depth:={words.get("depth", "1")}',
-            )
+            depth = f'qos_depth:={words.get("depth", "1")}'
+            params = (f'executor:={executor}', f'inputs:={inputs}', depth)
             for n in args.sizes:
                 case = bench.up(
                     Case(n, rate=rate, duration=args.flight, k=words.get('K', 'auto'),
@@ -235,10 +231,8 @@ def latency(bench: Bench, seconds: float) -> list[str]:
         p99 = lat.get('p99')
         ratio = f'{p99 / rtt["p99"]:.2f}, {p99 / alone["p99"]:.2f}' if p99 and rtt else '-'
         out.append(f'| control loop | {inputs} | {ms(lat.get("p50"))} | {ms(p99)} | {ratio} |')
-        out.append(
-            f'| ping-pong, swarm running | {inputs} | {ms(rtt.get("p50"))} '
-            f'| {ms(rtt.get("p99"))} | - |'
-        )
+        rtts = f'{ms(rtt.get("p50"))} | {ms(rtt.get("p99"))}'
+        out.append(f'| ping-pong, swarm running | {inputs} | {rtts} | - |')
     return out
 
 
@@ -303,11 +297,33 @@ def views(bench: Bench, args: argparse.Namespace) -> list[str]:
     return [head + 'ratio (all) | frames |', '|---|---|---:|---:|---:|---:|---:|', *out]
 
 
+def secure(bench: Bench, args: argparse.Namespace) -> list[str]:
+    """A secure multi-host run (TLS) against an open one (the baseline), 3 simulated hosts."""
+    spec = importlib.util.spec_from_file_location('mh', ROOT / 'scripts' / 'multihost.py')
+    assert spec is not None and spec.loader is not None
+    multihost = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(multihost)
+    if (why := multihost.unavailable()) is not None:
+        return [f'secure: skipped, simulated hosts unavailable: {why}']
+    head = '| run | graph ready [s] | latency p50 / p99 [ms] | CPU host 1 / 2 / 3 [%] | error / '
+    out = [head + 'closest pair | missed | rate |', '|---|---:|---|---|---|---:|---:|']
+    for mode in args.order.split(','):
+        c = bench.up(Case(args.sizes[0], duration=args.flight, k='4', label=mode))
+        hosts = json.loads((bench.last / 'multihost.json').read_text())['hosts']
+        lat, run = c.get('prediction', 'latency', default={}), c.get('prediction', 'run')
+        cpu = [f'{h["cpu_pct"]:.0f}' for h in hosts]
+        fly = f'{100 * run["formation_error_rms"]:.2f} / {100 * run["closest_pair"]:.1f} %'
+        out.append(f'| {mode} | {c.get("timing", "ready")} | {ms(lat.get("p50"))} / '
+                   f'{ms(lat.get("p99"))} | {" / ".join(cpu)} '
+                   f'| {fly} ({"flies" if run["flies"] else "no flight"}) '
+                   f'| {c.get("missed_deadlines")} '
+                   f'| {c.get("timing", "rate")} |')  # fmt: skip
+    return out
+
+
 def discovery(bench: Bench, sizes: list[int]) -> list[str]:
-    out = [
-        '| trackers | K | graph ready, fork [s] | exec [s] | exec / fork | RSS, fork [MB] |',
-        '|---:|---:|---:|---:|---:|---:|',
-    ]
+    out = ['| trackers | K | graph ready, fork [s] | exec [s] | exec / fork | RSS, fork [MB] |',
+           '|---:|---:|---:|---:|---:|---:|']  # fmt: skip
     for k in ('1', '4'):
         for n in sizes:
             fork, exe = (
@@ -346,6 +362,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--ladder', default=DEFAULT_LADDER, metavar='TEXT', help="';' between")
     ap.add_argument('--flight', type=float, default=25.0, metavar='S', help='seconds a case')
     ap.add_argument('--rounds', type=int, default=2, help='view: rounds of the three cases')
+    ap.add_argument('--order', default='open,secure', help='secure: the runs, in order')
     ap.add_argument('--keep', type=Path, default=None, metavar='DIR', help='keep the runs')
     args = ap.parse_args(argv)
     parts = [p for p in args.only.split(',') if p]
@@ -363,6 +380,8 @@ def main(argv: list[str] | None = None) -> int:
         print('\n'.join(latency(bench, 2.0 if args.smoke else 10.0)) + '\n')
     if 'view' in parts:
         print('\n'.join(views(bench, args)) + '\n')
+    if 'secure' in parts:
+        print('\n'.join(secure(bench, args)) + '\n')
     if 'discovery' in parts:
         print('\n'.join(discovery(bench, [3, 8] if args.quick else [3, 8, 16, 32])) + '\n')
     if 'lockstep' in parts:
