@@ -22,6 +22,7 @@ import importlib.util
 import json
 import os
 import re
+import shutil
 import statistics
 import sys
 import tempfile
@@ -36,6 +37,7 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'bench'))
 from _children import exit_on_signals, start, stop  # noqa: E402
+from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
 
 PARTS = ('ladder', 'latency', 'discovery', 'lockstep', 'view', 'secure')
 VIEWS = ('no view', 'view, no client', 'view, watched')
@@ -101,7 +103,7 @@ class Bench:
         """Run the bring-up for ``case``; ``beside(domain, out)`` runs once it started."""
         self.count += 1
         out = self.last = self.dir / f'{self.count:02d}_{case.mode}_{case.n}'
-        domain = 202 + self.count % 29
+        domain = pick_domain_id(lo=202, hi=230)
         argv = [
             sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--no-plots',
             '--preset', 'triangle' if case.mode == 'lockstep' else 'realtime',
@@ -214,7 +216,7 @@ def ladders(bench: Bench, args: argparse.Namespace) -> list[str]:
 
 
 def latency(bench: Bench, seconds: float) -> list[str]:
-    alone = ping_pong(231, seconds)['rtt']
+    alone = ping_pong(pick_domain_id(lo=202, hi=230), seconds)['rtt']
     out = [
         '| path | inputs | p50 [ms] | p99 [ms] | p99 / ping-pong p99 (concurrent, alone) |',
         '|---|---|---:|---:|---|',
@@ -372,7 +374,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.smoke:
         args.sizes, args.rates, args.flight, args.rounds = [3], [50.0], 3.0, 1
         parts = parts if '--only' in (argv or sys.argv) else ['ladder']
-    bench, ok = Bench(args.keep), True
+    bench = Bench(args.keep)
+    try:
+        return run(bench, parts, args)
+    finally:
+        if args.keep is None:
+            shutil.rmtree(bench.dir, ignore_errors=True)
+
+
+def run(bench: Bench, parts: list[str], args: argparse.Namespace) -> int:
+    ok = True
     print(f'CPU: {psutil.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; runs in {bench.dir}\n')
     if 'ladder' in parts:
         print('\n'.join(ladders(bench, args)) + '\n')
