@@ -48,19 +48,15 @@ class Naive:
     """The law's gradient-only command for one tracker, written plainly (the baseline)."""
 
     def __init__(self, cfg: SwarmConfig, dt: float) -> None:
-        p = cfg.potential_params()
-        self.kn, self.kf, self.a, self.b, self.c = (
-            float(p[k]) for k in ('k_n', 'k_f', 'a', 'b', 'c')
-        )
+        p = {k: float(v) for k, v in cfg.potential_params().items()}
+        self.kn, self.kf, self.a, self.b, self.c = (p[k] for k in ('k_n', 'k_f', 'a', 'b', 'c'))
         self.alpha, self.beta, self.gamma = cfg.alpha, cfg.beta, cfg.gamma
         self.u0, self.phi, self.drag, self.ff = cfg.u0, cfg.phi, cfg.drag, cfg.feedforward
         self.layer = cfg.switching == 'layer'
         self.decay = math.exp(-dt / cfg.lambda_filter)
         self.z = np.zeros(3)
 
-    def command(
-        self, i: int, x: np.ndarray, v: np.ndarray, tx: np.ndarray, tv: np.ndarray
-    ) -> np.ndarray:
+    def command(self, i: int, x: np.ndarray, v: np.ndarray, tx: Any, tv: Any) -> np.ndarray:
         d = x[i] - x  # x_i - x_j (row i is zero)
         w = self.a - self.b * np.exp(-(d * d).sum(axis=1) / self.c)
         g = self.kn * (x[i] - tx) + self.kf * (w[:, None] * d).sum(axis=0)  # eq. 2 / 44, row i
@@ -75,21 +71,14 @@ class Naive:
         return u
 
 
-def formation(cfg: SwarmConfig) -> np.ndarray:
-    """The designed formation of ``cfg.n_trackers`` around the target [m]."""
-    return design_formation(cfg).relative_positions + TARGET_X
-
-
 def check(cfg: SwarmConfig, calls: int = 20) -> float:
     """Largest difference between the baseline's force and ``TrackerAgent.command`` of the
     same law (``precondition=none``, ``compensation=none``), on states at the formation and
     far from it: both sides of the boundary layer must be seen."""
-    plain = cfg.replace(precondition='none', compensation='none')
-    n = cfg.n_trackers
+    plain, n = cfg.replace(precondition='none', compensation='none'), cfg.n_trackers
     agent = TrackerAgent(plain, 1)
-    naive = Naive(plain, agent.controller.dt)
-    rng = np.random.default_rng(1)
-    x0 = formation(plain)
+    naive, rng = Naive(plain, agent.controller.dt), np.random.default_rng(1)
+    x0 = design_formation(plain).relative_positions + TARGET_X
     ids, active = list(range(1, n + 1)), [True] * n
     worst, sides = 0.0, set()
     for k in range(calls):
@@ -99,8 +88,7 @@ def check(cfg: SwarmConfig, calls: int = 20) -> float:
             raise RuntimeError(f'offer_swarm refused the state: {agent.last_rejection}')
         out = agent.command(-1)
         sides.add(bool(out.saturated[0]))
-        got = naive.command(0, x, v, TARGET_X, TARGET_V)
-        ref = out.force[0]
+        got, ref = naive.command(0, x, v, TARGET_X, TARGET_V), out.force[0]
         worst = max(worst, float(np.max(np.abs(ref - got)) / max(1.0, np.max(np.abs(ref)))))
     if len(sides) < 2:
         raise RuntimeError(f'the check saw one side of the boundary layer only ({sides})')
@@ -109,16 +97,13 @@ def check(cfg: SwarmConfig, calls: int = 20) -> float:
 
 def measure(cfg: SwarmConfig, calls: int) -> dict[str, Any]:
     """Mean and p99 [µs] of the command, the offer and the baseline for one swarm size."""
-    n = cfg.n_trackers
-    rng = np.random.default_rng(0)
-    x0 = formation(cfg)
+    n, rng = cfg.n_trackers, np.random.default_rng(0)
+    x0 = design_formation(cfg).relative_positions + TARGET_X
     v = rng.normal(scale=0.1, size=(n, 3))
     ids, active = list(range(1, n + 1)), [True] * n
     agent = TrackerAgent(cfg, 1)
-    naive = Naive(cfg, agent.controller.dt)
+    naive, seq, total = Naive(cfg, agent.controller.dt), 0, WARMUP + calls
     times: dict[str, list[float]] = {'offer_command': [], 'command': [], 'naive': []}
-    seq = 0
-    total = WARMUP + calls
     while len(times['naive']) < total:
         for _ in range(SLICE):
             x = x0 + rng.normal(scale=0.01, size=x0.shape)
