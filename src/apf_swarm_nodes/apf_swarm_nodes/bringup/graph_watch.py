@@ -73,7 +73,7 @@ class GraphWatch:
             self.node = rclpy.create_node('swarm_up')
         # the events executor costs less CPU per /swarm/state sample than the single-
         # threaded one, and the bring-up shares the cores with the swarm
-        # (bench/bench_graph.py compares the executors)
+        # (bench/bench_scale.py --only lockstep compares the executors)
         self.executor = EventsExecutor()
         self.executor.add_node(self.node)
         self.state_sub = self.node.create_subscription(
