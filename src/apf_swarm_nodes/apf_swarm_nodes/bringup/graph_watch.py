@@ -42,8 +42,8 @@ class GraphWatch:
     ) -> None:
         self.args, self.mode, self.n, self.node_values = args, args.mode, n, node_values
         self.acc, self.say, self.warn_once = acc, say, warn_once
-        #: processes that send their commands as one message (``batch_commands``), or 0
-        self.batch_writers = 0
+        #: whether each tracker process sends its commands as one message (``batch_commands``)
+        self.batching = False
         #: the recorder's last ``/recorder/status`` document (``--record``), None before one
         self.rec_status: dict[str, Any] | None = None
         # rclpy objects, made by init_ros() once rclpy is imported (this module does not)
@@ -100,17 +100,14 @@ class GraphWatch:
         present = {
             (ns.rstrip('/') + '/' + name) for name, ns in node.get_node_names_and_namespaces()
         }
-        nodes, topics = expected_graph(
+        readers = input_readers(
             self.n,
             self.mode,
-            input_readers(
-                self.n,
-                self.mode,
-                self.args.trackers_per_process,
-                self.node_values.get('inputs', 'aggregate'),
-            ),
-            self.batch_writers,
+            self.args.trackers_per_process,
+            self.node_values.get('inputs', 'aggregate'),
         )
+        # a batching process is one that reads /swarm/odom for its trackers
+        nodes, topics = expected_graph(self.n, self.mode, readers, readers if self.batching else 0)
         if self.args.record:
             nodes = [*nodes, f'/{RECORDER_NODE}']
         counts = {

@@ -74,8 +74,9 @@ class Bringup:
         self.run_id = random.getrandbits(62) + 1
         #: before the run: checks, isolation (domain id, a secure run's files), the launch
         self.setup = Startup(
-            args, cfg, self.run_id, self.node_params, self.sup, self.flight, self.say
-        )
+            args, cfg, self.run_id, self.node_params, self.node_values, self.sup, self.flight,
+            self.say,
+        )  # fmt: skip
         # monotonic times of this bring-up's start, the launch, the start and the end of the
         # run [s]
         self.t_begin = time.monotonic()
@@ -209,8 +210,7 @@ class Bringup:
         self.signals.install()
         try:
             self.setup.isolate()
-            if self.setup.batch_commands:
-                self.graph.batch_writers = -(-self.n // self.args.trackers_per_process)
+            self.graph.batching = self.setup.batch_commands
         except BaseException:
             self.signals.restore()
             raise

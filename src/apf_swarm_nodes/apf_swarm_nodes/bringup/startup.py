@@ -43,11 +43,14 @@ class Startup:
         cfg: SwarmConfig,
         run_id: int,
         node_params: list[str],
+        node_values: dict[str, str],
         sup: Supervisor,
         flight: FlightCheck,
         say: Callable[[str], None],
     ) -> None:
         self.args, self.cfg, self.run_id, self.node_params = args, cfg, run_id, node_params
+        #: the same, read once: name -> value
+        self.node_values = node_values
         self.mode: str = args.mode
         self.n = cfg.n_trackers
         self.out: Path = args.out
@@ -154,12 +157,11 @@ class Startup:
         """Whether the trackers send a process's commands as one message: by default in a
         secure realtime run of several trackers to a process, not recorded; else as the
         ``batch_commands`` node parameter says."""
-        values = dict(p.split(':=', 1) for p in self.node_params)
-        given = values.get('batch_commands')
+        given = self.node_values.get('batch_commands')
         several = (
             self.mode == 'realtime'
             and self.args.trackers_per_process > 1
-            and values.get('inputs', 'aggregate') == 'aggregate'
+            and self.node_values.get('inputs', 'aggregate') == 'aggregate'
         )
         if given is not None:
             return several and given.strip().lower() == 'true'
