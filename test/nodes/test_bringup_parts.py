@@ -70,23 +70,46 @@ def test_hosted_nodes_invert_the_process_names_of_node_commands() -> None:
 def test_a_process_never_seen_while_the_graph_stalls_is_restarted_at_most_twice() -> None:
     from apf_swarm_nodes.bringup.graph import UnseenRestart
 
+    hosted = {'trackers_1-2': ['/uav_1/tracker', '/uav_2/tracker']}
+    watch = UnseenRestart(hosted, stall=5.0, limit=2, peer_wait=2.5)
+    unseen = ['node /uav_1/tracker', 'node /uav_2/tracker', 'topic /uav_1/force_cmd: ...']
+    # progress (fewer missing) resets the clock; no restart before the stall
+    assert watch.due(0.0, [*unseen, 'topic /plant: ...']) == []
+    assert watch.due(4.0, unseen) == []
+    assert watch.due(8.9, unseen) == []
+    assert watch.due(9.0, unseen) == ['trackers_1-2']
+    # the restarted process gets its own stall
+    assert watch.due(13.0, unseen) == []
+    assert watch.due(17.9, unseen) == []
+    assert watch.due(18.0, unseen) == ['trackers_1-2']
+    assert watch.due(40.0, unseen) == []  # the limit
+    assert watch.restarts == {'trackers_1-2': 2}
+
+
+def test_a_process_unseen_after_all_its_peers_showed_up_is_restarted() -> None:
+    from apf_swarm_nodes.bringup.graph import UnseenRestart
+
     hosted = {
+        'plant': ['/plant'],
         'trackers_1-2': ['/uav_1/tracker', '/uav_2/tracker'],
         'trackers_3-4': ['/uav_3/tracker', '/uav_4/tracker'],
     }
-    watch = UnseenRestart(hosted, stall=5.0, limit=2)
-    unseen = ['node /uav_3/tracker', 'node /uav_4/tracker', 'topic /uav_3/force_cmd: ...']
-    # progress (fewer missing) resets the clock; no restart before the stall
-    assert watch.due(0.0, [*unseen, 'node /uav_1/tracker']) == []
-    assert watch.due(4.0, unseen) == []
-    assert watch.due(8.9, unseen) == []
-    assert watch.due(9.0, unseen) == ['trackers_3-4']
-    # the restarted process gets its own stall; a partly seen one is never restarted
-    assert watch.due(13.0, [*unseen, 'node /uav_2/tracker']) == []
-    assert watch.due(18.0, [*unseen, 'node /uav_2/tracker']) == ['trackers_3-4']
-    assert watch.due(40.0, unseen) == []
-    assert watch.due(60.0, unseen) == []  # the limit
-    assert watch.restarts == {'trackers_3-4': 2}
+    watch = UnseenRestart(hosted, stall=9.0, limit=2, peer_wait=2.5)
+    late = ['node /uav_3/tracker', 'node /uav_4/tracker']
+    edges = [f'topic /uav_{i}/force_cmd: ...' for i in range(9)]
+    # the graph is still progressing; nobody restarts while a peer is still unseen too
+    start = ['node /plant', 'node /uav_1/tracker', 'node /uav_2/tracker']
+    assert watch.due(0.0, [*start, *late, *edges]) == []
+    assert watch.due(1.0, [*start[1:], *late, *edges[:8]]) == []  # plant up
+    assert watch.due(2.0, ['node /uav_2/tracker', *late, *edges[:7]]) == []  # 1-2 up
+    # a partly seen process counts as up; the last peer showed up at 2.0
+    assert watch.due(4.4, [*late, *edges[:6]]) == []
+    assert watch.due(4.5, [*late, *edges[:5]]) == ['trackers_3-4']
+    # its restart gets peer_wait again; a process showing a node is never restarted
+    assert watch.due(6.0, [*late, *edges[:4]]) == []
+    assert watch.due(6.5, ['node /uav_4/tracker', *edges[:3]]) == []
+    assert watch.due(30.0, ['node /uav_4/tracker', *edges[:3]]) == []
+    assert watch.restarts == {'trackers_3-4': 1}
 
 
 def wait_until(cond, timeout: float) -> bool:

@@ -34,6 +34,7 @@ def test_files_keys_private_and_authority_key_never_written(pki: secure.Pki) -> 
         assert sorted(p.name for p in host.key.parent.iterdir()) == [
             'cert.pem',
             'fastdds_secure.xml',
+            'fastdds_secure_client.xml',
             'key.pem',
         ]
     # the only private keys on disk are the hosts'
@@ -44,7 +45,10 @@ def test_files_keys_private_and_authority_key_never_written(pki: secure.Pki) -> 
 
 
 def test_profile_is_tls_over_tcp_only(pki: secure.Pki) -> None:
-    for path, server in ((pki.hosts['h2'].profile, False), (pki.server_profile, True)):
+    h2 = pki.hosts['h2']
+    kinds = {h2.profile: 'SUPER_CLIENT', h2.client_profile: 'CLIENT', pki.server_profile: 'SERVER'}
+    for path, kind in kinds.items():
+        server = kind == 'SERVER'
         root = ET.parse(path).getroot()
         descriptors = root.findall(f'.//{NS}transport_descriptor')
         assert len(descriptors) == 1
@@ -56,7 +60,7 @@ def test_profile_is_tls_over_tcp_only(pki: secure.Pki) -> None:
         assert tls.find(f'{NS}password') is None  # an empty one breaks the parsing
         assert root.findtext(f'.//{NS}useBuiltinTransports') == 'false'
         protocol = root.findtext(f'.//{NS}discoveryProtocol')
-        assert protocol == ('SERVER' if server else 'SUPER_CLIENT')
+        assert protocol == kind
         port = root.findtext(f'.//{NS}listening_ports/{NS}port')
         assert port == ('20007' if server else '0')
     assert 'VerifyMode = Peer,Require' in pki.openssl.read_text()

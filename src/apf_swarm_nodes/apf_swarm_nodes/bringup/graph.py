@@ -117,19 +117,27 @@ def graph_missing(
 #: no fewer entities missing for this long [s], and a process none of whose nodes was ever
 #: seen is restarted (:class:`UnseenRestart`)
 STALL = 5.0
+#: or: every other process has shown a node for this long [s], and this one none. At 128
+#: trackers on 3 hosts a healthy process showed up within 2.5 s of its peers; an unseen one
+#: was each time the last to start, and came up within 3 s of its restart
+PEER_WAIT = 3.0
 #: restarts of one process while the graph comes up
 MAX_UNSEEN_RESTARTS = 2
 
 
 class UnseenRestart:
     """Which node processes to restart while the graph comes up: those none of whose nodes
-    the graph shows, once the count of missing entities has not fallen for ``stall``
-    seconds, each at most ``limit`` times.
+    the graph shows, once every other process has shown one for ``peer_wait`` seconds, or
+    once the count of missing entities has not fallen for ``stall`` seconds; each at most
+    ``limit`` times.
 
     Over Fast DDS's TCP transport (the secure mode) a node process sometimes never reaches
     the discovery server although it runs; everything else comes up around it and the run
     would wait for it until ``--ready-timeout``. A restarted process is discovered like the
-    others. ``hosted``: each process's node names (:func:`.commands.hosted_nodes`).
+    others. The processes start together, so a process still unseen ``peer_wait`` after the
+    last of its peers showed up is not merely slow: under load all of them are. The stall
+    rule covers a run with one process. ``hosted``: each process's node names
+    (:func:`.commands.hosted_nodes`).
     """
 
     def __init__(
@@ -137,33 +145,44 @@ class UnseenRestart:
         hosted: Mapping[str, Sequence[str]],
         stall: float = STALL,
         limit: int = MAX_UNSEEN_RESTARTS,
+        peer_wait: float = PEER_WAIT,
     ) -> None:
         self.hosted = {name: list(nodes) for name, nodes in hosted.items() if nodes}
-        self.stall, self.limit = stall, limit
+        self.stall, self.limit, self.peer_wait = stall, limit, peer_wait
         self.restarts: dict[str, int] = {}
         self._best: int | None = None
         self._since = 0.0
+        self._shown: dict[str, float] = {}  # process -> when a node of it was first seen
 
     def due(self, now: float, missing: Sequence[str]) -> list[str]:
         """The processes to restart now [names], given the graph's ``missing`` entities (the
         lines of :func:`graph_missing`) at time ``now`` [s]; each one returned is counted
         as restarted."""
-        if self._best is None or len(missing) < self._best:
-            self._best, self._since = len(missing), now
-            return []
-        if now - self._since < self.stall:
-            return []
         gone = {line[len('node ') :] for line in missing if line.startswith('node ')}
-        names = [
-            name
-            for name, nodes in self.hosted.items()
-            if all(n in gone for n in nodes) and self.restarts.get(name, 0) < self.limit
-        ]
+        unseen = [n for n, nodes in self.hosted.items() if all(x in gone for x in nodes)]
+        for name in self.hosted:
+            if name not in unseen:
+                self._shown.setdefault(name, now)
+        progress = self._best is None or len(missing) < self._best
+        if progress:
+            self._best, self._since = len(missing), now
+        stalled = not progress and now - self._since >= self.stall
+        peers_up = (
+            0 < len(unseen) < len(self.hosted)
+            and len(self._shown) == len(self.hosted) - len(unseen)
+            and now - max(self._shown.values()) >= self.peer_wait
+        )
+        if not (stalled or peers_up):
+            return []
+        names = [n for n in unseen if self.restarts.get(n, 0) < self.limit]
         for name in names:
             self.restarts[name] = self.restarts.get(name, 0) + 1
+            self._shown.pop(name, None)
         if names:
             # the restarted processes get their own time to come up
             self._best, self._since = None, now
+            for name in self._shown:
+                self._shown[name] = now
         return names
 
 

@@ -159,7 +159,7 @@ class GraphWatch:
         """Spin until :meth:`missing` finds nothing, calling ``between`` (the bring-up's
         signal and process checks) each turn; StopRun after ``--ready-timeout``. With
         ``restart``, the ``processes`` (log names) none of whose nodes ever appear while
-        the graph stalls are restarted (:class:`~.graph.UnseenRestart`)."""
+        their peers do are restarted (:class:`~.graph.UnseenRestart`)."""
         unseen = UnseenRestart({p: hosted_nodes(p) for p in processes or ()})
         t0 = time.monotonic()
         deadline = t0 + self.args.ready_timeout
@@ -179,8 +179,8 @@ class GraphWatch:
                     times = max(unseen.restarts[n] for n in names)
                     restart(
                         names,
-                        f'none of its nodes appeared in {now - t0:.0f} s while the graph '
-                        f'stalled for {unseen.stall:g} s (restart {times} of at most '
+                        f'none of its nodes appeared in {now - t0:.1f} s, while its peers '
+                        f'did or the graph stalled (restart {times} of at most '
                         f'{unseen.limit})',
                     )
             if now - last_report >= 5.0:

@@ -15,7 +15,7 @@ from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import to_ros_params
 
 from ..topics import RECORDER_NODE
-from .commands import executable_path, node_commands, node_netns, package_prefix
+from .commands import executable_path, hosted_nodes, node_commands, node_netns, package_prefix
 from .errors import BringupError
 from .isolation import env_domain, pick_domain_id
 from .processes import Child
@@ -191,15 +191,21 @@ class Startup:
 
         remove_keys(self.out / 'dds')
 
-    def host_env(self, env: dict[str, str], netns: str | None) -> dict[str, str]:
-        """A node's environment on the simulated host ``netns``: a secure run's nodes there
-        take that host's files."""
-        if self.pki is None or netns is None or netns not in self.pki.hosts:
+    def host_env(self, env: dict[str, str], netns: str | None, name: str) -> dict[str, str]:
+        """The environment of node process ``name`` on the simulated host ``netns`` (None:
+        this host): a secure run's nodes take their host's files, a process of trackers
+        only the client profile (:data:`~..dds.secure.CLIENT_PROFILE_FILE`)."""
+        if self.pki is None:
             return env
-        from ..dds.secure import secure_environment
+        from ..dds.secure import THIS_HOST, secure_environment
 
-        host = self.pki.hosts[netns]
-        return {**env, **secure_environment(host.profile, self.pki.openssl)}
+        host = self.pki.hosts.get(THIS_HOST if netns is None else netns)
+        if host is None:
+            return env
+        nodes = hosted_nodes(name)
+        trackers = bool(nodes) and all(n.endswith('/tracker') for n in nodes)
+        profile = host.client_profile if trackers else host.profile
+        return {**env, **secure_environment(profile, self.pki.openssl)}
 
     def start_zygote(self) -> None:
         """``--spawn fork``: start the zygote first, so that its imports overlap the
@@ -278,7 +284,7 @@ class Startup:
                     name,
                     argv,
                     self.out / 'logs' / f'{name}.log',
-                    self.host_env(env, ns),
+                    self.host_env(env, ns, name),
                     zygote=self.zygote,
                     janitor=self.janitor,
                 )
