@@ -388,12 +388,14 @@ def test_batched_commands_fly_the_realtime_swarm(bringup) -> None:
     """``batch_commands``: each process of 2 trackers answers a state with one
     /swarm/force_cmds message (what a secure run does); the plant takes every command from
     it: its clock starts with every tracker commanding, no deadline is missed, and the run
-    flies as the emulation with its delays does."""
+    flies as the emulation with its delays does. The bag keeps the batches."""
+    from apf_swarm_nodes.bags import open_bag
+
     run = bringup(
         'batch',
         *('--preset', 'realtime', '--mode', 'realtime', '--n-trackers', '4'),
         *('--trackers-per-process', '2', '--node-param', 'batch_commands:=true'),
-        *('--duration', '12'),
+        *('--duration', '12', '--record'),
     )
     rc = run.wait(150)
     assert rc == 0, run.stderr()
@@ -406,6 +408,9 @@ def test_batched_commands_fly_the_realtime_swarm(bringup) -> None:
     assert summary['missed_deadlines'] == 0 and summary['messages']['dropped'] == 0
     pred = summary['prediction']
     assert pred['run']['flies'], (pred['run'], pred.get('emulation'), pred.get('latency'))
+    # one batch per process and state, less the states a busy process skipped
+    batches = open_bag(run.out / 'bag').topic('/swarm/force_cmds').count
+    assert batches >= summary['messages']['received'], (batches, summary['messages'])
 
 
 def test_trackers_hosted_several_to_a_process_reproduce_the_simulator(bringup) -> None:

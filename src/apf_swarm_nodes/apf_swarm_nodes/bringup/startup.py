@@ -155,7 +155,7 @@ class Startup:
     @property
     def batch_commands(self) -> bool:
         """Whether the trackers send a process's commands as one message: by default in a
-        secure realtime run of several trackers to a process, not recorded; else as the
+        secure realtime run of several trackers to a process; else as the
         ``batch_commands`` node parameter says."""
         given = self.node_values.get('batch_commands')
         several = (
@@ -165,7 +165,7 @@ class Startup:
         )
         if given is not None:
             return several and given.strip().lower() == 'true'
-        return several and self.pki is not None and not self.args.record
+        return several and self.pki is not None
 
     def check_secure(self) -> None:
         """A secure run, before any node starts: the bring-up's own port (its participant,
@@ -241,8 +241,8 @@ class Startup:
             # recorded: each writer waits for the recorder's reader before its first message
             [
                 # over TLS a message costs more than its bytes: one command message per
-                # process (docs/PERFORMANCE.md, "Secure multi-host runs"); a bag keeps the
-                # per-UAV topics, so not with --record
+                # process (docs/PERFORMANCE.md, "Secure multi-host runs"); a bag records
+                # it as /swarm/force_cmds
                 *(['batch_commands:=true'] if self.batch_commands else []),
                 *self.node_params,
                 f'run:={self.run_id}',
