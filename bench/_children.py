@@ -1,27 +1,24 @@
-"""What every benchmark that starts processes uses so that none outlives it: children die
-with the benchmark (:func:`apf_swarm_nodes.lifetime.dying_with_parent`) and are stopped by
-process group (:func:`apf_swarm_nodes.lifetime.stop_process`); SIGTERM / SIGHUP end the
-benchmark through its ``finally`` blocks. A module, not a benchmark."""
-
-from __future__ import annotations
+"""What the benchmarks share: children that die with the benchmark and are stopped by process
+group (:mod:`apf_swarm_nodes.lifetime`), SIGTERM / SIGHUP that end it through its ``finally``
+blocks, the ``swarm_up.py`` command, the log line, timing, tables. A module, not a benchmark."""
 
 import signal
 import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from apf_swarm_nodes.lifetime import dying_with_parent, stop_process
 
-__all__ = ['dying_with_parent', 'exit_on_signals', 'start', 'stop', 'table']
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def exit_on_signals() -> None:
     """SIGTERM and SIGHUP raise SystemExit (128 + signal), so ``finally`` blocks run."""
-
-    def handler(signum: int, _frame: Any) -> None:
-        raise SystemExit(128 + signum)
-
     for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, handler)
+        signal.signal(sig, lambda signum, _frame: sys.exit(128 + signum))
 
 
 def start(argv: list[str], sig: str = 'TERM', **kw: Any) -> subprocess.Popen[bytes]:
@@ -31,8 +28,24 @@ def start(argv: list[str], sig: str = 'TERM', **kw: Any) -> subprocess.Popen[byt
 
 def stop(p: subprocess.Popen[bytes], grace: float = 30.0) -> int | None:
     """SIGINT to its group, SIGTERM, then SIGKILL; its exit code (None if it outlived all)."""
-    seq = ((signal.SIGINT, grace), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0))
-    return stop_process(p, seq)
+    return stop_process(p, ((signal.SIGINT, grace), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)))
+
+
+def swarm_up(*args: Any) -> list[str]:
+    """The bring-up, ``scripts/swarm_up.py``, without plots: ``args`` as strings."""
+    return [sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--no-plots', *map(str, args)]
+
+
+def log(msg: str) -> None:
+    """A progress line on stderr, after the benchmark's name."""
+    print(f'{Path(sys.argv[0]).stem}: {msg}', file=sys.stderr, flush=True)
+
+
+def timed(f: Callable[..., Any], *args: Any, **kw: Any) -> float:
+    """Wall seconds of ``f(*args, **kw)``."""
+    t0 = time.perf_counter()
+    f(*args, **kw)
+    return time.perf_counter() - t0
 
 
 def table(header: str, rows: list[list[Any]]) -> str:

@@ -1,18 +1,11 @@
 #!/usr/bin/env python3
-"""Benchmark of the bags: recorder against its ceiling, the realtime swarm recorded,
-playback timing, ``bag info`` on a big bag.
+"""Benchmark of the bags: recorder against its ceiling, the swarm recorded, playback, bag info.
 
-    python bench/bench_bags.py [--quick | --smoke]
-
-Ceiling (the baseline): ``apf_swarm_nodes.bags.BagWriter`` fed in-process. Recorder: the
-``recorder`` executable while this process publishes (reliable, keep last 1000) at paced
-rates: lost (sequence gaps), CPU per message net of idle, ratio to the ceiling. Swarm:
-``swarm_up.py --record`` at plant publish_rate 100 (500) Hz. Play: ``player`` at 100 Hz into
-this process, timing error against the schedule. Info: ``apf-swarm bag info`` against
-``apf-swarm --help`` alone and ``open_bag`` in-process. Exit 1 when a case failed.
-"""
-
-from __future__ import annotations
+Ceiling (the baseline): ``BagWriter`` in-process. Recorder: the ``recorder`` executable while
+this process publishes at paced rates (reliable, depth 1000): lost, CPU per message net of
+idle, ratio to the ceiling. Swarm: ``swarm_up.py --record``, plant at 100 (500) Hz. Play:
+``player`` at 100 Hz into this process, error against the schedule. Info: ``apf-swarm bag
+info`` against ``apf-swarm --help`` and ``open_bag`` in-process. Exit 1 when a case failed."""
 
 import argparse
 import json
@@ -27,27 +20,20 @@ from typing import Any
 
 import numpy as np
 import yaml
+from _children import exit_on_signals, log, start, stop, swarm_up, table, timed
 from apf_swarm_nodes.bringup import pick_domain_id
+from apf_swarm_nodes.bringup.commands import executable_path, package_prefix
 from apf_swarm_nodes.capacity.machine import process_cpu_seconds
 from apf_swarm_nodes.dds.qos import qos_from_dict
 
 from apf_swarm_nodes import bags
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'bench'))
-from _children import exit_on_signals, start, stop, table  # noqa: E402
-
 T0 = 1_700_000_000_000_000_000
 QOS = {'history': 'keep_last', 'depth': 1000, 'reliability': 'reliable', 'durability': 'volatile'}
 
 
-def log(msg: str) -> None:
-    print(f'bench_bags: {msg}', file=sys.stderr, flush=True)
-
-
 def cpu(pid: int) -> float:
-    t = process_cpu_seconds(pid)
-    if t is None:
+    if (t := process_cpu_seconds(pid)) is None:
         raise RuntimeError(f'process {pid} exited while it was measured')
     return t
 
@@ -82,15 +68,13 @@ class Ros:
 
     def __init__(self, domain: int) -> None:
         import rclpy
-        from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
 
         self.env = {**os.environ, 'ROS_DOMAIN_ID': str(domain)}
         self.env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-        self.ctx = Context()
+        self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)
-        self.node = Node('bench_bags', context=self.ctx)
+        self.node = rclpy.create_node('bench_bags', context=self.ctx)
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
 
@@ -102,19 +86,15 @@ class Ros:
             self.ex.spin_once(timeout_sec=0.01)
 
     def run(self, name: str, params: list[str], logf: Path) -> subprocess.Popen[bytes]:
-        from ament_index_python.packages import get_package_prefix
-
-        exe = Path(get_package_prefix('apf_swarm_nodes')) / 'lib' / 'apf_swarm_nodes' / name
+        exe = executable_path(package_prefix(), name)
         argv = [str(exe), '--ros-args', *[a for p in params for a in ('-p', p)]]
         with logf.open('wb') as f:
             return start(argv, 'KILL', env=self.env, stdout=f, stderr=subprocess.STDOUT)
 
     def close(self) -> None:
-        import rclpy
-
         self.ex.shutdown()
         self.node.destroy_node()
-        rclpy.try_shutdown(context=self.ctx)
+        self.ctx.try_shutdown()
 
 
 def recorder(tmp: Path, ros: Ros, rate: float, seconds: float, ceil: float) -> list[Any]:
@@ -143,8 +123,7 @@ def recorder(tmp: Path, ros: Ros, rate: float, seconds: float, ceil: float) -> l
         stop(p)
     meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     c = json.loads(meta['custom_data']['apf_swarm.recorder'])
-    busy = max(0.0, used - idle * (wall + 2.0))
-    us = 1e6 * busy / max(1, c['written'])
+    us = 1e6 * max(0.0, used - idle * (wall + 2.0)) / max(1, c['written'])  # net of idle
     return ['recorder', f'{rate:,.0f}', f'{n / wall:,.0f}', c['received'], c['written'],
             c['lost'], f'{us:.1f}', f'{100 * used / (wall + 2):.0f}',
             f'{us / ceil:.1f}']  # fmt: skip
@@ -152,10 +131,9 @@ def recorder(tmp: Path, ros: Ros, rate: float, seconds: float, ceil: float) -> l
 
 def swarm(tmp: Path, publish_rate: float, seconds: float, domain: int) -> list[Any]:
     out = tmp / f'swarm_{publish_rate:.0f}'
-    argv = [sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--preset', 'realtime',
-            '--mode', 'realtime', '--duration', f'{seconds:g}', '--record', '--no-plots',
-            '--domain-id', str(domain), '--out', str(out),
-            '--node-param', f'publish_rate:={publish_rate}']  # fmt: skip
+    argv = swarm_up('--preset', 'realtime', '--mode', 'realtime', '--duration', f'{seconds:g}',
+                    '--record', '--domain-id', domain, '--out', out,
+                    '--node-param', f'publish_rate:={publish_rate}')  # fmt: skip
     p = start(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         _, err = p.communicate(timeout=seconds + 120)
@@ -182,11 +160,8 @@ def play(tmp: Path, ros: Ros, n: int, hz: float) -> list[Any]:
     write_bag(path, '/bench/play', 'std_msgs/msg/Int64', msgs, n, hz)
     got: list[tuple[int, int]] = []
     sub = ros.node.create_subscription(
-        Int64,
-        '/bench/play',
-        lambda m, info: got.append((m.data, info['received_timestamp'])),
-        QoSProfile(depth=1000),
-    )
+        Int64, '/bench/play', lambda m, info: got.append((m.data, info['received_timestamp'])),
+        QoSProfile(depth=1000))  # fmt: skip
     p = ros.run('player', [f'bag:={path}', 'wait_for:=[/bench/play]'], tmp / 'player.log')
     try:
         ros.spin_until(lambda: len(got) >= n, n / hz + 30, 'the played messages')
@@ -207,17 +182,12 @@ def info(tmp: Path, n: int) -> list[Any]:
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Int64
 
-    path, t0 = tmp / 'info', time.perf_counter()
-    write_bag(path, '/bench/info', 'std_msgs/msg/Int64', serialize_message(Int64()), n, 1e3)
-    write = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    path, data = tmp / 'info', serialize_message(Int64())
+    write = timed(write_bag, path, '/bench/info', 'std_msgs/msg/Int64', data, n, 1e3)
+    inproc = timed(bags.open_bag, path)
     assert bags.open_bag(path).count == n
-    inproc = time.perf_counter() - t0
-    walls = []
-    for args in (['bag', 'info', str(path)], ['--help']):
-        t0 = time.perf_counter()
-        subprocess.run(['apf-swarm', *args], capture_output=True, check=True)
-        walls.append(time.perf_counter() - t0)
+    walls = [timed(subprocess.run, ['apf-swarm', *args], capture_output=True, check=True)
+             for args in (['bag', 'info', str(path)], ['--help'])]  # fmt: skip
     size = sum(f.stat().st_size for f in path.glob('*.mcap')) / 1e6
     return [f'{n:,}', f'{size:.1f} MB', f'{write:.1f} s', f'{walls[0]:.2f} s',
             f'{walls[1]:.2f} s', f'{1e3 * inproc:.0f} ms']  # fmt: skip

@@ -1,21 +1,12 @@
 #!/usr/bin/env python3
 """Benchmark of one tracker's command against a naive numpy command of the same law.
 
-    python bench/bench_control.py [--n 3,16,32,64,128] [--calls 200] [--precondition P]
-                                  [--json FILE] [--smoke]
-
-Per swarm size n, ``realtime`` preset (50 Hz, 10 ms), states at the designed formation with
-1 cm of noise a call: ``command`` = :meth:`TrackerAgent.command` of tracker 1 after
-:meth:`TrackerAgent.offer_swarm` (the offer timed apart); ``naive``, the baseline of the same
-run = :class:`Naive`, the gradient-only command in plain numpy (eq. 2 / 44, 28 / 31, 24, 26),
-checked against ``command`` with ``precondition=none, compensation=none`` to 1e-9 first.
-Mean, median and p99 over ``--calls`` calls after 20 of warm-up, the two alternating in slices
-of 10. ``--json FILE``: ``{"rows": [{"n": .., "mean_us": .., "p99_us": .., ...}, ...]}``.
-Exit 1 when the baseline disagrees, or the block direction's command grows more than 6x from
-32 to 128 trackers. ``--smoke``: n = 3 and 16, 20 calls.
-"""
-
-from __future__ import annotations
+``realtime`` preset (50 Hz, 10 ms), states at the formation with 1 cm of noise a call: tracker
+1's :meth:`TrackerAgent.command` after ``offer_swarm`` (timed apart) against :class:`Naive`,
+the gradient-only command in plain numpy, first checked equal to it with ``precondition=none,
+compensation=none`` (1e-9). Mean, median, p99 after 20 calls of warm-up, alternating in slices
+of 10. Exit 1 when the baseline disagrees, or the block direction's command grows over 6x from
+32 to 128 trackers."""
 
 import argparse
 import json
@@ -27,14 +18,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _children import log, table
 from apf_swarm_core.agents import TrackerAgent
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import apply_overrides, load_preset
 from apf_swarm_core.formation import design_formation
 from apf_swarm_nodes.capacity.machine import cpu_model
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _children import table
 
 #: the command may grow at most this much from 32 to 128 trackers (linear is 4x)
 FLOOR_GROWTH = 6.0
@@ -72,9 +61,8 @@ class Naive:
 
 
 def check(cfg: SwarmConfig, calls: int = 20) -> float:
-    """Largest difference between the baseline's force and ``TrackerAgent.command`` of the
-    same law (``precondition=none``, ``compensation=none``), on states at the formation and
-    far from it: both sides of the boundary layer must be seen."""
+    """Largest relative difference of the baseline's force from ``TrackerAgent.command`` of
+    the same law, at the formation and far from it (both sides of the boundary layer)."""
     plain, n = cfg.replace(precondition='none', compensation='none'), cfg.n_trackers
     agent = TrackerAgent(plain, 1)
     naive, rng = Naive(plain, agent.controller.dt), np.random.default_rng(1)
@@ -125,9 +113,8 @@ def measure(cfg: SwarmConfig, calls: int) -> dict[str, Any]:
     row: dict[str, Any] = {'n': n, 'precondition': cfg.precondition, 'calls': calls}
     for key, vals in times.items():
         arr = 1e6 * np.asarray(vals[WARMUP:total])
-        row[f'{key}_mean_us'] = round(float(arr.mean()), 1)
-        row[f'{key}_p50_us'] = round(float(np.median(arr)), 1)
-        row[f'{key}_p99_us'] = round(float(np.quantile(arr, 0.99)), 1)
+        stats = {'mean': arr.mean(), 'p50': np.median(arr), 'p99': np.quantile(arr, 0.99)}
+        row.update({f'{key}_{q}_us': round(float(v), 1) for q, v in stats.items()})
     row['mean_us'], row['p99_us'] = row['command_mean_us'], row['command_p99_us']
     row['ratio_to_naive'] = round(row['command_mean_us'] / row['naive_mean_us'], 2)
     row['ratio_to_naive_p50'] = round(row['command_p50_us'] / row['naive_p50_us'], 2)
@@ -139,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--n', default='3,16,32,64,128', help='swarm sizes, comma-separated')
     ap.add_argument('--calls', type=int, default=200, help='timed calls per size')
     ap.add_argument('--precondition', default=None, help="default: the preset's")
-    ap.add_argument('--json', type=Path, default=None, metavar='FILE', help='rows as JSON')
+    ap.add_argument('--json', type=Path, metavar='FILE', help='{"rows": [{"n", "mean_us", ...}]}')
     ap.add_argument('--smoke', action='store_true', help='n = 3 and 16, 20 calls (seconds)')
     args = ap.parse_args(argv)
     try:
@@ -160,9 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = base.replace(n_trackers=n)
         worst = max(worst, check(cfg))
         if worst > 1e-9:
-            print(
-                f'bench_control: the baseline differs by {worst:.3g} at n = {n}', file=sys.stderr
-            )
+            log(f'the baseline differs by {worst:.3g} at n = {n}')
             return 1
         rows.append(measure(cfg, calls))
 

@@ -1,18 +1,12 @@
 #!/usr/bin/env python3
 """Controller options against each other in the headless emulation of real time.
 
-    python bench/bench_flight.py [--n 16 32] [--points 100:0.008 50:0.017 20:0.020]
-        [--variants B C D E] [--variant NAME=KEY:VALUE,...] [--seeds 5] [--duration 25]
-        [--set KEY=VALUE ...] [--json FILE] [--smoke]
-
 Each case: the ``realtime`` preset with a variant's keys (E, the preset, is the baseline),
 gains scheduled as the bring-up does, ``--seeds`` seeds in one ``simulate_batch``, judged by
-``apf_swarm_core.metrics.flight`` (seeds that fly, error, closest pair, convergence).
-"""
-
-from __future__ import annotations
+``apf_swarm_core.metrics.flight`` (seeds that fly, error, closest pair, convergence)."""
 
 import argparse
+import contextlib
 import itertools
 import json
 import statistics
@@ -21,15 +15,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+from _children import log, table
 from apf_swarm_core.config_files import apply_overrides, load_preset, parse_set
 from apf_swarm_core.formation import design_pair_sets
 from apf_swarm_core.metrics import flight
 from apf_swarm_core.sampled import schedule_gains
 from apf_swarm_core.simulator import simulate_batch
 from apf_swarm_nodes.capacity.machine import cpu_model
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _children import table
 
 #: the variants of docs/PERFORMANCE.md, "Real-time flight": keys over the realtime preset
 VARIANTS: dict[str, dict[str, Any]] = {
@@ -38,21 +30,15 @@ VARIANTS: dict[str, dict[str, Any]] = {
     'D': {'newton_mu': 0.003, 'newton_trust': 0.02, 'compensation': 'none'},
     'E': {},
 }
-LABELS = {
-    'B': 'B newton mu=0.1',
-    'C': 'C mu=0.003',
-    'D': 'D mu=0.003 + trust',
-    'E': 'E the preset',
-}
+LABELS = {'B': 'B newton mu=0.1', 'C': 'C mu=0.003', 'D': 'D mu=0.003 + trust',
+          'E': 'E the preset'}  # fmt: skip
 
 
 def _point(text: str) -> tuple[float, float]:
     rate, _, latency = text.partition(':')
-    try:
+    with contextlib.suppress(ValueError):
         if float(rate) > 0 and float(latency) >= 0:
             return float(rate), float(latency)
-    except ValueError:
-        pass
     raise argparse.ArgumentTypeError(f'{text!r}: expected RATE:LATENCY, e.g. 50:0.017')
 
 
@@ -70,12 +56,10 @@ def case(n: int, rate: float, latency: float, keys: dict[str, Any], args: Any) -
     base = apply_overrides(load_preset('realtime'), {**over, 'duration': args.duration})
     cfg, _pred, gains, _ = schedule_gains(base, latency=latency)
     res = simulate_batch([cfg.replace(seed=cfg.seed + k) for k in range(args.seeds)])
-    pairs, judged, conv = design_pair_sets(cfg), [], []
-    for j in range(args.seeds):
-        judged.append(
-            flight({k: v if k == 't' else v[j] for k, v in res.trajectory.items()}, pairs)
-        )
-        conv.append(res.summary(run=j)['time_to_converge'])
+    pairs, seeds = design_pair_sets(cfg), range(args.seeds)
+    runs = [{k: v if k == 't' else v[j] for k, v in res.trajectory.items()} for j in seeds]
+    judged = [flight(run, pairs) for run in runs]
+    conv = [res.summary(run=j)['time_to_converge'] for j in seeds]
     fe = [100 * f['formation_error_rms'] for f in judged if f['formation_error_rms'] is not None]
     cp = [100 * f['closest_pair'] for f in judged if f['closest_pair'] is not None]
     done = [c for c in conv if c is not None] if None not in conv else []
@@ -121,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         row = case(n, rate, lat, variants[v], args)
         row[2] = LABELS.get(v, v + ' ' + ', '.join(f'{k}={x}' for k, x in variants[v].items()))
         rows.append(row)
-        print(f'bench_flight: n={n} {rate:g} Hz {v}: {row[3]} fly', file=sys.stderr, flush=True)
+        log(f'n={n} {rate:g} Hz {v}: {row[3]} fly')
     print(f'Emulation, {args.seeds} seeds, {args.duration:g} s, gains scheduled as the bring-up '
           f'does; {cpu_model()}, {time.perf_counter() - t0:.0f} s'
           + (f'; --set {" ".join(args.sets)}' if args.sets else '') + '\n')  # fmt: skip

@@ -1,28 +1,20 @@
 #!/usr/bin/env python3
 """Scale benchmark: the swarm as the bring-up starts it, sizes climbed until it stops flying.
 
-    python bench/bench_scale.py [--quick | --smoke] [--only ladder,latency,discovery,lockstep]
-        [--rates HZ ...] [--sizes N ...] [--ladder TEXT] [--flight S] [--keep DIR]
-
-Every case is a ``scripts/swarm_up.py`` run read back from its ``summary.json``, plus its
-processes' CPU and RSS. **ladder**: per rate and ladder ("EXECUTOR INPUTS K=k|auto depth=d",
-``;`` between), n climbs ``--sizes`` until a size does not fly (exit, missed deadlines, 95 %
-of the states, ``prediction.run.flies``). **latency**: 3 trackers at 100 Hz, ``trigger:=odom``,
-against the capacity probe's raw rclpy ping-pong beside it and alone (the baselines).
-**discovery**: graph ready, nodes forked against executed (the baseline). **lockstep**:
-steps/s, the 3-tracker default must make 500. Exit 1 on a leftover process, a missed floor,
-or (``--smoke``) a crash.
-"""
-
-from __future__ import annotations
+Each case: a ``scripts/swarm_up.py`` run, its ``summary.json``, its processes' CPU and RSS.
+ladder: per rate and ladder ("EXECUTOR INPUTS K=k|auto depth=d"), n climbs ``--sizes`` until
+it does not fly (exit, missed deadlines, 95 % of the states, ``prediction.run.flies``).
+latency: 3 trackers at 100 Hz (``trigger:=odom``) against the probe's raw ping-pong, beside
+and alone. discovery: forked nodes against executed. lockstep: steps/s, floor 500 for 3
+trackers. view: none against unwatched and watched. secure: open against TLS, 3 simulated
+hosts (root). Exit 1 on a leftover process, a missed floor, or (``--smoke``) a crash."""
 
 import argparse
 import contextlib
-import importlib.util
 import json
 import os
 import re
-import shutil
+import runpy
 import statistics
 import sys
 import tempfile
@@ -33,20 +25,12 @@ from pathlib import Path
 from typing import Any
 
 import psutil
+from _children import ROOT, exit_on_signals, log, start, stop, swarm_up, table
+from apf_swarm_nodes.bringup import pick_domain_id
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'bench'))
-from _children import exit_on_signals, start, stop  # noqa: E402
-from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
-
-PARTS = ('ladder', 'latency', 'discovery', 'lockstep', 'view', 'secure')
 VIEWS = ('no view', 'view, no client', 'view, watched')
 FLOOR_LOCKSTEP = 500.0  # steps/s, 3 trackers
 DEFAULT_LADDER = 'events aggregate K=auto depth=1'
-
-
-def log(msg: str) -> None:
-    print(f'bench_scale: {msg}', file=sys.stderr, flush=True)
 
 
 @dataclass
@@ -73,8 +57,7 @@ class Case:
         return default if d is None else d
 
     def flies(self) -> bool:
-        expected = self.rate * self.duration
-        states = self.get('messages', 'received', default=0) >= 0.95 * expected
+        states = self.get('messages', 'received', default=0) >= 0.95 * self.rate * self.duration
         return self.rc == 0 and self.get('missed_deadlines') == 0 and states and bool(
             self.get('prediction', 'run', 'flies'))  # fmt: skip
 
@@ -84,47 +67,45 @@ class Case:
         if self.flies():
             return 'flies'
         run = self.get('prediction', 'run', default={})
-        return (
-            f'does not fly: exit {self.rc}, {self.get("missed_deadlines")} missed, '
-            f'{self.get("messages", "received")} states, error '
-            f'{100 * run.get("formation_error_rms", float("nan")):.2g} %, closest pair '
-            f'{100 * run.get("closest_pair", float("nan")):.0f} %'
-        )
+        return (f'does not fly: exit {self.rc}, {self.get("missed_deadlines")} missed, '
+                f'{self.get("messages", "received")} states, error '
+                f'{100 * run.get("formation_error_rms", float("nan")):.2g} %, closest pair '
+                f'{100 * run.get("closest_pair", float("nan")):.0f} %')  # fmt: skip
+
+    def latency(self) -> str:
+        """'p50 / p99' of the control loop [ms]."""
+        lat = self.get('prediction', 'latency', default={})
+        return f'{ms(lat.get("p50"))} / {ms(lat.get("p99"))}'
 
 
 class Bench:
-    def __init__(self, keep: Path | None) -> None:
-        self.dir = keep or Path(tempfile.mkdtemp(prefix='bench_scale_'))
-        self.count = 0
-        self.leftover = 0
-        self.crashed = 0
+    def __init__(self, runs: Path) -> None:
+        self.dir = runs
+        self.count = self.leftover = self.crashed = 0  # cases, processes left, cases crashed
+        self.missed_floor = False
 
     def up(self, case: Case, beside: Any = None) -> Case:
         """Run the bring-up for ``case``; ``beside(domain, out)`` runs once it started."""
         self.count += 1
         out = self.last = self.dir / f'{self.count:02d}_{case.mode}_{case.n}'
         domain = pick_domain_id(lo=202, hi=230)
-        argv = [
-            sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--no-plots',
-            '--preset', 'triangle' if case.mode == 'lockstep' else 'realtime',
-            '--mode', case.mode, '--n-trackers', str(case.n), '--duration', f'{case.duration:g}',
-            '--spawn', case.spawn, '--domain-id', str(domain), '--out', str(out),
-        ]  # fmt: skip
+        common = ['--n-trackers', case.n, '--duration', f'{case.duration:g}', '--out', out]
         if case.label in ('open', 'secure'):  # scripts/multihost.py, the probe's rate
             argv = [sys.executable, str(ROOT / 'scripts' / 'multihost.py'), '--hosts', '3',
-                    '--n-trackers', str(case.n), '--duration', f'{case.duration:g}',
-                    '--mode', 'realtime', '--out', str(out)]  # fmt: skip
+                    '--mode', 'realtime', *map(str, common)]  # fmt: skip
             argv += ['--open'] if case.label == 'open' else []
-        elif case.mode == 'realtime':
-            argv += ['--set', f'control_rate={case.rate:g}']
+        else:
+            preset = 'triangle' if case.mode == 'lockstep' else 'realtime'
+            argv = swarm_up('--preset', preset, '--mode', case.mode, '--spawn', case.spawn,
+                            '--domain-id', domain, *common)  # fmt: skip
+            if case.mode == 'realtime':
+                argv += ['--set', f'control_rate={case.rate:g}']
         if case.k != 'auto':
             argv += ['--trackers-per-process', case.k]
         argv += case.extra
-        for p in case.params:
-            argv += ['--node-param', p]
-        log(
-            f'{case.label or case.mode} n={case.n} K={case.k} {case.spawn} {" ".join(case.params)}'
-        )
+        argv += [a for p in case.params for a in ('--node-param', p)]
+        params = ' '.join(case.params)
+        log(f'{case.label or case.mode} n={case.n} K={case.k} {case.spawn} {params}')
         out.mkdir(parents=True, exist_ok=True)
         with (out / 'bench.log').open('wb') as logf:
             proc = start(argv, stdout=logf, stderr=logf)
@@ -189,9 +170,8 @@ def ms(v: float | None) -> str:
     return '-' if v is None else f'{1e3 * v:.2f}'
 
 
-def ladders(bench: Bench, args: argparse.Namespace) -> list[str]:
-    out = ['| rate | ladder | trackers | K | latency p50 / p99 [ms] | states | CPU [%] | result |',
-           '|---:|---|---:|---:|---|---:|---:|---|']  # fmt: skip
+def ladders(bench: Bench, args: argparse.Namespace) -> str:
+    rows = []
     for rate in args.rates:
         for text in args.ladder.split(';'):
             words = dict(w.split('=', 1) for w in text.split() if '=' in w)
@@ -199,43 +179,35 @@ def ladders(bench: Bench, args: argparse.Namespace) -> list[str]:
             depth = f'qos_depth:={words.get("depth", "1")}'
             params = (f'executor:={executor}', f'inputs:={inputs}', depth)
             for n in args.sizes:
-                case = bench.up(
-                    Case(n, rate=rate, duration=args.flight, k=words.get('K', 'auto'),
-                         params=params, label='ladder')
-                )  # fmt: skip
+                case = bench.up(Case(n, rate=rate, duration=args.flight, params=params,
+                                     k=words.get('K', 'auto'), label='ladder'))  # fmt: skip
                 k = case.get('prediction', 'machine', 'trackers_per_process', default=case.k)
-                lat = case.get('prediction', 'latency', default={})
-                out.append(
-                    f'| {rate:g} | {text.strip()} | {n} | {k} | {ms(lat.get("p50"))} / '
-                    f'{ms(lat.get("p99"))} | {case.get("messages", "received")} / '
-                    f'{rate * args.flight:.0f} | {case.cpu:.0f} | {case.verdict()} |'
-                )
+                states = f'{case.get("messages", "received")} / {rate * args.flight:.0f}'
+                rows.append([f'{rate:g}', text.strip(), n, k, case.latency(), states,
+                             f'{case.cpu:.0f}', case.verdict()])  # fmt: skip
                 if not case.flies():
                     break
-    return out
+    head = 'rate: | ladder | trackers: | K: | latency p50 / p99 [ms] | states: | CPU [%]: | result'
+    return table(head, rows)
 
 
-def latency(bench: Bench, seconds: float) -> list[str]:
+def latency(bench: Bench, args: argparse.Namespace) -> str:
+    seconds = 2.0 if args.smoke else 10.0
     alone = ping_pong(pick_domain_id(lo=202, hi=230), seconds)['rtt']
-    out = [
-        '| path | inputs | p50 [ms] | p99 [ms] | p99 / ping-pong p99 (concurrent, alone) |',
-        '|---|---|---:|---:|---|',
-        f'| ping-pong alone | - | {ms(alone["p50"])} | {ms(alone["p99"])} | - |',
-    ]
+    rows = [['ping-pong alone', '-', ms(alone['p50']), ms(alone['p99']), '-']]
     for inputs in ('aggregate', 'odom'):
         pp: dict[str, Any] = {}
-        case = bench.up(
-            Case(3, rate=100.0, duration=seconds + 4, k='1', label='latency',
-                 params=('trigger:=odom', f'inputs:={inputs}')),
-            beside=lambda d, _, pp=pp: pp.update(ping_pong(d, seconds)),
-        )  # fmt: skip
+        case = Case(3, rate=100.0, duration=seconds + 4, k='1', label='latency',
+                    params=('trigger:=odom', f'inputs:={inputs}'))  # fmt: skip
+        bench.up(case, beside=lambda d, _, pp=pp: pp.update(ping_pong(d, seconds)))
         lat, rtt = case.get('prediction', 'latency', default={}), pp.get('rtt', {})
         p99 = lat.get('p99')
         ratio = f'{p99 / rtt["p99"]:.2f}, {p99 / alone["p99"]:.2f}' if p99 and rtt else '-'
-        out.append(f'| control loop | {inputs} | {ms(lat.get("p50"))} | {ms(p99)} | {ratio} |')
-        rtts = f'{ms(rtt.get("p50"))} | {ms(rtt.get("p99"))}'
-        out.append(f'| ping-pong, swarm running | {inputs} | {rtts} | - |')
-    return out
+        rows.append(['control loop', inputs, ms(lat.get('p50')), ms(p99), ratio])
+        rows.append(['ping-pong, swarm running', inputs, ms(rtt.get('p50')), ms(rtt.get('p99')),
+                     '-'])  # fmt: skip
+    return table('path | inputs | p50 [ms]: | p99 [ms]: | p99 / ping-pong p99 (concurrent, '
+                 'alone)', rows)  # fmt: skip
 
 
 def watch(out: Path, done: threading.Event, counts: dict[str, int]) -> None:
@@ -255,20 +227,17 @@ def watch(out: Path, done: threading.Event, counts: dict[str, int]) -> None:
         subs = [{'id': k, 'channelId': c['id']} for k, c in enumerate(channels)]
         ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
         scene = next(k for k, c in enumerate(channels) if c['topic'] == '/swarm/scene')
+        frame = bytes([1, *scene.to_bytes(4, 'little')])  # message data of that subscription
         while not done.is_set():
             with contextlib.suppress(TimeoutError):
                 m = ws.recv(timeout=0.5)
-                if (
-                    isinstance(m, bytes)
-                    and m[0] == 1
-                    and int.from_bytes(m[1:5], 'little') == scene
-                ):
+                if isinstance(m, bytes) and m.startswith(frame):
                     counts['frames'] += 1
 
 
-def views(bench: Bench, args: argparse.Namespace) -> list[str]:
+def views(bench: Bench, args: argparse.Namespace) -> str:
     """The live view's cost: rounds of no view (the baseline), unwatched, watched."""
-    rows: dict[str, list[tuple[Case, dict[str, int]]]] = {v: [] for v in VIEWS}
+    runs: dict[str, list[tuple[Case, dict[str, int]]]] = {v: [] for v in VIEWS}
     for _ in range(args.rounds):
         for v in VIEWS:
             done, counts, clients = threading.Event(), {'frames': 0}, []
@@ -280,85 +249,83 @@ def views(bench: Bench, args: argparse.Namespace) -> list[str]:
 
             extra = ('--view', '0') if v != 'no view' else ()
             case = Case(args.sizes[0], duration=args.flight, k='4', extra=extra, label=v)
-            rows[v].append((bench.up(case, beside=beside), counts))
+            runs[v].append((bench.up(case, beside=beside), counts))
             done.set()
             for t in clients:
                 t.join(timeout=10)
-    med, out = statistics.median, []
-    for v, cases in rows.items():
+    med, rows = statistics.median, []
+    for v, cases in runs.items():
         lat = [c.get('prediction', 'latency', default={}) for c, _ in cases]
-        base = [b for b, _ in rows['no view']]
+        base = [b for b, _ in runs['no view']]
         ratio = med(c.cpu_s[1] / b.cpu_s[1] for (c, _), b in zip(cases, base, strict=True))
-        cpu = [f'{med(c.cpu_s[k] for c, _ in cases):.1f}' for k in (0, 1)]
-        out.append(f'| {v} | {ms(med(x.get("p50", 0) for x in lat))} / '
-                   f'{ms(med(x.get("p99", 0) for x in lat))} | '
-                   f'{max(c.get("missed_deadlines", default=-1) for c, _ in cases)} | '
-                   f'{cpu[0]} | {cpu[1]} | {ratio:.3f} | {med(f["frames"] for _, f in cases)} |'
-                   )  # fmt: skip
-    head = '| case | latency p50 / p99 [ms] | missed | bring-up CPU [s] | all CPU [s] | CPU '
-    return [head + 'ratio (all) | frames |', '|---|---|---:|---:|---:|---:|---:|', *out]
+        p50, p99 = (ms(med(x.get(q, 0) for x in lat)) for q in ('p50', 'p99'))
+        missed = max(c.get('missed_deadlines', default=-1) for c, _ in cases)
+        rows.append([v, f'{p50} / {p99}', missed,
+                     *(f'{med(c.cpu_s[k] for c, _ in cases):.1f}' for k in (0, 1)),
+                     f'{ratio:.3f}', med(f['frames'] for _, f in cases)])  # fmt: skip
+    head = 'case | latency p50 / p99 [ms] | missed: | bring-up CPU [s]: | all CPU [s]: | CPU '
+    return table(head + 'ratio (all): | frames:', rows)
 
 
-def secure(bench: Bench, args: argparse.Namespace) -> list[str]:
+def secure(bench: Bench, args: argparse.Namespace) -> str:
     """A secure multi-host run (TLS) against an open one (the baseline), 3 simulated hosts."""
-    spec = importlib.util.spec_from_file_location('mh', ROOT / 'scripts' / 'multihost.py')
-    assert spec is not None and spec.loader is not None
-    multihost = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(multihost)
-    if (why := multihost.unavailable()) is not None:
-        return [f'secure: skipped, simulated hosts unavailable: {why}']
-    head = '| run | graph ready [s] | latency p50 / p99 [ms] | CPU host 1 / 2 / 3 [%] | error / '
-    out = [head + 'closest pair | missed | rate |', '|---|---:|---|---|---|---:|---:|']
+    multihost = runpy.run_path(str(ROOT / 'scripts' / 'multihost.py'))
+    if (why := multihost['unavailable']()) is not None:
+        return f'secure: skipped, simulated hosts unavailable: {why}'
+    rows = []
     for mode in args.order.split(','):
         c = bench.up(Case(args.sizes[0], duration=args.flight, k='4', label=mode))
         hosts = json.loads((bench.last / 'multihost.json').read_text())['hosts']
-        lat, run = c.get('prediction', 'latency', default={}), c.get('prediction', 'run')
-        cpu = [f'{h["cpu_pct"]:.0f}' for h in hosts]
+        run = c.get('prediction', 'run')
         fly = f'{100 * run["formation_error_rms"]:.2f} / {100 * run["closest_pair"]:.1f} %'
-        out.append(f'| {mode} | {c.get("timing", "ready")} | {ms(lat.get("p50"))} / '
-                   f'{ms(lat.get("p99"))} | {" / ".join(cpu)} '
-                   f'| {fly} ({"flies" if run["flies"] else "no flight"}) '
-                   f'| {c.get("missed_deadlines")} '
-                   f'| {c.get("timing", "rate")} |')  # fmt: skip
-    return out
+        rows.append([mode, c.get('timing', 'ready'), c.latency(),
+                     ' / '.join(f'{h["cpu_pct"]:.0f}' for h in hosts),
+                     f'{fly} ({"flies" if run["flies"] else "no flight"})',
+                     c.get('missed_deadlines'), c.get('timing', 'rate')])  # fmt: skip
+    head = 'run | graph ready [s]: | latency p50 / p99 [ms] | CPU host 1 / 2 / 3 [%] | error / '
+    return table(head + 'closest pair | missed: | rate:', rows)
 
 
-def discovery(bench: Bench, sizes: list[int]) -> list[str]:
-    out = ['| trackers | K | graph ready, fork [s] | exec [s] | exec / fork | RSS, fork [MB] |',
-           '|---:|---:|---:|---:|---:|---:|']  # fmt: skip
+def discovery(bench: Bench, args: argparse.Namespace) -> str:
+    rows = []
     for k in ('1', '4'):
-        for n in sizes:
-            fork, exe = (
-                bench.up(Case(n, duration=1.0, k=k, spawn=s, label='discovery'))
-                for s in ('fork', 'exec')
-            )
+        for n in [3, 8] if args.quick else [3, 8, 16, 32]:
+            fork, exe = (bench.up(Case(n, duration=1.0, k=k, spawn=s, label='discovery'))
+                         for s in ('fork', 'exec'))  # fmt: skip
             a, b = fork.get('timing', 'ready'), exe.get('timing', 'ready')
-            ratio = f'{b / a:.1f}' if a and b else '-'
-            out.append(f'| {n} | {k} | {a} | {b} | {ratio} | {fork.rss_mb:.0f} |')
-    return out
+            rows.append([n, k, a, b, f'{b / a:.1f}' if a and b else '-', f'{fork.rss_mb:.0f}'])
+    head = 'trackers: | K: | graph ready, fork [s]: | exec [s]: | exec / fork: | RSS, fork [MB]:'
+    return table(head, rows)
 
 
-def lockstep(bench: Bench, quick: bool) -> tuple[list[str], bool]:
+def lockstep(bench: Bench, args: argparse.Namespace) -> str:
     plan = [(3, '1', ()), (3, '3', ()), (3, '1', ('executor:=single',)),
-            (3, '1', ('inputs:=odom',)), (10, '1', ())]  # fmt: skip
-    plan = plan[:1] if quick is None else plan + ([] if quick else [(30, '1', ()), (30, '5', ())])
-    out = ['| trackers | K | node params | steps/s | CPU [%] |', '|---:|---:|---|---:|---:|']
-    ok = True
+            (3, '1', ('inputs:=odom',)), (10, '1', ()), (30, '1', ()), (30, '5', ())]  # fmt: skip
+    plan = plan[:1] if args.smoke else plan[:5] if args.quick else plan
+    rows = []
     for n, k, params in plan:
         case = bench.up(Case(n, 'lockstep', duration=2.0, k=k, params=params, label='lockstep'))
         rate = case.get('timing', 'rate')
-        out.append(f'| {n} | {k} | {" ".join(params) or "-"} | {rate} | {case.cpu:.0f} |')
+        rows.append([n, k, ' '.join(params) or '-', rate, f'{case.cpu:.0f}'])
         if n == 3 and k == '1' and not params:
-            ok = rate is not None and rate >= FLOOR_LOCKSTEP
-    return out, ok
+            bench.missed_floor = rate is None or rate < FLOOR_LOCKSTEP
+    floor = f'\n\nlockstep floor, 3 trackers: {FLOOR_LOCKSTEP:g} steps/s'
+    return table('trackers: | K: | node params | steps/s: | CPU [%]:', rows) + floor
+
+
+#: the parts, in the order they run
+PARTS = {'ladder': ladders, 'latency': latency, 'view': views, 'secure': secure,
+         'discovery': discovery, 'lockstep': lockstep}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     mode = ap.add_mutually_exclusive_group()
     mode.add_argument('--quick', action='store_true', help='one ladder, fewer cases')
-    mode.add_argument('--smoke', action='store_true', help='3 trackers at 50 Hz, seconds')
-    ap.add_argument('--only', default=','.join(PARTS[:4]), help=f'comma-separated: {PARTS}')
+    mode.add_argument('--smoke', action='store_true',
+                      help='3 trackers at 50 Hz, seconds (ladder, view, secure)')  # fmt: skip
+    ap.add_argument('--only', default='ladder,latency,discovery,lockstep',
+                    help=f'comma-separated: {", ".join(PARTS)}')  # fmt: skip
     ap.add_argument('--rates', type=float, nargs='+', default=[50.0], metavar='HZ')
     ap.add_argument('--sizes', type=int, nargs='+', default=[3, 16, 32, 64, 128], metavar='N')
     ap.add_argument('--ladder', default=DEFAULT_LADDER, metavar='TEXT', help="';' between")
@@ -369,38 +336,22 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     parts = [p for p in args.only.split(',') if p]
     if set(parts) - set(PARTS):
-        ap.error(f'--only: choose from {PARTS}')
+        ap.error(f'--only: choose from {", ".join(PARTS)}')
     exit_on_signals()
     if args.smoke:
         args.sizes, args.rates, args.flight, args.rounds = [3], [50.0], 3.0, 1
-        parts = parts if '--only' in (argv or sys.argv) else ['ladder']
-    bench = Bench(args.keep)
-    try:
-        return run(bench, parts, args)
-    finally:
-        if args.keep is None:
-            shutil.rmtree(bench.dir, ignore_errors=True)
-
-
-def run(bench: Bench, parts: list[str], args: argparse.Namespace) -> int:
-    ok = True
-    print(f'CPU: {psutil.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; runs in {bench.dir}\n')
-    if 'ladder' in parts:
-        print('\n'.join(ladders(bench, args)) + '\n')
-    if 'latency' in parts:
-        print('\n'.join(latency(bench, 2.0 if args.smoke else 10.0)) + '\n')
-    if 'view' in parts:
-        print('\n'.join(views(bench, args)) + '\n')
-    if 'secure' in parts:
-        print('\n'.join(secure(bench, args)) + '\n')
-    if 'discovery' in parts:
-        print('\n'.join(discovery(bench, [3, 8] if args.quick else [3, 8, 16, 32])) + '\n')
-    if 'lockstep' in parts:
-        table, ok = lockstep(bench, None if args.smoke else args.quick)
-        print('\n'.join(table) + f'\n\nlockstep floor, 3 trackers: {FLOOR_LOCKSTEP:g} steps/s\n')
+        parts = parts if '--only' in (argv or sys.argv) else ['ladder', 'view', 'secure']
+    with tempfile.TemporaryDirectory(prefix='bench_scale_', ignore_cleanup_errors=True) as tmp:
+        bench = Bench(args.keep or Path(tmp))
+        cores, load = psutil.cpu_count(), os.getloadavg()[0]
+        print(f'CPU: {cores} cores, load {load:.1f}; runs in {bench.dir}\n')
+        for name, part in PARTS.items():
+            if name in parts:
+                print(part(bench, args) + '\n')
     if bench.leftover:
         print(f'{bench.leftover} processes outlived their case (killed)')
-    return 1 if bench.leftover or (args.smoke and bench.crashed) or not (ok or args.smoke) else 0
+    failed = bench.leftover or (args.smoke and bench.crashed)
+    return 1 if failed or (bench.missed_floor and not args.smoke) else 0
 
 
 if __name__ == '__main__':

@@ -1,34 +1,25 @@
 #!/usr/bin/env python3
 """Benchmark of the headless simulator against a per-agent Python loop of the same step.
 
-    python bench/bench_simulator.py [--quick | --smoke]
-
 The baseline, :class:`LoopSimulator`, steps the closed loop (eq. 2 / 44, 22-28, 31, 24, 26,
 19-21, the same seeded disturbance) tracker by tracker and pair by pair; it must reproduce
 ``BatchSimulator`` to 1e-9 before anything is timed. The two alternate in short slices; floors
-on the ratio of the bests, and on batched tracker-steps/s. ``--smoke`` judges no floor.
-"""
-
-from __future__ import annotations
+on the ratio of the bests, and on batched tracker-steps/s."""
 
 import argparse
 import math
 import os
 import statistics
 import sys
-import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _children import log, table, timed
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import load_preset
 from apf_swarm_core.plant import DisturbanceSource
 from apf_swarm_core.simulator import BatchSimulator, initial_positions
 from apf_swarm_nodes.capacity.machine import cpu_model
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _children import table
 
 FLOORS = {3: 5.0, 100: 50.0}  # simulator / loop, single runs
 FLOOR_BATCH = 5e6  # tracker-steps/s, batched runs of 3 trackers
@@ -106,13 +97,9 @@ def single(n: int, steps: int, loop_steps: int, reps: int, loop_reps: int) -> di
     times: dict[str, list[float]] = {'off': [], 'on': [], 'loop': []}
     for r in range(reps):
         for key, sim in sims.items():
-            t0 = time.perf_counter()
-            sim.run(steps, record=key == 'on')
-            times[key].append((time.perf_counter() - t0) / steps)
+            times[key].append(timed(sim.run, steps, record=key == 'on') / steps)
         if r < loop_reps:
-            t0 = time.perf_counter()
-            loop.run(loop_steps)
-            times['loop'].append((time.perf_counter() - t0) / loop_steps)
+            times['loop'].append(timed(loop.run, loop_steps) / loop_steps)
     return times
 
 
@@ -120,12 +107,7 @@ def batch(runs: int, steps: int, reps: int, noise: str) -> list[float]:
     sim = BatchSimulator([config(3, noise=noise).replace(seed=s) for s in range(1, runs + 1)])
     sim.run(10)
     steps = max(steps, 2 * getattr(sim.noise, '_steps', sim.noise.block))  # buffer refills
-    rates = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        sim.run(steps)
-        rates.append(runs * 3 * steps / (time.perf_counter() - t0))
-    return rates
+    return [runs * 3 * steps / timed(sim.run, steps) for _ in range(reps)]
 
 
 def bm(vals: list[float], f: Any = None) -> str:
@@ -144,19 +126,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--quick', action='store_true', help='fewer steps and repeats')
     ap.add_argument('--smoke', action='store_true', help='tiny cases; floors not judged')
     args = ap.parse_args(argv)
-    q, smoke = args.quick or args.smoke, args.smoke
-    load0 = os.getloadavg()[0]
+    q, smoke, load0 = args.quick or args.smoke, args.smoke, os.getloadavg()[0]
     checks = [(3, 100), (10, 50)] if smoke else [(3, 300), (10, 100)]
     checks += [] if q else [(100, 20)]
     errors = {(n, s): verify(n, s) for n, s in checks}
     ok = agree = all(e <= 1e-9 for e in errors.values())
-    cases = [(3, 2000, 100, 30 if q else 150, None), (100, 50, 2, 4 if q else 7, None),
-             (1000, 5 if q else 10, 1, 2 if q else 3, 1 if q else 2)]  # fmt: skip
-    if smoke:
-        cases = [(3, 2000, 100, 5, None), (100, 10, 1, 2, None)]
+    cases = [(3, 2000, 100, 5, None), (100, 10, 1, 2, None)] if smoke else [
+        (3, 2000, 100, 30 if q else 150, None), (100, 50, 2, 4 if q else 7, None),
+        (1000, 5 if q else 10, 1, 2 if q else 3, 1 if q else 2)]  # fmt: skip
     rows = []
     for n, steps, loop_steps, reps, loop_reps in cases:
-        print(f'bench_simulator: n = {n}', file=sys.stderr, flush=True)
+        log(f'n = {n}')
         t = single(n, steps, loop_steps, reps, reps if loop_reps is None else loop_reps)
         loop = min(t['loop'])
         for key in ('off', 'on'):
@@ -177,10 +157,8 @@ def main(argv: list[str] | None = None) -> int:
         best = max(best, (max(rates), runs))
         brows.append([f'R = {runs}', 'uniform_ball', fmt(runs * 3 / max(rates)), bm(rates)])
     ok &= smoke or best[0] >= FLOOR_BATCH
-    head = (
-        'batched, R x 3 trackers | noise | time / step (best): | tracker-steps/s (best, median):'
-    )
-    print(table(head, brows))
+    head = 'batched, R x 3 trackers | noise | time / step (best): | '
+    print(table(head + 'tracker-steps/s (best, median):', brows))
     print(f'\nBatched floor {FLOOR_BATCH / 1e6:g} M tracker-steps/s at the best R ({best[1]}): '
           f'{"met" if best[0] >= FLOOR_BATCH else "missed"}{", not judged" if smoke else ""}. '
           f'Loop against simulator, max |difference|: '

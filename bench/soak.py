@@ -1,16 +1,10 @@
 #!/usr/bin/env python3
 """Soak test of the realtime swarm: memory and CPU per node over a long run.
 
-    python bench/soak.py [--duration 1800] [--n-trackers 3] [--every 5] [--out DIR] [--smoke]
-
-Samples every node process of a ``swarm_up.py --mode realtime`` run (RSS, CPU); per node the
-RSS after the warm-up against the end (the run's own baseline), its maximum and the mean CPU,
-and the run's deadlines and drops (summary.json); ``soak.csv``, ``soak.json``,
-``soak_rss.png`` in ``--out``. Exit 1 on 5 % growth, a missed deadline, a drop or a failed
-run. ``--smoke``: 10 s, sampled every second.
-"""
-
-from __future__ import annotations
+Samples every node process of a ``swarm_up.py --mode realtime`` run: per node the RSS after the
+warm-up against the end (the run's own baseline), its maximum, the mean CPU; the run's deadlines
+and drops (summary.json). ``soak.csv``, ``soak.json``, ``soak_rss.png`` in ``--out``. Exit 1 on
+5 % growth, a missed deadline, a drop or a failed run."""
 
 import argparse
 import csv
@@ -25,16 +19,9 @@ from pathlib import Path
 from statistics import fmean
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'bench'))
-from _children import exit_on_signals, start, stop, table  # noqa: E402
-from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
-from apf_swarm_nodes.capacity.machine import (  # noqa: E402
-    cpu_model,
-    process_args,
-    process_cpu_seconds,
-    process_rss,
-)
+from _children import ROOT, exit_on_signals, start, stop, swarm_up, table
+from apf_swarm_nodes.bringup import pick_domain_id
+from apf_swarm_nodes.capacity import machine
 
 GROWTH_LIMIT = 5.0  # percent
 
@@ -43,7 +30,7 @@ def node_pids(config: str) -> dict[int, str]:
     """{pid: tracker_<id> | plant | ...} of the live processes naming the run's config."""
     out = {}
     for pid in (int(e) for e in os.listdir('/proc') if e.isdigit()):
-        args = process_args(pid) or []
+        args = machine.process_args(pid) or []
         if any(config in a for a in args) and not any('swarm_up.py' in a for a in args):
             exe = Path(args[1] if args[0].endswith('python') and len(args) > 1 else args[0])
             ids = [a.split(':=', 1)[1] for a in args if a.startswith('uav_id:=')]
@@ -74,10 +61,7 @@ def analyse(samples: list[dict[str, Any]], args: argparse.Namespace) -> list[dic
 
 
 def plot(samples: list[dict[str, Any]], path: Path, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    from apf_swarm_nodes.analysis.plots import _save, plt  # Agg, the figures' dpi
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for name in sorted({s['node'] for s in samples}):
@@ -86,18 +70,15 @@ def plot(samples: list[dict[str, Any]], path: Path, title: str) -> None:
     ax.set(xlabel='time since the swarm started [min]', ylabel='RSS [MB]', title=title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def soak(args: argparse.Namespace, out: Path) -> int:
     out.mkdir(parents=True, exist_ok=True)
     run_dir, domain = out / 'run', args.domain_id or pick_domain_id(lo=231, hi=232)
-    cmd = [sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--preset', 'realtime',
-           '--mode', 'realtime', '--duration', str(args.duration), '--n-trackers',
-           str(args.n_trackers), '--domain-id', str(domain), '--out', str(run_dir),
-           '--no-plots']  # fmt: skip
+    cmd = swarm_up('--preset', 'realtime', '--mode', 'realtime', '--duration', args.duration,
+                   '--n-trackers', args.n_trackers, '--domain-id', domain,
+                   '--out', run_dir)  # fmt: skip
     err_path, config = out / 'bringup.stderr', str(run_dir / 'config.yaml')
     with err_path.open('wb') as err:
         proc = start(cmd, stdin=subprocess.DEVNULL, stdout=err, stderr=err, cwd=ROOT)
@@ -111,7 +92,7 @@ def soak(args: argparse.Namespace, out: Path) -> int:
             if t_start is not None and now >= nxt:
                 nxt += args.every
                 for pid, name in node_pids(config).items():
-                    rss, cpu_s = process_rss(pid), process_cpu_seconds(pid)
+                    rss, cpu_s = machine.process_rss(pid), machine.process_cpu_seconds(pid)
                     if rss is not None and cpu_s is not None:
                         t, mb = round(now - t_start, 3), round(rss / 2**20, 3)
                         row = {'t': t, 'node': name, 'pid': pid, 'rss_mb': mb, 'cpu_s': cpu_s}
@@ -127,20 +108,19 @@ def soak(args: argparse.Namespace, out: Path) -> int:
         w.writerows(samples)
     rows = analyse(samples, args) if samples else []
     msgs = s.get('messages') or {}
+    counts = ('missed_deadlines', 'stale_inputs', 'rejected_inputs')
     run = {'bringup_exit': rc, 'status': s.get('status'), 'dropped': msgs.get('dropped'),
-           'samples_received': msgs.get('received'),
-           **{k: s.get(k) for k in ('missed_deadlines', 'stale_inputs', 'rejected_inputs')},
-           }  # fmt: skip
+           'samples_received': msgs.get('received'), **{k: s.get(k) for k in counts}}  # fmt: skip
     worst = max((r['growth_pct'] for r in rows), default=float('nan'))
     ok = bool(rc == 0 and rows and worst < GROWTH_LIMIT)
     ok = ok and run['missed_deadlines'] == 0 and run['dropped'] == 0
-    result = {'machine': {'cpu': cpu_model(), 'nproc': os.cpu_count()},
+    result = {'machine': {'cpu': machine.cpu_model(), 'nproc': os.cpu_count()},
               'duration_s': args.duration, 'n_trackers': args.n_trackers, 'nodes': rows,
               'run': run, 'max_growth_pct': worst, 'pass': ok}  # fmt: skip
     (out / 'soak.json').write_text(json.dumps(result, indent=2) + '\n')
     if samples:
         plot(samples, out / 'soak_rss.png', f'RSS per node, {args.n_trackers} trackers')
-    print(f'Soak: {args.n_trackers} trackers, {args.duration:g} s; {cpu_model()}\n')
+    print(f'Soak: {args.n_trackers} trackers, {args.duration:g} s; {machine.cpu_model()}\n')
     head = 'node | RSS after warm-up [MB]: | RSS at the end [MB]: | growth [%]: | max RSS [MB]: '
     print(table(head + '| CPU [% of a core]:', [
         [r['node'], f'{r["rss_after_warmup_mb"]:.1f}', f'{r["rss_end_mb"]:.1f}',

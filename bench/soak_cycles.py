@@ -2,15 +2,9 @@
 """Soak of starts and stops: short runs ended four ways (it ends; a tracker, the bring-up
 SIGTERMed, the bring-up SIGKILLed); none may hang or leave a process or shared memory.
 
-    python bench/soak_cycles.py [--cycles 100] [--n-trackers 3] [--duration 3] [--smoke]
-
 Lockstep triangle with ``--respawn``, forked or executed nodes. Per cycle: a hang (not ended
-within duration + 90 s), processes of the run alive 15 s after, Fast DDS ``/dev/shm``
-entries of its domain that no live process holds (``apf_swarm_nodes.dds.shm``). Exit 1 on
-any. ``--smoke``: one cycle of each way, 2 s runs.
-"""
-
-from __future__ import annotations
+within duration + 90 s), processes of the run alive 15 s after, Fast DDS ``/dev/shm`` entries
+of its domain that no live process holds (``apf_swarm_nodes.dds.shm``). Exit 1 on any."""
 
 import argparse
 import contextlib
@@ -25,12 +19,9 @@ import time
 from pathlib import Path
 
 import psutil
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'bench'))
-from _children import exit_on_signals, start, table  # noqa: E402
-from apf_swarm_nodes.bringup import pick_domain_id  # noqa: E402
-from apf_swarm_nodes.dds.shm import fastdds_entries, unheld  # noqa: E402
+from _children import ROOT, exit_on_signals, log, start, swarm_up, table
+from apf_swarm_nodes.bringup import pick_domain_id
+from apf_swarm_nodes.dds.shm import fastdds_entries, unheld
 
 WAYS = ('ends', 'node SIGKILL', 'bring-up SIGTERM', 'bring-up SIGKILL')
 
@@ -62,10 +53,9 @@ def of_run(out: Path, extra: list[psutil.Process]) -> list[psutil.Process]:
 
 def cycle(i: int, way: str, spawn: str, args: argparse.Namespace, tmp: Path, rng: random.Random):
     out, before, domain = tmp / f'cycle_{i}', fastdds_entries(), pick_domain_id()
-    cmd = [sys.executable, str(ROOT / 'scripts' / 'swarm_up.py'), '--preset', 'triangle',
-           '--n-trackers', str(args.n_trackers), '--duration', str(args.duration), '--respawn',
-           '--no-plots', '--domain-id', str(domain), '--spawn', spawn,
-           '--out', str(out)]  # fmt: skip
+    cmd = swarm_up('--preset', 'triangle', '--n-trackers', args.n_trackers, '--duration',
+                   args.duration, '--respawn', '--domain-id', domain, '--spawn', spawn,
+                   '--out', out)  # fmt: skip
     t0 = time.monotonic()
     p = start(cmd, 'KILL', stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
     helpers: list[psutil.Process] = []  # the zygote, the janitor
@@ -100,14 +90,14 @@ def cycle(i: int, way: str, spawn: str, args: argparse.Namespace, tmp: Path, rng
         stop_s = (time.monotonic() if way == 'bring-up SIGKILL' else ended) - t_signal
     for q in left:
         with contextlib.suppress(psutil.Error):
-            print(f'soak_cycles: leftover {q.pid}: {" ".join(q.cmdline())[:200]}', file=sys.stderr)
+            log(f'leftover {q.pid}: {" ".join(q.cmdline())[:200]}')
             q.kill()
     deadline = time.monotonic() + 15  # a killed bring-up's zygote cleans up after its nodes
     while mine(unheld(fastdds_entries() - before), domain)[0] and time.monotonic() < deadline:
         time.sleep(0.2)
     stale, foreign = mine(unheld(fastdds_entries() - before), domain)
     for name in sorted(stale) if args.verbose else ():
-        print(f'soak_cycles: /dev/shm left: {name}', file=sys.stderr)
+        log(f'/dev/shm left: {name}')
     return {'way': way, 'spawn': spawn, 'rc': rc, 'hung': hung, 'seconds': ended - t0,
             'leftover': len(left), 'shm': len(stale), 'foreign': len(foreign),
             'stop': stop_s}  # fmt: skip
@@ -133,11 +123,10 @@ def main(argv: list[str] | None = None) -> int:
     rows, t0, first = [], time.monotonic(), fastdds_entries()
     with tempfile.TemporaryDirectory(prefix='soak_cycles_') as tmp:
         for i, (way, spawn) in enumerate(zip(ways, spawns, strict=True), 1):
-            r = cycle(i, way, spawn, args, Path(tmp), rng)
-            rows.append(r)
-            print(f'soak_cycles: {i}/{len(ways)} {way} ({spawn}): exit {r["rc"]}, '
-                  f'{r["seconds"]:.1f} s, leftover {r["leftover"]}, /dev/shm {r["shm"]}'
-                  + (' HUNG' if r['hung'] else ''), file=sys.stderr, flush=True)  # fmt: skip
+            rows.append(r := cycle(i, way, spawn, args, Path(tmp), rng))
+            hung = ' HUNG' if r['hung'] else ''
+            log(f'{i}/{len(ways)} {way} ({spawn}): exit {r["rc"]}, {r["seconds"]:.1f} s, '
+                f'leftover {r["leftover"]}, /dev/shm {r["shm"]}{hung}')  # fmt: skip
     print(f'\n{len(rows)} cycles in {time.monotonic() - t0:.0f} s; /dev/shm: {len(first)} '
           f'Fast DDS entries before, {len(fastdds_entries())} after\n')  # fmt: skip
     out = []
