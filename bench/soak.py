@@ -61,7 +61,7 @@ def analyse(samples: list[dict[str, Any]], args: argparse.Namespace) -> list[dic
 
 
 def plot(samples: list[dict[str, Any]], path: Path, title: str) -> None:
-    from apf_swarm_nodes.analysis.plots import _save, plt  # Agg, the figures' dpi
+    from apf_swarm_nodes.analysis.plots import plt, save_figure  # Agg, the figures' dpi
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for name in sorted({s['node'] for s in samples}):
@@ -70,7 +70,7 @@ def plot(samples: list[dict[str, Any]], path: Path, title: str) -> None:
     ax.set(xlabel='time since the swarm started [min]', ylabel='RSS [MB]', title=title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=2)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def soak(args: argparse.Namespace, out: Path) -> int:

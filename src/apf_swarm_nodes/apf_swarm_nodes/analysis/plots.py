@@ -26,13 +26,15 @@ __all__ = [
     'plot_tradeoff',
     'plot_trajectories_3d',
     'plot_xy_time',
+    'save_figure',
 ]
 
 Traj = Mapping[str, Any]
 _LAW_TITLE = {'traditional': 'traditional (sign) law', 'proposed': 'proposed (saturated) law'}
 
 
-def _save(fig: Figure, path: Path) -> Path:
+def save_figure(fig: Figure, path: Path) -> Path:
+    """``fig`` laid out and written to ``path`` (PNG at the figures' dpi), then closed."""
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -55,7 +57,7 @@ def plot_trajectories_3d(traj: Traj, title: str, path: Path) -> Path:
     ax.set_title(title)
     if x.shape[1] <= 10:
         ax.legend(fontsize=7, loc='upper left')
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_xy_time(traj: Traj, title: str, path: Path) -> Path:
@@ -72,7 +74,7 @@ def plot_xy_time(traj: Traj, title: str, path: Path) -> Path:
     axes[-1].set_xlabel('t [s]')
     if x.shape[1] <= 10:
         axes[0].legend(fontsize=7, ncol=2)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_centroid(traj: Traj, title: str, path: Path) -> Path:
@@ -88,7 +90,7 @@ def plot_centroid(traj: Traj, title: str, path: Path) -> Path:
     ax.grid(alpha=0.3)
     ax.legend()
     ax.set_title(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_centroid_error(trajs: Mapping[str, Traj], title: str, path: Path) -> Path:
@@ -107,7 +109,7 @@ def plot_centroid_error(trajs: Mapping[str, Traj], title: str, path: Path) -> Pa
     ax.grid(alpha=0.3, which='both')
     ax.legend()
     ax.set_title(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def paper_figures(trajs: Mapping[str, Traj], out: Path, prefix: str = '') -> list[Path]:
@@ -179,4 +181,4 @@ def plot_tradeoff(rows: Sequence[Mapping[str, Any]], param: str, path: Path) -> 
             ax.grid(alpha=0.3, which='both')
     axes[0].legend()
     fig.suptitle(f'chattering against tracking error over {param}')
-    return _save(fig, path)
+    return save_figure(fig, path)
