@@ -234,7 +234,11 @@ class RecorderNode(Node):
             self._publish_status()
 
     def take_all(self, t: RecordedTopic) -> int:
-        """Take every message queued on ``t`` (with its MessageInfo); returns how many."""
+        """Take every message queued on ``t`` (with its MessageInfo); returns how many.
+
+        ``take_message`` on rclpy's subscription handle: draining by rclpy's public API
+        (``spin_once(timeout_sec=0)`` until two turns in a row run nothing) costs 3-4x the CPU
+        per message (docs/PERFORMANCE.md, Bags)."""
         n = 0
         handle = t.sub.handle
         with handle:
