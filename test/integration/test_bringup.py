@@ -388,14 +388,12 @@ def test_batched_commands_fly_the_realtime_swarm(bringup) -> None:
     """``batch_commands``: each process of 2 trackers answers a state with one
     /swarm/force_cmds message (what a secure run does); the plant takes every command from
     it: its clock starts with every tracker commanding, no deadline is missed, and the run
-    flies as the emulation with its delays does. The bag keeps the batches."""
-    from apf_swarm_nodes.bags import open_bag
-
+    flies as the emulation with its delays does."""
     run = bringup(
         'batch',
         *('--preset', 'realtime', '--mode', 'realtime', '--n-trackers', '4'),
         *('--trackers-per-process', '2', '--node-param', 'batch_commands:=true'),
-        *('--duration', '12', '--record'),
+        *('--duration', '12'),
     )
     rc = run.wait(150)
     assert rc == 0, run.stderr()
@@ -408,9 +406,26 @@ def test_batched_commands_fly_the_realtime_swarm(bringup) -> None:
     assert summary['missed_deadlines'] == 0 and summary['messages']['dropped'] == 0
     pred = summary['prediction']
     assert pred['run']['flies'], (pred['run'], pred.get('emulation'), pred.get('latency'))
-    # one batch per process and state, less the states a busy process skipped
+
+
+def test_a_recorded_run_keeps_the_batched_commands(bringup) -> None:
+    """``--record`` with ``batch_commands`` (what a recorded secure run does): the bag holds
+    the commands as /swarm/force_cmds, one message per process and state, less the states a
+    busy process skipped (2 processes: at least one per state)."""
+    from apf_swarm_nodes.bags import open_bag
+
+    run = bringup(
+        'batch_rec',
+        *('--preset', 'realtime', '--mode', 'realtime', '--n-trackers', '4'),
+        *('--trackers-per-process', '2', '--node-param', 'batch_commands:=true'),
+        *('--duration', '4', '--record'),
+    )
+    rc = run.wait(150)
+    assert rc == 0, run.stderr()
+    assert run.left_behind() == [] and run.exception_lines() == []
+    states = run.summary()['messages']['received']
     batches = open_bag(run.out / 'bag').topic('/swarm/force_cmds').count
-    assert batches >= summary['messages']['received'], (batches, summary['messages'])
+    assert states > 0 and batches >= states, (batches, states)
 
 
 def test_trackers_hosted_several_to_a_process_reproduce_the_simulator(bringup) -> None:

@@ -51,8 +51,9 @@ class PlantNode(Node):
             self.create_subscription(ForceCommand, force_topic(i), partial(self._on_force, i), qos)
             for i in self.model.ids
         ]
-        if mode == 'realtime':  # a process's commands as one message (batch_commands)
-            self.create_subscription(ForceCommands, SWARM_FORCE_CMDS, self._on_forces, qos)
+        if mode == 'realtime':  # batch_commands: a writer per process, each batch kept
+            qos_n = control_qos(mode, max(p['qos_depth'], len(self.model.ids)))
+            self.create_subscription(ForceCommands, SWARM_FORCE_CMDS, self._on_forces, qos_n)
         self.tracker_rejected: dict[int, int] = {}
         self._log_rejection = RejectionLog(self)
         self.create_timer(1.0, self._check_duplicates)
