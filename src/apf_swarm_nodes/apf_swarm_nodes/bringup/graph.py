@@ -117,9 +117,8 @@ def graph_missing(
 #: no fewer entities missing for this long [s], and a process none of whose nodes was ever
 #: seen is restarted (:class:`UnseenRestart`)
 STALL = 5.0
-#: or: every other process has shown a node for this long [s], and this one none. At 128
-#: trackers on 3 hosts a healthy process showed up within 2.5 s of its peers; an unseen one
-#: was each time the last to start, and came up within 3 s of its restart
+#: or: every other process has shown a node for this long [s], and this one none (how it
+#: was chosen: docs/RELIABILITY.md, "Known fault: a node that is never discovered")
 PEER_WAIT = 3.0
 #: restarts of one process while the graph comes up
 MAX_UNSEEN_RESTARTS = 2

@@ -13,10 +13,11 @@ mode 0600 and removed at the run's end unless kept (:func:`remove_keys`).
 run's CA, the host's certificate and key, ``VERIFY_PEER``), no builtin transport (no UDP,
 no shared memory), and discovery through a Fast DDS discovery server over that same
 transport: the bring-up's own participant is the server (its profile:
-``fastdds_secure_server.xml``, a fixed TCP port), every node a super client that listens
-on a port of the system's choosing. Simple discovery cannot work over TCP here: a
-participant only learns the participants it has connected to, and the node processes of a
-host cannot share one listening port.
+``fastdds_secure_server.xml``, a fixed TCP port); every node listens on a port of the
+system's choosing and is a super client (told the whole graph), except the processes of
+trackers only, plain clients (:data:`CLIENT_PROFILE_FILE`). Simple discovery cannot work
+over TCP here: a participant only learns the participants it has connected to, and the node
+processes of a host cannot share one listening port.
 
 **Why an OpenSSL configuration too.** The TLS transport of Fast DDS 2.14 (these wheels)
 never asks a connecting peer for its certificate: the acceptor's handshake runs on a
@@ -80,8 +81,8 @@ __all__ = [
 CA_FILE, OPENSSL_FILE = 'ca.pem', 'openssl.cnf'
 CERT_FILE, KEY_FILE, PROFILE_FILE = 'cert.pem', 'key.pem', 'fastdds_secure.xml'
 #: a host's profile for processes that need no view of the whole graph (the trackers): a
-#: discovery client, told only of the endpoints matching its own; at 128 trackers over 3
-#: hosts the graph is ready in 7 s instead of 8-9 (docs/PERFORMANCE.md)
+#: discovery client, told only of the endpoints matching its own (what it saves:
+#: docs/PERFORMANCE.md, "Real-time flight")
 CLIENT_PROFILE_FILE = 'fastdds_secure_client.xml'
 #: the bring-up's own participant: the discovery server
 SERVER_PROFILE = 'fastdds_secure_server.xml'
