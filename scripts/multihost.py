@@ -157,11 +157,13 @@ class HostCpu:
         self.needle = needle
         self.last: dict[int, float] = {}
         self.used = dict.fromkeys(lab.hosts, 0.0)
-        self.procs: dict[str, set[int]] = {ns: set() for ns in lab.hosts}
+        #: the most node processes running at once (a restarted one replaces its first)
+        self.procs = dict.fromkeys(lab.hosts, 0)
 
     def sample(self) -> None:
         from apf_swarm_nodes.capacity.machine import process_cpu_seconds
 
+        now = dict.fromkeys(self.procs, 0)
         for entry in os.listdir('/proc'):
             if not entry.isdigit():
                 continue
@@ -178,7 +180,9 @@ class HostCpu:
                 continue
             self.used[ns] += used - self.last.get(pid, used)
             self.last[pid] = used
-            self.procs[ns].add(pid)
+            now[ns] += 1
+        for ns, count in now.items():
+            self.procs[ns] = max(self.procs[ns], count)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -365,7 +369,7 @@ def main(argv: list[str] | None = None) -> int:
                     'netns': ns,
                     'address': lab.addr[ns],
                     'runs': role,
-                    'processes': len(cpu.procs[ns]),
+                    'processes': cpu.procs[ns],
                     'cpu_pct': round(100.0 * cpu.used[ns] / wall, 1),
                 }
             )
