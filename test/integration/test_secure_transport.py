@@ -326,6 +326,44 @@ def test_without_the_openssl_configuration_fast_dds_admits_anyone(
     assert found == {False: True, True: False}, found
 
 
+def test_a_node_needs_only_the_profile(lab: multihost.Lab, tmp_path: Path) -> None:
+    """A host joins a secure run by pointing ``FASTRTPS_DEFAULT_PROFILES_FILE`` at its
+    profile, nothing else: a node of ours started so (no ``OPENSSL_CONF``) refuses a TLS
+    client without a certificate and admits the run's. The control, a plain rclpy process
+    with the same environment, admits anyone (so the test can fail)."""
+    h1, h2 = lab.hosts
+    d = pick_domain_id(lo=102, hi=201)
+    pki = secure.write_run_files(
+        tmp_path / 'dds', ['h1', 'h2'], 'h2', (lab.addr[h2], secure.server_port(d)),
+        run=f'test{d}', participants=2,
+    )  # fmt: skip
+    env = {**base_env(d), **dict.fromkeys(dds.PROFILE_VARIABLES, str(pki.hosts['h1'].profile))}
+    env.pop('ROS_AUTOMATIC_DISCOVERY_RANGE')
+    run_cert = (pki.hosts['h2'].cert, pki.hosts['h2'].key)
+    found = {}
+    for who, argv in (
+        ('plain rclpy', ['-c', PEER, '30', 'member', str(tmp_path / 'never')]),
+        ('our node', ['-m', 'apf_swarm_nodes.target_node']),
+    ):
+        proc = start(h1, env, *argv)
+        try:
+            ports: set[int] = set()
+            for _ in range(150):
+                ports = listening_tcp(h1)
+                if ports or proc.poll() is not None:
+                    break
+                subprocess.run(['sleep', '0.1'])
+            assert ports, f'{who}: no TCP port (exit {proc.poll()})'
+            tries = [(lab.addr[h1], p, *files) for p in sorted(ports)
+                     for files in ((None, None), run_cert)]  # fmt: skip
+            found[who] = admits_all(h2, env, tries)
+        finally:
+            stop_process(proc, ((signal.SIGINT, 5.0), (signal.SIGKILL, 5.0)))
+    n = len(found['our node']) // 2
+    assert found['our node'] == [False, True] * n, found
+    assert found['plain rclpy'][0] is True, found
+
+
 # --------------------------------------------------------------------------------------------
 # the bring-up
 # --------------------------------------------------------------------------------------------

@@ -211,3 +211,36 @@ def test_check_refuses_stops_a_port_that_admits_anyone(pki: secure.Pki) -> None:
         finally:
             listener.close()
             t.join(5.0)
+
+
+def test_a_node_takes_its_openssl_configuration_from_the_profile(
+    pki: secure.Pki, tmp_path: Path
+) -> None:
+    """The profile is all a joining host needs: a node fills in ``OPENSSL_CONF``; an
+    environment that contradicts the profile stops it, naming the variable; another
+    profile, or none, is left alone."""
+    for profile in (pki.hosts['h2'].profile, pki.hosts['h2'].client_profile, pki.server_profile):
+        env = {'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile)}
+        secure.complete_environment(env)
+        assert env['OPENSSL_CONF'] == str(pki.openssl), profile
+        secure.complete_environment(env)  # the same one given: fine
+    base = {'FASTDDS_DEFAULT_PROFILES_FILE': str(pki.hosts['h2'].profile)}
+    bad = {
+        'OPENSSL_CONF': str(tmp_path / 'other.cnf'),
+        'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+        'ROS_STATIC_PEERS': '10.0.0.9',
+        'ROS_DISCOVERY_SERVER': '10.0.0.1:11811',
+    }
+    for key, value in bad.items():
+        with pytest.raises(DdsError, match=key):
+            secure.complete_environment({**base, key: value})
+    secure.complete_environment({**base, 'ROS_LOCALHOST_ONLY': '0'})
+    other = tmp_path / 'plain.xml'
+    other.write_text('<dds/>')
+    for env in ({}, {'FASTRTPS_DEFAULT_PROFILES_FILE': str(other)}):
+        before = dict(env)
+        secure.complete_environment(env)
+        assert env == before
+    pki.openssl.unlink()
+    with pytest.raises(DdsError, match=r'openssl\.cnf.*missing'):
+        secure.complete_environment(dict(base))

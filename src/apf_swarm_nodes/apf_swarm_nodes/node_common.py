@@ -29,6 +29,7 @@ from __future__ import annotations
 import faulthandler
 import gc
 import importlib
+import os
 import re
 import signal
 import sys
@@ -53,6 +54,7 @@ from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
 
 from .dds.qos import make_profile
+from .dds.secure import complete_environment
 from .errors import NodeParameterError
 from .stop_watchdog import NODE_STOP_BOUND, StopWatchdog
 
@@ -251,6 +253,11 @@ def run_nodes(
     # SIGINT / SIGTERM end the spin loop (or the run loop) between two steps; rclpy's own
     # handler would shut the context down under a running callback or publish, whose next
     # rcl call then fails and is reported as a FATAL exception (exit 1) on a clean stop
+    try:  # a secure run's profile is all a joining host needs
+        complete_environment(os.environ)
+    except ApfSwarmError as exc:
+        print(f'{name}: error: {exc}', file=sys.stderr)
+        return 2
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, _stop_between_callbacks)
     signal.signal(signal.SIGTERM, _stop_between_callbacks)

@@ -29,9 +29,10 @@ the server. :func:`openssl_conf` sets the verify mode of every TLS context the p
 OpenSSL makes, through OpenSSL's own configuration (``OPENSSL_CONF``, section
 ``system_default``: ``VerifyMode = Peer,Require``, ``MinProtocol = TLSv1.2``): the acceptor
 then requests a certificate and refuses a connection without one signed by the run's CA.
-A process of the run therefore needs both variables (:func:`secure_environment`), and the
-bring-up checks, before it starts any node, that its own listening port refuses a TLS
-client without a certificate (:func:`check_refuses`).
+A process of the run therefore needs both variables (:func:`secure_environment`); the run's
+nodes take the second from the profile themselves (:func:`complete_environment`), so the
+profile is all a joining host needs. The bring-up checks, before it starts any node, that
+its own listening port refuses a TLS client without a certificate (:func:`check_refuses`).
 
 ``python -m apf_swarm_nodes.dds.secure check DIR/dds/HOST`` checks a host's files before it
 joins; ``python -m apf_swarm_nodes.dds.secure env DIR/dds/HOST`` prints its environment.
@@ -66,6 +67,7 @@ __all__ = [
     'Pki',
     'check_files',
     'check_refuses',
+    'complete_environment',
     'make_pki',
     'openssl_conf',
     'profile_xml',
@@ -462,8 +464,9 @@ def profile_xml(
     what = 'discovery server' if is_server else 'node'
     comment = (
         f'apf_swarm, secure multi-host run ({what}): TCPv4 with TLS only, peers '
-        "verified against the run's authority; written by apf_swarm_nodes.dds.secure. Use "
-        f'with OPENSSL_CONF={Path(ca).resolve().parent / OPENSSL_FILE}'
+        "verified against the run's authority; written by apf_swarm_nodes.dds.secure. The "
+        "run's nodes take their OpenSSL configuration from here, any other process needs "
+        f'OPENSSL_CONF={Path(ca).resolve().parent / OPENSSL_FILE}'
     )
     return profiles_file(comment, 'apf_swarm_secure', transports, rtps)
 
@@ -483,6 +486,43 @@ def secure_environment(profile: Path, openssl: Path) -> dict[str, str]:
 #: what a secure run does not take from the environment: each would add UDP
 NOT_SECURE = ('ROS_STATIC_PEERS', 'ROS_DISCOVERY_SERVER', 'ROS_SUPER_CLIENT',
               'FASTDDS_BUILTIN_TRANSPORTS', 'ROS_LOCALHOST_ONLY')  # fmt: skip
+
+#: how a secure profile names its OpenSSL configuration (in its comment: :func:`profile_xml`)
+_CONF_MARK = 'OPENSSL_CONF='
+
+
+def complete_environment(environ: MutableMapping[str, str]) -> None:
+    """Complete ``environ`` (a node's, before ``rclpy.init``) for the secure profile it
+    names, so that the profile is all a joining host needs: ``OPENSSL_CONF`` from the
+    profile (without it this Fast DDS admits any TLS client). Nothing for another profile
+    or none. DdsError naming the variable and the fix when the environment contradicts the
+    profile: another ``OPENSSL_CONF``, a discovery range other than SUBNET, or a variable
+    that adds UDP (:data:`NOT_SECURE`)."""
+    from .participant import PROFILE_VARIABLES
+
+    profile = next((environ[v] for v in PROFILE_VARIABLES if environ.get(v)), None)
+    if profile is None or not Path(profile).is_file():
+        return
+    head = Path(profile).read_text(errors='replace')[:2000]
+    if 'apf_swarm, secure multi-host run' not in head or _CONF_MARK not in head:
+        return
+    conf = head.split(_CONF_MARK, 1)[1].split()[0]
+    fix = f'unset it: the profile {profile} names its own'
+    given = environ.get('OPENSSL_CONF')
+    if given and Path(given).resolve() != Path(conf).resolve():
+        raise DdsError(f'OPENSSL_CONF={given}, but the secure profile needs {conf}: {fix}')
+    if not Path(conf).is_file():
+        raise DdsError(
+            f"{conf} (named by the secure profile {profile}) is missing: copy the run's "
+            "DIR/dds/ with the host's files, or start the host from the bring-up"
+        )
+    span = environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SUBNET') or 'SUBNET'
+    if span != 'SUBNET':
+        raise DdsError(f'ROS_AUTOMATIC_DISCOVERY_RANGE={span} adds UDP to a secure run: {fix}')
+    for key in NOT_SECURE:
+        if environ.get(key) and not (key == 'ROS_LOCALHOST_ONLY' and environ[key] == '0'):
+            raise DdsError(f'{key}={environ[key]} adds UDP to a secure run: {fix}')
+    environ['OPENSSL_CONF'] = conf
 
 
 def write_run_files(
