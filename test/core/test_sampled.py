@@ -645,3 +645,24 @@ def test_a_fixed_b_squeezes_a_large_swarm_that_the_growth_lets_fly() -> None:
     assert r.min() > 1.1 and r.max() < 1.2  # a sphere
     assert flight(simulate(cfg).trajectory, expected_pairs(cfg))['flies']
     assert not flight(simulate(fixed).trajectory, expected_pairs(fixed))['flies']
+
+
+def test_largest_holding_is_the_largest_smaller_swarm_predicted_to_hold() -> None:
+    """256 trackers at 10 Hz with 164 ms (the probe's latency at that size) cannot hold
+    with any gains; with the latency a smaller swarm has (99 ms at 224, 64 ms at 192 on the
+    Xeon VM of docs/PERFORMANCE.md) 192 are predicted to hold and 224 not; with 2 s of
+    latency no size holds."""
+    from apf_swarm_core.sampled import largest_holding, schedule_gains
+
+    big = load_preset('realtime').replace(n_trackers=256, control_rate=10.0)
+    assert not schedule_gains(big, latency=0.164)[1].holds
+    tried: list[int] = []
+
+    def latency_of(m: int) -> float:
+        tried.append(m)
+        return 0.164 if m > 200 else 0.064
+
+    assert largest_holding(big, latency_of) == 192
+    assert tried == [224, 192]
+    small = load_preset('realtime').replace(n_trackers=16, control_rate=10.0)
+    assert largest_holding(small, lambda m: 2.0) is None

@@ -36,6 +36,7 @@ The prediction is validated against the emulation (:mod:`apf_swarm_core.simulato
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -65,6 +66,7 @@ __all__ = [
     'RIPPLE_FRACTION',
     'SOFT_SETTLE',
     'SampledPrediction',
+    'largest_holding',
     'loop_limit',
     'predict',
     'propose_gains',
@@ -374,3 +376,21 @@ def schedule_gains(
     ):
         return tuned, tuned_pred, dict(gains), list(tuned_pred.warnings)
     return cfg, pred, None, list(pred.warnings)
+
+
+#: the sizes :func:`largest_holding` tries, as fractions of the size that fails
+SMALLER_SIZES = (0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)
+
+
+def largest_holding(cfg: SwarmConfig, latency_of: Callable[[int], float]) -> int | None:
+    """The largest swarm, smaller than ``cfg.n_trackers``, whose :func:`schedule_gains` are
+    predicted to hold the formation at ``cfg.control_rate`` with ``latency_of(n)`` [s] of
+    latency for n trackers (a machine's latency grows with the swarm it carries); the sizes
+    tried are :data:`SMALLER_SIZES` of ``cfg.n_trackers``, largest first. None if none of
+    them holds."""
+    n = cfg.n_trackers
+    for m in sorted({max(1, int(n * f)) for f in SMALLER_SIZES if int(n * f) < n}, reverse=True):
+        _, pred, _, _ = schedule_gains(cfg.replace(n_trackers=m), latency=latency_of(m))
+        if pred.holds:
+            return m
+    return None

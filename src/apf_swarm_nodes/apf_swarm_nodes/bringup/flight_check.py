@@ -101,9 +101,39 @@ class FlightCheck:
             self.gains_scheduled = gains
         for w in warnings:
             self.say(f'warning: {w}')
+        if not pred.holds:
+            self._say_largest(cfg, latency, machine)
         self.cfg = cfg
         self.prediction = pred
         return cfg
+
+    def _say_largest(self, cfg: SwarmConfig, latency: float, machine: Any) -> None:
+        """The run is predicted to lose its formation whatever its gains: say so in one
+        line, with the largest swarm predicted to hold at its rate on this machine."""
+        from apf_swarm_core.sampled import largest_holding
+
+        from ..capacity import probe
+
+        rate = cfg.control_rate
+        given = cfg.latency or machine is None
+
+        def latency_of(m: int) -> float:
+            if given:
+                return latency
+            k = self.args.trackers_per_process or probe.trackers_per_process(machine, m, rate)
+            return float(probe.derive(machine, m, rate, k)['latency'])
+
+        most = largest_holding(cfg, latency_of)
+        self.say(
+            f'warning: no gains are predicted to hold {cfg.n_trackers} trackers at {rate:g} '
+            f'Hz with {latency * 1e3:.4g} ms of latency: '
+            + (
+                f'the largest swarm predicted to hold at {rate:g} Hz is {most} trackers '
+                f'({latency_of(most) * 1e3:.4g} ms); fly at most {most}, or at another rate'
+                if most
+                else 'fly fewer trackers, or at another rate'
+            )
+        )
 
     def judged(self, traj: dict[str, Any]) -> dict[str, Any]:
         """Realtime: the run judged by flight next to its headless emulation at the same
