@@ -20,7 +20,6 @@ __all__ = [
     'cpu_model',
     'group_members',
     'identity',
-    'machine_busy_seconds',
     'process_args',
     'process_cpu_seconds',
     'process_rss',
@@ -75,13 +74,6 @@ def process_rss(pid: int) -> int | None:
         return int(psutil.Process(pid).memory_info().rss)
     except (psutil.NoSuchProcess, psutil.AccessDenied):
         return None
-
-
-def machine_busy_seconds() -> float:
-    """CPU time the whole machine (all cores) has been busy since boot [s]: everything but
-    idle and I/O wait."""
-    t = psutil.cpu_times()
-    return float(sum(t) - t.idle - getattr(t, 'iowait', 0.0))
 
 
 def group_members(pgid: int) -> list[int]:
