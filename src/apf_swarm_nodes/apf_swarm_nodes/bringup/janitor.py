@@ -23,6 +23,8 @@ from pathlib import Path
 
 import psutil
 
+from .zygote import close_helper, orphaned_cleanup
+
 __all__ = ['BYE', 'Janitor', 'main']
 
 #: the line that ends a janitor's input when its bring-up closes it
@@ -62,17 +64,8 @@ class Janitor:
     def close(self) -> None:
         """The bring-up ends normally (it stopped its nodes itself): goodbye."""
         proc, self.proc = self.proc, None
-        if proc is None:
-            return
-        with contextlib.suppress(OSError, ValueError):
-            if proc.stdin is not None:
-                proc.stdin.write(BYE.encode() + b'\n')
-                proc.stdin.close()
-        try:
-            proc.wait(5.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        if proc is not None:
+            close_helper(proc, BYE.encode())
 
 
 def main() -> None:
@@ -89,7 +82,6 @@ def main() -> None:
         with contextlib.suppress(ValueError, psutil.Error):
             watched.append(psutil.Process(int(line)))
     from ..dds.secure import remove_keys
-    from .zygote import orphaned_cleanup
 
     for directory in keys:
         remove_keys(directory)

@@ -53,6 +53,7 @@ __all__ = [
     'Spawn',
     'Zygote',
     'become_subreaper',
+    'close_helper',
     'main',
     'node_entry_points',
 ]
@@ -94,6 +95,21 @@ def become_subreaper() -> bool:
 # --------------------------------------------------------------------------------------------
 # the bring-up's side
 # --------------------------------------------------------------------------------------------
+
+
+def close_helper(proc: subprocess.Popen[bytes], goodbye: bytes) -> None:
+    """End a helper process of the bring-up (its zygote or janitor) when the bring-up closes
+    it normally: ``goodbye`` as a line on its stdin, then end of input; wait at most 5 s for
+    it to exit, then SIGKILL it."""
+    with contextlib.suppress(OSError, ValueError):
+        if proc.stdin is not None:
+            proc.stdin.write(goodbye + b'\n')
+            proc.stdin.close()
+    try:
+        proc.wait(5.0)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
 
 
 @dataclass(frozen=True)
@@ -219,15 +235,7 @@ class Zygote:
         proc, self.proc = self.proc, None
         if proc is None:
             return
-        with contextlib.suppress(OSError):
-            if proc.stdin is not None:
-                proc.stdin.write(json.dumps(BYE).encode() + b'\n')  # not orphaned
-                proc.stdin.close()
-        try:
-            proc.wait(5.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        close_helper(proc, json.dumps(BYE).encode())  # not orphaned
         if proc.stdout is not None:
             proc.stdout.close()
 
