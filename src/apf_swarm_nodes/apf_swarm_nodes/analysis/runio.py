@@ -165,13 +165,17 @@ def run_summary(
     return summary
 
 
-def _fmt(v: Any) -> str:
+def _fmt(v: Any, digits: int = 3) -> str:
+    """A value of a summary in a table or a line of text: ``digits`` significant digits,
+    yes/no, ``-`` for none, the range of a list of distances (n > 3 designs)."""
     if v is None:
         return '-'
+    if isinstance(v, bool):
+        return 'yes' if v else 'no'
     if isinstance(v, float):
-        return f'{v:.4g}'
+        return f'{v:.{digits}g}'
     if isinstance(v, (list, tuple)) and v and all(isinstance(e, float) for e in v):
-        return f'{len(v)} distances in [{min(v):.4g}, {max(v):.4g}]'  # n > 3 designs
+        return f'{len(v)} distances in [{min(v):.{digits}g}, {max(v):.{digits}g}]'
     return str(v)
 
 
@@ -186,24 +190,24 @@ def format_summary(summary: Mapping[str, Any]) -> str:
     ]
     ce, fo, ch, po = s['centroid_error'], s['formation'], s['chattering'], s['potential']
     lines.append(
-        f'  centroid error   rms_steady {_fmt(ce["rms_steady"])} m, max_steady '
-        f'{_fmt(ce["max_steady"])} m, final {_fmt(ce["final"])} m'
+        f'  centroid error   rms_steady {_fmt(ce["rms_steady"], 4)} m, max_steady '
+        f'{_fmt(ce["max_steady"], 4)} m, final {_fmt(ce["final"], 4)} m'
     )
     lines.append(
-        f'  pair distance    min {_fmt(fo["pair_distance_min"])} m, max '
-        f'{_fmt(fo["pair_distance_max"])} m, mean {_fmt(fo["pair_distance_mean"])} m, '
-        f'expected {_fmt(fo["pair_distance_expected"])} m'
+        f'  pair distance    min {_fmt(fo["pair_distance_min"], 4)} m, max '
+        f'{_fmt(fo["pair_distance_max"], 4)} m, mean {_fmt(fo["pair_distance_mean"], 4)} m, '
+        f'expected {_fmt(fo["pair_distance_expected"], 4)} m'
     )
-    lines.append(f'  formation error  rms_steady {_fmt(fo["error_rms_steady"])} m')
+    lines.append(f'  formation error  rms_steady {_fmt(fo["error_rms_steady"], 4)} m')
     lines.append(
-        f'  chattering       hf_velocity_rms {_fmt(ch["hf_velocity_rms"])} m/s, '
-        f'heading_rate {_fmt(ch["heading_rate"])} rad/s'
+        f'  chattering       hf_velocity_rms {_fmt(ch["hf_velocity_rms"], 4)} m/s, '
+        f'heading_rate {_fmt(ch["heading_rate"], 4)} rad/s'
     )
     lines.append(
-        f'  potential J      initial {_fmt(po["initial"])}, final {_fmt(po["final"])}, '
-        f'decreasing {_fmt(po["decreasing_fraction"])}'
+        f'  potential J      initial {_fmt(po["initial"], 4)}, final {_fmt(po["final"], 4)}, '
+        f'decreasing {_fmt(po["decreasing_fraction"], 4)}'
     )
-    lines.append(f'  converged        {s["converged"]} (after {_fmt(s["time_to_converge"])} s)')
+    lines.append(f'  converged        {s["converged"]} (after {_fmt(s["time_to_converge"], 4)} s)')
     for w in s.get('warnings', []):
         lines.append(f'  warning: {w}')
     return '\n'.join(lines)

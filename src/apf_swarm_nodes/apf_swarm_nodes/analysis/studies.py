@@ -17,7 +17,7 @@ from apf_swarm_core.simulator import BATCHABLE, simulate, simulate_batch
 from ..advice import CLI_ADVICE
 from .errors import AnalysisError
 from .plots import paper_figures, plot_tradeoff
-from .runio import write_run
+from .runio import _fmt, write_run
 
 __all__ = ['GAMMA_VALUES', 'LAWS', 'reproduce', 'sweep', 'write_sweep']
 
@@ -102,16 +102,6 @@ def write_sweep(rows: list[dict[str, Any]], param: str, out: Path) -> dict[str, 
         w.writerows(rows)
     plot_tradeoff(rows, param, paths['png'])
     return paths
-
-
-def _fmt(v: Any, digits: int = 3) -> str:
-    if v is None:
-        return '-'
-    if isinstance(v, bool):
-        return 'yes' if v else 'no'
-    if isinstance(v, float):
-        return f'{v:.{digits}g}'
-    return str(v)
 
 
 def _table(summaries: dict[str, dict[str, Any]]) -> list[str]:
