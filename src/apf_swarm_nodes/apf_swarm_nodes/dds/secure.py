@@ -51,8 +51,13 @@ import sys
 from collections.abc import Callable, Mapping, MutableMapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .errors import DdsError
+
+if TYPE_CHECKING:
+    from cryptography import x509
+    from cryptography.hazmat.primitives.asymmetric import ec
 
 __all__ = [
     'CA_FILE',
@@ -133,11 +138,39 @@ class Pki:
     server_profile: Path
 
 
-def _name(common_name: str) -> object:
+def _certificate(
+    subject: str,
+    public_key: ec.EllipticCurvePublicKey,
+    *,
+    issuer: str,
+    issuer_key: ec.EllipticCurvePrivateKey,
+    start: dt.datetime,
+    end: dt.datetime,
+    extensions: Sequence[tuple[x509.ExtensionType, bool]],
+) -> x509.Certificate:
+    """A certificate of ``public_key`` for the common name ``subject``, issued by the common
+    name ``issuer`` and signed with ``issuer_key`` (ECDSA-SHA256), valid from ``start`` until
+    ``end``, with a random serial number and ``extensions`` ((extension, critical), in
+    order)."""
     from cryptography import x509
+    from cryptography.hazmat.primitives import hashes
     from cryptography.x509.oid import NameOID
 
-    return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
+    def name(common_name: str) -> x509.Name:
+        return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
+
+    builder = (
+        x509.CertificateBuilder()
+        .subject_name(name(subject))
+        .issuer_name(name(issuer))
+        .public_key(public_key)
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(start)
+        .not_valid_after(end)
+    )
+    for extension, critical in extensions:
+        builder = builder.add_extension(extension, critical)
+    return builder.sign(issuer_key, hashes.SHA256())
 
 
 def _write_private(path: Path, data: bytes) -> None:
@@ -161,7 +194,7 @@ def make_pki(
     and a certificate and key per host (``directory``/HOST/cert.pem, key.pem, mode 0600),
     valid from ``now`` - :data:`BACKDATE` for ``validity``. Returns {host: (cert, key)}."""
     from cryptography import x509
-    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives import serialization
     from cryptography.hazmat.primitives.asymmetric import ec
     from cryptography.x509.oid import ExtendedKeyUsageOID
 
@@ -172,58 +205,41 @@ def make_pki(
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     ca_key = ec.generate_private_key(ec.SECP256R1())
-    ca_name = _name(f'{run} run authority')
-    ca_cert = (
-        x509.CertificateBuilder()
-        .subject_name(ca_name)  # type: ignore[arg-type]
-        .issuer_name(ca_name)  # type: ignore[arg-type]
-        .public_key(ca_key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(start)
-        .not_valid_after(end)
-        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=False,
-                content_commitment=False,
-                key_encipherment=False,
-                data_encipherment=False,
-                key_agreement=False,
-                key_cert_sign=True,
-                crl_sign=True,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
-        .add_extension(x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key()), False)
-        .sign(ca_key, hashes.SHA256())
+    ca_name = f'{run} run authority'
+    ca_usage = x509.KeyUsage(
+        digital_signature=False,
+        content_commitment=False,
+        key_encipherment=False,
+        data_encipherment=False,
+        key_agreement=False,
+        key_cert_sign=True,
+        crl_sign=True,
+        encipher_only=False,
+        decipher_only=False,
     )
+    ca_cert = _certificate(
+        ca_name, ca_key.public_key(), issuer=ca_name, issuer_key=ca_key, start=start, end=end,
+        extensions=[
+            (x509.BasicConstraints(ca=True, path_length=0), True),
+            (ca_usage, True),
+            (x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key()), False),
+        ],
+    )  # fmt: skip
     (directory / CA_FILE).write_bytes(ca_cert.public_bytes(serialization.Encoding.PEM))
+    usage = [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
     out = {}
     for host in hosts:
         key = ec.generate_private_key(ec.SECP256R1())
-        cert = (
-            x509.CertificateBuilder()
-            .subject_name(_name(f'{run} {host}'))  # type: ignore[arg-type]
-            .issuer_name(ca_name)  # type: ignore[arg-type]
-            .public_key(key.public_key())
-            .serial_number(x509.random_serial_number())
-            .not_valid_before(start)
-            .not_valid_after(end)
-            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-            .add_extension(
-                x509.ExtendedKeyUsage(
-                    [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
-                ),
-                critical=False,
-            )
-            .add_extension(x509.SubjectAlternativeName([x509.DNSName(host)]), critical=False)
-            .add_extension(
-                x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), False
-            )
-            .sign(ca_key, hashes.SHA256())
-        )
+        cert = _certificate(
+            f'{run} {host}', key.public_key(), issuer=ca_name, issuer_key=ca_key,
+            start=start, end=end,
+            extensions=[
+                (x509.BasicConstraints(ca=False, path_length=None), True),
+                (x509.ExtendedKeyUsage(usage), False),
+                (x509.SubjectAlternativeName([x509.DNSName(host)]), False),
+                (x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), False),
+            ],
+        )  # fmt: skip
         where = directory / host
         where.mkdir(parents=True, exist_ok=True)
         (where / CERT_FILE).write_bytes(cert.public_bytes(serialization.Encoding.PEM))
@@ -563,35 +579,24 @@ def write_run_files(
     openssl = directory / OPENSSL_FILE
     openssl.write_text(openssl_conf())
     prefix = server_prefix(run)
-    files = {}
-    for host, (cert, key) in issued.items():
-        profile = directory / host / PROFILE_FILE
-        profile.write_text(
+
+    def write(
+        path: Path, cert: Path, key: Path, *, is_server: bool = False, super_client: bool = True
+    ) -> Path:
+        path.write_text(
             profile_xml(
-                ca=ca, cert=cert, key=key, server=server, prefix=prefix, participants=participants
-            )
-        )
-        client = directory / host / CLIENT_PROFILE_FILE
-        client.write_text(
-            profile_xml(
-                ca=ca, cert=cert, key=key, server=server, prefix=prefix,
-                participants=participants, super_client=False,
+                ca=ca, cert=cert, key=key, server=server, prefix=prefix, is_server=is_server,
+                participants=participants, super_client=super_client,
             )
         )  # fmt: skip
+        return path
+
+    files = {}
+    for host, (cert, key) in issued.items():
+        profile = write(directory / host / PROFILE_FILE, cert, key)
+        client = write(directory / host / CLIENT_PROFILE_FILE, cert, key, super_client=False)
         files[host] = HostFiles(host, cert, key, profile, client)
-    cert, key = issued[server_host]
-    server_profile = directory / SERVER_PROFILE
-    server_profile.write_text(
-        profile_xml(
-            ca=ca,
-            cert=cert,
-            key=key,
-            server=server,
-            prefix=prefix,
-            is_server=True,
-            participants=participants,
-        )
-    )
+    server_profile = write(directory / SERVER_PROFILE, *issued[server_host], is_server=True)
     for f in files.values():
         check_files(ca, f.cert, f.key)
     return Pki(ca, openssl, files, server_profile)
