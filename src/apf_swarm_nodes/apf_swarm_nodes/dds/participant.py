@@ -12,6 +12,8 @@ from pathlib import Path
 __all__ = [
     'OWN_PROFILE',
     'PROFILE_VARIABLES',
+    'SECURE_PROFILE',
+    'SECURE_SERVER_PROFILE',
     'own_participant',
     'own_participant_environment',
 ]
@@ -20,6 +22,10 @@ __all__ = [
 PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
 #: the profile of the bring-up's own participant, beside the run's (UDP on 127.0.0.1 only)
 OWN_PROFILE = 'fastdds_localhost_udp.xml'
+#: a secure run's profiles (:mod:`.secure` writes them, as its ``PROFILE_FILE`` and
+#: ``SERVER_PROFILE``): a host's (DIR/dds/HOST/), and the discovery server's (DIR/dds/), the
+#: bring-up's own participant
+SECURE_PROFILE, SECURE_SERVER_PROFILE = 'fastdds_secure.xml', 'fastdds_secure_server.xml'
 
 
 def own_participant_environment(environ: Mapping[str, str] | None = None) -> dict[str, str]:
@@ -35,10 +41,10 @@ def own_participant_environment(environ: Mapping[str, str] | None = None) -> dic
         udp = Path(own).with_name(OWN_PROFILE)
         if udp.is_file():
             return dict.fromkeys(PROFILE_VARIABLES, str(udp))
-    if own is not None and Path(own).name == 'fastdds_secure.xml':
+    if own is not None and Path(own).name == SECURE_PROFILE:
         # a secure run (apf_swarm_nodes.dds.secure): the bring-up's participant is its
         # discovery server, on TCP with TLS as every other
-        server = Path(own).parent.parent / 'fastdds_secure_server.xml'
+        server = Path(own).parent.parent / SECURE_SERVER_PROFILE
         if server.is_file():
             return dict.fromkeys(PROFILE_VARIABLES, str(server))
     return {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}

@@ -54,6 +54,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .errors import DdsError
+from .participant import PROFILE_VARIABLES
+from .participant import SECURE_PROFILE as PROFILE_FILE
+from .participant import SECURE_SERVER_PROFILE as SERVER_PROFILE
 
 if TYPE_CHECKING:
     from cryptography import x509
@@ -85,14 +88,14 @@ __all__ = [
 
 #: the files of a run's security, under DIR/dds/: the authority's certificate and the
 #: OpenSSL configuration, shared; per host (DIR/dds/HOST/): its certificate, key, profile
+#: (:data:`PROFILE_FILE`; it and :data:`SERVER_PROFILE` are named in :mod:`.participant`,
+#: which gives the bring-up's own participant the server's)
 CA_FILE, OPENSSL_FILE = 'ca.pem', 'openssl.cnf'
-CERT_FILE, KEY_FILE, PROFILE_FILE = 'cert.pem', 'key.pem', 'fastdds_secure.xml'
+CERT_FILE, KEY_FILE = 'cert.pem', 'key.pem'
 #: a host's profile for processes that need no view of the whole graph (the trackers): a
 #: discovery client, told only of the endpoints matching its own (what it saves:
 #: docs/PERFORMANCE.md, "Real-time flight")
 CLIENT_PROFILE_FILE = 'fastdds_secure_client.xml'
-#: the bring-up's own participant: the discovery server
-SERVER_PROFILE = 'fastdds_secure_server.xml'
 #: the bring-up's host among the run's hosts (DIR/dds/bringup/)
 THIS_HOST = 'bringup'
 #: the discovery server's TCP port is this plus the domain id
@@ -490,8 +493,6 @@ def profile_xml(
 def secure_environment(profile: Path, openssl: Path) -> dict[str, str]:
     """The variables a process of a secure run needs (with ``ROS_DOMAIN_ID``; no
     ``ROS_STATIC_PEERS`` / ``ROS_DISCOVERY_SERVER``, which would add UDP)."""
-    from .participant import PROFILE_VARIABLES
-
     env = dict.fromkeys(PROFILE_VARIABLES, str(Path(profile).resolve()))
     env['OPENSSL_CONF'] = str(Path(openssl).resolve())
     # SUBNET: the one range in which rmw adds no transport of its own to the profile's
@@ -514,8 +515,6 @@ def complete_environment(environ: MutableMapping[str, str]) -> None:
     or none. DdsError naming the variable and the fix when the environment contradicts the
     profile: another ``OPENSSL_CONF``, a discovery range other than SUBNET, or a variable
     that adds UDP (:data:`NOT_SECURE`)."""
-    from .participant import PROFILE_VARIABLES
-
     profile = next((environ[v] for v in PROFILE_VARIABLES if environ.get(v)), None)
     if profile is None or not Path(profile).is_file():
         return
