@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from apf_swarm_nodes.dds.shm import count_fastdds_files, stale_fastdds_files
+from apf_swarm_nodes.dds.shm import fastdds_entries, stale_fastdds_files
 
 
 def _touch(d: Path, name: str, age: float = 0.0) -> Path:
@@ -60,9 +60,9 @@ def test_only_files_no_live_process_holds_are_stale(tmp_path: Path) -> None:
                 'sem.fastrtps_port7415_mutex',
             ]
         )
-        before = count_fastdds_files(tmp_path)
+        before = len(fastdds_entries(tmp_path))
         assert found.remove() == 7
-        assert count_fastdds_files(tmp_path) == before - 7
+        assert len(fastdds_entries(tmp_path)) == before - 7
         assert (tmp_path / live_seg).exists() and (tmp_path / 'fastrtps_port7411').exists()
         assert (tmp_path / 'fastrtps_port7417').exists()
         assert (tmp_path / 'fastrtps_port7419').exists()
@@ -83,7 +83,7 @@ def test_only_files_no_live_process_holds_are_stale(tmp_path: Path) -> None:
 def test_a_missing_directory_finds_nothing(tmp_path: Path) -> None:
     found = stale_fastdds_files(tmp_path / 'none')
     assert found.stale == [] and found.remove() == 0
-    assert count_fastdds_files(tmp_path / 'none') == 0
+    assert len(fastdds_entries(tmp_path / 'none')) == 0
 
 
 def test_orphans_are_our_nodes_whose_parent_is_gone(monkeypatch) -> None:
@@ -132,10 +132,10 @@ def test_clean_dry_run_changes_nothing(tmp_path: Path, monkeypatch, capsys) -> N
     monkeypatch.setattr(cleanup, 'expired_leases', list)
     assert cleanup.run(argparse.Namespace(dry_run=True)) == 0
     assert 'would remove 2 stale' in capsys.readouterr().out
-    assert count_fastdds_files(tmp_path) == 2
+    assert len(fastdds_entries(tmp_path)) == 2
     assert cleanup.run(argparse.Namespace(dry_run=False)) == 0
     assert 'removed 2 stale' in capsys.readouterr().out
-    assert count_fastdds_files(tmp_path) == 0
+    assert len(fastdds_entries(tmp_path)) == 0
 
 
 def test_expired_domain_leases_are_found(tmp_path: Path, monkeypatch) -> None:
@@ -160,4 +160,4 @@ def test_ports_too_young_to_judge_are_judged_again_once_old_enough(tmp_path: Pat
     t0 = time.monotonic()
     assert remove_stale(tmp_path, min_age=0.3) == 2
     assert 0.3 <= time.monotonic() - t0 < 5.0
-    assert count_fastdds_files(tmp_path) == 0
+    assert len(fastdds_entries(tmp_path)) == 0

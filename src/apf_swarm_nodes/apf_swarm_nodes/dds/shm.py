@@ -30,7 +30,6 @@ __all__ = [
     'MIN_AGE',
     'SHM_DIR',
     'ShmCleanup',
-    'count_fastdds_files',
     'fastdds_entries',
     'mapped_shm_names',
     'remove_stale',
@@ -166,14 +165,6 @@ def remove_stale(shm_dir: Path = SHM_DIR, min_age: float = MIN_AGE) -> int:
         time.sleep(min_age)
         removed += stale_fastdds_files(shm_dir, min_age).remove()
     return removed
-
-
-def count_fastdds_files(shm_dir: Path = SHM_DIR) -> int:
-    """How many Fast DDS entries ``shm_dir`` holds (segments, locks, mutexes)."""
-    try:
-        return sum(1 for n in os.listdir(shm_dir) if n.startswith(('fastrtps_', 'sem.fastrtps_')))
-    except OSError:
-        return 0
 
 
 def fastdds_entries(shm_dir: Path = SHM_DIR) -> set[str]:
