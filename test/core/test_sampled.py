@@ -662,7 +662,10 @@ def test_largest_holding_is_the_largest_smaller_swarm_predicted_to_hold() -> Non
         tried.append(m)
         return 0.164 if m > 200 else 0.064
 
-    assert largest_holding(big, latency_of) == 192
+    found = largest_holding(big, latency_of)
+    assert found is not None and found[0] == 192 and found[1].holds
+    assert found[1].n_trackers == 192 and found[1].latency == 0.064
+    assert found[2]['gamma'] > big.gamma  # the gains scheduled for 192
     assert tried == [224, 192]
     small = load_preset('realtime').replace(n_trackers=16, control_rate=10.0)
     assert largest_holding(small, lambda m: 2.0) is None

@@ -64,7 +64,23 @@ def test_simulate_writes_schema(tmp_path: Path) -> None:
     assert s['formation']['pair_distance_max'] < 1.01 * d
     assert s['converged'] is True
     assert 'centroid error' in p.stdout  # the summary is printed
+    assert 'flight ' not in p.stdout  # lockstep: no realtime loop to judge
     assert (out / 'config.yaml').is_file()
+
+
+def test_simulate_judges_an_emulated_realtime_loop_by_flight(tmp_path: Path) -> None:
+    """With --control-rate the run is judged as a realtime run is: the triangle at 50 Hz
+    with 5 ms flies; with 0.5 s of latency at 10 Hz it does not."""
+    lines = {}
+    for name, rate, latency in (('holds', '50', '0.005'), ('lost', '10', '0.5')):
+        p = run(
+            'simulate', '--preset', 'realtime', '--duration', '6', '--control-rate', rate,
+            '--latency', latency, '--out', str(tmp_path / name), '--quiet',
+        )  # fmt: skip
+        assert p.returncode == 0, p.stderr
+        lines[name] = [x for x in p.stdout.splitlines() if x.startswith('  flight ')]
+    assert len(lines['holds']) == 1 and 'flight           flies: ' in lines['holds'][0], lines
+    assert len(lines['lost']) == 1 and 'does not fly: ' in lines['lost'][0], lines
 
 
 def test_simulate_set_and_law(tmp_path: Path) -> None:

@@ -22,6 +22,7 @@ __all__ = [
     'SUMMARY_KEYS',
     'centroid_error',
     'flight',
+    'flight_verdict',
     'formation_edges',
     'formation_error',
     'heading_rate',
@@ -285,6 +286,17 @@ def flight(
         and converged
     )
     return out
+
+
+def flight_verdict(f: Mapping[str, Any]) -> str:
+    """One line of a :func:`flight` result: whether the run flies, and by which numbers."""
+    if f.get('formation_error_rms') is None:
+        return 'no design to judge by'
+    return (
+        ('flies' if f['flies'] else 'does not fly') + f': formation error '
+        f'{100 * f["formation_error_rms"]:.2g} %, closest pair '
+        f'{100 * f["closest_pair"]:.3g} %, centroid {f["centroid_error_rms"]:.3g} m'
+    )
 
 
 def _f(value: float | None) -> float | None:

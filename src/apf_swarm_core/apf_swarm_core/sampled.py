@@ -382,15 +382,19 @@ def schedule_gains(
 SMALLER_SIZES = (0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)
 
 
-def largest_holding(cfg: SwarmConfig, latency_of: Callable[[int], float]) -> int | None:
+def largest_holding(
+    cfg: SwarmConfig, latency_of: Callable[[int], float]
+) -> tuple[int, SampledPrediction, dict[str, Any]] | None:
     """The largest swarm, smaller than ``cfg.n_trackers``, whose :func:`schedule_gains` are
     predicted to hold the formation at ``cfg.control_rate`` with ``latency_of(n)`` [s] of
-    latency for n trackers (a machine's latency grows with the swarm it carries); the sizes
+    latency for n trackers (a machine's latency grows with the swarm it carries), with its
+    prediction and the gains scheduled for it (empty: the configuration's); the sizes
     tried are :data:`SMALLER_SIZES` of ``cfg.n_trackers``, largest first. None if none of
-    them holds."""
+    them holds. Whether its soft modes settle within the run is the emulation's to say
+    (:attr:`SampledPrediction.holds`)."""
     n = cfg.n_trackers
     for m in sorted({max(1, int(n * f)) for f in SMALLER_SIZES if int(n * f) < n}, reverse=True):
-        _, pred, _, _ = schedule_gains(cfg.replace(n_trackers=m), latency=latency_of(m))
+        _, pred, gains, _ = schedule_gains(cfg.replace(n_trackers=m), latency=latency_of(m))
         if pred.holds:
-            return m
+            return m, pred, dict(gains or {})
     return None

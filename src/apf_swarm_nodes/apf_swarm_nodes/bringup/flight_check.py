@@ -81,6 +81,7 @@ class FlightCheck:
                 + ', '.join(f'{v} at {k} Hz' for k, v in measured['capacity'].items())
                 + ') or fewer trackers'
             )
+        base = cfg
         if getattr(self.args, 'gains', 'auto') == 'auto':
             cfg, pred, gains, warnings = schedule_gains(cfg, latency=latency, advice=CLI_ADVICE)
         else:
@@ -102,14 +103,15 @@ class FlightCheck:
         for w in warnings:
             self.say(f'warning: {w}')
         if not pred.holds:
-            self._say_largest(cfg, latency, machine)
+            self._say_largest(base, latency, machine)
         self.cfg = cfg
         self.prediction = pred
         return cfg
 
     def _say_largest(self, cfg: SwarmConfig, latency: float, machine: Any) -> None:
         """The run is predicted to lose its formation whatever its gains: say so in one
-        line, with the largest swarm predicted to hold at its rate on this machine."""
+        line, with the largest swarm predicted to hold at its rate on this machine (``cfg``:
+        the configuration before gains were scheduled)."""
         from apf_swarm_core.sampled import largest_holding
 
         from ..capacity import probe
@@ -123,16 +125,25 @@ class FlightCheck:
             k = self.args.trackers_per_process or probe.trackers_per_process(machine, m, rate)
             return float(probe.derive(machine, m, rate, k)['latency'])
 
-        most = largest_holding(cfg, latency_of)
-        self.say(
+        found = largest_holding(cfg, latency_of)
+        head = (
             f'warning: no gains are predicted to hold {cfg.n_trackers} trackers at {rate:g} '
             f'Hz with {latency * 1e3:.4g} ms of latency: '
-            + (
-                f'the largest swarm predicted to hold at {rate:g} Hz is {most} trackers '
-                f'({latency_of(most) * 1e3:.4g} ms); fly at most {most}, or at another rate'
-                if most
-                else 'fly fewer trackers, or at another rate'
-            )
+        )
+        if found is None:
+            self.say(head + 'fly fewer trackers, or at another rate')
+            return
+        most, pred, gains = found
+        sets = ''.join(
+            f' --set {k}={v:.4g}' if isinstance(v, float) else f' --set {k}={v}'
+            for k, v in gains.items()
+        )
+        self.say(
+            head + f'the largest swarm whose loop is predicted to hold at {rate:g} Hz is '
+            f'{most} trackers ({pred.latency * 1e3:.4g} ms); its softest mode settles in '
+            f'{pred.settle_time:.3g} s: whether it flies in {cfg.duration:g} s, `apf-swarm '
+            f'simulate` with this configuration and `--n-trackers {most} --control-rate '
+            f'{rate:g} --latency {pred.latency:.3g} --duration {cfg.duration:g}{sets}` says'
         )
 
     def judged(self, traj: dict[str, Any]) -> dict[str, Any]:

@@ -71,16 +71,7 @@ def write_outputs(
     print(format_summary(summary))
     pr = summary.get('prediction')
     if pr is not None:
-
-        def verdict(f: dict[str, Any]) -> str:
-            if f.get('formation_error_rms') is None:
-                return 'no design to judge by'
-            return (
-                ('flies' if f['flies'] else 'does not fly') + f': formation error '
-                f'{100 * f["formation_error_rms"]:.2g} %, closest pair '
-                f'{100 * f["closest_pair"]:.3g} %, centroid '
-                f'{f["centroid_error_rms"]:.3g} m'
-            )
+        from apf_swarm_core.metrics import flight_verdict as verdict
 
         print(f'  flight           run {verdict(pr["run"])}')
         if 'emulation' in pr:

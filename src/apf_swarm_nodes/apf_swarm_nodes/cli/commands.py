@@ -128,6 +128,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     summary = res.summary(warnings=report.warnings)
     write_run(args.out, res.trajectory, summary, cfg)
     print(format_summary(summary))
+    if cfg.control_rate > 0:  # a realtime loop emulated: judged as a run is
+        from apf_swarm_core.metrics import flight, flight_verdict
+
+        judged = flight(res.trajectory, design_pair_sets(cfg))
+        print(f'  flight           {flight_verdict(judged)}')
     print(f'wrote {args.out / "trajectory.npz"} and {args.out / "summary.json"}')
     if args.animate is not None:
         write_animation(args, res.trajectory, cfg, args.animate)
