@@ -62,6 +62,21 @@ def test_potential_known_value():
     assert float(potential(x, np.zeros(3))) == pytest.approx(expected, rel=1e-14)
 
 
+def test_gains_default_one_by_one_and_a_misspelt_gain_is_refused():
+    # POTENTIAL_DEFAULTS stand in for each gain not given, the others as given
+    from apf_swarm_core.newton import hessian
+    from apf_swarm_core.potential import POTENTIAL_DEFAULTS
+
+    x = np.array([[1.0, 0, 0], [-1.0, 0.5, 0], [0.0, 0.2, 1.0]])
+    some = {'k_f': 2.0, 'c': 1.2}
+    full = {**POTENTIAL_DEFAULTS, **some}
+    for f in (potential, gradient, hessian):
+        np.testing.assert_array_equal(f(x, np.zeros(3), **some), f(x, np.zeros(3), **full))
+    for f in (potential, gradient, hessian):
+        with pytest.raises(TypeError, match=r"unexpected gain.*'kn'"):
+            f(x, np.zeros(3), kn=2.0)
+
+
 @pytest.mark.parametrize('n', [1, 2, 3, 7])
 @pytest.mark.parametrize('seed', [0, 1, 2, 3])
 def test_gradient_matches_finite_differences(n, seed):

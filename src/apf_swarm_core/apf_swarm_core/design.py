@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Unpack
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,7 +25,7 @@ from numpy.typing import NDArray
 from .errors import ConfigError
 from .gradients import gradient
 from .newton import hessian
-from .potential import PotentialParams, potential
+from .potential import Gains, PotentialParams, gain_values, potential
 
 __all__ = [
     'MULTISTART_MAX',
@@ -111,35 +112,25 @@ class Formation:
 
 
 def equilibrium_formation(
-    n: int,
-    *,
-    k_n: float = 1.0,
-    k_f: float = 1.0,
-    a: float = 1.0,
-    b: float = 6.0,
-    c: float = 1.7,
-    starts: int = 8,
-    seed: int = 0,
+    n: int, *, starts: int = 8, seed: int = 0, **gains: Unpack[Gains[float]]
 ) -> Formation:
     """Equilibrium formation of n trackers around a target at the origin, minimizing J.
 
     Runs L-BFGS (scipy) with the analytic gradient of eq. 44 from ``starts`` random initial
-    shapes and keeps the lowest J. Rotations of the result are equilibria too.
+    shapes and keeps the lowest J. Rotations of the result are equilibria too. Gains
+    ``k_n, k_f, a, b, c`` as keywords (default
+    :data:`~apf_swarm_core.potential.POTENTIAL_DEFAULTS`).
     """
-    return equilibrium_formations(n, k_n=k_n, k_f=k_f, a=a, b=b, c=c, starts=starts, seed=seed)[0]
+    return equilibrium_formations(n, starts=starts, seed=seed, **gains)[0]
 
 
 def equilibrium_formations(
     n: int,
     *,
-    k_n: float = 1.0,
-    k_f: float = 1.0,
-    a: float = 1.0,
-    b: float = 6.0,
-    c: float = 1.7,
     starts: int = 8,
     seed: int = 0,
     tolerance: float = 1e-6,
+    **gains: Unpack[Gains[float]],
 ) -> list[Formation]:
     """The distinct minima of J whose potential is within ``tolerance`` (relative) of the
     lowest found from ``starts`` random shapes, lowest first.
@@ -147,10 +138,11 @@ def equilibrium_formations(
     A larger swarm's J has minima that differ in J by a few parts in 1e8 and in shape by
     several percent (32 trackers, default potential: J = 1418.37769 with the closest pair at
     0.708 m, and 1418.37776 at 0.669 m): a swarm descending J settles in one of them, and
-    each is the formation the potential designs.
+    each is the formation the potential designs. Gains as for :func:`equilibrium_formation`.
     """
     from scipy.optimize import minimize
 
+    k_n, k_f, a, b, c = gain_values(gains)
     params: PotentialParams = {'k_n': k_n, 'k_f': k_f, 'a': a, 'b': b, 'c': c}
     origin = np.zeros(3)
     rng = np.random.default_rng(seed)

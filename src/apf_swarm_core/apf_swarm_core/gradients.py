@@ -9,12 +9,14 @@ run of a batch).
 
 from __future__ import annotations
 
+from typing import Unpack
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
 from .kernels import gradient_rows, kernel_args
-from .potential import Rows, pair_weight
+from .potential import POTENTIAL_DEFAULTS, Gains, Rows, gain_values, pair_weight
 
 __all__ = ['gradient', 'obstacle_gradient', 'target_gradient']
 
@@ -23,13 +25,9 @@ def gradient(
     x: ArrayLike,
     x_target: ArrayLike,
     *,
-    k_n: ArrayLike = 1.0,
-    k_f: ArrayLike = 1.0,
-    a: ArrayLike = 1.0,
-    b: ArrayLike = 6.0,
-    c: ArrayLike = 1.7,
     rows: Rows = None,
     mask: ArrayLike | None = None,
+    **gains: Unpack[Gains[ArrayLike]],
 ) -> NDArray[np.float64]:
     """Analytic gradient of J with respect to the trackers (from eq. 2 / 44).
 
@@ -50,26 +48,27 @@ def gradient(
         Tracker positions [m].
     x_target : array, shape (..., 3)
         Target position [m].
-    k_n, k_f, a, b, c : float or array (...)
-        Gains and pair parameters of eq. 44.
     rows : index array, optional
         Trackers whose gradient is wanted (default: all ``n``).
     mask : bool array, shape (..., m, n), optional
         Neighbour mask for the selected rows: ``mask[i, j]`` says whether j is a neighbour of
         row i. ``None`` means all trackers (the paper's potential).
+    k_n, k_f, a, b, c : float or array (...)
+        Gains and pair parameters of eq. 44 (default
+        :data:`~apf_swarm_core.potential.POTENTIAL_DEFAULTS`).
 
     Returns
     -------
     grad : array, shape (..., m, 3)
         ``m = n`` or ``len(rows)``; units m with unit gains.
     """
-    args = kernel_args(x, x_target, (k_n, k_f, a, b, c), rows, mask)
+    args = kernel_args(x, x_target, gain_values(gains), rows, mask)
     out = gradient_rows(args.x, args.tx, args.rows, args.mask, args.gains)
     return out.reshape((*args.shape, 3))
 
 
 def target_gradient(
-    x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = 1.0
+    x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = POTENTIAL_DEFAULTS['k_n']
 ) -> NDArray[np.float64]:
     """Gradient of J with respect to the target, ``-k_N sum_i (x_i - x_N)`` (eq. 6, 17).
 
@@ -91,9 +90,9 @@ def obstacle_gradient(
     x: ArrayLike,
     obstacles: ArrayLike,
     *,
-    k_f: ArrayLike = 1.0,
-    b: ArrayLike = 6.0,
-    c: ArrayLike = 1.7,
+    k_f: ArrayLike = POTENTIAL_DEFAULTS['k_f'],
+    b: ArrayLike = POTENTIAL_DEFAULTS['b'],
+    c: ArrayLike = POTENTIAL_DEFAULTS['c'],
 ) -> NDArray[np.float64]:
     """Gradient of the repulsive half of the pair term of eq. 44 with respect to ``x``,
     from bodies that repel but do not attract (not in the paper; used for a tracker whose

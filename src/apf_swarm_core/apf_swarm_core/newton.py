@@ -5,13 +5,14 @@ damped (Levenberg-Marquardt) direction with a trust radius."""
 from __future__ import annotations
 
 import math
+from typing import Unpack
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
 from .kernels import as_kernel, block_steps, hessian_rows, kernel_args
-from .potential import Rows
+from .potential import Gains, Rows, gain_values
 
 __all__ = [
     'block_direction',
@@ -23,14 +24,7 @@ __all__ = [
 
 
 def hessian(
-    x: ArrayLike,
-    x_target: ArrayLike,
-    *,
-    k_n: ArrayLike = 1.0,
-    k_f: ArrayLike = 1.0,
-    a: ArrayLike = 1.0,
-    b: ArrayLike = 6.0,
-    c: ArrayLike = 1.7,
+    x: ArrayLike, x_target: ArrayLike, **gains: Unpack[Gains[ArrayLike]]
 ) -> NDArray[np.float64]:
     """Hessian of J (eq. 2 / 44) with respect to the tracker positions, shape (..., 3n, 3n).
 
@@ -51,8 +45,10 @@ def hessian(
     ----------
     x : array, shape (..., n, 3) [m]
     x_target : array, shape (..., 3) [m]
-    k_n, k_f, a, b, c : float or array (...) of per-run values
+    k_n, k_f, a, b, c : float or array (...) of per-run values (keywords; default
+        :data:`~apf_swarm_core.potential.POTENTIAL_DEFAULTS`)
     """
+    k_n, k_f, a, b, c = gain_values(gains)
     x = np.asarray(x, dtype=float)
     lead, n = x.shape[:-2], x.shape[-2]
     kf, ga, gb, gc = (shaped(v, 4) for v in (k_f, a, b, c))
@@ -71,14 +67,7 @@ def hessian(
 
 
 def newton_basis(
-    x: ArrayLike,
-    x_target: ArrayLike,
-    *,
-    k_n: ArrayLike = 1.0,
-    k_f: ArrayLike = 1.0,
-    a: ArrayLike = 1.0,
-    b: ArrayLike = 6.0,
-    c: ArrayLike = 1.7,
+    x: ArrayLike, x_target: ArrayLike, **gains: Unpack[Gains[ArrayLike]]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The eigendecomposition ``H = V diag(lambda) V^T`` of the :func:`hessian` at x that
     :func:`newton_direction` preconditions with: ``(lambda (..., 3n), V (..., 3n, 3n))``.
@@ -86,9 +75,9 @@ def newton_basis(
     Parameters
     ----------
     x : array (..., n, 3) [m]; x_target : array (..., 3) [m]
-    k_n, k_f, a, b, c : gains of eq. 2 / 44
+    k_n, k_f, a, b, c : gains of eq. 2 / 44 (keywords, as for :func:`hessian`)
     """
-    w, v = np.linalg.eigh(hessian(x, x_target, k_n=k_n, k_f=k_f, a=a, b=b, c=c))
+    w, v = np.linalg.eigh(hessian(x, x_target, **gains))
     return w, v
 
 
@@ -186,13 +175,9 @@ def newton_direction(
 def hessian_blocks(
     x: ArrayLike,
     *,
-    k_n: ArrayLike = 1.0,
-    k_f: ArrayLike = 1.0,
-    a: ArrayLike = 1.0,
-    b: ArrayLike = 6.0,
-    c: ArrayLike = 1.7,
     rows: Rows = None,
     mask: ArrayLike | None = None,
+    **gains: Unpack[Gains[ArrayLike]],
 ) -> NDArray[np.float64]:
     """The diagonal 3x3 blocks ``H_ii`` of the :func:`hessian` of the trackers in ``rows``,
     shape (..., m, 3, 3): each costs what the tracker's own gradient costs, O(n).
@@ -209,11 +194,12 @@ def hessian_blocks(
     Parameters
     ----------
     x : array (..., n, 3) [m]
-    k_n, k_f, a, b, c : gains of eq. 2 / 44 (floats or arrays (...))
     rows : the trackers whose block is wanted (default all)
     mask : bool array (..., m, n), optional
+    k_n, k_f, a, b, c : gains of eq. 2 / 44 (floats or arrays (...); default
+        :data:`~apf_swarm_core.potential.POTENTIAL_DEFAULTS`)
     """
-    args = kernel_args(x, None, (k_n, k_f, a, b, c), rows, mask)
+    args = kernel_args(x, None, gain_values(gains), rows, mask)
     out = hessian_rows(args.x, args.rows, args.mask, args.gains)
     return out.reshape((*args.shape, 3, 3))
 

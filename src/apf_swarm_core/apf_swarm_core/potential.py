@@ -21,20 +21,29 @@ The gradients of J, the simulator's hot path among them, are in :mod:`apf_swarm_
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import Any, TypeAlias, TypedDict
+from typing import Any, Generic, TypeAlias, TypedDict, TypeVar, Unpack
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
 
-__all__ = ['POTENTIAL_KEYS', 'PotentialParams', 'Rows', 'pair_weight', 'potential']
+__all__ = [
+    'POTENTIAL_DEFAULTS',
+    'POTENTIAL_KEYS',
+    'Gains',
+    'PotentialParams',
+    'Rows',
+    'gain_values',
+    'pair_weight',
+    'potential',
+]
 
 
 class PotentialParams(TypedDict):
-    """The gains and shape of J (eq. 2 / 44): the keyword arguments of :func:`potential` and
-    :func:`~apf_swarm_core.gradients.gradient` (a batch passes arrays of per-run values in
-    their place, see :class:`~apf_swarm_core.simulator.BatchSimulator`)."""
+    """The gains and shape of J (eq. 2 / 44), all five: the :class:`Gains` keywords of
+    :func:`potential` and :func:`~apf_swarm_core.gradients.gradient` (a batch passes arrays
+    of per-run values in their place, see :class:`~apf_swarm_core.simulator.BatchSimulator`)."""
 
     k_n: float
     k_f: float
@@ -45,6 +54,35 @@ class PotentialParams(TypedDict):
 
 #: the configuration keys of J's gains and shape, in the order of :class:`PotentialParams`
 POTENTIAL_KEYS: tuple[str, ...] = tuple(PotentialParams.__annotations__)
+
+#: the gains and shape of J where a caller gives none (the paper's simulation, eq. 44)
+POTENTIAL_DEFAULTS: PotentialParams = {'k_n': 1.0, 'k_f': 1.0, 'a': 1.0, 'b': 6.0, 'c': 1.7}
+
+_V = TypeVar('_V')
+
+
+class Gains(TypedDict, Generic[_V], total=False):
+    """The keyword arguments ``k_n, k_f, a, b, c`` of the functions of J (:func:`potential`,
+    :func:`~apf_swarm_core.gradients.gradient`, :mod:`~apf_swarm_core.newton`,
+    :mod:`~apf_swarm_core.design`), each of type ``_V`` (floats, or arrays of per-run values
+    of shape ``(...)``) and :data:`POTENTIAL_DEFAULTS` where absent: read them with
+    :func:`gain_values`."""
+
+    k_n: _V
+    k_f: _V
+    a: _V
+    b: _V
+    c: _V
+
+
+def gain_values(gains: Gains[_V]) -> tuple[_V | float, ...]:
+    """``(k_n, k_f, a, b, c)`` of the keywords ``gains``, :data:`POTENTIAL_DEFAULTS` for each
+    one absent; TypeError for a keyword that is none of them (a misspelt gain)."""
+    g: Gains[_V | float] = {**POTENTIAL_DEFAULTS, **gains}
+    if len(g) != len(POTENTIAL_DEFAULTS):
+        raise TypeError(f'unexpected gain(s) {sorted(g.keys() - POTENTIAL_DEFAULTS.keys())}')
+    return g['k_n'], g['k_f'], g['a'], g['b'], g['c']
+
 
 #: which trackers' rows a function computes: all (None), an index array, a list or a slice
 Rows: TypeAlias = 'NDArray[np.integer[Any]] | list[int] | slice | int | None'
@@ -115,12 +153,8 @@ def potential(
     x: ArrayLike,
     x_target: ArrayLike,
     *,
-    k_n: ArrayLike = 1.0,
-    k_f: ArrayLike = 1.0,
-    a: ArrayLike = 1.0,
-    b: ArrayLike = 6.0,
-    c: ArrayLike = 1.7,
     mask: ArrayLike | None = None,
+    **gains: Unpack[Gains[ArrayLike]],
 ) -> NDArray[np.float64]:
     """Potential J of the whole swarm, paper eq. 2 with eq. 44.
 
@@ -130,19 +164,21 @@ def potential(
         Tracker positions x_i [m].
     x_target : array, shape (..., 3)
         Target position x_N [m].
-    k_n, k_f : float or array (...)
-        Weights of the tracking term and of the formation term.
-    a, b, c : float or array (...)
-        Pair-potential parameters of eq. 44.
     mask : bool array, shape (..., n, n), optional
         Symmetric neighbour mask: pair (i, j) contributes only where ``mask[i, j]``.
         ``None`` means every pair (the paper's all-to-all potential).
+    k_n, k_f : float or array (...)
+        Weights of the tracking term and of the formation term (:class:`Gains`; default
+        :data:`POTENTIAL_DEFAULTS`).
+    a, b, c : float or array (...)
+        Pair-potential parameters of eq. 44.
 
     Returns
     -------
     J : array, shape (...)
         The potential [m^2 with unit gains].
     """
+    k_n, k_f, a, b, c = gain_values(gains)
     x = np.asarray(x, dtype=float)
     x_target = np.asarray(x_target, dtype=float)
     rel = x - x_target[..., None, :]
