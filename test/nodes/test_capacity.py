@@ -90,7 +90,8 @@ def test_the_largest_swarm_is_the_last_size_that_fits() -> None:
         return probe.derive(PROBE, n, 20.0, k)['capacity']['20'] >= n
 
     assert fits(most) and not fits(most + 1)
-    # a faster rate carries fewer
-    assert probe.largest_swarm(PROBE, 100.0) < most
+    # a faster rate carries fewer; a rate below the probe's lowest (a run's --rate 10), more
+    assert probe.largest_swarm(PROBE, 100.0) < most < probe.largest_swarm(PROBE, 10.0)
+    assert set(probe.derive(PROBE, 8, 10.0)['capacity']) == {'100', '50', '20', '10'}
     slow = {**PROBE, 'cpu_per_message': 1.0}
     assert probe.largest_swarm(slow) == 0

@@ -64,10 +64,11 @@ class FlightCheck:
             )
         latency = cfg.latency or measured['latency'] or DEFAULT_LATENCY
         fits = measured['capacity'].get(f'{cfg.control_rate:g}')
-        most = probe.largest_swarm(machine) if machine else None
+        lowest = min(cfg.control_rate, probe.RATES[-1])  # the run's, if lower
+        most = probe.largest_swarm(machine, lowest) if machine else None
         if most is not None and n > most:
             self.say(
-                f'warning: {n} trackers cannot fly on this machine: at {probe.RATES[-1]:g} '
+                f'warning: {n} trackers cannot fly on this machine: at {lowest:g} '
                 f'Hz, the lowest rate it runs them at, {most} fit in '
                 f'{probe.CPU_BUDGET:.0%} of its cores (`apf-swarm probe`); fly at most {most} '
                 'here, or spread the swarm over hosts (scripts/multihost.py)'

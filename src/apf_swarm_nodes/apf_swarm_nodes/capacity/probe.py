@@ -153,7 +153,8 @@ def derive(
     probe: dict[str, Any], n: int, rate: float | None = None, per_process: int = 1
 ) -> dict[str, Any]:
     """What the probe implies for n trackers hosted ``per_process`` to a process:
-    ``capacity`` (trackers that fit in CPU_BUDGET of the cores, per rate), ``rate`` (the
+    ``capacity`` (trackers that fit in CPU_BUDGET of the cores, per rate of RATES and the
+    given one), ``rate`` (the
     given one, or the default: the highest of RATES that fits n, else the lowest), the
     swarm's CPU ``utilization`` at that rate (mean costs), and the ``latency`` [s] check
     and design assume: the idle round trip's p90 plus the longer of the process's commands
@@ -168,7 +169,8 @@ def derive(
     k = max(1, int(per_process))
     # the swarm's state in (once per process), its command out, the plant's in, a command
     per_tracker = msg / k + 2.0 * msg + cmd
-    capacity = {f'{r:g}': int(CPU_BUDGET * cores / (r * per_tracker)) for r in RATES}
+    rates = RATES if rate is None or rate in RATES else (*RATES, float(rate))
+    capacity = {f'{r:g}': int(CPU_BUDGET * cores / (r * per_tracker)) for r in rates}
     if rate is None:
         rate = next((r for r in RATES if capacity[f'{r:g}'] >= n), RATES[-1])
     use = min(0.9, n * rate * per_tracker / cores)
