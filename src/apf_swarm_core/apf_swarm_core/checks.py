@@ -70,37 +70,24 @@ def _bound_findings(
         if cfg.law == 'traditional' and bnd.name == 'eq43':
             continue
         code = f'u0_{bnd.name}_{"measured" if source.startswith("measured") else "a_priori"}'
+        level: Level = 'ok' if bnd.holds_corrected else fail_level
         if bnd.holds_corrected:
-            out.append(
-                Finding(
-                    'ok',
-                    code,
-                    f'{source}: u0 = {cfg.u0:g} > {bnd.corrected:.4g}, the '
-                    f'corrected {bnd.name} bound ({bnd.regime}; printed form '
-                    f'{bnd.printed:.4g}).',
-                )
+            msg = (
+                f'> {bnd.corrected:.4g}, the corrected {bnd.name} bound ({bnd.regime}; printed '
+                f'form {bnd.printed:.4g}).'
             )
         elif bnd.holds_printed:
-            out.append(
-                Finding(
-                    fail_level,
-                    code,
-                    f'{source}: u0 = {cfg.u0:g} clears the printed '
-                    f'{bnd.name} bound {bnd.printed:.4g} but not the corrected one '
-                    f'{bnd.corrected:.4g} ({bnd.regime}): reaching the manifold is not '
-                    'guaranteed against the worst-case disturbance.',
-                )
+            msg = (
+                f'clears the printed {bnd.name} bound {bnd.printed:.4g} but not the corrected '
+                f'one {bnd.corrected:.4g} ({bnd.regime}): reaching the manifold is not '
+                'guaranteed against the worst-case disturbance.'
             )
         else:
-            out.append(
-                Finding(
-                    fail_level,
-                    code,
-                    f'{source}: u0 = {cfg.u0:g} is below both the '
-                    f'printed ({bnd.printed:.4g}) and the corrected '
-                    f'({bnd.corrected:.4g}) {bnd.name} bound ({bnd.regime}).',
-                )
+            msg = (
+                f'is below both the printed ({bnd.printed:.4g}) and the corrected '
+                f'({bnd.corrected:.4g}) {bnd.name} bound ({bnd.regime}).'
             )
+        out.append(Finding(level, code, f'{source}: u0 = {cfg.u0:g} {msg}'))
     return out
 
 
@@ -173,29 +160,27 @@ def check_config(
     words of the remedies the warnings propose (a command line's name its commands).
     """
     rep = CheckReport()
-    add = rep.findings.append
+
+    def add(level: Level, code: str, message: str) -> None:
+        rep.findings.append(Finding(level, code, message))
+
     vn = cfg.target_speed_bound
     # beta >= v_N
     if cfg.beta >= vn:
         add(
-            Finding(
-                'ok',
-                'beta_vs_vn',
-                f'beta = {cfg.beta:g} >= v_N = {vn:g}: the convergence '
-                'condition of eq. 10-11 holds.',
-            )
+            'ok',
+            'beta_vs_vn',
+            f'beta = {cfg.beta:g} >= v_N = {vn:g}: the convergence condition of eq. 10-11 holds.',
         )
     else:
         add(
-            Finding(
-                'warning',
-                'beta_vs_vn',
-                f'beta = {cfg.beta:g} < v_N = {vn:g}: the convergence proof (eq. 10-11) does '
-                'not apply. The switching term cannot keep up with the target: the trackers '
-                f'trail it until alpha |grad J| makes up the missing {vn - cfg.beta:g} m/s '
-                f'(about {(vn - cfg.beta) / max(cfg.alpha, 1e-12) / cfg.k_n:.3g} m behind for '
-                'a straight target). Raise beta to at least v_N.',
-            )
+            'warning',
+            'beta_vs_vn',
+            f'beta = {cfg.beta:g} < v_N = {vn:g}: the convergence proof (eq. 10-11) does '
+            'not apply. The switching term cannot keep up with the target: the trackers '
+            f'trail it until alpha |grad J| makes up the missing {vn - cfg.beta:g} m/s '
+            f'(about {(vn - cfg.beta) / max(cfg.alpha, 1e-12) / cfg.k_n:.3g} m behind for '
+            'a straight target). Raise beta to at least v_N.',
         )
     # formation existence
     n = cfg.n_trackers
@@ -204,63 +189,48 @@ def check_config(
         thr = cfg.a + cfg.k_n / (3 * cfg.k_f)
         if d is None:
             add(
-                Finding(
-                    'warning',
-                    'formation',
-                    f'b = {cfg.b:g} <= a + k_n/(3 k_f) = {thr:g}: no triangle exists. '
-                    + (
-                        'With b < a the pair term never repels, so '
-                        if cfg.b < cfg.a
-                        else 'The repulsion is too weak to balance the target attraction, so '
-                    )
-                    + 'the trackers collapse onto the target and onto each other. Choose '
-                    f'b > {thr:g} ({advice.spacing()}).',
+                'warning',
+                'formation',
+                f'b = {cfg.b:g} <= a + k_n/(3 k_f) = {thr:g}: no triangle exists. '
+                + (
+                    'With b < a the pair term never repels, so '
+                    if cfg.b < cfg.a
+                    else 'The repulsion is too weak to balance the target attraction, so '
                 )
+                + 'the trackers collapse onto the target and onto each other. Choose '
+                f'b > {thr:g} ({advice.spacing()}).',
             )
         else:
             add(
-                Finding(
-                    'ok',
-                    'formation',
-                    f'the triangle exists with side d = {d:.4g} m '
-                    f'(b = {cfg.b:g} > a + k_n/(3 k_f) = {thr:g}).',
-                )
+                'ok',
+                'formation',
+                f'the triangle exists with side d = {d:.4g} m '
+                f'(b = {cfg.b:g} > a + k_n/(3 k_f) = {thr:g}).',
             )
     elif n >= 2:
+        d = None if cfg.b <= cfg.a else expected_spacing(n, **cfg.potential_params())
         if cfg.b <= cfg.a:
             add(
-                Finding(
-                    'warning',
-                    'formation',
-                    f'b = {cfg.b:g} <= a = {cfg.a:g}: the pair term '
-                    'never repels; the trackers collapse onto each other.',
-                )
+                'warning',
+                'formation',
+                f'b = {cfg.b:g} <= a = {cfg.a:g}: the pair term never repels; the trackers '
+                'collapse onto each other.',
+            )
+        elif d is None:
+            add(
+                'warning',
+                'formation',
+                f'no formation of {n} trackers: the equilibrium of J collapses; raise b.',
             )
         else:
-            d = expected_spacing(n, **cfg.potential_params())
-            if d is None:
-                add(
-                    Finding(
-                        'warning',
-                        'formation',
-                        f'no formation of {n} trackers: the equilibrium of J collapses; raise b.',
-                    )
-                )
-            else:
-                add(
-                    Finding(
-                        'ok',
-                        'formation',
-                        f'the equilibrium formation of {n} trackers has '
-                        f'nearest-neighbour spacing {d:.4g} m.',
-                    )
-                )
-    else:
-        add(
-            Finding(
-                'info', 'formation', 'one tracker: no formation, it converges onto the target.'
+            add(
+                'ok',
+                'formation',
+                f'the equilibrium formation of {n} trackers has nearest-neighbour spacing '
+                f'{d:.4g} m.',
             )
-        )
+    else:
+        add('info', 'formation', 'one tracker: no formation, it converges onto the target.')
     # gain bounds: a priori (conservative, informative only) and measured on a run
     bounds, est = gain_bounds(cfg)
     rep.bounds, rep.estimates = bounds, {f'a_priori_{k}': v for k, v in est.items()}
@@ -278,36 +248,28 @@ def check_config(
     # numerics
     if cfg.dt > cfg.lambda_filter / 10:
         add(
-            Finding(
-                'warning',
-                'filter_dt',
-                f'dt = {cfg.dt:g} s is not small against '
-                f'lambda_filter = {cfg.lambda_filter:g} s: the filter of eq. 26 cannot average '
-                'the switching; use dt <= lambda_filter / 10.',
-            )
+            'warning',
+            'filter_dt',
+            f'dt = {cfg.dt:g} s is not small against lambda_filter = {cfg.lambda_filter:g} s: '
+            'the filter of eq. 26 cannot average the switching; use dt <= lambda_filter / 10.',
         )
     m_lo = min(min(r) for r in cfg.mass_matrix_diag())
     ripple = cfg.u0 * cfg.control_period / m_lo
     add(
-        Finding(
-            'info',
-            'ripple',
-            f'switching ripple of the velocity about u0 T / M = '
-            f'{ripple:.3g} m/s per control period T = {cfg.control_period:g} s '
-            '(docs/THEORY.md): it scales with the period.',
-        )
+        'info',
+        'ripple',
+        f'switching ripple of the velocity about u0 T / M = {ripple:.3g} m/s per control '
+        f'period T = {cfg.control_period:g} s (docs/THEORY.md): it scales with the period.',
     )
     if cfg.law == 'proposed' and cfg.beta >= vn:
         lag = vn / (cfg.k_n * (cfg.alpha + cfg.beta / cfg.gamma))
         add(
-            Finding(
-                'info',
-                'lag',
-                f'inside the boundary layer the law is linear with gain '
-                f'alpha + beta/gamma = {cfg.alpha + cfg.beta / cfg.gamma:.4g} 1/s: a target '
-                f'at {vn:g} m/s is trailed by about v_N / (k_n (alpha + beta/gamma)) = '
-                f'{lag:.3g} m (smaller gamma: less lag, more switching).',
-            )
+            'info',
+            'lag',
+            f'inside the boundary layer the law is linear with gain '
+            f'alpha + beta/gamma = {cfg.alpha + cfg.beta / cfg.gamma:.4g} 1/s: a target '
+            f'at {vn:g} m/s is trailed by about v_N / (k_n (alpha + beta/gamma)) = '
+            f'{lag:.3g} m (smaller gamma: less lag, more switching).',
         )
     if realtime:
         rep.findings += sampled_findings(cfg, run, advice)
