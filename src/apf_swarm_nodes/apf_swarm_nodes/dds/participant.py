@@ -10,6 +10,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 __all__ = [
+    'LOCALHOST_PROFILE',
     'OWN_PROFILE',
     'PROFILE_VARIABLES',
     'SECURE_PROFILE',
@@ -20,6 +21,8 @@ __all__ = [
 
 #: the variables that name a Fast DDS profile file (both names Fast DDS 2.x reads)
 PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+#: a run's profile on one machine (:mod:`.profiles` writes it in DIR/dds/)
+LOCALHOST_PROFILE = 'fastdds_localhost.xml'
 #: the profile of the bring-up's own participant, beside the run's (UDP on 127.0.0.1 only)
 OWN_PROFILE = 'fastdds_localhost_udp.xml'
 #: a secure run's profiles (:mod:`.secure` writes them, as its ``PROFILE_FILE`` and
@@ -37,7 +40,7 @@ def own_participant_environment(environ: Mapping[str, str] | None = None) -> dic
     them for ``rclpy.init`` only: the nodes keep shared memory."""
     env = os.environ if environ is None else environ
     own = next((env[v] for v in PROFILE_VARIABLES if env.get(v)), None)
-    if own is not None and Path(own).name == 'fastdds_localhost.xml':
+    if own is not None and Path(own).name == LOCALHOST_PROFILE:
         udp = Path(own).with_name(OWN_PROFILE)
         if udp.is_file():
             return dict.fromkeys(PROFILE_VARIABLES, str(udp))

@@ -46,6 +46,7 @@ from typing import Any
 
 from .errors import DdsError
 from .participant import (
+    LOCALHOST_PROFILE,
     OWN_PROFILE,
     PROFILE_VARIABLES,
     own_participant,
@@ -300,7 +301,7 @@ def isolate_dds(
             if env.pop(var, None) is not None and say is not None:
                 say(f'warning: {var} ignored: a localhost run reaches no other host')
         path = write_profile(
-            Path(directory) / 'fastdds_localhost.xml', localhost=True, participants=processes
+            Path(directory) / LOCALHOST_PROFILE, localhost=True, participants=processes
         )
         # the same without shared memory, for the bring-up's own participant
         # (:func:`own_participant_environment`)
@@ -339,8 +340,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument(
         '--out',
         type=Path,
-        default=cache / 'fastdds_localhost.xml',
-        help=f'the profile to write (default {cache / "fastdds_localhost.xml"})',
+        default=cache / LOCALHOST_PROFILE,
+        help=f'the profile to write (default {cache / LOCALHOST_PROFILE})',
     )
     p.add_argument(
         '--processes',
