@@ -652,48 +652,19 @@ def warm() -> None:
         surface_array(flat, flat, flat, flags, flat, flat, flat, kind)
     for layer in (False, True):
         switching_array(flat, flat, flat, flat, flat, layer)
-    # the simulator's loop, recording into step-major views of (R, T, ...) arrays or not
+    # the simulator's loop, recording into step-major views of (R, T, ...) arrays or not (an
+    # empty view is C-contiguous, a full one is not: two signatures); arguments in the order
+    # of simulate_steps: state and held command, the loop and its inputs, law and plant, records
+    ones = np.ones((1, 2, 3))
     for steps in (0, 1):
-        rec = [np.empty((1, steps, 2, 3)).swapaxes(0, 1) for _ in range(4)]
+        rec = np.empty((1, steps, 2, 3)).swapaxes(0, 1)
         sat = np.empty((1, steps, 2), dtype=np.bool_).swapaxes(0, 1)
-        trec = [np.empty((1, steps, 3)).swapaxes(0, 1) for _ in range(2)]
-        simulate_steps(
-            x.copy(),
-            v.copy(),
-            v.copy(),
-            np.zeros((4, 1, 2, 3)),
-            np.zeros((1, 2), np.bool_),
-            False,
-            0,
-            0,
-            1,
-            1,
-            np.zeros((1, 1, 2, 3)),
-            np.zeros((1, 1, 3)),
-            np.zeros((1, 1, 3)),
-            np.zeros(1, dtype=np.int64),
-            gains,
-            steps == 1,
-            0.1,
-            0.0,
-            ctl,
-            0,
-            True,
-            True,
-            np.ones((1, 2, 3)),
-            np.ones(1),
-            0.001,
-            5e-7,
-            1,
-            steps == 1,
-            rec[0],
-            rec[1],
-            rec[2],
-            rec[3],
-            sat,
-            trec[0],
-            trec[1],
-        )
+        trec = np.empty((1, steps, 3)).swapaxes(0, 1)
+        state = (x.copy(), v.copy(), v.copy(), np.zeros((4, 1, 2, 3)), np.zeros((1, 2), np.bool_))
+        loop = (False, 0, 0, 1, 1, v[None], tx[None], tx[None], np.zeros(1, np.int64), gains)
+        law = (steps == 1, 0.1, 0.0, ctl, 0, True, True, ones, np.ones(1), 0.001, 5e-7, 1)
+        records = (steps == 1, rec, rec, rec, rec, sat, trec, trec)
+        simulate_steps(*(state + loop + law + records))
 
 
 def as_kernel(
