@@ -119,7 +119,6 @@ class TrackerAgent:
             self.neighbour_ids = [j for j in range(1, self.cfg.n_trackers + 1) if j != self.uav_id]
         self.ids = sorted({self.uav_id, *self.neighbour_ids})
         self._id_set = frozenset(self.ids)
-        self._id_array = np.asarray(self.ids)
         self._own_row = self.ids.index(self.uav_id)
         #: the latest /swarm/odom as arrays in the order of :attr:`ids` (x, v, active), while
         #: no input of a single source has replaced a row of it (:meth:`command` reads it
