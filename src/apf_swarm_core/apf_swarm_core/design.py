@@ -38,7 +38,6 @@ __all__ = [
     'expected_spacing',
     'pair_equilibrium_distance',
     'polish_minimum',
-    'swarm_size_bound',
     'triangle_b_for_spacing',
     'triangle_c_for_spacing',
     'triangle_spacing',
@@ -88,12 +87,6 @@ def triangle_c_for_spacing(
 def pair_equilibrium_distance(a: float, b: float, c: float) -> float | None:
     """Gazi--Passino equilibrium distance of two agents, ``delta = sqrt(c ln(b/a))`` (b > a)."""
     return math.sqrt(c * math.log(b / a)) if b > a else None
-
-
-def swarm_size_bound(a: float, b: float, c: float) -> float:
-    """Gazi--Passino bound on the distance of every agent from the centroid,
-    ``epsilon = (b/a) sqrt(c/2) e^{-1/2}`` (no target term)."""
-    return (b / a) * math.sqrt(c / 2.0) * math.exp(-0.5)
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """The gradients of J (eq. 2 / 44): with respect to the trackers (:func:`gradient`, the hot
-path of the simulator and the nodes, a compiled kernel), to the target
-(:func:`target_gradient`) and to bodies that only repel (:func:`obstacle_gradient`).
+path of the simulator and the nodes, a compiled kernel) and to bodies that only repel
+(:func:`obstacle_gradient`).
 
 Shapes and gains as in :mod:`apf_swarm_core.potential`: ``x`` of shape ``(..., n, 3)``,
 ``x_target`` of shape ``(..., 3)``, gains floats or arrays of shape ``(...)`` (one value per
@@ -14,11 +14,10 @@ from typing import Unpack
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .gains import shaped
 from .kernels import gradient_rows, kernel_args
 from .potential import POTENTIAL_DEFAULTS, Gains, Rows, gain_values, pair_weight
 
-__all__ = ['gradient', 'obstacle_gradient', 'target_gradient']
+__all__ = ['gradient', 'obstacle_gradient']
 
 
 def gradient(
@@ -65,25 +64,6 @@ def gradient(
     args = kernel_args(x, x_target, gain_values(gains), rows, mask)
     out = gradient_rows(args.x, args.tx, args.rows, args.mask, args.gains)
     return out.reshape((*args.shape, 3))
-
-
-def target_gradient(
-    x: ArrayLike, x_target: ArrayLike, *, k_n: ArrayLike = POTENTIAL_DEFAULTS['k_n']
-) -> NDArray[np.float64]:
-    """Gradient of J with respect to the target, ``-k_N sum_i (x_i - x_N)`` (eq. 6, 17).
-
-    Parameters
-    ----------
-    x : array, shape (..., n, 3)
-    x_target : array, shape (..., 3)
-
-    Returns
-    -------
-    grad_N : array, shape (..., 3)
-    """
-    x = np.asarray(x, dtype=float)
-    x_target = np.asarray(x_target, dtype=float)
-    return -shaped(k_n, 1) * np.sum(x - x_target[..., None, :], axis=-2)
 
 
 def obstacle_gradient(
