@@ -116,6 +116,22 @@ def test_check_command(pki: secure.Pki, capsys: pytest.CaptureFixture[str]) -> N
     assert 'chmod 600' in capsys.readouterr().err
 
 
+def test_a_reused_authority_names_the_new_runs_openssl_configuration(
+    pki: secure.Pki, tmp_path: Path
+) -> None:
+    """``--secure-pki DIR``: the new run's profiles name its own OpenSSL configuration, the
+    one the bring-up gives its processes, so a node takes the same and starts."""
+    again = secure.write_run_files(
+        tmp_path / 'again', ['h1', 'h2'], 'h1', ('10.0.0.1', 20007), run='r2', participants=6,
+        reuse=pki.ca.parent,
+    )  # fmt: skip
+    assert again.openssl.parent == tmp_path / 'again' != pki.ca.parent
+    for profile in (again.hosts['h2'].profile, again.hosts['h2'].client_profile):
+        env = secure.secure_environment(profile, again.openssl)
+        secure.complete_environment(env)  # no DdsError: the same file
+        assert env['OPENSSL_CONF'] == str(again.openssl.resolve())
+
+
 def test_bringup_stops_on_bad_reused_files(tmp_path: Path) -> None:
     """``swarm_up.py --secure --secure-pki DIR`` with a kept run's files: a key readable by
     others, a key missing, another run's certificate, an expired authority each stop the

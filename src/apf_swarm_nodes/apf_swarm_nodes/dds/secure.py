@@ -390,12 +390,15 @@ def profile_xml(
     is_server: bool = False,
     participants: int = 32,
     super_client: bool = True,
+    openssl: Path | None = None,
 ) -> str:
     """The Fast DDS profile of a host of a secure run (``is_server``: the bring-up's own
     participant, the discovery server, listening on ``server``'s port): TCPv4 with TLS
     only, discovery through the server at ``server`` (address, port) whose GUID prefix is
     ``prefix``; a super client that learns the whole graph, or (``super_client`` false) a
-    client that learns only what matches its own endpoints."""
+    client that learns only what matches its own endpoints. Its comment names the run's
+    OpenSSL configuration ``openssl`` (default: beside ``ca``) for
+    :func:`complete_environment`."""
     from .profiles import LEASE_ANNOUNCEMENT, LEASE_DURATION, discovery_timing
 
     period, _, _ = discovery_timing(participants)
@@ -485,7 +488,7 @@ def profile_xml(
         f'apf_swarm, secure multi-host run ({what}): TCPv4 with TLS only, peers '
         "verified against the run's authority; written by apf_swarm_nodes.dds.secure. The "
         "run's nodes take their OpenSSL configuration from here, any other process needs "
-        f'OPENSSL_CONF={Path(ca).resolve().parent / OPENSSL_FILE}'
+        f'OPENSSL_CONF={Path(openssl or Path(ca).parent / OPENSSL_FILE).resolve()}'
     )
     return profiles_file(comment, 'apf_swarm_secure', transports, rtps)
 
@@ -585,7 +588,7 @@ def write_run_files(
         path.write_text(
             profile_xml(
                 ca=ca, cert=cert, key=key, server=server, prefix=prefix, is_server=is_server,
-                participants=participants, super_client=super_client,
+                participants=participants, super_client=super_client, openssl=openssl,
             )
         )  # fmt: skip
         return path
