@@ -667,5 +667,6 @@ def test_largest_holding_is_the_largest_smaller_swarm_predicted_to_hold() -> Non
     assert found[1].n_trackers == 192 and found[1].latency == 0.064
     assert found[2]['gamma'] > big.gamma  # the gains scheduled for 192
     assert tried == [224, 192]
-    small = load_preset('realtime').replace(n_trackers=16, control_rate=10.0)
-    assert largest_holding(small, lambda m: 2.0) is None
+    for n in (3, 5, 16):  # sizes of at least 2 (a single tracker has no formation)
+        small = load_preset('realtime').replace(n_trackers=n, control_rate=10.0)
+        assert largest_holding(small, lambda m: 2.0) is None

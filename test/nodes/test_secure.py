@@ -122,10 +122,15 @@ def test_a_reused_authority_names_the_new_runs_openssl_configuration(
     """``--secure-pki DIR``: the new run's profiles name its own OpenSSL configuration, the
     one the bring-up gives its processes, so a node takes the same and starts."""
     again = secure.write_run_files(
-        tmp_path / 'again', ['h1', 'h2'], 'h1', ('10.0.0.1', 20007), run='r2', participants=6,
+        tmp_path / 'run again',
+        ['h1', 'h2'],
+        'h1',
+        ('10.0.0.1', 20007),
+        run='r2',
+        participants=6,
         reuse=pki.ca.parent,
-    )  # fmt: skip
-    assert again.openssl.parent == tmp_path / 'again' != pki.ca.parent
+    )  # fmt: skip (a space in the run's path, too)
+    assert again.openssl.parent == tmp_path / 'run again' != pki.ca.parent
     for profile in (again.hosts['h2'].profile, again.hosts['h2'].client_profile):
         env = secure.secure_environment(profile, again.openssl)
         secure.complete_environment(env)  # no DdsError: the same file

@@ -389,12 +389,16 @@ def largest_holding(
     predicted to hold the formation at ``cfg.control_rate`` with ``latency_of(n)`` [s] of
     latency for n trackers (a machine's latency grows with the swarm it carries), with its
     prediction and the gains scheduled for it (empty: the configuration's); the sizes
-    tried are :data:`SMALLER_SIZES` of ``cfg.n_trackers``, largest first. None if none of
-    them holds. Whether its soft modes settle within the run is the emulation's to say
-    (:attr:`SampledPrediction.holds`)."""
+    tried are :data:`SMALLER_SIZES` of ``cfg.n_trackers`` (at least 2, and none the
+    configuration refuses), largest first. None if none of them holds. Whether its soft
+    modes settle within the run is the emulation's to say (:attr:`SampledPrediction.holds`)."""
     n = cfg.n_trackers
-    for m in sorted({max(1, int(n * f)) for f in SMALLER_SIZES if int(n * f) < n}, reverse=True):
-        _, pred, gains, _ = schedule_gains(cfg.replace(n_trackers=m), latency=latency_of(m))
+    for m in sorted({int(n * f) for f in SMALLER_SIZES if 2 <= int(n * f) < n}, reverse=True):
+        try:
+            smaller = cfg.replace(n_trackers=m)
+        except ValueError:  # the configuration names a tracker beyond m (a per-UAV section)
+            continue
+        _, pred, gains, _ = schedule_gains(smaller, latency=latency_of(m))
         if pred.holds:
             return m, pred, dict(gains or {})
     return None

@@ -28,6 +28,7 @@ SIGINT / SIGTERM: stop, take what is still queued (bounded ``drain_timeout``), c
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
 import time
@@ -325,7 +326,14 @@ def main(args: list[str] | None = None) -> None:
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
 
+    from .dds.secure import complete_environment
+
     stop: list[int] = []
+    try:  # a secure run's profile is all a joining host needs (as run_nodes does)
+        complete_environment(os.environ)
+    except ApfSwarmError as exc:
+        print(f'recorder: error: {exc}', file=sys.stderr)
+        sys.exit(2)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _frame: stop.append(signum))

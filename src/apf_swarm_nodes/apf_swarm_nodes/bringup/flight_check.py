@@ -103,7 +103,7 @@ class FlightCheck:
             self.gains_scheduled = gains
         for w in warnings:
             self.say(f'warning: {w}')
-        if not pred.holds:
+        if not pred.holds and getattr(self.args, 'gains', 'auto') == 'auto':
             self._say_largest(base, latency, machine)
         self.cfg = cfg
         self.prediction = pred
@@ -140,8 +140,9 @@ class FlightCheck:
             for k, v in gains.items()
         )
         self.say(
-            head + f'the largest swarm whose loop is predicted to hold at {rate:g} Hz is '
-            f'{most} trackers ({pred.latency * 1e3:.4g} ms); its softest mode settles in '
+            head + f'of smaller swarms (in steps of {cfg.n_trackers / 8:g}), the largest whose '
+            f'loop is predicted to hold at {rate:g} Hz is {most} trackers '
+            f'({pred.latency * 1e3:.4g} ms); its softest mode settles in '
             f'{pred.settle_time:.3g} s: whether it flies in {cfg.duration:g} s, `apf-swarm '
             f'simulate` with this configuration and `--n-trackers {most} --control-rate '
             f'{rate:g} --latency {pred.latency:.3g} --duration {cfg.duration:g}{sets}` says'

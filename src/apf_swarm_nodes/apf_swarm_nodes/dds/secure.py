@@ -524,7 +524,7 @@ def complete_environment(environ: MutableMapping[str, str]) -> None:
     head = Path(profile).read_text(errors='replace')[:2000]
     if 'apf_swarm, secure multi-host run' not in head or _CONF_MARK not in head:
         return
-    conf = head.split(_CONF_MARK, 1)[1].split()[0]
+    conf = head.split(_CONF_MARK, 1)[1].split(' -->', 1)[0].strip()
     fix = f'unset it: the profile {profile} names its own'
     given = environ.get('OPENSSL_CONF')
     if given and Path(given).resolve() != Path(conf).resolve():
