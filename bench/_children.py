@@ -1,6 +1,6 @@
-"""What the benchmarks share: children that die with the benchmark and are stopped by process
-group (:mod:`apf_swarm_nodes.lifetime`), SIGTERM / SIGHUP that end it through its ``finally``
-blocks, the ``swarm_up.py`` command, the log line, timing, tables. A module, not a benchmark."""
+"""What the benchmarks share (a module, not a benchmark): children that die with the benchmark,
+stopped by process group (:mod:`apf_swarm_nodes.lifetime`), SIGTERM / SIGHUP that end it through
+its ``finally`` blocks, the ``swarm_up.py`` command, the log line, timing, tables."""
 
 import signal
 import subprocess

@@ -1,10 +1,8 @@
 #!/usr/bin/env python3
-"""Benchmark of the bags: recorder against its ceiling, the swarm recorded, playback, bag info.
-
-Ceiling (the baseline): ``BagWriter`` in-process. Recorder: the ``recorder`` executable while
-this process publishes at paced rates (reliable, depth 1000): lost, CPU per message net of
-idle, ratio to the ceiling. Swarm: ``swarm_up.py --record``, plant at 100 (500) Hz. Play:
-``player`` at 100 Hz into this process, error against the schedule. Info: ``apf-swarm bag
+"""Benchmark of the bags: recorder against its ceiling (``BagWriter`` in-process); recorder: the
+``recorder`` executable while this process publishes at paced rates (reliable, depth 1000): lost,
+CPU per message net of idle, ratio to the ceiling; swarm: ``swarm_up.py --record``, plant at 100
+(500) Hz; play: ``player`` at 100 Hz into this process, error against the schedule; info: ``bag
 info`` against ``apf-swarm --help`` and ``open_bag`` in-process. Exit 1 when a case failed."""
 
 import argparse

@@ -1,6 +1,5 @@
 #!/usr/bin/env python3
-"""The ROS graph's lockstep steps/s and control latency against the raw ping-pong: the
-``lockstep`` and ``latency`` parts of ``bench_scale.py`` (same options), through the bring-up."""
+"""Lockstep steps/s, control latency against the raw ping-pong: bench_scale's two parts."""
 
 import sys
 

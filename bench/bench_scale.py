@@ -2,12 +2,12 @@
 """Scale benchmark: the swarm as the bring-up starts it, sizes climbed until it stops flying.
 
 Each case: a ``scripts/swarm_up.py`` run, its ``summary.json``, its processes' CPU and RSS.
-ladder: per rate and ladder ("EXECUTOR INPUTS K=k|auto depth=d"), n climbs ``--sizes`` until
-it does not fly (exit, missed deadlines, 95 % of the states, ``prediction.run.flies``).
-latency: 3 trackers at 100 Hz (``trigger:=odom``) against the probe's raw ping-pong, beside
-and alone. discovery: forked nodes against executed. lockstep: steps/s, floor 500 for 3
-trackers. view: none against unwatched and watched. secure: open against TLS, 3 simulated
-hosts (root). Exit 1 on a leftover process, a missed floor, or (``--smoke``) a crash."""
+ladder: per rate and ladder ("EXECUTOR INPUTS K=k|auto depth=d"), n climbs ``--sizes`` until it
+does not fly (``prediction.run.flies``, no missed deadline, 95 % of the states), each size after
+the raw ping-pong of its odometry. latency: 3 trackers at 100 Hz (``trigger:=odom``) against the
+ping-pong, beside and alone. discovery: forked nodes against executed. lockstep: steps/s, floor
+500 for 3 trackers. view: none, unwatched, watched. secure: open against TLS, 3 simulated hosts
+(root). Exit 1 on a leftover process, a missed floor, or (``--smoke``) a crash."""
 
 import argparse
 import contextlib
@@ -73,9 +73,7 @@ class Case:
                 f'{100 * run.get("closest_pair", float("nan")):.0f} %')  # fmt: skip
 
     def latency(self) -> str:
-        """'p50 / p99' of the control loop [ms]."""
-        lat = self.get('prediction', 'latency', default={})
-        return f'{ms(lat.get("p50"))} / {ms(lat.get("p99"))}'
+        return p50_p99(self.get('prediction', 'latency', default={}))  # of the control loop [ms]
 
 
 class Bench:
@@ -147,27 +145,30 @@ class Bench:
             for p in [root, *root.children(recursive=True)]:
                 with contextlib.suppress(psutil.Error):
                     seen.setdefault(p.pid, p)
-                    t = p.cpu_times()
-                    cpu[p.pid] = t.user + t.system
+                    cpu[p.pid] = sum(p.cpu_times()[:2])  # user + system
                     total += p.memory_info().rss
         return total
 
 
-def ping_pong(domain: int, seconds: float, rate: float = 100.0) -> dict[str, Any]:
-    """The capacity probe's raw rclpy ping-pong (observer -> echo -> observer) [s]."""
+def ping_pong(domain: int, seconds: float, rate: float = 100.0, n: int = 16) -> dict[str, Any]:
+    """The capacity probe's raw rclpy ping-pong of n trackers' odometry [s]."""
     import rclpy
-    from apf_swarm_nodes.capacity.measure import _ping_pong
+    from apf_swarm_nodes.capacity.measure import ping_pong as measure
 
     os.environ['ROS_DOMAIN_ID'] = str(domain)
     rclpy.init()
     try:
-        return _ping_pong(seconds, rate, 16)
+        return measure(seconds, rate, n)
     finally:
         rclpy.try_shutdown()
 
 
 def ms(v: float | None) -> str:
     return '-' if v is None else f'{1e3 * v:.2f}'
+
+
+def p50_p99(lat: dict[str, float]) -> str:
+    return f'{ms(lat.get("p50"))} / {ms(lat.get("p99"))}'
 
 
 def ladders(bench: Bench, args: argparse.Namespace) -> str:
@@ -178,23 +179,27 @@ def ladders(bench: Bench, args: argparse.Namespace) -> str:
             executor, inputs = [w for w in text.split() if '=' not in w][:2]
             depth = f'qos_depth:={words.get("depth", "1")}'
             params = (f'executor:={executor}', f'inputs:={inputs}', depth)
-            for n in args.sizes:
+            for n in args.sizes:  # the raw round trip of n trackers' odometry, then the swarm
+                rtt = ping_pong(pick_domain_id(lo=202, hi=230), 5 - 3 * args.smoke, rate, n)['rtt']
                 case = bench.up(Case(n, rate=rate, duration=args.flight, params=params,
                                      k=words.get('K', 'auto'), label='ladder'))  # fmt: skip
                 k = case.get('prediction', 'machine', 'trackers_per_process', default=case.k)
                 states = f'{case.get("messages", "received")} / {rate * args.flight:.0f}'
-                rows.append([f'{rate:g}', text.strip(), n, k, case.latency(), states,
-                             f'{case.cpu:.0f}', case.verdict()])  # fmt: skip
+                lat = case.get('prediction', 'latency', default={})
+                ratio = ', '.join(f'{lat[q] / rtt[q]:.1f}' for q in ('p50', 'p99')) if lat else '-'
+                rows.append([f'{rate:g}', text.strip(), n, k, case.latency(), p50_p99(rtt), ratio,
+                             states, f'{case.cpu:.0f}', case.verdict()])  # fmt: skip
                 if not case.flies():
                     break
-    head = 'rate: | ladder | trackers: | K: | latency p50 / p99 [ms] | states: | CPU [%]: | result'
+    head = 'rate: | ladder | trackers: | K: | latency p50 / p99 [ms] | ping-pong p50 / p99 [ms] | '
+    head += '/ ping-pong p50, p99 | states: | CPU [%]: | result'
     return table(head, rows)
 
 
 def latency(bench: Bench, args: argparse.Namespace) -> str:
     seconds = 2.0 if args.smoke else 10.0
     alone = ping_pong(pick_domain_id(lo=202, hi=230), seconds)['rtt']
-    rows = [['ping-pong alone', '-', ms(alone['p50']), ms(alone['p99']), '-']]
+    rows = [['ping-pong alone', '-', p50_p99(alone), '-']]
     for inputs in ('aggregate', 'odom'):
         pp: dict[str, Any] = {}
         case = Case(3, rate=100.0, duration=seconds + 4, k='1', label='latency',
@@ -203,11 +208,9 @@ def latency(bench: Bench, args: argparse.Namespace) -> str:
         lat, rtt = case.get('prediction', 'latency', default={}), pp.get('rtt', {})
         p99 = lat.get('p99')
         ratio = f'{p99 / rtt["p99"]:.2f}, {p99 / alone["p99"]:.2f}' if p99 and rtt else '-'
-        rows.append(['control loop', inputs, ms(lat.get('p50')), ms(p99), ratio])
-        rows.append(['ping-pong, swarm running', inputs, ms(rtt.get('p50')), ms(rtt.get('p99')),
-                     '-'])  # fmt: skip
-    return table('path | inputs | p50 [ms]: | p99 [ms]: | p99 / ping-pong p99 (concurrent, '
-                 'alone)', rows)  # fmt: skip
+        rows.append(['control loop', inputs, p50_p99(lat), ratio])
+        rows.append(['ping-pong, swarm running', inputs, p50_p99(rtt), '-'])
+    return table('path | inputs | p50 / p99 [ms] | p99 / ping-pong p99 (concurrent, alone)', rows)
 
 
 def watch(out: Path, done: threading.Event, counts: dict[str, int]) -> None:
@@ -343,8 +346,8 @@ def main(argv: list[str] | None = None) -> int:
         parts = parts if '--only' in (argv or sys.argv) else ['ladder', 'view', 'secure']
     with tempfile.TemporaryDirectory(prefix='bench_scale_', ignore_cleanup_errors=True) as tmp:
         bench = Bench(args.keep or Path(tmp))
-        cores, load = psutil.cpu_count(), os.getloadavg()[0]
-        print(f'CPU: {cores} cores, load {load:.1f}; runs in {bench.dir}\n')
+        print(f'CPU: {psutil.cpu_count()} cores, load {os.getloadavg()[0]:.1f}', end='')
+        print(f'; runs in {bench.dir}\n')
         for name, part in PARTS.items():
             if name in parts:
                 print(part(bench, args) + '\n')

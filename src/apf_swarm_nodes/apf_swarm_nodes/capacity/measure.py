@@ -22,7 +22,7 @@ import numpy as np
 
 from .machine import identity, process_cpu_seconds, process_rss
 
-__all__ = ['COMMAND_SIZES', 'command_cost', 'echo', 'measure']
+__all__ = ['COMMAND_SIZES', 'command_cost', 'echo', 'measure', 'ping_pong']
 
 #: tracker counts whose command cost is measured (others are interpolated, and extrapolated
 #: linearly beyond: the block direction's cost grows with the tracker's own gradient)
@@ -89,7 +89,7 @@ def echo() -> int:
     return 0
 
 
-def _ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
+def ping_pong(seconds: float, rate: float, n: int) -> dict[str, Any]:
     """Round trips and the echo's CPU per message; rclpy initialized by the caller."""
     import rclpy
     from rclpy.qos import qos_profile_sensor_data
@@ -196,7 +196,7 @@ def measure(seconds: float = 4.0, rate: float = 100.0, n: int = 16) -> dict[str,
     tails = {k: round(p99, 7) for k, (_, p99) in measured.items()}
     rclpy.init()
     try:
-        pp = _ping_pong(seconds, rate, n)
+        pp = ping_pong(seconds, rate, n)
     finally:
         rclpy.try_shutdown()
     return {
