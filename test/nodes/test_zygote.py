@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -231,3 +232,55 @@ def test_an_orphaned_zygote_kills_the_nodes_that_do_not_stop_then_cleans(
     finally:
         for p in (stubborn, polite):
             p.kill()
+
+
+HOSTED = r"""
+import json, os, sys, time
+from pathlib import Path
+from apf_swarm_nodes.bringup.processes import Child, ProcessGroup
+from apf_swarm_nodes.bringup.zygote import Zygote
+
+tmp, exe, ns = Path(sys.argv[1]), sys.argv[2], os.environ['TEST_NETNS']
+zygote = Zygote()
+group = ProcessGroup()
+argv = [exe, '--ros-args', '-r', '__node:=zygote_target']
+forked = group.add(Child('forked', argv, tmp / 'forked.log', zygote=zygote, netns=ns))
+executed = group.add(Child('executed', argv, tmp / 'executed.log', netns=ns))
+lost = group.add(Child('lost', argv, tmp / 'lost.log', zygote=zygote, netns='apf-no-such-ns'))
+group.start_all()
+deadline = time.monotonic() + 60
+while lost.poll() is None and time.monotonic() < deadline:
+    time.sleep(0.02)
+out = {'kinds': [type(c.popen).__name__ for c in group], 'lost_rc': lost.poll()}
+while not all('target:' in (tmp / f'{c}.log').read_text() for c in ('forked', 'executed')):
+    assert time.monotonic() < deadline, 'the hosted nodes did not start'
+    time.sleep(0.05)
+# a process run by `ip netns exec` is the child of `ip`'s exec: the same pid
+out['net'] = {c.name: os.stat(f'/proc/{c.pid}/ns/net').st_ino for c in (forked, executed)}
+out['how'] = group.stop_all()
+zygote.close()
+print(json.dumps(out))
+"""
+
+
+def test_a_node_for_a_simulated_host_runs_in_its_network_namespace(
+    tmp_path: Path, ros_env: dict[str, str]
+) -> None:
+    """Forked by the zygote (which enters the namespace) or executed (``ip netns exec``), a
+    node process of a simulated host has that host's network, and a namespace that does not
+    exist ends the forked node with exit code 2 and the reason in its log."""
+    if os.geteuid() != 0 or shutil.which('ip') is None:
+        pytest.skip('network namespaces need root and iproute2')
+    ns = f'apfz{os.getpid()}'
+    subprocess.run(['ip', 'netns', 'add', ns], check=True)
+    try:
+        out = drive(tmp_path, {**ros_env, 'TEST_NETNS': ns}, HOSTED)
+        host = os.stat(f'/run/netns/{ns}').st_ino
+    finally:
+        subprocess.run(['ip', 'netns', 'del', ns], check=False)
+    assert out['kinds'] == ['ForkedProcess', 'Popen', 'ForkedProcess']
+    assert out['net'] == {'forked': host, 'executed': host}
+    assert host != os.stat('/proc/self/ns/net').st_ino
+    assert out['lost_rc'] == 2
+    assert "cannot enter network namespace 'apf-no-such-ns'" in (tmp_path / 'lost.log').read_text()
+    assert out['how'] == {'forked': 'SIGINT', 'executed': 'SIGINT', 'lost': 'exited'}

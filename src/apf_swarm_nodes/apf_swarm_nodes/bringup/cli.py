@@ -150,8 +150,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=[],
         metavar='PATTERN=NETNS',
         help='run the node processes whose name matches PATTERN in that network '
-        'namespace (`ip netns exec`; root): simulated hosts, see '
-        'scripts/multihost.py; repeatable, first match wins',
+        'namespace (root; forked into it, or under `ip netns exec` with --spawn exec): '
+        'simulated hosts, see scripts/multihost.py; repeatable, first match wins',
     )
     p.add_argument(
         '--allow-overload',

@@ -18,7 +18,7 @@ from ..lifetime import STOP_CPU_PER_PROCESS, Process, describe_rc, dying_with_pa
 
 if TYPE_CHECKING:
     from .janitor import Janitor
-    from .zygote import Zygote
+    from .zygote import Spawn, Zygote
 
 PACKAGE = 'apf_swarm_nodes'
 EXIT_OK = 0
@@ -70,7 +70,9 @@ class Child:
     """One supervised OS process: its own process group, output appended to ``log_path``.
 
     With a ``zygote``, a node executable of the package is forked from it (the same
-    ``main()``, argv, environment and log; see :mod:`.zygote`), else executed."""
+    ``main()``, argv, environment and log; see :mod:`.zygote`), else executed. ``netns``: the
+    network namespace it runs in (a simulated host; root): the forked process enters it, an
+    executed one runs under ``ip netns exec``."""
 
     name: str
     argv: list[str]
@@ -78,6 +80,7 @@ class Child:
     env: Mapping[str, str] | None = None
     cwd: Path | None = None
     zygote: Zygote | None = None
+    netns: str | None = None
     #: told the pid of an executed process (it cleans up if the bring-up is killed)
     janitor: Janitor | None = None
     popen: Process | None = None
@@ -99,13 +102,17 @@ class Child:
                 )
                 log.flush()
         if forked is None and self.zygote is not None:
-            forked = self.zygote.spawn(self.argv, self.log_path, self.env, self.cwd)
+            forked = self.zygote.spawn_all([self.spawn()])[0]
         if forked is not None:
             self.popen = forked
         else:
             with open(self.log_path, 'ab') as log:
                 self.popen = subprocess.Popen(
-                    dying_with_parent(self.argv),
+                    dying_with_parent(
+                        self.argv
+                        if self.netns is None
+                        else ['ip', 'netns', 'exec', self.netns, *self.argv]
+                    ),
                     stdin=subprocess.DEVNULL,
                     stdout=log,
                     stderr=subprocess.STDOUT,
@@ -119,6 +126,12 @@ class Child:
         self.starts += 1
         self.stopping = False
         self.pids.append(self.popen.pid)
+
+    def spawn(self) -> Spawn:
+        """What the zygote forks for this process."""
+        from .zygote import Spawn
+
+        return Spawn(self.argv, self.log_path, self.env, self.cwd, self.netns)
 
     @property
     def pid(self) -> int | None:
@@ -182,11 +195,8 @@ class ProcessGroup:
         forked: list[Process | None] = [None] * len(self.children)
         zygote = next((c.zygote for c in self.children if c.zygote is not None), None)
         if zygote is not None:
-            from .zygote import Spawn
-
             mine = [i for i, c in enumerate(self.children) if c.zygote is zygote]
-            spawns = [self.children[i] for i in mine]
-            batch = zygote.spawn_all([Spawn(c.argv, c.log_path, c.env, c.cwd) for c in spawns])
+            batch = zygote.spawn_all([self.children[i].spawn() for i in mine])
             for i, f in zip(mine, batch, strict=True):
                 forked[i] = f
         for c, f in zip(self.children, forked, strict=True):

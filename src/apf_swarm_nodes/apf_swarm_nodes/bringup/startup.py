@@ -276,16 +276,15 @@ class Startup:
             self.rec_group.add(rec)
             self.rec_group.start_all()
         for name, cmd in cmds:
-            ns = node_netns(name, self.args.node_netns)
-            # a simulated host (scripts/multihost.py)
-            argv = cmd if ns is None else ['ip', 'netns', 'exec', ns, *cmd]
+            ns = node_netns(name, self.args.node_netns)  # a simulated host (multihost.py)
             self.group.add(
                 Child(
                     name,
-                    argv,
+                    cmd,
                     self.out / 'logs' / f'{name}.log',
                     self.host_env(env, ns, name),
                     zygote=self.zygote,
+                    netns=ns,
                     janitor=self.janitor,
                 )
             )

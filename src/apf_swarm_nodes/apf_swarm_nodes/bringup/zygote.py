@@ -115,12 +115,14 @@ def close_helper(proc: subprocess.Popen[bytes], goodbye: bytes) -> None:
 @dataclass(frozen=True)
 class Spawn:
     """What to start: argv (its first element a node executable of the package), log file,
-    environment (None: this process's), working directory (None: this one)."""
+    environment (None: this process's), working directory (None: this one), network
+    namespace (None: this one; else the name of one in ``/run/netns``, as ``ip netns``)."""
 
     argv: Sequence[str]
     log_path: Path
     env: Mapping[str, str] | None = None
     cwd: Path | None = None
+    netns: str | None = None
 
 
 class ForkedProcess:
@@ -186,16 +188,6 @@ class Zygote:
             return None
         return self.entries.get(Path(argv[0]).name)
 
-    def spawn(
-        self,
-        argv: Sequence[str],
-        log_path: Path,
-        env: Mapping[str, str] | None = None,
-        cwd: Path | None = None,
-    ) -> ForkedProcess | None:
-        """Fork one node process (None: start it otherwise)."""
-        return self.spawn_all([Spawn(argv, log_path, env, cwd)])[0]
-
     def spawn_all(self, spawns: Sequence[Spawn]) -> list[ForkedProcess | None]:
         """Fork node processes as one batch (None for each that this zygote cannot fork)."""
         out: list[ForkedProcess | None] = [None] * len(spawns)
@@ -210,6 +202,7 @@ class Zygote:
                 'env': dict(os.environ) if spawn.env is None else dict(spawn.env),
                 'cwd': str(spawn.cwd) if spawn.cwd is not None else None,
                 'log': str(spawn.log_path),
+                'netns': spawn.netns,
             }
             for spawn, entry in ((spawns[i], entry) for i, entry in batch)
         ]
@@ -311,6 +304,28 @@ def fork_node() -> int:
     return int(data)
 
 
+#: setns(2)'s type of a network namespace
+CLONE_NEWNET = 0x40000000
+
+
+def enter_netns(name: str) -> None:
+    """Move this (single-threaded) process into the named network namespace (root), or end it
+    with exit code 2 and the reason in its log: it must not run on the wrong host."""
+    try:
+        fd = os.open(f'/run/netns/{name}', os.O_RDONLY | os.O_CLOEXEC)
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.setns(fd, CLONE_NEWNET) != 0:
+                raise OSError(ctypes.get_errno(), os.strerror(ctypes.get_errno()))
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        print(
+            f'error: cannot enter network namespace {name!r}: {exc}', file=sys.stderr, flush=True
+        )
+        os._exit(2)
+
+
 def become_node(request: Mapping[str, Any]) -> None:
     """In the forked node process: what starting the executable would have given it (own
     session, default signals, its log on stdout and stderr, its environment, working
@@ -338,6 +353,8 @@ def become_node(request: Mapping[str, Any]) -> None:
     sys.stdin = open(0, closefd=False)  # noqa: SIM115 (the process's stdin, never closed)
     sys.stdout = open(1, 'w', buffering=1, closefd=False)  # noqa: SIM115
     sys.stderr = open(2, 'w', buffering=1, errors='backslashreplace', closefd=False)  # noqa: SIM115
+    if request.get('netns'):  # a simulated host: its sockets, as `ip netns exec` gives them
+        enter_netns(request['netns'])
     os.environ.clear()
     os.environ.update(request['env'])
     if request.get('cwd'):
