@@ -81,6 +81,10 @@ def test_simulate_judges_an_emulated_realtime_loop_by_flight(tmp_path: Path) -> 
         lines[name] = [x for x in p.stdout.splitlines() if x.startswith('  flight ')]
     assert len(lines['holds']) == 1 and 'flight           flies: ' in lines['holds'][0], lines
     assert len(lines['lost']) == 1 and 'does not fly: ' in lines['lost'][0], lines
+    # and summary.json keeps the verdict with the numbers it was judged by
+    kept = {k: json.loads((tmp_path / k / 'summary.json').read_text())['flight'] for k in lines}
+    assert kept['holds']['flies'] is True and kept['lost']['flies'] is False, kept
+    assert kept['holds']['closest_pair'] >= 0.9, kept
 
 
 def test_simulate_set_and_law(tmp_path: Path) -> None:

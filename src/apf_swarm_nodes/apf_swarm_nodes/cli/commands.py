@@ -126,13 +126,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     report = check_config(cfg, advice=CLI_ADVICE)
     res = simulate(cfg, progress=_progress(args, 'simulate'), latency_samples=samples)
     summary = res.summary(warnings=report.warnings)
+    if cfg.control_rate > 0:  # a realtime loop emulated: judged as a run is
+        from apf_swarm_core.metrics import flight
+
+        summary['flight'] = flight(res.trajectory, design_pair_sets(cfg))
     write_run(args.out, res.trajectory, summary, cfg)
     print(format_summary(summary))
-    if cfg.control_rate > 0:  # a realtime loop emulated: judged as a run is
-        from apf_swarm_core.metrics import flight, flight_verdict
+    if 'flight' in summary:
+        from apf_swarm_core.metrics import flight_verdict
 
-        judged = flight(res.trajectory, design_pair_sets(cfg))
-        print(f'  flight           {flight_verdict(judged)}')
+        print(f'  flight           {flight_verdict(summary["flight"])}')
     print(f'wrote {args.out / "trajectory.npz"} and {args.out / "summary.json"}')
     if args.animate is not None:
         write_animation(args, res.trajectory, cfg, args.animate)
