@@ -14,6 +14,7 @@ import pytest
 import rclpy
 from ament_index_python.packages import get_package_prefix
 from apf_swarm_nodes.bringup import pick_domain_id, stop_process
+from apf_swarm_nodes.dds.profiles import localhost_environment, write_profile
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -66,17 +67,37 @@ class Graph:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 
-    def start(self, name: str, exe: str, *ros_args: str) -> subprocess.Popen:
+    def start(
+        self, name: str, exe: str, *ros_args: str, env: dict[str, str] | None = None
+    ) -> subprocess.Popen:
+        """Start node ``exe`` as ``name`` (its output in ``name.log``); ``env``: variables
+        for this process only, over the graph's (e.g. :meth:`no_shared_memory`)."""
         with open(self.tmp / f'{name}.log', 'w') as log:  # the child keeps its own copy
             p = subprocess.Popen(
                 [str(LIB / exe), '--ros-args', *ros_args],
-                env=self.env,
+                env={**self.env, **(env or {})},
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,
             )
         self.procs[name] = p
         return p
+
+    def no_shared_memory(self) -> dict[str, str]:
+        """The variables (for :meth:`start`) that put one node process on UDP on 127.0.0.1
+        only, off Fast DDS shared memory: for a process the test freezes (SIGSTOP).
+
+        A shared-memory port is guarded by a mutex in memory mapped by every participant
+        that writes into it: a push into the port and Fast DDS's port watchdog (each
+        participant checks every port it writes to about once a second) lock it. A process
+        stopped while one of its threads holds the mutex of the plant's port stalls every
+        tracker's publish into that port for the lock's timeout (1 s in Fast DDS 2.14), and
+        the plant counts all of them missed at one step: a second fault, not the one the test
+        injects. Over UDP a stopped process only stops receiving (the kernel drops what its
+        socket cannot hold); no peer waits for it."""
+        profile = write_profile(self.tmp / 'udp_only.xml', localhost=True, shm=False)
+        # LOCALHOST would make rmw add its own shared-memory transport to the profile's
+        return localhost_environment(profile)
 
     def log(self, name: str) -> str:
         return (self.tmp / f'{name}.log').read_text()

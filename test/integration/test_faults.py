@@ -44,10 +44,11 @@ def start_nodes(
     timeout: float = 0.2,
     plant: bool = True,
     target: bool = True,
+    target_env: dict[str, str] | None = None,
 ) -> None:
     common = ['--params-file', TRIANGLE, '-p', f'duration:={duration}', *extra]
     if target:
-        g.start('target', 'target', *common, '-r', '__ns:=/target')
+        g.start('target', 'target', *common, '-r', '__ns:=/target', env=target_env)
     for i in trackers:
         g.start(f'tracker{i}', 'tracker', *common, '-p', f'uav_id:={i}', '-r', f'__ns:=/uav_{i}')
     if plant:
@@ -183,7 +184,12 @@ def test_a_silent_target_is_held_then_the_trackers_brake_and_recover(graph) -> N
     """Lockstep: SIGSTOP the target. After 2 x command_timeout the plant holds its last
     state and stops waiting for it; its age grows in /swarm/state; past input_timeout
     (0.5 s of simulated time) every tracker sends the safe brake, flagged stale. SIGCONT:
-    the target publishes again, its age returns to 0 and the trackers command again."""
+    the target publishes again, its age returns to 0 and the trackers command again.
+
+    The target runs off shared memory (``Graph.no_shared_memory``): a target stopped while
+    one of its threads holds the mutex of the plant's shared-memory port stalls every
+    tracker's command into that port for the lock's 1 s timeout, and the plant counts all
+    three trackers missed at one step besides the target (missed_deadlines 4, not 1)."""
     cfg = load_preset('triangle')
     log = StateLog(graph)
     commands: list[tuple[int, int, bool]] = []  # step, uav_id, stale
@@ -194,7 +200,7 @@ def test_a_silent_target_is_held_then_the_trackers_brake_and_recover(graph) -> N
             lambda m: commands.append((int(m.step), int(m.uav_id), bool(m.stale))),
             control_qos('lockstep'),
         )
-    start_nodes(graph, 60.0)
+    start_nodes(graph, 60.0, target_env=graph.no_shared_memory())
     go(graph, graph_ready(graph))
     graph.spin_until(lambda: log.step() >= 2000, 60, '2 s of simulated flight')
     target = graph.procs['target']
