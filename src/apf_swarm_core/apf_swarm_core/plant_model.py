@@ -16,6 +16,7 @@ from .agents import PLANT_FORMATION_METRIC_MAX, Sample
 from .config import SwarmConfig
 from .formation import expected_pairs
 from .inputs import input_problem
+from .kernels import warm
 from .metrics import centroid_error, formation_error
 from .plant import DisturbanceSource
 from .potential import potential
@@ -84,6 +85,7 @@ class PlantModel:
         # plant's start: /swarm/state then carries NaN (summary.json still has the metric)
         pairs = expected_pairs(self.cfg) if n <= PLANT_FORMATION_METRIC_MAX else None
         self.expected_pairs = None if pairs is None else np.asarray(pairs)
+        warm()  # the compiled plant loaded now, not in the first step's deadline
 
     def refuse(self, why: str) -> bool:
         """Count a refused input and keep its reason in ``last_rejection``; returns False."""
