@@ -72,6 +72,7 @@ __all__ = [
     'MatchGate',
     'RejectionLog',
     'control_qos',
+    'environment_refused',
     'freeze_startup_heap',
     'msg_class',
     'run_node',
@@ -235,6 +236,18 @@ def _stop_between_callbacks(signum: int, _frame: object) -> None:
     signal.signal(signum, signal.SIG_DFL)
 
 
+def environment_refused(name: str) -> bool:
+    """Take what a secure run's profile names into this process's environment before DDS
+    starts (:func:`~.dds.secure.complete_environment`: a joining host needs only the
+    profile); True, with the reason on stderr, when the environment contradicts it."""
+    try:
+        complete_environment(os.environ)
+    except ApfSwarmError as exc:
+        print(f'{name}: error: {exc}', file=sys.stderr)
+        return True
+    return False
+
+
 def run_nodes(
     name: str,
     factories: Sequence[Callable[[], Node]],
@@ -253,10 +266,7 @@ def run_nodes(
     # SIGINT / SIGTERM end the spin loop (or the run loop) between two steps; rclpy's own
     # handler would shut the context down under a running callback or publish, whose next
     # rcl call then fails and is reported as a FATAL exception (exit 1) on a clean stop
-    try:  # a secure run's profile is all a joining host needs
-        complete_environment(os.environ)
-    except ApfSwarmError as exc:
-        print(f'{name}: error: {exc}', file=sys.stderr)
+    if environment_refused(name):
         return 2
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, _stop_between_callbacks)

@@ -28,7 +28,6 @@ SIGINT / SIGTERM: stop, take what is still queued (bounded ``drain_timeout``), c
 from __future__ import annotations
 
 import json
-import os
 import signal
 import sys
 import time
@@ -45,7 +44,7 @@ from std_msgs.msg import String
 from .bags import CUSTOM_CONFIG, CUSTOM_MODE, CUSTOM_RECORDER, BagError, BagWriter
 from .dds.qos import profile_to_dict, qos_from_dict, recording_profile
 from .errors import NodeParameterError
-from .node_common import START_QOS, freeze_startup_heap, msg_class
+from .node_common import START_QOS, environment_refused, freeze_startup_heap, msg_class
 from .params import MODES, NodeParam, declare_node_params, declare_str_array
 from .recording import RecordedTopic, TopicSelection, recording_counts, recording_status
 from .stop_watchdog import NODE_STOP_BOUND, StopWatchdog
@@ -326,13 +325,8 @@ def main(args: list[str] | None = None) -> None:
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
 
-    from .dds.secure import complete_environment
-
     stop: list[int] = []
-    try:  # a secure run's profile is all a joining host needs (as run_nodes does)
-        complete_environment(os.environ)
-    except ApfSwarmError as exc:
-        print(f'recorder: error: {exc}', file=sys.stderr)
+    if environment_refused('recorder'):
         sys.exit(2)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     for sig in (signal.SIGINT, signal.SIGTERM):

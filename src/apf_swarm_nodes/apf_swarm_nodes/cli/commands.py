@@ -16,6 +16,7 @@ from apf_swarm_core.config_files import load_preset, resolve
 from apf_swarm_core.design import b_for_spacing, equilibrium_formation, triangle_c_for_spacing
 from apf_swarm_core.errors import ApfSwarmError
 from apf_swarm_core.formation import design_pair_sets
+from apf_swarm_core.metrics import flight, flight_verdict
 from apf_swarm_core.simulator import simulate
 
 from ..advice import CLI_ADVICE
@@ -127,14 +128,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     res = simulate(cfg, progress=_progress(args, 'simulate'), latency_samples=samples)
     summary = res.summary(warnings=report.warnings)
     if cfg.control_rate > 0:  # a realtime loop emulated: judged as a run is
-        from apf_swarm_core.metrics import flight
-
         summary['flight'] = flight(res.trajectory, design_pair_sets(cfg))
     write_run(args.out, res.trajectory, summary, cfg)
     print(format_summary(summary))
     if 'flight' in summary:
-        from apf_swarm_core.metrics import flight_verdict
-
         print(f'  flight           {flight_verdict(summary["flight"])}')
     print(f'wrote {args.out / "trajectory.npz"} and {args.out / "summary.json"}')
     if args.animate is not None:
