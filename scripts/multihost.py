@@ -11,8 +11,7 @@ multicast route. Host 1 runs the plant, the target and the bring-up (which obser
 ``/swarm/state`` and writes the usual outputs into ``--out``); the trackers (``K`` per
 process with ``--trackers-per-process``) go round-robin to hosts 2..H, each process forked by
 the bring-up's zygote straight into its host's namespace (``setns``, as ``ip netns exec``
-does, without starting Python anew: 128 trackers ready in about 2 s, against 6-7 s executed
-under ``ip netns exec``). By default the run
+does, without starting Python anew; docs/PERFORMANCE.md). By default the run
 is secure (``swarm_up.py --secure``, :mod:`apf_swarm_nodes.dds.secure`): TCP with TLS only, a
 certificate per host from the run's own authority, discovery through the bring-up's server.
 ``--open``: DDS uses UDP only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``: ``/dev/shm`` is shared
