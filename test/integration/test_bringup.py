@@ -654,8 +654,10 @@ def test_a_respawned_tracker_rejoins_and_the_triangle_recovers_lockstep(bringup)
     # every step ran and every sample arrived (the state topic is deep enough)
     msgs = summary['messages']
     assert msgs['expected'] == 8000 and msgs['received'] == 8000 and msgs['dropped'] == 0, msgs
-    # the barrier waited 2 x command_timeout for the dead tracker at most once
-    assert summary['missed_deadlines'] <= 1
+    # the barrier waited 2 x command_timeout for the dead tracker at most once (on failure
+    # the plant's warnings say which inputs were late, when)
+    plant_log = (summary['out'] / 'logs' / 'plant.log').read_text()
+    assert summary['missed_deadlines'] <= 1, [ln for ln in plant_log.splitlines() if 'WARN' in ln]
     if summary['missed_deadlines']:
         assert list(summary['faults']['inactive']) == ['uav_2']
 
