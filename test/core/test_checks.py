@@ -66,6 +66,18 @@ def test_formation_check_for_other_n():
     assert _by_code(check_config(base.replace(n_trackers=1)))['formation'].level == 'info'
 
 
+def test_a_crowded_start_is_warned_of_and_a_separated_one_is_not():
+    """128 trackers in the paper's 1 m ball start 4.5 cm apart (3 % of the formation's
+    spacing): a warning naming init_separation; with it, 0.5 m apart, ok."""
+    cfg = load_preset('realtime').replace(n_trackers=128)
+    crowded = _by_code(check_config(cfg.replace(init_separation=0.0)))['start']
+    assert crowded.level == 'warning'
+    assert 'start 0.0454 m apart, 3% of the formation spacing 1.58 m' in crowded.message
+    assert 'init_separation' in crowded.message
+    apart = _by_code(check_config(cfg))['start']
+    assert apart.level == 'ok' and 'start 0.501 m apart' in apart.message
+
+
 @pytest.mark.parametrize('preset', ['triangle', 'paper'])
 @pytest.mark.parametrize('j_bar, j_bar_s', [(0.5, 3.0), (0.0, 0.0), (2.25, 40.0)])
 def test_gain_bound_arithmetic(preset, j_bar, j_bar_s):

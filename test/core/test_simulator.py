@@ -6,6 +6,7 @@ import pytest
 from apf_swarm_core.checks import check_config
 from apf_swarm_core.control import control_step, make_controller
 from apf_swarm_core.design import triangle_spacing
+from apf_swarm_core.errors import ConfigError
 from apf_swarm_core.metrics import (
     centroid_error,
     heading_rate,
@@ -61,6 +62,38 @@ def test_initial_positions_are_in_the_configured_ball():
     assert np.linalg.norm(x - [1.0, 2.0, 3.0], axis=-1).max() <= 0.7
     np.testing.assert_array_equal(x, initial_positions(cfg))
     assert not np.allclose(x, initial_positions(cfg.replace(seed=2)))
+
+
+def test_a_start_with_a_separation_keeps_every_pair_apart_in_a_grown_ball(monkeypatch):
+    """init_separation: no two trackers closer than it, in a ball grown to hold them; 0 is
+    the paper's start, drawn exactly as before (the same stream, the same ball)."""
+    from scipy.spatial.distance import pdist
+
+    from apf_swarm_core import simulator
+
+    cfg = load_preset('realtime').replace(
+        n_trackers=128, init_center=(1.0, 2.0, 3.0), init_separation=0.0
+    )
+    plain = initial_positions(cfg)
+    assert pdist(plain).min() < 0.1  # the paper's start: 128 in a 1 m ball crowd
+    rng = np.random.default_rng([cfg.seed, 1])
+    ball = np.asarray(cfg.init_center) + simulator.uniform_ball(rng.random((128, 3)), 1.0)
+    np.testing.assert_array_equal(plain, ball)
+    x = initial_positions(cfg.replace(init_separation=0.5))
+    assert pdist(x).min() >= 0.5
+    r = simulator.start_radius(128, 0.5)  # 128 (d/2)^3 = 0.2 r^3
+    assert r == pytest.approx(0.25 * 640 ** (1 / 3)) and r > 2.0
+    assert np.linalg.norm(x - cfg.init_center, axis=1).max() <= r
+    np.testing.assert_array_equal(x, initial_positions(cfg.replace(init_separation=0.5)))
+    # three trackers already apart keep the paper's start
+    three = cfg.replace(n_trackers=3)
+    np.testing.assert_array_equal(
+        initial_positions(three), initial_positions(three.replace(init_separation=0.5))
+    )
+    # a ball that cannot hold them (not reachable through the configuration) is an error
+    monkeypatch.setattr(simulator, 'START_PACKING', 5.0)
+    with pytest.raises(ConfigError, match=r'init_separation = 0\.5 m: no room for tracker'):
+        initial_positions(cfg.replace(init_separation=0.5))
 
 
 def test_seeded_determinism():

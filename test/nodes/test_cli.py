@@ -56,6 +56,7 @@ def test_simulate_writes_schema(tmp_path: Path) -> None:
         'pair_distance_mean',
         'pair_distance_expected',
         'error_rms_steady',
+        'closest_approach',
     }
     # the triangle forms: pair distances within 1 % of sqrt(c ln(b/(a + k_n/(3 k_f))))
     d = np.sqrt(1.7 * np.log(6.0 / (1.0 + 1.0 / 3.0)))

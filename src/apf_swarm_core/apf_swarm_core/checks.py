@@ -143,6 +143,28 @@ def sampled_findings(
     return out
 
 
+#: a start whose closest pair is below this fraction of the formation's spacing is warned of
+START_CLOSE = 0.1
+
+
+def _start_finding(cfg: SwarmConfig, spacing: float) -> tuple[Level, str, str]:
+    """How close the start puts two trackers, against the formation's ``spacing`` [m]."""
+    from scipy.spatial.distance import pdist
+
+    from .simulator import initial_positions
+
+    closest = float(pdist(initial_positions(cfg)).min())
+    if closest >= START_CLOSE * spacing:
+        return 'ok', 'start', f'the closest two trackers start {closest:.3g} m apart.'
+    why = (
+        f'the closest two trackers start {closest:.3g} m apart, {closest / spacing:.0%} of '
+        f'the formation spacing {spacing:.3g} m: vehicles of that size would collide before '
+        'the swarm spreads. Set init_separation (e.g. 0.5 m: no two start closer; the ball '
+        'grows to hold them).'
+    )
+    return 'warning', 'start', why
+
+
 def check_config(
     cfg: SwarmConfig,
     run: dict[str, Any] | None = None,
@@ -231,6 +253,8 @@ def check_config(
             )
     else:
         add('info', 'formation', 'one tracker: no formation, it converges onto the target.')
+    if n >= 2 and d is not None:
+        add(*_start_finding(cfg, d))
     # gain bounds: a priori (conservative, informative only) and measured on a run
     bounds, est = gain_bounds(cfg)
     rep.bounds, rep.estimates = bounds, {f'a_priori_{k}': v for k, v in est.items()}

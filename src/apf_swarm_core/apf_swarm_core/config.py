@@ -214,6 +214,13 @@ class SwarmConfig:
     init_spread: float = key(
         1.0, 'trackers start uniformly in a ball of this radius', 'm', NON_NEGATIVE
     )
+    init_separation: float = key(
+        0.0,
+        'no two trackers start closer than this; the ball grows to hold them (0: the '
+        "paper's start, any distance)",
+        'm',
+        NON_NEGATIVE,
+    )
     # run
     seed: int = key(0, 'seed of initial positions and noise', '', NON_NEGATIVE, read_only=True)
     dt: float = key(

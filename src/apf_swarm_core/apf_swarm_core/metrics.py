@@ -360,6 +360,8 @@ def summarize(
         'pair_distance_min': _f(pd[st, 0].min()) if pd.size else None,
         'pair_distance_max': _f(pd[st, 1].max()) if pd.size else None,
         'pair_distance_mean': _f(pd[st, 2].mean()) if pd.size else None,
+        # the whole run's, start included: how near two vehicles ever came
+        'closest_approach': _f(pd[:, 0].min()) if pd.size else None,
         'pair_distance_expected': None,
         'error_rms_steady': None,
     }

@@ -43,6 +43,7 @@ from .control import (
     make_predictor,
 )
 from .controller import CONTROLLER_GAINS, ControlOutput
+from .errors import ConfigError
 from .formation import design_pair_sets
 from .gains import per_run
 from .kernels import as_kernel, simulate_steps
@@ -61,6 +62,7 @@ __all__ = [
     'integrate',
     'simulate',
     'simulate_batch',
+    'start_radius',
     'summarize_run',
 ]
 
@@ -77,6 +79,7 @@ BATCHABLE = (
     'mass',
     'seed',
     'init_spread',
+    'init_separation',
     'target_speed',
     'target_radius',
     'target_yaw_deg',
@@ -98,15 +101,44 @@ BATCHABLE = (
 
 def initial_positions(cfg: SwarmConfig) -> NDArray[np.float64]:
     """Initial tracker positions, shape (n, 3) [m]: uniform in a ball of radius
-    ``init_spread`` around ``init_center`` (stream ``[seed, 1]``), then per-UAV overrides."""
+    ``init_spread`` around ``init_center`` (stream ``[seed, 1]``), then per-UAV overrides.
+
+    With ``init_separation`` d > 0 a tracker drawn closer than d to one drawn before it is
+    drawn again (random sequential addition, the same stream), in a ball of radius at least
+    ``start_radius(n, d)``, which holds them with room to spare: no two start closer than d.
+    """
     rng = np.random.default_rng([cfg.seed, 1])
-    x = np.asarray(cfg.init_center) + uniform_ball(
-        rng.random((cfg.n_trackers, 3)), cfg.init_spread
-    )
+    n, sep = cfg.n_trackers, cfg.init_separation
+    radius = max(cfg.init_spread, start_radius(n, sep))
+    x = uniform_ball(rng.random((n, 3)), radius)
+    for i in range(1, n) if sep > 0 else ():
+        for _ in range(MAX_DRAWS):
+            if np.min(np.linalg.norm(x[:i] - x[i], axis=1)) >= sep:
+                break
+            x[i] = uniform_ball(rng.random((1, 3)), radius)[0]
+        else:  # not reached at the packing of start_radius: a guard, not a limit
+            raise ConfigError(
+                f'init_separation = {sep:g} m: no room for tracker {i + 1} of {n} in a '
+                f'ball of {radius:g} m after {MAX_DRAWS} draws; lower init_separation'
+            )
+    x += np.asarray(cfg.init_center)
     for i, over in cfg.uav_overrides.items():
         if 'initial_position' in over:
             x[int(i) - 1] = np.asarray(over['initial_position'], dtype=float)
     return x
+
+
+#: draws of one tracker's start before :func:`initial_positions` gives up
+MAX_DRAWS = 10_000
+#: the fraction of the start ball that the trackers' separation spheres fill
+START_PACKING = 0.2
+
+
+def start_radius(n: int, separation: float) -> float:
+    """The radius [m] of a ball in which ``n`` spheres of diameter ``separation`` fill
+    :data:`START_PACKING` of the volume: ``n (d/2)^3 = 0.2 R^3``, well below the 0.38 at which
+    random sequential addition jams (0 for d = 0)."""
+    return 0.5 * separation * (n / START_PACKING) ** (1 / 3)
 
 
 def integrate(

@@ -196,7 +196,8 @@ def format_summary(summary: Mapping[str, Any]) -> str:
     lines.append(
         f'  pair distance    min {_fmt(fo["pair_distance_min"], 4)} m, max '
         f'{_fmt(fo["pair_distance_max"], 4)} m, mean {_fmt(fo["pair_distance_mean"], 4)} m, '
-        f'expected {_fmt(fo["pair_distance_expected"], 4)} m'
+        f'expected {_fmt(fo["pair_distance_expected"], 4)} m; closest approach '
+        f'{_fmt(fo.get("closest_approach"), 4)} m'
     )
     lines.append(f'  formation error  rms_steady {_fmt(fo["error_rms_steady"], 4)} m')
     lines.append(
