@@ -159,13 +159,6 @@ class TrackerAgent:
         self.params = cfg.potential_params()
         return changed
 
-    def reset(self) -> None:
-        """Forget every input and zero the filter state (after a restart)."""
-        self.inputs.clear()
-        self._swarm, self._seq_max = None, -1
-        self.controller.reset()
-        self._last_step = -1
-
     def offer(
         self,
         source: int,

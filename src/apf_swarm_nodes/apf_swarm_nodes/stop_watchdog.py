@@ -66,10 +66,6 @@ class StopWatchdog:
         self.deadline: float | None = None
         self._why = ''
 
-    @property
-    def installed(self) -> bool:
-        return self._pipe is not None
-
     def install(self) -> StopWatchdog:
         """Take the process's wakeup fd and start the thread (main thread only; elsewhere, or
         where the wakeup fd cannot be set, nothing happens)."""

@@ -145,10 +145,6 @@ class Child:
         """The exit code once the process ended (reaped), else None (also when never started)."""
         return self.popen.poll() if self.popen is not None else None
 
-    @property
-    def running(self) -> bool:
-        return self.popen is not None and self.popen.poll() is None
-
     def signal_group(self, sig: int) -> None:
         """Send ``sig`` to the child's process group (no error if it is gone); a stopped
         (SIGSTOP, Ctrl-Z) process is continued so that it can handle SIGINT / SIGTERM."""

@@ -13,11 +13,11 @@ holds what they share. Import the names from here.
 from __future__ import annotations
 
 from .commands import LAW_CODES, force_arrays, force_msg, reply_msg
-from .fields import WORLD, is_finite
+from .fields import WORLD
 from .markers import markers_msg
 from .odometry import SwarmOdom, odom_arrays, odom_msg, swarm_odom_arrays, swarm_odom_msg
-from .setpoints import accel_msg, accel_of, twist_msg, velocity_of
-from .stamps import clock_msg, dt_to_ns, stamp_ns, step_of, step_stamp
+from .setpoints import accel_msg, twist_msg
+from .stamps import clock_msg, dt_to_ns, stamp_ns, step_stamp
 from .state import SwarmSample, swarm_state_arrays, swarm_state_msg, swarm_state_step
 
 __all__ = [
@@ -26,18 +26,15 @@ __all__ = [
     'SwarmOdom',
     'SwarmSample',
     'accel_msg',
-    'accel_of',
     'clock_msg',
     'dt_to_ns',
     'force_arrays',
     'force_msg',
-    'is_finite',
     'markers_msg',
     'odom_arrays',
     'odom_msg',
     'reply_msg',
     'stamp_ns',
-    'step_of',
     'step_stamp',
     'swarm_odom_arrays',
     'swarm_odom_msg',
@@ -45,5 +42,4 @@ __all__ = [
     'swarm_state_msg',
     'swarm_state_step',
     'twist_msg',
-    'velocity_of',
 ]

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ['WORLD', 'active_flags', 'is_finite', 'rows', 'set_vec', 'vec']
+__all__ = ['WORLD', 'active_flags', 'rows', 'set_vec', 'vec']
 
 WORLD = 'world'
 
@@ -33,8 +33,3 @@ def rows(seq: Sequence[Any]) -> NDArray[np.float64]:
 def active_flags(active: Sequence[bool] | NDArray[np.bool_] | None, n: int) -> list[bool]:
     """The ``active`` field of n trackers: ``active`` as bools, every one active when None."""
     return [True] * n if active is None else [bool(a) for a in active]
-
-
-def is_finite(*arrays: NDArray[np.float64]) -> bool:
-    """True when every value is finite."""
-    return all(bool(np.all(np.isfinite(a))) for a in arrays)

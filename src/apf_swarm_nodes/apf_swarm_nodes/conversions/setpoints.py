@@ -10,9 +10,9 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import AccelStamped, TwistStamped
 from numpy.typing import NDArray
 
-from .fields import WORLD, set_vec, vec
+from .fields import WORLD, set_vec
 
-__all__ = ['accel_msg', 'accel_of', 'twist_msg', 'velocity_of']
+__all__ = ['accel_msg', 'twist_msg']
 
 
 def accel_msg(stamp: Time, a: NDArray[np.float64]) -> AccelStamped:
@@ -31,13 +31,3 @@ def twist_msg(stamp: Time, v: NDArray[np.float64]) -> TwistStamped:
     m.header.frame_id = WORLD
     set_vec(m.twist.linear, v)
     return m
-
-
-def accel_of(msg: AccelStamped) -> NDArray[np.float64]:
-    """The linear acceleration of an ``AccelStamped`` (3,)."""
-    return vec(msg.accel.linear)
-
-
-def velocity_of(msg: TwistStamped) -> NDArray[np.float64]:
-    """The linear velocity of a ``TwistStamped`` (3,)."""
-    return vec(msg.twist.linear)

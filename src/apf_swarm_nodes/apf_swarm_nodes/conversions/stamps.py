@@ -7,7 +7,7 @@ from __future__ import annotations
 from builtin_interfaces.msg import Time
 from rosgraph_msgs.msg import Clock
 
-__all__ = ['clock_msg', 'dt_to_ns', 'stamp_ns', 'step_of', 'step_stamp']
+__all__ = ['clock_msg', 'dt_to_ns', 'stamp_ns', 'step_stamp']
 
 
 def dt_to_ns(dt: float) -> int:
@@ -24,11 +24,6 @@ def step_stamp(step: int, dt_ns: int) -> Time:
 def stamp_ns(stamp: Time) -> int:
     """A ``builtin_interfaces/Time`` in integer nanoseconds."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def step_of(stamp: Time, dt_ns: int) -> int:
-    """The lockstep step a stamp belongs to."""
-    return stamp_ns(stamp) // int(dt_ns)
 
 
 def clock_msg(stamp: Time) -> Clock:
