@@ -68,14 +68,18 @@ def test_formation_check_for_other_n():
 
 def test_a_crowded_start_is_warned_of_and_a_separated_one_is_not():
     """128 trackers in the paper's 1 m ball start 4.5 cm apart (3 % of the formation's
-    spacing): a warning naming init_separation; with it, 0.5 m apart, ok."""
+    spacing): a warning naming init_separation; with it, 0.5 m apart, ok; the preset's
+    formation start: 0.7 of the design's closest pair, 1.11 m."""
     cfg = load_preset('realtime').replace(n_trackers=128)
-    crowded = _by_code(check_config(cfg.replace(init_separation=0.0)))['start']
+    ball = cfg.replace(init_layout='ball')
+    crowded = _by_code(check_config(ball.replace(init_separation=0.0)))['start']
     assert crowded.level == 'warning'
     assert 'start 0.0454 m apart, 3% of the formation spacing 1.58 m' in crowded.message
     assert 'init_separation' in crowded.message
-    apart = _by_code(check_config(cfg))['start']
+    apart = _by_code(check_config(ball))['start']
     assert apart.level == 'ok' and 'start 0.501 m apart' in apart.message
+    shaped = _by_code(check_config(cfg))['start']
+    assert shaped.level == 'ok' and 'start 1.11 m apart' in shaped.message
 
 
 @pytest.mark.parametrize('preset', ['triangle', 'paper'])

@@ -72,7 +72,7 @@ def test_a_start_with_a_separation_keeps_every_pair_apart_in_a_grown_ball(monkey
     from apf_swarm_core import simulator
 
     cfg = load_preset('realtime').replace(
-        n_trackers=128, init_center=(1.0, 2.0, 3.0), init_separation=0.0
+        n_trackers=128, init_center=(1.0, 2.0, 3.0), init_separation=0.0, init_layout='ball'
     )
     plain = initial_positions(cfg)
     assert pdist(plain).min() < 0.1  # the paper's start: 128 in a 1 m ball crowd
@@ -94,6 +94,35 @@ def test_a_start_with_a_separation_keeps_every_pair_apart_in_a_grown_ball(monkey
     monkeypatch.setattr(simulator, 'START_PACKING', 5.0)
     with pytest.raises(ConfigError, match=r'init_separation = 0\.5 m: no room for tracker'):
         initial_positions(cfg.replace(init_separation=0.5))
+
+
+def test_a_formation_start_is_the_design_shrunk_and_turned_and_three_keep_the_ball():
+    """init_layout: formation: the design formation about init_center at START_SCALE of its
+    size (every pair distance scaled), turned by the seed; 3 trackers: the paper's ball; a
+    potential without a formation is an error naming the way out."""
+    from apf_swarm_core.formation import design_formations
+    from scipy.spatial.distance import pdist
+
+    from apf_swarm_core import simulator
+
+    cfg = load_preset('realtime').replace(n_trackers=16, init_center=(1.0, 2.0, 3.0))
+    assert cfg.init_layout == 'formation'  # the preset's
+    x = initial_positions(cfg)
+    design = design_formations(cfg)[0]
+    np.testing.assert_allclose(
+        np.sort(pdist(x)), simulator.START_SCALE * np.sort(design.pair_distances), rtol=1e-9
+    )
+    np.testing.assert_allclose(x.mean(axis=0), cfg.init_center, atol=1e-9)
+    y = initial_positions(cfg.replace(seed=2))  # turned otherwise, the same shape
+    assert not np.allclose(x, y)
+    np.testing.assert_allclose(np.sort(pdist(y)), np.sort(pdist(x)), rtol=1e-9)
+    np.testing.assert_array_equal(x, initial_positions(cfg))
+    three = cfg.replace(n_trackers=3)
+    np.testing.assert_array_equal(
+        initial_positions(three), initial_positions(three.replace(init_layout='ball'))
+    )
+    with pytest.raises(ConfigError, match='init_layout = formation: J of 16 trackers has no'):
+        initial_positions(cfg.replace(b=0.5, b_growth=0.0))
 
 
 def test_seeded_determinism():

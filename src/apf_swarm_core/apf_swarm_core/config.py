@@ -214,6 +214,14 @@ class SwarmConfig:
     init_spread: float = key(
         1.0, 'trackers start uniformly in a ball of this radius', 'm', NON_NEGATIVE
     )
+    init_layout: str = key(
+        'ball',
+        "how the trackers start: ball, uniform in the init_spread ball (the paper's); "
+        'formation, in the shape of the design formation (the lowest minimum of J) at '
+        '0.7 of its size, turned at random by the seed, so that they settle in it and not in '
+        "a higher minimum (not in the paper; 3 or fewer trackers: the paper's ball)",
+        choices=('ball', 'formation'),
+    )
     init_separation: float = key(
         0.0,
         'no two trackers start closer than this; the ball grows to hold them (0: the '
