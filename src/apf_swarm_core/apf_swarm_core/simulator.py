@@ -142,9 +142,8 @@ def formation_start(cfg: SwarmConfig, rng: np.random.Generator) -> NDArray[np.fl
     """``init_layout: formation``: the design formation (the lowest minimum of J,
     :func:`~apf_swarm_core.formation.design_formations`) about its centroid, at
     :data:`START_SCALE` of its size, turned by a uniform random rotation drawn from ``rng``;
-    shape (n, 3) [m]. A swarm started so settles in the design: from the ball, 16 and 24
-    trackers settle in a higher minimum of J (2 or 3 trackers inside the shell, not 1 or
-    4; closest pair 76 and 89 % of the design's) in 4 and 17 of 20 seeds (docs/THEORY.md)."""
+    shape (n, 3) [m]. A swarm started so settles in the design, not in a higher minimum of
+    J that a random ball may lead it to (docs/THEORY.md, *The start*)."""
     designs = [f for f in design_formations(cfg) if f.spacing > 1e-6]
     if not designs:
         raise ConfigError(
