@@ -114,8 +114,7 @@ def sampled_findings(
                 f'{pred.layer_gain:.4g} x {pred.hessian_max:.4g} = {pred.formation_rate:.4g} 1/s '
                 f'against {pred.rate_allowed:.4g} 1/s allowed; '
                 f'ripple u0 T / M = {pred.ripple:.3g} '
-                f'm/s; steady lag {pred.steady_lag:.3g} m; softest mode settles in '
-                f'{pred.settle_time:.3g} s; predicted to '
+                f'm/s; steady lag {pred.steady_lag:.3g} m; {pred.settling()}; predicted to '
                 + ('hold' if pred.holds else 'fail')
                 + '.'
             ),

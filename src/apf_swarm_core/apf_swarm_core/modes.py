@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 
 from .config import SwarmConfig
 from .formation import design_formation
+from .metrics import formation_error, pair_distances
 from .newton import hessian, hessian_blocks
 
 __all__ = [
@@ -45,8 +46,10 @@ __all__ = [
     'design_hessian_spectrum',
     'effective_spectrum',
     'inner_rate',
+    'loop_modes',
     'mode_matrix',
     'mode_radius',
+    'start_residual',
 ]
 
 
@@ -162,6 +165,21 @@ def centroid_curvature(cfg: SwarmConfig) -> float:
     return cfg.k_n if cfg.precondition == 'none' else 1.0
 
 
+def _block_map(cfg: SwarmConfig, x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """P of :func:`design_block_spectrum` at positions ``x`` (n, 3) relative to the target:
+    each tracker's ``|H_ii|_mu^-1`` on the gradient less its mean, plus the mean over k_N;
+    shape (3n, 3n)."""
+    params = cfg.potential_params()
+    n = x.shape[0]
+    w, v = np.linalg.eigh(hessian_blocks(x, **params))
+    inv = np.einsum('ikj,ij,ilj->ikl', v, 1.0 / np.maximum(np.abs(w), cfg.newton_mu), v)
+    p = np.zeros((3 * n, 3 * n))
+    for i in range(n):
+        p[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = inv[i]
+    mean = np.kron(np.full((n, n), 1.0 / n), np.eye(3))
+    return np.asarray(mean / params['k_n'] + p @ (np.eye(3 * n) - mean))
+
+
 def design_block_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
     """Eigenvalues of ``P H`` at the design equilibrium, ascending (shape (3n,), the
     rotations' zeros included): H the Hessian of J, P the linear map of
@@ -169,19 +187,45 @@ def design_block_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
     ``|H_ii|_mu^-1`` on the gradient less its mean, plus the mean over k_N). ``P H`` is
     similar to a symmetric matrix (P is symmetric positive definite), so its eigenvalues are
     real: each is the rate, in units of K, at which one mode of the formation decays."""
-    f = design_formation(cfg)
-    params = cfg.potential_params()
-    x = f.relative_positions
-    n = x.shape[0]
-    h = hessian(x, np.zeros(3), **params)
-    w, v = np.linalg.eigh(hessian_blocks(x, **params))
-    inv = np.einsum('ikj,ij,ilj->ikl', v, 1.0 / np.maximum(np.abs(w), cfg.newton_mu), v)
-    p = np.zeros_like(h)
-    for i in range(n):
-        p[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = inv[i]
-    mean = np.kron(np.full((n, n), 1.0 / n), np.eye(3))
-    pre = mean / params['k_n'] + p @ (np.eye(3 * n) - mean)
-    return np.sort(np.linalg.eigvals(pre @ h).real)
+    x = design_formation(cfg).relative_positions
+    h = hessian(x, np.zeros(3), **cfg.potential_params())
+    return np.sort(np.linalg.eigvals(_block_map(cfg, x) @ h).real)
+
+
+def loop_modes(cfg: SwarmConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The modes of the formation's loop ``e' = -K A e`` near the design (step 1, with the
+    configuration's direction: A = H along the gradient, ``|H|_mu^-1 H`` along the Newton
+    direction, ``P H`` along the block direction): their rates in units of K, shape (3n,),
+    and their shapes, the columns of a (3n, 3n) array (tracker-major, as ``e.ravel()``)."""
+    x = design_formation(cfg).relative_positions
+    h = hessian(x, np.zeros(3), **cfg.potential_params())
+    if cfg.precondition == 'block':
+        rates, shapes = np.linalg.eig(_block_map(cfg, x) @ h)
+        return rates.real, shapes.real
+    lam, shapes = np.linalg.eigh(h)
+    return effective_spectrum(cfg, lam), shapes
+
+
+def start_residual(
+    cfg: SwarmConfig, displacement: NDArray[np.float64], K: float, t: float
+) -> tuple[float, float]:
+    """What the loop of :func:`loop_modes` leaves at time ``t`` [s] of a start displaced by
+    ``displacement`` (n, 3) [m] from the design: each mode's share of it decays as
+    ``exp(-K rate t)`` (the rotations, rate 0, change no distance and are dropped). Returns
+    the formation error RMS (:func:`~apf_swarm_core.metrics.formation_error`) as a fraction
+    of the design's mean pair distance and the closest pair as a fraction of the design's:
+    the numbers flight judges (docs/THEORY.md, *The start*)."""
+    x = design_formation(cfg).relative_positions
+    rates, shapes = loop_modes(cfg)
+    share = np.linalg.lstsq(shapes, np.asarray(displacement, dtype=float).ravel(), rcond=None)[0]
+    moving = rates > 1e-9 * rates.max()
+    left = shapes[:, moving] @ (share[moving] * np.exp(-K * rates[moving] * t))
+    design = pair_distances(x)
+    now = x + left.reshape(x.shape)
+    return (
+        float(formation_error(now, design)) / float(design.mean()),
+        float(pair_distances(now).min()) / float(design.min()),
+    )
 
 
 def inner_rate(cfg: SwarmConfig, period: float, mass: float) -> float:

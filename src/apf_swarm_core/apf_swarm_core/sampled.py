@@ -36,6 +36,7 @@ The prediction is validated against the emulation (:mod:`apf_swarm_core.simulato
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -46,6 +47,7 @@ from numpy.typing import NDArray
 from .advice import PLAIN, Advice
 from .compensation import compensation_horizon
 from .config import SwarmConfig
+from .formation import design_formation
 from .metrics import FLIGHT_CRITERIA
 from .modes import (
     centroid_curvature,
@@ -53,7 +55,9 @@ from .modes import (
     effective_spectrum,
     inner_rate,
     mode_radius,
+    start_residual,
 )
+from .simulator import initial_positions
 
 __all__ = [
     'BLOCK_LIMIT',
@@ -66,11 +70,13 @@ __all__ = [
     'RIPPLE_FRACTION',
     'SOFT_SETTLE',
     'SampledPrediction',
+    'approach_time',
     'largest_holding',
     'loop_limit',
     'predict',
     'propose_gains',
     'schedule_gains',
+    'start_displacement',
 ]
 
 #: the loop holds while K lambda_max (T + tau) stays below this (the sampled relay)
@@ -134,6 +140,8 @@ class SampledPrediction:
     settle_time: float
     settle_allowed: float
     inner_stable: bool
+    start_error: float | None = None
+    start_closest: float | None = None
     warnings: list[str] = field(default_factory=list)
 
     @property
@@ -144,6 +152,29 @@ class SampledPrediction:
         that settles slowly (:attr:`settle_time` above :attr:`settle_allowed`) is a warning,
         not a verdict: how far the start excites it decides (the emulation does)."""
         return self.spectral_radius < 1.0 and self.steady_lag <= LAG_LIMIT and self.inner_stable
+
+    @property
+    def settles(self) -> bool:
+        """The start's deformation is predicted to have decayed when the run is judged: for
+        a start in the design's shape (:attr:`start_error`) by what its modes leave then,
+        judged as flight judges; for any other start by the softest mode's time constant."""
+        if self.start_error is not None and self.start_closest is not None:
+            return (
+                self.start_error <= FLIGHT_CRITERIA['formation_rms']
+                and self.start_closest >= FLIGHT_CRITERIA['closest']
+            )
+        return self.settle_time <= self.settle_allowed
+
+    def settling(self) -> str:
+        """How the formation settles, in words (one clause)."""
+        words = f'softest mode settles in {self.settle_time:.3g} s'
+        if self.start_error is None or self.start_closest is None:
+            return words + f' (of {self.settle_allowed:.3g} allowed)'
+        return words + (
+            f'; from the formation start its modes leave {100 * self.start_error:.3f} % '
+            f'formation error and a closest pair at {100 * self.start_closest:.3g} % of the '
+            f"design's when the run is judged"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values, for summary.json."""
@@ -187,9 +218,29 @@ def predict(
     vn = cfg.target_speed_bound
     lag = (1.0 - cfg.feedforward) * vn / (cfg.k_n * K)
     settle = 1.0 / (K * soft)
-    settle_allowed = (1.0 - FLIGHT_CRITERIA['window']) * cfg.duration / SOFT_SETTLE
+    judged = (1.0 - FLIGHT_CRITERIA['window']) * cfg.duration
+    settle_allowed = judged / SOFT_SETTLE
+    displacement = start_displacement(cfg)
+    start_error = start_closest = None
+    if displacement is not None:
+        start_error, start_closest = start_residual(
+            cfg, displacement, K, max(0.0, judged - approach_time(cfg))
+        )
     warnings = []
-    if settle > settle_allowed:
+    if start_error is not None and start_closest is not None:
+        if (
+            start_error > FLIGHT_CRITERIA['formation_rms']
+            or start_closest < FLIGHT_CRITERIA['closest']
+        ):
+            warnings.append(
+                f"slow formation: {cfg.n_trackers} trackers started in the formation's shape "
+                f'are predicted to keep {100 * start_error:.3f} % formation error and a closest '
+                f"pair at {100 * start_closest:.3g} % of the design's at {judged:.3g} s, when "
+                f'the {cfg.duration:g} s run is judged (the softest mode, lambda = {soft:.3g}, '
+                f'has the time constant 1 / (K lambda) = {settle:.3g} s): fly longer, or '
+                f'raise K with a higher control rate'
+            )
+    elif settle > settle_allowed:
         warnings.append(
             f'slow formation: the softest deformation mode of {cfg.n_trackers} trackers '
             f'(lambda = {soft:.3g}) settles with the time constant 1 / (K lambda) = '
@@ -271,8 +322,38 @@ def predict(
         settle_time=settle,
         settle_allowed=settle_allowed,
         inner_stable=inner_stable,
+        start_error=start_error,
+        start_closest=start_closest,
         warnings=warnings,
     )
+
+
+def approach_time(cfg: SwarmConfig) -> float:
+    """The time [s] the swarm takes to reach the target from its start: the distance from
+    the start's centroid to the target's start over the closing speed the saturation of
+    eq. 8 allows, ``beta - (1 - w) v_N`` (w the feed-forward); inf if it cannot close. While
+    the swarm closes, its trackers move at that bound and the linear model of
+    :func:`~apf_swarm_core.modes.start_residual` does not hold; it starts then."""
+    gap = float(np.linalg.norm(initial_positions(cfg).mean(axis=0) - np.asarray(cfg.target_start)))
+    closing = cfg.beta - (1.0 - cfg.feedforward) * cfg.target_speed_bound
+    return gap / closing if closing > 0 else math.inf
+
+
+def start_displacement(cfg: SwarmConfig) -> NDArray[np.float64] | None:
+    """How far ``cfg``'s start lies from the design formation (n, 3) [m], both about their
+    centroids and the start turned onto the design (Kabsch), when it starts in the design's
+    shape (``init_layout = formation``, more than 3 trackers); None for a random start,
+    which no linear model follows (which minimum of J it reaches is the emulation's to say)."""
+    if cfg.init_layout != 'formation' or cfg.n_trackers <= 3:
+        return None
+    start = initial_positions(cfg)
+    start = start - start.mean(axis=0)
+    design = design_formation(cfg).relative_positions
+    design = design - design.mean(axis=0)
+    u, _, vt = np.linalg.svd(start.T @ design)
+    if np.linalg.det(u @ vt) < 0:  # a rotation, not a reflection
+        u[:, -1] = -u[:, -1]
+    return np.asarray(start @ (u @ vt) - design)
 
 
 def _schedule(
@@ -342,7 +423,7 @@ def propose_gains(
         tried.append(gains)
         tuned = base.replace(**gains, control_rate=control_rate, latency=latency)
         pred = predict(tuned, spectrum=eigs)
-        if pred.holds and pred.settle_time <= pred.settle_allowed:
+        if pred.holds and pred.settles:
             return gains
     if not tried:
         raise ValueError(

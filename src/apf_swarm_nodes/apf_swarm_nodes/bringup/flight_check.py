@@ -142,8 +142,8 @@ class FlightCheck:
         self.say(
             head + f'of smaller swarms (in steps of {cfg.n_trackers / 8:g}), the largest whose '
             f'loop is predicted to hold at {rate:g} Hz is {most} trackers '
-            f'({pred.latency * 1e3:.4g} ms); its softest mode settles in '
-            f'{pred.settle_time:.3g} s: whether it flies in {cfg.duration:g} s, `apf-swarm '
+            f'({pred.latency * 1e3:.4g} ms); its {pred.settling()}: whether it flies in '
+            f'{cfg.duration:g} s, `apf-swarm '
             f'simulate` with this configuration and `--n-trackers {most} --control-rate '
             f'{rate:g} --latency {pred.latency:.3g} --duration {cfg.duration:g}{sets}` says'
         )

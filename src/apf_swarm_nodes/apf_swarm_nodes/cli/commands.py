@@ -231,8 +231,8 @@ def cmd_design_rate(args: argparse.Namespace, cfg: SwarmConfig) -> int:
     )
     print(
         f'  K = alpha + beta/gamma = {pred.layer_gain:.4g} 1/s: K lambda_max = '
-        f'{pred.formation_rate:.4g} 1/s of {pred.rate_allowed:.4g} allowed; softest mode '
-        f'settles in {pred.settle_time:.3g} s (of {pred.settle_allowed:.3g}); lag '
+        f'{pred.formation_rate:.4g} 1/s of {pred.rate_allowed:.4g} allowed; '
+        f'{pred.settling()}; lag '
         f'{pred.steady_lag:.3g} m'
     )
     for w in pred.warnings:
