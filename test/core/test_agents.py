@@ -442,3 +442,28 @@ def test_messages_of_another_run_are_refused_and_counted(cfg) -> None:
     assert plant.offer_command(1, 0, f, s, run=5)
     assert plant.missing(0) == [2, 3]
     assert PlantModel(cfg).offer_command(1, 0, f, s, run=6)
+
+
+def test_a_realtime_swarm_state_held_as_arrays_answers_as_one_sample_per_tracker(cfg) -> None:
+    """A realtime /swarm/odom is kept as arrays (no Sample per tracker until one is needed):
+    staleness, the out-of-order check of a single tracker's input, the row it replaces, the
+    brake and the command are those of an agent fed the same states one by one."""
+    rng = np.random.default_rng(3)
+    x, v = rng.normal(size=(3, 3)), rng.normal(scale=0.1, size=(3, 3))
+    tx, tv = np.array([0.0, 0.0, 5.0]), np.array([1.0, 0.0, 0.0])
+    a, b = TrackerAgent(cfg, 2), TrackerAgent(cfg, 2)
+    assert a.offer_swarm(-1, [1, 2, 3], x, v, [True] * 3, tx, tv, 10.0, 10.0, seq=100)
+    for j in (1, 2, 3):
+        assert b.offer(j, -1, x[j - 1], v[j - 1], 10.0, seq=100)
+    assert b.offer(0, -1, tx, tv, 10.0, seq=100)
+    for agent in (a, b):
+        assert agent.stale_sources(10.4, 0.5) == []
+        assert agent.stale_sources(10.6, 0.5) == [0, 1, 2, 3]
+    np.testing.assert_array_equal(a.command(-1).force, b.command(-1).force)
+    assert not a.offer(3, -1, x[2], v[2], 10.5, seq=99)  # older than the swarm's row
+    assert 'out of order' in a.last_rejection
+    for agent in (a, b):
+        assert agent.offer(3, -1, x[2] + 0.5, v[2], 10.8, seq=101)
+        assert agent.stale_sources(10.7, 0.5) == [0, 1, 2]
+    np.testing.assert_array_equal(a.command(-1).force, b.command(-1).force)
+    np.testing.assert_array_equal(a.safe_command(), b.safe_command())

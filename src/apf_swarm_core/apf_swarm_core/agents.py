@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -125,7 +126,13 @@ class TrackerAgent:
         #: instead of stacking one Sample per tracker: O(n) in numpy, not in Python)
         self._swarm: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]] | None
         self._swarm = None
+        #: (step, produced, seq) of :attr:`_swarm` while its tracker rows are not in
+        #: :attr:`inputs` yet (realtime): one Sample per tracker is made only when a reader
+        #: needs them (:meth:`_held`), not on every state (docs/PERFORMANCE.md, "The command")
+        self._lazy: tuple[int, float, int] | None = None
         self._seq_max = -1  # the largest order key held of any tracker
+        #: the last /swarm/odom's ids and the rows of :attr:`ids` in it (:meth:`_rows_of`)
+        self._order: tuple[NDArray[Any], NDArray[np.intp]] | None = None
         self.controller = make_controller(self.cfg, (1, 3))
         warm()  # the compiled kernels loaded now, not at the first command
         self.precondition = make_preconditioner(self.cfg)
@@ -205,6 +212,8 @@ class TrackerAgent:
         active: bool,
     ) -> None:
         """Keep an input already checked by :meth:`_acceptable`."""
+        if source != 0:
+            self._held()  # the swarm's rows, before this one replaces one of them
         sample = Sample(
             step,
             np.asarray(x, float),
@@ -249,10 +258,11 @@ class TrackerAgent:
             return self._reject(f'/swarm/odom of another run ({run:x}; this run: {self.run:x})')
         seq = step if seq is None else int(seq)
         x, v = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
-        where = {j: r for r, j in enumerate(ids) if j in self._id_set}
-        if len(where) < len(self.ids):
-            missing = [j for j in self.ids if j not in where]
-            return self._reject(f'the message has no state of {[f"uav_{j}" for j in missing]}')
+        order = self._rows_of(ids)
+        if order is None:
+            return self._reject(
+                f'the message has no state of {[f"uav_{j}" for j in self.ids if j not in ids]}'
+            )
         before = self.rejected
         # the values of every row at once (two reductions); only a message that fails this is
         # checked row by row, for the reason and for rows that are not this tracker's inputs
@@ -260,7 +270,6 @@ class TrackerAgent:
         if not self._acceptable(0, target_x, target_v, seq, checked=clean):
             self.rejected = before + 1
             return False
-        order = np.fromiter((where[j] for j in self.ids), dtype=np.intp, count=len(self.ids))
         # a tracker's row is out of order only if some row held is newer than this message
         if not clean or seq < self._seq_max:
             for j, r in zip(self.ids, order, strict=True):
@@ -271,16 +280,45 @@ class TrackerAgent:
         xs, vs = x[order], v[order]
         act = np.asarray(active, dtype=bool)[order]
         act[self._own_row] = True
+        self._seq_max = max(self._seq_max, seq)
+        self._swarm = (xs, vs, act)
+        if step < 0:  # realtime: the rows stay arrays until a reader needs them
+            self._lazy = (step, now, seq)
+            return True
+        self._lazy = None
         samples = {
             j: Sample(step, xs[k], vs[k], now, seq, a)
             for k, (j, a) in enumerate(zip(self.ids, act.tolist(), strict=True))
         }
         self.inputs.update(samples)
-        if step >= 0:
-            self.pending.setdefault(step, {}).update(samples)
-        self._seq_max = max(self._seq_max, seq)
-        self._swarm = (xs, vs, act)
+        self.pending.setdefault(step, {}).update(samples)
         return True
+
+    def _rows_of(self, ids: Sequence[int]) -> NDArray[np.intp] | None:
+        """The rows of :attr:`ids` in a message listing ``ids`` (None if one is missing);
+        the last message's answer again while the list is the same (the plant's order)."""
+        key = np.asarray(ids)
+        if self._order is not None and np.array_equal(key, self._order[0]):
+            return self._order[1]
+        where = {int(j): r for r, j in enumerate(key.tolist()) if j in self._id_set}
+        if len(where) < len(self.ids):
+            return None
+        order = np.fromiter((where[j] for j in self.ids), dtype=np.intp, count=len(self.ids))
+        self._order = (key.copy(), order)
+        return order
+
+    def _held(self) -> dict[int, Sample]:
+        """:attr:`inputs`, the rows of the latest ``/swarm/odom`` held as arrays made into
+        one Sample each first."""
+        if self._lazy is not None and self._swarm is not None:
+            step, now, seq = self._lazy
+            xs, vs, act = self._swarm
+            self.inputs.update(
+                (j, Sample(step, xs[k], vs[k], now, seq, a))
+                for k, (j, a) in enumerate(zip(self.ids, act.tolist(), strict=True))
+            )
+        self._lazy = None
+        return self.inputs
 
     def _acceptable(
         self,
@@ -298,7 +336,7 @@ class TrackerAgent:
         problem = None if checked else input_problem(x=x, v=v)
         if problem is not None:
             return self._reject(f'{name}: {problem}')
-        held = self.inputs.get(source)
+        held = (self.inputs if source == 0 else self._held()).get(source)
         if held is not None and seq >= 0 and seq < held.seq:
             return self._reject(f'{name}: out of order ({seq} after {held.seq})')
         return True
@@ -332,7 +370,10 @@ class TrackerAgent:
             x = xs if n_active == act.size else xs[act]
             silent_x = xs[~act]
             all_v = vs if n_active == act.size else vs[act]
+            own_v = vs[self._own_row]
         else:
+            src = held if held is not None else self._held()
+            own_v = src[self.uav_id].v
             ids = [j for j in self.ids if src[j].active]
             n_active, row = len(ids), ids.index(self.uav_id)
             x = np.stack([src[j].x for j in ids])
@@ -349,7 +390,7 @@ class TrackerAgent:
         out = control_step(
             self.controller,
             x,
-            src[self.uav_id].v[None, :],
+            own_v[None, :],
             src[0].x,
             self.params,
             rows=[row],
@@ -362,7 +403,7 @@ class TrackerAgent:
         )
         self.neighbours_used = n_active - 1 if mask is None else int(np.count_nonzero(mask))
         self.active_neighbours = n_active - 1
-        self.own_velocity = src[self.uav_id].v
+        self.own_velocity = own_v
         self._last_step = step
         return out
 
@@ -375,11 +416,11 @@ class TrackerAgent:
 
     def stale_sources(self, now: float, timeout: float) -> list[int]:
         """Inputs missing or older than ``timeout`` seconds (0 = the target)."""
-        return [
-            src
-            for src in (0, *self.ids)
-            if src not in self.inputs or now - self.inputs[src].received > timeout
-        ]
+        held = self.inputs
+        late = [0] if 0 not in held or now - held[0].received > timeout else []
+        if self._lazy is not None:  # every tracker's row from one message
+            return late + (list(self.ids) if now - self._lazy[1] > timeout else [])
+        return late + [s for s in self.ids if s not in held or now - held[s].received > timeout]
 
     def setpoints(
         self, force: ArrayLike, period: float
@@ -394,7 +435,7 @@ class TrackerAgent:
 
     def safe_command(self) -> NDArray[np.float64]:
         """:func:`brake_force` from the last own velocity (zero force if none is known)."""
-        own = self.inputs.get(self.uav_id)
+        own = self._held().get(self.uav_id)
         if own is not None:
             self.own_velocity = own.v
         force = (
