@@ -43,8 +43,8 @@ def test_probe_measures_caches_and_rereads(tmp_path: Path) -> None:
     assert 0.0 < p['cpu_per_message'] < 0.01
     # one command cost per size, each well under a control period (no ordering by size:
     # that would be a timed assertion between close figures)
-    assert sorted(p['command_cost'], key=int) == [str(k) for k in probe_measure.COMMAND_SIZES]
-    assert all(0.0 < c < 0.01 for c in p['command_cost'].values()), p['command_cost']
+    assert sorted(p['state_cost'], key=int) == [str(k) for k in probe_measure.COMMAND_SIZES]
+    assert all(0.0 < c < 0.01 for c in p['state_cost'].values()), p['state_cost']
     assert d['latency'] > p['rtt']['p90'] and d['rate'] in probe.RATES
     # an rclpy node process holds tens of MiB: more than the interpreter, less than a GiB
     assert 20 * 2**20 < p['process_rss'] < 2**30, p['process_rss']
@@ -64,8 +64,8 @@ def _probe(cpu_per_message: float, cost16: float, cores: int = 2) -> dict:
         'machine': {'cpu': 'x', 'cores': cores, 'host': 'h'},
         'cpu_per_message': cpu_per_message,
         'rtt': {'p50': 0.001, 'p90': 0.002, 'p99': 0.004},
-        'command_cost': {'3': cost16 / 4, '16': cost16, '32': 4 * cost16},
-        'command_cost_p99': {'3': cost16 / 2, '16': 2 * cost16, '32': 8 * cost16},
+        'state_cost': {'3': cost16 / 4, '16': cost16, '32': 4 * cost16},
+        'state_cost_p99': {'3': cost16 / 2, '16': 2 * cost16, '32': 8 * cost16},
         'process_rss': 60 * 2**20,
     }
 

@@ -12,7 +12,7 @@ PROBE = {
     'machine': {'cpu': 'x', 'cores': 2, 'host': 'h'},
     'cpu_per_message': 50e-6,
     'rtt': {'p50': 0.001, 'p90': 0.002, 'p99': 0.004},
-    'command_cost': {'3': 50e-6, '16': 200e-6, '32': 800e-6},
+    'state_cost': {'3': 50e-6, '16': 200e-6, '32': 800e-6},
     'process_rss': 60 * 2**20,
 }
 
@@ -58,7 +58,7 @@ def test_the_trackers_per_process_default_follows_the_cores_and_the_period() -> 
 
 
 def test_derive_counts_the_shared_state_once_per_process_and_the_tail() -> None:
-    tails = {**PROBE, 'command_cost_p99': {'3': 100e-6, '16': 400e-6, '32': 1600e-6}}
+    tails = {**PROBE, 'state_cost_p99': {'3': 100e-6, '16': 400e-6, '32': 1600e-6}}
     one = probe.derive(tails, 32, 50.0, per_process=1)
     eight = probe.derive(tails, 32, 50.0, per_process=8)
     assert one['per_tracker_cpu'] == pytest.approx(3 * 50e-6 + 800e-6, rel=1e-4)
@@ -71,10 +71,10 @@ def test_derive_counts_the_shared_state_once_per_process_and_the_tail() -> None:
     longer = max(8 * 1600e-6, 32 * each / 2)
     assert eight['latency'] == pytest.approx((0.002 + longer) / (1 - use), rel=1e-4)
     slow = probe.derive(tails, 8, 50.0, per_process=8)
-    tail8 = 8 * probe._command_cost_at(tails, 8, 'command_cost_p99')
+    tail8 = 8 * probe._state_cost_at(tails, 8, 'state_cost_p99')
     assert tail8 > 8 * slow['per_tracker_cpu'] / 2  # here the process's commands are longer
     assert slow['latency'] == pytest.approx((0.002 + tail8) / (1 - slow['utilization']), rel=1e-3)
-    cheap = {**tails, 'command_cost_p99': {'3': 10e-6, '16': 10e-6, '32': 10e-6}}
+    cheap = {**tails, 'state_cost_p99': {'3': 10e-6, '16': 10e-6, '32': 10e-6}}
     burst = probe.derive(cheap, 32, 50.0, per_process=8)['latency']
     assert burst == pytest.approx((0.002 + 32 * each / 2) / (1 - use), rel=1e-4)
     # beyond the measured sizes the cost grows linearly (the block direction)

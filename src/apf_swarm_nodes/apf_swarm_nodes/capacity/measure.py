@@ -22,7 +22,7 @@ import numpy as np
 
 from .machine import identity, process_cpu_seconds, process_rss
 
-__all__ = ['COMMAND_SIZES', 'command_cost', 'echo', 'measure', 'ping_pong']
+__all__ = ['COMMAND_SIZES', 'echo', 'measure', 'ping_pong', 'state_cost']
 
 #: tracker counts whose command cost is measured (others are interpolated, and extrapolated
 #: linearly beyond: the block direction's cost grows with the tracker's own gradient)
@@ -30,9 +30,11 @@ COMMAND_SIZES = (3, 16, 32, 64, 128)
 PING, PONG = '/apf_probe/ping', '/apf_probe/pong'
 
 
-def command_cost(n: int, repeats: int = 200) -> tuple[float, float]:
-    """Mean and p99 seconds of one :meth:`TrackerAgent.command` of the realtime preset, n
-    trackers (the median alone would hide the tail a deadline meets)."""
+def state_cost(n: int, repeats: int = 200) -> tuple[float, float]:
+    """Mean and p99 seconds of what one tracker does with one state: its
+    :meth:`TrackerAgent.offer_swarm` of n trackers' states and its
+    :meth:`TrackerAgent.command`, realtime preset (the median alone would hide the tail a
+    deadline meets)."""
     from apf_swarm_core.agents import TrackerAgent
     from apf_swarm_core.config_files import load_preset
 
@@ -43,6 +45,7 @@ def command_cost(n: int, repeats: int = 200) -> tuple[float, float]:
     ids = list(range(1, n + 1))
     times = []
     for k in range(repeats + 10):
+        t0 = time.perf_counter()
         agent.offer_swarm(
             -1,
             ids,
@@ -55,7 +58,6 @@ def command_cost(n: int, repeats: int = 200) -> tuple[float, float]:
             0.0,
             seq=k,
         )
-        t0 = time.perf_counter()
         agent.command(-1)
         times.append(time.perf_counter() - t0)
     arr = np.asarray(times[10:])  # the first calls warm the caches
@@ -191,7 +193,7 @@ def measure(seconds: float = 4.0, rate: float = 100.0, n: int = 16) -> dict[str,
     does it in a process of its own, on a free domain, localhost only: :func:`.probe.ensure`)."""
     import rclpy
 
-    measured = {str(k): command_cost(k) for k in COMMAND_SIZES}
+    measured = {str(k): state_cost(k) for k in COMMAND_SIZES}
     costs = {k: round(mean, 7) for k, (mean, _) in measured.items()}
     tails = {k: round(p99, 7) for k, (_, p99) in measured.items()}
     rclpy.init()
@@ -203,6 +205,6 @@ def measure(seconds: float = 4.0, rate: float = 100.0, n: int = 16) -> dict[str,
         'machine': identity(),
         'measured_at': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
         **pp,
-        'command_cost': costs,
-        'command_cost_p99': tails,
+        'state_cost': costs,
+        'state_cost_p99': tails,
     }

@@ -3,7 +3,8 @@ cached, and what follows from them (``apf-swarm probe``).
 
 Machines of one kind differ 3-4x in speed, so the realtime defaults come from a measurement
 of the machine in use (:mod:`.measure`: the round trip, the CPU per message, the
-command cost and the memory per process), not from constants measured elsewhere.
+cost of a tracker's state (offer and command) and the memory per process), not from
+constants measured elsewhere.
 
 From them (:func:`derive`): the control-loop latency ``check`` and ``design`` assume (the
 round trip's p90 plus a command, stretched by the machine's utilization), the most trackers
@@ -53,7 +54,7 @@ CPU_BUDGET = 0.5
 #: the share of the memory available at start that the node processes may take
 MEMORY_BUDGET = 0.5
 #: what a cached probe must hold; one without all of them is measured again
-FIELDS = ('machine', 'rtt', 'cpu_per_message', 'command_cost', 'command_cost_p99', 'process_rss')
+FIELDS = ('machine', 'rtt', 'cpu_per_message', 'state_cost', 'state_cost_p99', 'process_rss')
 #: the tracker processes the bring-up aims at per core when it hosts the trackers
 #: several to a process (:func:`trackers_per_process`)
 PROCESSES_PER_CORE = 4
@@ -119,11 +120,11 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> d
     return probe
 
 
-def _command_cost_at(probe: dict[str, Any], n: int, key: str = 'command_cost') -> float:
-    """The probe's mean command cost (``key = 'command_cost_p99'``: its p99) for n
+def _state_cost_at(probe: dict[str, Any], n: int, key: str = 'state_cost') -> float:
+    """The probe's mean cost of a tracker's state (``key = 'state_cost_p99'``: its p99) for n
     trackers [s]: interpolated between the measured sizes, linear in n beyond them (the
     block direction's cost grows with the tracker's own gradient)."""
-    table = probe.get(key) or probe['command_cost']
+    table = probe.get(key) or probe['state_cost']
     sizes = np.array(sorted(int(k) for k in table))
     costs = np.array([table[str(k)] for k in sizes])
     if n > sizes[-1]:
@@ -142,9 +143,7 @@ def trackers_per_process(probe: dict[str, Any] | None, n: int, rate: float | Non
     k = max(1, -(-n // (PROCESSES_PER_CORE * cores)))
     if probe:
         period = 1.0 / (rate or RATES[-1])
-        each = _command_cost_at(probe, n, 'command_cost_p99') + 2.0 * float(
-            probe['cpu_per_message']
-        )
+        each = _state_cost_at(probe, n, 'state_cost_p99') + 2.0 * float(probe['cpu_per_message'])
         k = min(k, max(1, int(0.5 * period / each)))
     return k
 
@@ -165,7 +164,7 @@ def derive(
     median of 29-39 ms (docs/PERFORMANCE.md); the process's commands alone gave 7 ms."""
     cores = int(probe['machine']['cores'])
     msg = float(probe['cpu_per_message'])
-    cmd = _command_cost_at(probe, n)
+    cmd = _state_cost_at(probe, n)
     k = max(1, int(per_process))
     # the swarm's state in (once per process), its command out, the plant's in, a command
     per_tracker = msg / k + 2.0 * msg + cmd
@@ -174,7 +173,7 @@ def derive(
     if rate is None:
         rate = next((r for r in RATES if capacity[f'{r:g}'] >= n), RATES[-1])
     use = min(0.9, n * rate * per_tracker / cores)
-    tail = k * _command_cost_at(probe, n, 'command_cost_p99')
+    tail = k * _state_cost_at(probe, n, 'state_cost_p99')
     burst = n * per_tracker / cores
     latency = (float(probe['rtt']['p90']) + max(tail, burst)) / (1.0 - use)
     return {
@@ -260,12 +259,12 @@ def run(args: Any) -> int:
         f'{1e3 * r["p90"]:.2f} ms, p99 {1e3 * r["p99"]:.2f} ms; CPU per message '
         f'{1e6 * probe["cpu_per_message"]:.0f} us'
     )
-    tails = probe.get('command_cost_p99', {})
+    tails = probe.get('state_cost_p99', {})
     print(
-        '  tracker command (mean / p99): '
+        "  a tracker's state (offer + command, mean / p99): "
         + ', '.join(
             f'{1e6 * v:.0f} / {1e6 * tails.get(n, v):.0f} us for {n}'
-            for n, v in probe['command_cost'].items()
+            for n, v in probe['state_cost'].items()
         )
     )
     lim = process_limit(probe)
