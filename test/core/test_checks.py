@@ -212,3 +212,21 @@ def test_check_config_with_run_adds_measured_bounds():
     # the traditional law has no boundary layer: eq. 43 is not reported for it
     rep_t = check_config(cfg.replace(law='traditional'), run)
     assert not any(f.code.startswith('u0_eq43') for f in rep_t.findings)
+
+
+def test_an_emulation_that_does_not_fly_is_a_warning_whatever_the_prediction():
+    """The emulation outranks the linear prediction: a run of it that flies is information,
+    one that does not (here the same run with every tracker pushed onto one spot over the
+    judged window) is a warning with its remedies."""
+    from apf_swarm_core.checks import sampled_findings
+    from apf_swarm_core.simulator import simulate
+
+    cfg = load_preset('realtime').replace(duration=6.0, record_every=10, control_rate=100.0)
+    run = dict(simulate(cfg).trajectory)
+    (ok,) = [f for f in sampled_findings(cfg, run) if f.code == 'emulation']
+    assert ok.level == 'info' and 'flies' in ok.message
+    crowded = np.array(run['x'], copy=True)
+    crowded[len(crowded) // 2 :] = crowded[len(crowded) // 2 :, :1]  # all at the first's spot
+    (bad,) = [f for f in sampled_findings(cfg, {**run, 'x': crowded}) if f.code == 'emulation']
+    assert bad.level == 'warning' and 'does not fly' in bad.message
+    assert 'fewer trackers' in bad.message

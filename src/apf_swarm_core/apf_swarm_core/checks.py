@@ -124,9 +124,11 @@ def sampled_findings(
     if run is not None:
         f = flight(run, design_pair_sets(cfg))
         if f['formation_error_rms'] is not None:
+            # what the emulation says outranks the linear prediction: a run that does not
+            # fly there is a warning, whatever the prediction held
             out.append(
                 Finding(
-                    'info',
+                    'info' if f['flies'] else 'warning',
                     'emulation',
                     (
                         f'the emulation at this rate and latency '
@@ -135,7 +137,13 @@ def sampled_findings(
                         'of the mean design '
                         f"spacing, closest pair {100 * f['closest_pair']:.3g} % of the design's, "
                         f'centroid error RMS {f["centroid_error_rms"]:.3g} m over the last '
-                        f'{100 * f["window"]:g} %.'
+                        f'{100 * f["window"]:g} %'
+                        + (
+                            '.'
+                            if f['flies']
+                            else f'; fly fewer trackers or at a higher rate, or '
+                            f'{advice.redesign(1.0 / T, pred.latency, cfg.n_trackers)}.'
+                        )
                     ),
                 )
             )
