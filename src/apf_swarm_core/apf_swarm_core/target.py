@@ -10,6 +10,7 @@ time (no integration drift, identical in the simulator and in the ROS target nod
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -63,7 +64,7 @@ Times = ArrayLike  # float or array of times [s]
 
 
 @dataclass(frozen=True)
-class Trajectory:
+class Trajectory(ABC):
     """Base class: ``state(t)`` gives position and velocity at a time or an array of times.
 
     Subclasses define :meth:`heading` (speed, yaw, pitch: the inputs of eq. 1) and
@@ -73,13 +74,13 @@ class Trajectory:
     start: tuple[float, float, float] = (0.0, 0.0, 5.0)
     speed: float = 1.0
 
+    @abstractmethod
     def heading(self, t: Times) -> tuple[NDArray[np.float64], ...]:
         """Speed [m/s], yaw [rad] and pitch [rad] at ``t``, each of shape ``np.shape(t)``."""
-        raise NotImplementedError
 
+    @abstractmethod
     def displacement(self, t: Times) -> NDArray[np.float64]:
         """Integral of the eq. 1 velocity from 0 to ``t`` [m], shape ``np.shape(t) + (3,)``."""
-        raise NotImplementedError
 
     def state(self, t: Times) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Position [m] and velocity [m/s] at ``t`` [s]: shapes ``np.shape(t) + (3,)``."""
