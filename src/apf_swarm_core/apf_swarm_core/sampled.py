@@ -159,10 +159,7 @@ class SampledPrediction:
         a start in the design's shape (:attr:`start_error`) by what its modes leave then,
         judged as flight judges; for any other start by the softest mode's time constant."""
         if self.start_error is not None and self.start_closest is not None:
-            return (
-                self.start_error <= FLIGHT_CRITERIA['formation_rms']
-                and self.start_closest >= FLIGHT_CRITERIA['closest']
-            )
+            return _flown(self.start_error, self.start_closest)
         return self.settle_time <= self.settle_allowed
 
     def settling(self) -> str:
@@ -228,10 +225,7 @@ def predict(
         )
     warnings = []
     if start_error is not None and start_closest is not None:
-        if (
-            start_error > FLIGHT_CRITERIA['formation_rms']
-            or start_closest < FLIGHT_CRITERIA['closest']
-        ):
+        if not _flown(start_error, start_closest):
             warnings.append(
                 f"slow formation: {cfg.n_trackers} trackers started in the formation's shape "
                 f'are predicted to keep {100 * start_error:.3f} % formation error and a closest '
@@ -326,6 +320,11 @@ def predict(
         start_closest=start_closest,
         warnings=warnings,
     )
+
+
+def _flown(error: float, closest: float) -> bool:
+    """Formation error and closest pair (fractions) within flight's criteria."""
+    return error <= FLIGHT_CRITERIA['formation_rms'] and closest >= FLIGHT_CRITERIA['closest']
 
 
 def approach_time(cfg: SwarmConfig) -> float:
