@@ -7,7 +7,7 @@ import pytest
 from apf_swarm_core.controller import SlidingModeController
 from apf_swarm_core.gradients import gradient
 from apf_swarm_core.plant import DisturbanceSource, plant_step
-from apf_swarm_core.potential import _pair_weight_neg, pair_weight
+from apf_swarm_core.potential import pair_weight
 from apf_swarm_core.simulator import TRAJECTORY_KEYS, BatchSimulator
 
 from apf_swarm_core import load_preset, simulate, simulate_batch
@@ -81,7 +81,6 @@ def test_pair_weight_forms_agree():
     a, b, c = 1.3, 6.0, 1.7
     w = pair_weight(r2, a, b, c)
     assert np.array_equal(w, a - b * np.exp(r2 / (-c)))
-    assert np.array_equal(w, _pair_weight_neg(-r2, np.asarray(a), np.asarray(b), np.asarray(c)))
     assert pair_weight(2.0, a, b, c) == a - b * np.exp(2.0 / (-c))
 
 
