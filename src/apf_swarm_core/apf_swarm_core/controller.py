@@ -77,7 +77,7 @@ class SlidingModeController:
     phi: ArrayLike = 0.15
     feedforward: ArrayLike = 0.0
     z: NDArray[np.float64] = field(init=False, repr=False)
-    #: the gains of each run in the kernel's ``CTL_*`` columns, (runs, CTL_COLUMNS)
+    #: the gains of each run in the columns of ``kernels.CTL_COLUMNS``, (runs, 10)
     table: NDArray[np.float64] = field(init=False, repr=False)
     #: 0 the proposed manifold with eq. 8, 1 the traditional one, 2 the continuous sat
     manifold: int = field(init=False, repr=False)
@@ -107,13 +107,22 @@ class SlidingModeController:
             np.asarray(getattr(self, key), dtype=float) for key in CONTROLLER_GAINS
         )
         decay = np.exp(-self.dt / lam)  # eq. 26 over one sample
-        inv_phi = 1.0 / phi if self.switching == 'layer' else np.zeros(())
-        columns = (alpha, beta, gamma, alpha + beta / gamma, -u0, drag, decay)
-        columns += ((1.0 - decay) * beta, inv_phi, ff)
-        table = np.empty((*self.shape[:-2], CTL_COLUMNS))
-        for q, value in enumerate(columns):
-            table[..., q] = value
-        self.table = table.reshape(-1, CTL_COLUMNS)
+        columns = {
+            'alpha': alpha,
+            'beta': beta,
+            'gamma': gamma,
+            'layer_gain': alpha + beta / gamma,  # eq. 31
+            'neg_u0': -u0,
+            'drag': drag,
+            'decay': decay,
+            'gain_in': (1.0 - decay) * beta,
+            'inv_phi': 1.0 / phi if self.switching == 'layer' else 0.0,
+            'feedforward': ff,
+        }
+        table = np.empty((*self.shape[:-2], len(CTL_COLUMNS)))
+        for q, name in enumerate(CTL_COLUMNS):
+            table[..., q] = columns[name]
+        self.table = table.reshape(-1, len(CTL_COLUMNS))
         self.uses_feedforward = bool(np.any(ff != 0.0))
 
     def reset(self, z: ArrayLike | None = None) -> None:

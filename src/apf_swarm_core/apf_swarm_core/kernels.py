@@ -23,12 +23,16 @@ from numpy.typing import ArrayLike, NDArray
 from .potential import Rows
 
 __all__ = [
+    'CTL_COLUMNS',
     'Args',
     'as_kernel',
     'block_rows',
     'gradient_rows',
     'hessian_rows',
     'kernel_args',
+    'plant_rows',
+    'simulate_steps',
+    'smc_rows',
     'warm',
 ]
 
@@ -230,10 +234,11 @@ def block_rows(x: _A, tx: _A, rows: _I, mask: _M, gains: _A, mu: float, trust: f
     return out
 
 
-#: columns of the controller's per-run gains (B, 10) that :func:`smc_rows` takes
+#: the columns of the controller's per-run gains (B, 10) that :func:`smc_rows` takes
+CTL_COLUMNS = ('alpha', 'beta', 'gamma', 'layer_gain', 'neg_u0', 'drag', 'decay', 'gain_in')
+CTL_COLUMNS += ('inv_phi', 'feedforward')
 CTL_ALPHA, CTL_BETA, CTL_GAMMA, CTL_LAYER_GAIN, CTL_NEG_U0 = 0, 1, 2, 3, 4
 CTL_DRAG, CTL_DECAY, CTL_GAIN_IN, CTL_INV_PHI, CTL_FEEDFORWARD = 5, 6, 7, 8, 9
-CTL_COLUMNS = 10
 
 
 @_jit
@@ -499,7 +504,7 @@ def warm() -> None:
         hessian_rows(x, rows, mask, gains)
         block_rows(x, tx, rows, mask, gains, 0.1, 0.0)
         block_rows(x, tx, rows, mask, gains, 0.1, 0.5)
-    ctl = np.ones((1, CTL_COLUMNS))
+    ctl = np.ones((1, len(CTL_COLUMNS)))
     v = np.zeros((1, 2, 3))
     for manifold in range(3):
         smc_rows(v, v, v, tx, ctl, manifold, manifold == 1, manifold == 2)
@@ -544,9 +549,6 @@ class Args(NamedTuple):
     shape: tuple[int, ...]  # the result's leading shape: (..., m) or (...) for an int row
 
 
-_NO_MASK: dict[tuple[int, int], NDArray[np.bool_]] = {}
-
-
 def _rows(rows: Rows, n: int) -> tuple[NDArray[np.int64], bool]:
     """The row numbers (m,) int64 and whether ``rows`` was a single int."""
     if rows is None:
@@ -555,15 +557,6 @@ def _rows(rows: Rows, n: int) -> tuple[NDArray[np.int64], bool]:
         return np.array(rows, dtype=np.int64), False
     idx = np.arange(n, dtype=np.int64)[rows]
     return as_kernel(idx.reshape(-1), dtype=np.int64), idx.ndim == 0
-
-
-def _no_mask(m: int, n: int) -> NDArray[np.bool_]:
-    """The empty mask (0, m, n) of 'every other tracker' (shared; it has no element to
-    write, and a writeable array keeps the kernels' one compiled signature)."""
-    out = _NO_MASK.get((m, n))
-    if out is None:
-        out = _NO_MASK[m, n] = np.zeros((0, m, n), dtype=np.bool_)
-    return out
 
 
 def kernel_args(
@@ -591,7 +584,7 @@ def kernel_args(
                 as_kernel(x).reshape(1, n, 3),
                 as_kernel(tx).reshape(1, 3),
                 idx,
-                _no_mask(m, n),
+                np.zeros((0, m, n), dtype=np.bool_),
                 g,
                 () if single else (m,),
             )
@@ -618,7 +611,7 @@ def kernel_args(
     xs = as_kernel(x).reshape(runs, n, 3)
     ts = as_kernel(tx).reshape(runs, 3)
     if mk is None:
-        ms = _no_mask(m, n)
+        ms = np.zeros((0, m, n), dtype=np.bool_)
     elif mk.ndim <= 2:
         ms = as_kernel(mk, (1, m, n), np.bool_)
     else:
