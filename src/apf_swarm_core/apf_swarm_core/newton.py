@@ -35,9 +35,7 @@ def hessian(
 
     to the diagonal blocks (i, i) and (j, j) and ``-H_ij`` to the blocks (i, j) and (j, i);
     the tracking term adds ``k_N I`` to every diagonal block. Row-major: entry
-    ``(3i + k, 3j + l)`` is ``d^2 J / dx_ik dx_jl``. It does not depend on ``x_target``
-    (taken for symmetry with :func:`gradient`). Its eigenvalues at an equilibrium are the
-    rates of the formation's linearized modes (:mod:`apf_swarm_core.modes`).
+    ``(3i + k, 3j + l)`` is ``d^2 J / dx_ik dx_jl``; ``x_target`` does not enter it.
 
     Parameters
     ----------
@@ -121,27 +119,13 @@ def newton_direction(
         \delta = |H|_{\mu^*}^{-1} \nabla J, \qquad
         |H|_{\mu^*} = V \operatorname{diag}(\max(|\lambda_k|, \mu^*)) V^T
 
-    with ``H = V diag(lambda) V^T`` from :func:`newton_basis` (Dauphin et al., "Identifying
-    and attacking the saddle point problem in high-dimensional non-convex optimization",
-    NIPS 2014). Along delta every mode of H with ``lambda >= mu*`` descends at the same rate
-    near the equilibrium, instead of at ``lambda`` along the gradient: the formation loop's
-    stiffest rate and its softest no longer differ by ``lambda_max / lambda_soft`` (2e3 for
-    16 trackers, 3e5 for 32 with the default potential). ``|H|`` is positive definite, so
-    delta vanishes exactly where the gradient does (the equilibria of J are unchanged) and is
-    a descent direction everywhere, saddles included (``|lambda|``).
-
-    Trust region (``trust`` > 0): ``mu* >= mu`` is the smallest floor for which the step's
-    RMS per tracker, ``||delta|| / sqrt(n)``, is at most ``trust`` (Levenberg-Marquardt's
-    choice of damping; Nocedal & Wright, "Numerical Optimization", ch. 4). Near an
-    equilibrium the step is short and ``mu* = mu``, so a small ``mu`` gives the softest
-    modes the full rate; far from it, where the Hessian turns with the state and a small
-    curvature would turn a modest gradient into a long step, the floor rises and delta
-    leans towards the gradient. The floor stops at ``ceiling``: :class:`~apf_swarm_core.
-    control.Preconditioner` passes k_N, the curvature of the centroid's mode (the pair
-    terms of eq. 2 cancel in it), so however far the swarm is from its formation, it still
-    closes on the target at the manifold's full rate (a higher floor, up to lambda_max,
-    slows every mode with it: the emulation's 32 trackers at 50 Hz then collide). ``trust``
-    = 0: ``mu* = mu``.
+    with ``H = V diag(lambda) V^T`` from :func:`newton_basis` (Dauphin et al., NIPS 2014;
+    docs/THEORY.md, Large swarms): every mode with ``lambda >= mu*`` descends at one rate,
+    and ``|H|`` is positive definite, so delta vanishes exactly where the gradient does.
+    Trust region (``trust`` > 0, Levenberg-Marquardt): ``mu* >= mu`` is the smallest floor
+    for which the step's RMS per tracker, ``||delta|| / sqrt(n)``, is at most ``trust``, up
+    to ``ceiling`` (:class:`~apf_swarm_core.control.Preconditioner` passes k_N, the
+    centroid's curvature); ``trust`` = 0: ``mu* = mu``.
 
     Parameters
     ----------
