@@ -16,8 +16,8 @@ from apf_swarm_core.design import (
 )
 from apf_swarm_core.errors import ConfigError
 from apf_swarm_core.gradients import gradient
-from apf_swarm_core.laws import kinematic_velocity
 from apf_swarm_core.potential import potential
+from reference import kinematic_velocity
 
 
 def _spec_triangle_side(a, b, c, k_n, k_f):

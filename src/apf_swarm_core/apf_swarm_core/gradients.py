@@ -35,11 +35,9 @@ def gradient(
         \\nabla_{x_i} J = k_N (x_i - x_N)
             + k_f \\sum_{j \\ne i} (x_i - x_j)\\,(a - b\\,e^{-\\|x_i - x_j\\|^2/c})
 
-    A tracker node that knows its own position and its neighbours' evaluates its own row
-    with ``rows=[i]``: the same compiled kernel (:func:`apf_swarm_core.kernels.gradient_rows`),
-    the same arithmetic, as the simulator that evaluates all rows. Each row is summed over
-    j = 0, 1, ..., n-1 on its own, so ``gradient(x, ..., rows=[i])`` equals row i of
-    ``gradient(x, ...)`` bit for bit, and a run inside a batch equals the same run alone.
+    The compiled kernel :func:`~apf_swarm_core.kernels.gradient_rows` computes each row on
+    its own, so ``gradient(x, ..., rows=[i])`` (a tracker node) equals row i of
+    ``gradient(x, ...)`` (the simulator) bit for bit, and a run in a batch the run alone.
 
     Parameters
     ----------

@@ -1,17 +1,13 @@
-"""Compiled kernels of the control hot path (numba): the gradient rows of J (eq. 2 / 44),
-the trackers' own Hessian blocks and the block-preconditioned direction of ``precondition =
-block``. The numpy-facing functions (:func:`~apf_swarm_core.gradients.gradient`,
-:func:`~apf_swarm_core.newton.hessian_blocks`, :func:`~apf_swarm_core.newton.block_direction`)
-shape their arguments and call these; the simulator, the emulation and the tracker nodes all
-reach the same machine code.
+"""Compiled kernels of the control hot path (numba): the gradient rows of J (eq. 2 / 44), the
+trackers' own Hessian blocks, the block-preconditioned direction, the sliding-mode step (eq.
+20-31), the plant (eq. 19-21) and the simulator's closed loop; the simulator, the emulation and
+the tracker nodes all run this machine code (docs/THEORY.md tables the equations).
 
 Every kernel takes one batch axis first (``B`` runs; per-run gains as arrays of shape
-``(B,)``), computes each selected row on its own and sums over j = 0, 1, ..., n-1 in that
-order, so a row's value does not depend on which other rows or runs are computed with it:
-``rows=[i]`` in a tracker node equals row i of the simulator's all-rows call bit for bit.
-No ``fastmath``: the same bits on every call path. ``cache=True`` keeps the compiled code
-beside this module (numba's cache), so a process loads it instead of compiling it; the
-fork-based start loads it once in the zygote (:func:`warm`).
+``(B,)``) and sums over j = 0, 1, ..., n-1 in that order, so a row's value does not depend on
+which other rows or runs are computed with it: ``rows=[i]`` in a tracker node equals row i of
+the simulator's all-rows call bit for bit. No ``fastmath``: the same bits on every call path.
+``cache=True`` keeps the compiled code beside this module; :func:`warm` loads it.
 """
 
 from __future__ import annotations
@@ -27,13 +23,16 @@ from numpy.typing import ArrayLike, NDArray
 from .potential import Rows
 
 __all__ = [
+    'CTL_COLUMNS',
     'Args',
     'as_kernel',
     'block_rows',
-    'block_steps',
     'gradient_rows',
     'hessian_rows',
     'kernel_args',
+    'plant_rows',
+    'simulate_steps',
+    'smc_rows',
     'warm',
 ]
 
@@ -119,9 +118,9 @@ def _block(h: _A, kn: float, kf: float, a: float, b: float, c: float, out: _A) -
 def _step(
     H: _A, g: _A, gbar: _A, kn: float, mu: float, trust: float, out: _A, r: int, k: int
 ) -> None:
-    """``out[r, k] = gbar / k_N + |H|_mu^-1 (g - gbar)`` for one tracker (the formula of
-    :func:`~apf_swarm_core.newton.block_direction`): ``|H|_mu = V diag(max(|lambda|, mu_i))
-    V^T``, ``mu_i = max(mu, |g - gbar| / trust)`` with a trust radius."""
+    """``out[r, k] = gbar / k_N + |H|_mu^-1 (g - gbar)`` for one tracker (docs/THEORY.md,
+    Large swarms): ``|H|_mu = V diag(max(|lambda|, mu_i)) V^T``, ``mu_i = max(mu, |g - gbar| /
+    trust)`` with a trust radius."""
     w, v = np.linalg.eigh(H)
     r0, r1, r2 = g[0] - gbar[0], g[1] - gbar[1], g[2] - gbar[2]
     floor = mu
@@ -222,28 +221,11 @@ def hessian_rows(x: _A, rows: _I, mask: _M, gains: _A) -> _A:
 
 
 @_jit
-def block_steps(blocks: _A, grad: _A, gbar: _A, kn: _A, mu: float, trust: float) -> _A:
-    """The block direction from given blocks (B, m, 3, 3), gradient rows (B, m, 3) and
-    centroid gradients (B, 3); kn (B,); shape (B, m, 3)."""
-    B, m = grad.shape[0], grad.shape[1]
-    out = np.empty((B, m, 3))
-    g, gb = np.empty(3), np.empty(3)
-    for r in range(B):
-        for q in range(3):
-            gb[q] = gbar[r, q]
-        for k in range(m):
-            for q in range(3):
-                g[q] = grad[r, k, q]
-            _step(blocks[r, k], g, gb, kn[r], mu, trust, out, r, k)
-    return out
-
-
-@_jit
 def block_rows(x: _A, tx: _A, rows: _I, mask: _M, gains: _A, mu: float, trust: float) -> _A:
     """The direction of ``precondition = block`` for the rows, shape (B, m, 3), in one pass
     over each row's pairs: its gradient row (:func:`gradient_rows`), its Hessian block
-    (:func:`hessian_rows`) and the step of :func:`block_steps` with ``g_bar = k_N (mean x -
-    x_N)`` over every tracker in ``x``."""
+    (:func:`hessian_rows`) and the step of :func:`_step` with ``g_bar = k_N (mean x - x_N)``
+    over every tracker in ``x``."""
     B, m = x.shape[0], rows.shape[0]
     out = np.empty((B, m, 3))
     s, h, g, gbar, H = _scratch()
@@ -252,10 +234,11 @@ def block_rows(x: _A, tx: _A, rows: _I, mask: _M, gains: _A, mu: float, trust: f
     return out
 
 
-#: columns of the controller's per-run gains (B, 11) that :func:`smc_rows` takes
-CTL_ALPHA, CTL_BETA, CTL_GAMMA, CTL_BOUND, CTL_LAYER_GAIN, CTL_NEG_U0 = 0, 1, 2, 3, 4, 5
-CTL_DRAG, CTL_DECAY, CTL_GAIN_IN, CTL_INV_PHI, CTL_FEEDFORWARD = 6, 7, 8, 9, 10
-CTL_COLUMNS = 11
+#: the columns of the controller's per-run gains (B, 10) that :func:`smc_rows` takes
+CTL_COLUMNS = ('alpha', 'beta', 'gamma', 'layer_gain', 'neg_u0', 'drag', 'decay', 'gain_in')
+CTL_COLUMNS += ('inv_phi', 'feedforward')
+CTL_ALPHA, CTL_BETA, CTL_GAMMA, CTL_LAYER_GAIN, CTL_NEG_U0 = 0, 1, 2, 3, 4
+CTL_DRAG, CTL_DECAY, CTL_GAIN_IN, CTL_INV_PHI, CTL_FEEDFORWARD = 5, 6, 7, 8, 9
 
 
 @_jit
@@ -268,56 +251,6 @@ def _sign(value: float) -> float:
     if value == 0.0:
         return 0.0
     return value
-
-
-def _known_py(v: float, drag: float) -> float:
-    """Eq. 20's known term, ``f_known = drag v`` [N]."""
-    return drag * v
-
-
-def _filter_py(z: float, g: float, decay: float, gain_in: float) -> float:
-    """Eq. 26 over one step with the input held: ``decay z + gain_in sign(g)``, ``decay =
-    e^{-dt/lambda}``, ``gain_in = (1 - decay) beta``."""
-    return decay * z + gain_in * _sign(g)
-
-
-def _surface_filtered_py(vs: float, g: float, z: float, alpha: float) -> float:
-    """``s = v + alpha g + z``: eq. 28 (outside the layer) and the traditional law."""
-    return (vs + alpha * g) + z
-
-
-def _surface_layer_py(vs: float, g: float, gain: float) -> float:
-    """Eq. 31 inside the boundary layer: ``s = v + (alpha + beta / gamma) g``, ``gain`` the
-    bracket."""
-    return vs + gain * g
-
-
-def _surface_continuous_py(vs: float, g: float, alpha: float, beta: float, den: float) -> float:
-    """Eq. 22 with the continuous sat: ``s = v + alpha g + beta g / max(|g|, gamma)``,
-    ``den`` = ``max(|g|, gamma)``."""
-    return (vs + alpha * g) + beta * (g / den)
-
-
-def _switching_py(s: float, v: float, neg_u0: float, drag: float) -> float:
-    """Eq. 24, ``u = -u0 sign(s) + f_known(v)``, with ``neg_u0 = -u0``."""
-    return neg_u0 * _sign(s) + _known(v, drag)
-
-
-def _switching_layer_py(s: float, v: float, neg_u0: float, inv_phi: float, drag: float) -> float:
-    """Eq. 24 with a boundary layer (not in the paper), ``u = -u0 clip(s / phi, -1, 1) +
-    f_known(v)``, with ``inv_phi = 1 / phi``."""
-    return neg_u0 * min(max(s * inv_phi, -1.0), 1.0) + _known(v, drag)
-
-
-# each equation once, compiled; the kernels call them, and so do the numpy-facing public
-# functions of :mod:`apf_swarm_core.laws` through the ``*_array`` kernels below
-_known = _jit(_known_py)
-_filter = _jit(_filter_py)
-_surface_filtered = _jit(_surface_filtered_py)
-_surface_layer = _jit(_surface_layer_py)
-_surface_continuous = _jit(_surface_continuous_py)
-_switching = _jit(_switching_py)
-_switching_layer = _jit(_switching_layer_py)
 
 
 @_jit
@@ -338,38 +271,35 @@ def _smc(
     znew: _A,
 ) -> bool:
     """Tracker ``i`` of run ``r``: its sliding-mode step; returns whether ``|g| >= gamma``
-    (eq. 8).
+    (outside the boundary layer of eq. 8).
 
-    The manifold (``manifold`` 0: the proposed one with the paper's sat, eq. 28 outside
-    the layer and eq. 31 inside; 1: the traditional ``v + alpha g + z``; 2: eq. 22 with the
-    continuous sat ``g / max(|g|, gamma)``) on ``v - w v_ref`` with the feed-forward; the
-    force of eq. 24, ``-u0 sign(s)`` or with ``layer`` ``-u0 clip(s / phi, -1, 1)``, plus
-    ``f_known = drag v`` (eq. 20); the filter of eq. 26, ``decay z + (1 - decay) beta
-    sign(g)``. v, g, z, force, s, znew (B, m, 3) at [r, i]; vref (., 3) at [tr]; ctl (B,
-    11) at [r] (``CTL_*`` columns)."""
+    The manifold on ``v_s = v - w v_ref`` (``w`` the feed-forward weight, 0 without): with
+    ``manifold`` 0 the proposed one, eq. 28 ``v_s + alpha g + z`` outside the layer and eq.
+    31 ``v_s + (alpha + beta / gamma) g`` inside; 1 the traditional ``v_s + alpha g + z``;
+    2 eq. 22 with the continuous sat, ``v_s + alpha g + beta g / max(|g|, gamma)``. The force
+    of eq. 24, ``-u0 sign(s)`` or with ``layer`` ``-u0 clip(s / phi, -1, 1)``, plus ``f_known
+    = drag v`` (eq. 20); the filter of eq. 26 over the step, ``decay z + (1 - decay) beta
+    sign(g)``. v, g, z, force, s, znew (B, m, 3) at [r, i]; vref (., 3) at [tr]; ctl (B, 10)
+    at [r] (``CTL_*`` columns)."""
     g0, g1, g2 = g[r, i, 0], g[r, i, 1], g[r, i, 2]
     n2 = g0 * g0 + g1 * g1
-    n2 = n2 + g2 * g2
-    outside = n2 >= ctl[r, CTL_BOUND]
-    den = 0.0
-    if manifold == 2:
-        den = max(math.sqrt(n2), ctl[r, CTL_GAMMA])
+    norm = math.sqrt(n2 + g2 * g2)  # as np.linalg.norm sums it
+    outside = norm >= ctl[r, CTL_GAMMA]
+    den = max(norm, ctl[r, CTL_GAMMA])
     alpha, neg_u0, drag = ctl[r, CTL_ALPHA], ctl[r, CTL_NEG_U0], ctl[r, CTL_DRAG]
     for q in range(3):
         gq, vq, zq = g[r, i, q], v[r, i, q], z[r, i, q]
         vs = vq - ctl[r, CTL_FEEDFORWARD] * vref[tr, q] if feedforward else vq
         if manifold == 1 or (manifold == 0 and outside):
-            sq = _surface_filtered(vs, gq, zq, alpha)
+            sq = (vs + alpha * gq) + zq
         elif manifold == 0:
-            sq = _surface_layer(vs, gq, ctl[r, CTL_LAYER_GAIN])
+            sq = vs + ctl[r, CTL_LAYER_GAIN] * gq
         else:
-            sq = _surface_continuous(vs, gq, alpha, ctl[r, CTL_BETA], den)
+            sq = (vs + alpha * gq) + ctl[r, CTL_BETA] * (gq / den)
         s[r, i, q] = sq
-        if layer:
-            force[r, i, q] = _switching_layer(sq, vq, neg_u0, ctl[r, CTL_INV_PHI], drag)
-        else:
-            force[r, i, q] = _switching(sq, vq, neg_u0, drag)
-        znew[r, i, q] = _filter(zq, gq, ctl[r, CTL_DECAY], ctl[r, CTL_GAIN_IN])
+        switch = min(max(sq * ctl[r, CTL_INV_PHI], -1.0), 1.0) if layer else _sign(sq)
+        force[r, i, q] = neg_u0 * switch + drag * vq
+        znew[r, i, q] = ctl[r, CTL_DECAY] * zq + ctl[r, CTL_GAIN_IN] * _sign(gq)
     return outside
 
 
@@ -377,7 +307,7 @@ def _smc(
 def smc_rows(
     v: _A, grad: _A, z: _A, vref: _A, ctl: _A, manifold: int, layer: bool, feedforward: bool
 ) -> tuple[_A, _A, _A, NDArray[np.bool_]]:
-    """:func:`_smc` for every tracker: v, grad, z (B, m, 3); vref (B, 3); ctl (B, 11).
+    """:func:`_smc` for every tracker: v, grad, z (B, m, 3); vref (B, 3); ctl (B, 10).
     Returns the force, the manifold s, the next filter state (B, m, 3) and ``outside``
     (B, m)."""
     B, m = v.shape[0], v.shape[1]
@@ -399,8 +329,7 @@ def _plant(
 ) -> tuple[float, float]:
     """Eq. 19-21 for one coordinate over one step ``h`` with the force ``f`` held:
     ``acc = ((f - drag v) - d) / M``; returns ``x + v h + acc h^2 / 2`` and ``v + acc h``."""
-    acc = f - _known(v, drag)
-    acc = (acc - d) / mass
+    acc = ((f - drag * v) - d) / mass
     return (x + v * h) + half_h2 * acc, v + acc * h
 
 
@@ -561,69 +490,6 @@ def simulate_steps(
     return have_out
 
 
-@_jit
-def known_array(v: _A, drag: _A) -> _A:
-    """:func:`_known` elementwise over flat arrays of one length."""
-    out = np.empty(v.size)
-    for e in range(v.size):
-        out[e] = _known(v[e], drag[e])
-    return out
-
-
-@_jit
-def filter_array(z: _A, g: _A, decay: _A, gain_in: _A) -> _A:
-    """:func:`_filter` elementwise over flat arrays of one length."""
-    out = np.empty(z.size)
-    for e in range(z.size):
-        out[e] = _filter(z[e], g[e], decay[e], gain_in[e])
-    return out
-
-
-@_jit
-def surface_array(
-    vs: _A, g: _A, z: _A, outside: NDArray[np.bool_], alpha: _A, gain: _A, den: _A, kind: int
-) -> _A:
-    """The manifold elementwise over flat arrays of one length: ``kind`` 0, the proposed
-    one (eq. 28 where ``outside``, eq. 31 with the bracket ``gain`` elsewhere); 1, eq. 28 /
-    the traditional law everywhere; 2, eq. 22 with the continuous sat, ``gain`` = beta and
-    ``den`` = ``max(|g|, gamma)``."""
-    out = np.empty(vs.size)
-    for e in range(vs.size):
-        if kind == 1 or (kind == 0 and outside[e]):
-            out[e] = _surface_filtered(vs[e], g[e], z[e], alpha[e])
-        elif kind == 0:
-            out[e] = _surface_layer(vs[e], g[e], gain[e])
-        else:
-            out[e] = _surface_continuous(vs[e], g[e], alpha[e], gain[e], den[e])
-    return out
-
-
-@_jit
-def switching_array(s: _A, v: _A, neg_u0: _A, inv_phi: _A, drag: _A, layer: bool) -> _A:
-    """:func:`_switching` (or with ``layer`` :func:`_switching_layer`) elementwise over flat
-    arrays of one length."""
-    out = np.empty(s.size)
-    for e in range(s.size):
-        if layer:
-            out[e] = _switching_layer(s[e], v[e], neg_u0[e], inv_phi[e], drag[e])
-        else:
-            out[e] = _switching(s[e], v[e], neg_u0[e], drag[e])
-    return out
-
-
-def elementwise(kernel: Callable[..., _A], *args: ArrayLike, flags: tuple[Any, ...] = ()) -> _A:
-    """``kernel`` (one of the ``*_array`` kernels) on ``args`` broadcast together, then
-    ``flags``: the numpy-facing form of an equation's compiled function, any shapes."""
-    arrays = np.broadcast_arrays(*(np.asarray(a) for a in args))
-    shape = arrays[0].shape
-    flat = [
-        as_kernel(a, dtype=np.bool_ if a.dtype == np.bool_ else np.float64).reshape(-1)
-        for a in arrays
-    ]
-    out: _A = kernel(*flat, *flags).reshape(shape)
-    return out
-
-
 def warm() -> None:
     """Load (or compile, the first time on a machine) every kernel for the argument types
     the hot path uses, so that no control step pays for it: called by the zygote before it
@@ -638,20 +504,11 @@ def warm() -> None:
         hessian_rows(x, rows, mask, gains)
         block_rows(x, tx, rows, mask, gains, 0.1, 0.0)
         block_rows(x, tx, rows, mask, gains, 0.1, 0.5)
-    blocks = hessian_rows(x, rows, np.zeros((0, 2, 2), dtype=np.bool_), gains)
-    block_steps(blocks, np.zeros((1, 2, 3)), np.zeros((1, 3)), np.ones(1), 0.1, 0.0)
-    ctl = np.ones((1, CTL_COLUMNS))
+    ctl = np.ones((1, len(CTL_COLUMNS)))
     v = np.zeros((1, 2, 3))
     for manifold in range(3):
         smc_rows(v, v, v, tx, ctl, manifold, manifold == 1, manifold == 2)
     plant_rows(x, v, v, v, np.ones((1, 2, 3)), np.ones(1), 0.001, 5e-7)
-    flat, flags = np.zeros(3), np.zeros(3, dtype=np.bool_)
-    known_array(flat, flat)
-    filter_array(flat, flat, flat, flat)
-    for kind in range(3):
-        surface_array(flat, flat, flat, flags, flat, flat, flat, kind)
-    for layer in (False, True):
-        switching_array(flat, flat, flat, flat, flat, layer)
     # the simulator's loop, recording into step-major views of (R, T, ...) arrays or not (an
     # empty view is C-contiguous, a full one is not: two signatures); arguments in the order
     # of simulate_steps: state and held command, the loop and its inputs, law and plant, records
@@ -692,9 +549,6 @@ class Args(NamedTuple):
     shape: tuple[int, ...]  # the result's leading shape: (..., m) or (...) for an int row
 
 
-_NO_MASK: dict[tuple[int, int], NDArray[np.bool_]] = {}
-
-
 def _rows(rows: Rows, n: int) -> tuple[NDArray[np.int64], bool]:
     """The row numbers (m,) int64 and whether ``rows`` was a single int."""
     if rows is None:
@@ -703,15 +557,6 @@ def _rows(rows: Rows, n: int) -> tuple[NDArray[np.int64], bool]:
         return np.array(rows, dtype=np.int64), False
     idx = np.arange(n, dtype=np.int64)[rows]
     return as_kernel(idx.reshape(-1), dtype=np.int64), idx.ndim == 0
-
-
-def _no_mask(m: int, n: int) -> NDArray[np.bool_]:
-    """The empty mask (0, m, n) of 'every other tracker' (shared; it has no element to
-    write, and a writeable array keeps the kernels' one compiled signature)."""
-    out = _NO_MASK.get((m, n))
-    if out is None:
-        out = _NO_MASK[m, n] = np.zeros((0, m, n), dtype=np.bool_)
-    return out
 
 
 def kernel_args(
@@ -739,7 +584,7 @@ def kernel_args(
                 as_kernel(x).reshape(1, n, 3),
                 as_kernel(tx).reshape(1, 3),
                 idx,
-                _no_mask(m, n),
+                np.zeros((0, m, n), dtype=np.bool_),
                 g,
                 () if single else (m,),
             )
@@ -766,7 +611,7 @@ def kernel_args(
     xs = as_kernel(x).reshape(runs, n, 3)
     ts = as_kernel(tx).reshape(runs, 3)
     if mk is None:
-        ms = _no_mask(m, n)
+        ms = np.zeros((0, m, n), dtype=np.bool_)
     elif mk.ndim <= 2:
         ms = as_kernel(mk, (1, m, n), np.bool_)
     else:

@@ -11,8 +11,8 @@ acts tau seconds later and is held until the next one arrives.
    swarm splits into independent modes, one per eigenvalue lambda, ``s_l = e_l' + K lambda
    e_l``; the rigid rotations have lambda = 0, the centroid lambda = k_N, and the stiffest
    mode ``lambda_max`` grows with the number of trackers.
-2. **Inner loop.** With the boundary-layer switching (:func:`apf_swarm_core.laws.
-   layer_switching_force`) the force inside the layer is ``u = -(u0/phi) s``: per mode
+2. **Inner loop.** With the boundary-layer switching (``switching = layer``,
+   docs/THEORY.md) the force inside the layer is ``u = -(u0/phi) s``: per mode
    ``M e'' = -(u0/phi)(e' + K lambda e)``, a linear loop with velocity rate
    ``g = u0/(phi M)``. The sign law of eq. 24 held over T changes the velocity by
    ``u0 T / M`` per period (the ripple) and so corrects a velocity error within about one
@@ -148,7 +148,7 @@ def effective_spectrum(cfg: SwarmConfig, eigs: NDArray[np.float64]) -> NDArray[n
     along the Newton direction (``precondition = newton``,
     :func:`apf_swarm_core.newton.newton_direction`): 1 for every mode at least as stiff as
     ``mu``; along the block direction (``precondition = block``,
-    :func:`apf_swarm_core.newton.block_direction`) the eigenvalues of ``P H`` at the design
+    :class:`apf_swarm_core.control.BlockPreconditioner`) the eigenvalues of ``P H`` at the design
     (:func:`design_block_spectrum`, ``eigs`` unused): 1 for the centroid, from about 0.003
     to 3.3 for the formation's modes whatever the size (realtime preset, 3-128 trackers)."""
     eigs = np.asarray(eigs, dtype=float)
@@ -183,7 +183,7 @@ def _block_map(cfg: SwarmConfig, x: NDArray[np.float64]) -> NDArray[np.float64]:
 def design_block_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
     """Eigenvalues of ``P H`` at the design equilibrium, ascending (shape (3n,), the
     rotations' zeros included): H the Hessian of J, P the linear map of
-    :func:`~apf_swarm_core.newton.block_direction` near the equilibrium (each tracker's
+    :class:`~apf_swarm_core.control.BlockPreconditioner` near the equilibrium (each tracker's
     ``|H_ii|_mu^-1`` on the gradient less its mean, plus the mean over k_N). ``P H`` is
     similar to a symmetric matrix (P is symmetric positive definite), so its eigenvalues are
     real: each is the rate, in units of K, at which one mode of the formation decays."""

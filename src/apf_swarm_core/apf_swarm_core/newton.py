@@ -4,18 +4,16 @@ damped (Levenberg-Marquardt) direction with a trust radius."""
 
 from __future__ import annotations
 
-import math
 from typing import Unpack
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .gains import shaped
-from .kernels import as_kernel, block_steps, hessian_rows, kernel_args
+from .kernels import hessian_rows, kernel_args
 from .potential import Gains, Rows, gain_values
 
 __all__ = [
-    'block_direction',
     'hessian',
     'hessian_blocks',
     'newton_basis',
@@ -37,9 +35,7 @@ def hessian(
 
     to the diagonal blocks (i, i) and (j, j) and ``-H_ij`` to the blocks (i, j) and (j, i);
     the tracking term adds ``k_N I`` to every diagonal block. Row-major: entry
-    ``(3i + k, 3j + l)`` is ``d^2 J / dx_ik dx_jl``. It does not depend on ``x_target``
-    (taken for symmetry with :func:`gradient`). Its eigenvalues at an equilibrium are the
-    rates of the formation's linearized modes (:mod:`apf_swarm_core.modes`).
+    ``(3i + k, 3j + l)`` is ``d^2 J / dx_ik dx_jl``; ``x_target`` does not enter it.
 
     Parameters
     ----------
@@ -123,27 +119,13 @@ def newton_direction(
         \delta = |H|_{\mu^*}^{-1} \nabla J, \qquad
         |H|_{\mu^*} = V \operatorname{diag}(\max(|\lambda_k|, \mu^*)) V^T
 
-    with ``H = V diag(lambda) V^T`` from :func:`newton_basis` (Dauphin et al., "Identifying
-    and attacking the saddle point problem in high-dimensional non-convex optimization",
-    NIPS 2014). Along delta every mode of H with ``lambda >= mu*`` descends at the same rate
-    near the equilibrium, instead of at ``lambda`` along the gradient: the formation loop's
-    stiffest rate and its softest no longer differ by ``lambda_max / lambda_soft`` (2e3 for
-    16 trackers, 3e5 for 32 with the default potential). ``|H|`` is positive definite, so
-    delta vanishes exactly where the gradient does (the equilibria of J are unchanged) and is
-    a descent direction everywhere, saddles included (``|lambda|``).
-
-    Trust region (``trust`` > 0): ``mu* >= mu`` is the smallest floor for which the step's
-    RMS per tracker, ``||delta|| / sqrt(n)``, is at most ``trust`` (Levenberg-Marquardt's
-    choice of damping; Nocedal & Wright, "Numerical Optimization", ch. 4). Near an
-    equilibrium the step is short and ``mu* = mu``, so a small ``mu`` gives the softest
-    modes the full rate; far from it, where the Hessian turns with the state and a small
-    curvature would turn a modest gradient into a long step, the floor rises and delta
-    leans towards the gradient. The floor stops at ``ceiling``: :class:`~apf_swarm_core.
-    control.Preconditioner` passes k_N, the curvature of the centroid's mode (the pair
-    terms of eq. 2 cancel in it), so however far the swarm is from its formation, it still
-    closes on the target at the manifold's full rate (a higher floor, up to lambda_max,
-    slows every mode with it: the emulation's 32 trackers at 50 Hz then collide). ``trust``
-    = 0: ``mu* = mu``.
+    with ``H = V diag(lambda) V^T`` from :func:`newton_basis` (Dauphin et al., NIPS 2014;
+    docs/THEORY.md, Large swarms): every mode with ``lambda >= mu*`` descends at one rate,
+    and ``|H|`` is positive definite, so delta vanishes exactly where the gradient does.
+    Trust region (``trust`` > 0, Levenberg-Marquardt): ``mu* >= mu`` is the smallest floor
+    for which the step's RMS per tracker, ``||delta|| / sqrt(n)``, is at most ``trust``, up
+    to ``ceiling`` (:class:`~apf_swarm_core.control.Preconditioner` passes k_N, the
+    centroid's curvature); ``trust`` = 0: ``mu* = mu``.
 
     Parameters
     ----------
@@ -202,54 +184,3 @@ def hessian_blocks(
     args = kernel_args(x, None, gain_values(gains), rows, mask)
     out = hessian_rows(args.x, args.rows, args.mask, args.gains)
     return out.reshape((*args.shape, 3, 3))
-
-
-def block_direction(
-    blocks: ArrayLike,
-    grad: ArrayLike,
-    centroid_grad: ArrayLike,
-    *,
-    k_n: ArrayLike,
-    mu: float,
-    trust: float = 0.0,
-) -> NDArray[np.float64]:
-    r"""The decentralised preconditioned direction of ``precondition = block`` (not in the
-    paper), shape of ``grad`` (..., m, 3): for each tracker, from its own gradient row and
-    its own Hessian block only,
-
-    .. math::
-
-        \delta_i = \frac{\bar g}{k_N} + |H_{ii}|_{\mu_i}^{-1} (g_i - \bar g), \qquad
-        \bar g = k_N (\bar x - x_N)
-
-    ``g_bar`` is the mean of the gradients over the swarm (the pair terms of eq. 2 cancel in
-    it), the gradient along the centroid's mode, an exact eigenvector of H with curvature
-    k_N: the centroid closes on the target at the manifold's full rate, whatever the size
-    of the swarm. The rest of the gradient is scaled by the tracker's own curvature
-    ``|H_ii|_mu = V diag(max(|lambda|, mu_i)) V^T`` (block Jacobi, saddle-free as in
-    :func:`newton_direction`), so a tracker whose neighbours press it from every side moves
-    no further per sample than a lone one: the stiffest modes of a large swarm are scaled
-    down by the swarm's size. Trust region (``trust`` > 0): ``mu_i = max(mu, |g_i - g_bar| /
-    trust)``, so no tracker's relative step is longer than ``trust``.
-
-    Parameters
-    ----------
-    blocks : array (..., m, 3, 3): :func:`hessian_blocks` of the same rows
-    grad : array (..., m, 3): their gradient rows
-    centroid_grad : array (..., 3): ``k_N (mean x - x_N)``
-    k_n : float or array (...): the tracking gain
-    mu : float > 0: the smallest curvature used
-    trust : float >= 0 [m]: the trust radius of the relative step (0: none)
-    """
-    g = np.asarray(grad, dtype=float)
-    lead = np.broadcast_shapes(g.shape[:-2], np.shape(centroid_grad)[:-1], np.shape(k_n))
-    m, runs = g.shape[-2], math.prod(lead)
-    out = block_steps(
-        as_kernel(blocks, (*lead, m, 3, 3)).reshape(runs, m, 3, 3),
-        as_kernel(g, (*lead, m, 3)).reshape(runs, m, 3),
-        as_kernel(centroid_grad, (*lead, 3)).reshape(runs, 3),
-        as_kernel(np.asarray(k_n, dtype=float), lead).reshape(runs),
-        float(mu),
-        float(trust),
-    )
-    return out.reshape(g.shape if g.shape[:-2] == lead else (*lead, m, 3))

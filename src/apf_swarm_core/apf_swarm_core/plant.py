@@ -5,21 +5,15 @@
     M \\ddot x_i + f_i^{known}(x_i, \\dot x_i) + f_i^{unknown} = u_i,
     \\qquad \\|f_i^{unknown}\\| \\le \\bar f
 
-Integration scheme (documented because a lockstep ROS run must reproduce it bit for bit):
-the force ``u_i``, the known term ``f_known(v_k) = drag * v_k`` and the unknown term are all
-evaluated at the start of the step and held over it (zero-order hold); with that constant
-acceleration ``acc = (u - f_known - f_unknown) / M`` the step is integrated exactly:
-``v_{k+1} = v_k + acc dt`` and ``x_{k+1} = x_k + v_k dt + acc dt^2 / 2``.
+The force ``u_i``, the known term ``f_known(v_k) = drag * v_k`` and the unknown term are
+evaluated at the start of a step and held over it (zero-order hold); with that constant
+acceleration the step is integrated exactly (a lockstep ROS run reproduces it bit for bit).
 
-The unknown disturbance is drawn uniformly in the ball of radius ``f_bar`` from a
-:class:`numpy.random.Generator`. Only ``Generator.random`` is used, and it is drawn in blocks
-of up to ``block`` steps: because ``random`` consumes exactly one 64-bit word per double, the
-sequence is the same whatever the block size, so a batch of runs, a single run and the ROS
-plant node all see identical noise for the same seed. The same holds for the map from three
-uniforms to a point of the ball (:func:`uniform_ball`): it is a fixed function of each
-triple, with no rejection step, so every sample uses exactly three words whatever else is
-drawn. That is what lets a large batch draw fewer steps per block (to bound its memory)
-without changing a single value.
+The unknown disturbance is drawn uniformly in the ball of radius ``f_bar`` with
+``Generator.random`` only, which consumes one 64-bit word per double, and mapped by a fixed
+function of each triple (:func:`uniform_ball`, no rejection): the sequence is the same
+whatever the number of steps drawn at once, so a batch of runs, a single run and the ROS plant
+node see identical noise for one seed.
 """
 
 from __future__ import annotations
@@ -49,39 +43,20 @@ NOISE_KINDS = ('uniform_ball', 'none')
 def uniform_ball(u: ArrayLike, radius: ArrayLike) -> NDArray[np.float64]:
     """Map uniform samples ``u`` of shape (..., 3) in [0, 1) to points uniform in a ball.
 
-    ``u[..., 0]`` gives the cosine of the polar angle (Archimedes: uniform on [-1, 1] gives a
-    uniform direction), ``u[..., 1]`` the azimuth ``phi = 2 pi u`` and ``u[..., 2]`` the radius
-    by the inverse CDF ``r = R u^{1/3}``. ``radius`` broadcasts against ``u.shape[:-1]``.
-
-    ``cos phi`` and ``sin phi`` come from the half-angle tangent ``t = tan(pi u)``:
-    ``cos phi = 2/(1 + t^2) - 1``, ``sin phi = 2t/(1 + t^2)`` -- the same point as
-    ``(cos 2 pi u, sin 2 pi u)`` up to rounding, so the distribution is exactly the same, but
-    one vectorized ``tan`` is several times cheaper than ``cos`` plus ``sin`` in float64.
-    ``t`` stays finite (``|t| < 2e16`` for ``u = 1/2``, the only pole in [0, 1)), so there is
-    no special case. Each output point is a fixed function of its own triple. Its norm is at
-    most ``radius`` up to rounding (a few units in the last place, as with ``cos``/``sin``).
+    ``u[..., 0]`` gives the cosine of the polar angle (uniform on [-1, 1]: a uniform
+    direction), ``u[..., 1]`` the azimuth ``phi = 2 pi u`` and ``u[..., 2]`` the radius by the
+    inverse CDF ``r = R u^{1/3}``; ``radius`` broadcasts against ``u.shape[:-1]``. ``cos phi``
+    and ``sin phi`` come from the half-angle tangent ``t = tan(pi u)`` (one ``tan`` is
+    cheaper than ``cos`` and ``sin``): ``2/(1 + t^2) - 1`` and ``2t/(1 + t^2)``; ``t`` stays
+    finite in [0, 1). Each point is a fixed function of its own triple.
     """
     u = np.asarray(u, dtype=float)
-    cos_t = 2.0 * u[..., 0]
-    cos_t -= 1.0
-    sin_t = cos_t * cos_t  # |cos_t| <= 1, so 1 - cos_t^2 >= 0 exactly
-    np.subtract(1.0, sin_t, out=sin_t)
-    np.sqrt(sin_t, out=sin_t)
-    t = np.pi * u[..., 1]
-    np.tan(t, out=t)
-    q = t * t
-    q += 1.0
-    np.divide(2.0, q, out=q)  # 2 / (1 + t^2)
-    t *= q  # sin phi
-    q -= 1.0  # cos phi
-    r = np.cbrt(u[..., 2])
-    r = r * np.asarray(radius, dtype=float)
-    sin_t = sin_t * r  # r sin(theta)
-    out = np.empty((*r.shape, 3))
-    np.multiply(sin_t, q, out=out[..., 0])
-    np.multiply(sin_t, t, out=out[..., 1])
-    np.multiply(r, cos_t, out=out[..., 2])
-    return out
+    cos_t = 2.0 * u[..., 0] - 1.0
+    t = np.tan(np.pi * u[..., 1])
+    q = 2.0 / (t * t + 1.0)
+    r = np.cbrt(u[..., 2]) * np.asarray(radius, dtype=float)
+    rs = np.sqrt(1.0 - cos_t * cos_t) * r  # r sin(theta); |cos_t| <= 1
+    return np.stack([rs * (q - 1.0), rs * (t * q), r * cos_t], axis=-1)
 
 
 #: doubles a DisturbanceSource buffer may hold before it draws fewer steps per block
@@ -181,14 +156,9 @@ class DisturbanceSource:
         return out if self._batched else out[:, None]
 
     def next(self) -> NDArray[np.float64]:
-        """Disturbance for the next step [N]."""
-        if self._silent:
-            return self._zeros
-        if self._pos >= self._steps or not len(self._buf):
-            self._refill()
-        out = self._buf[self._pos]
-        self._pos += 1
-        return out
+        """Disturbance for the next step [N]: (n, 3), or (R, n, 3) for a batch."""
+        out = self.take(1)[0]
+        return out if self._batched else out[0]
 
 
 def plant_step(

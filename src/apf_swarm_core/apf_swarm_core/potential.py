@@ -20,7 +20,6 @@ The gradients of J, the simulator's hot path among them, are in :mod:`apf_swarm_
 
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import Any, Generic, TypeAlias, TypedDict, TypeVar, Unpack
 
 import numpy as np
@@ -87,8 +86,6 @@ def gain_values(gains: Gains[_V]) -> tuple[_V | float, ...]:
 #: which trackers' rows a function computes: all (None), an index array, a list or a slice
 Rows: TypeAlias = 'NDArray[np.integer[Any]] | list[int] | slice | int | None'
 
-_F64 = np.dtype(np.float64)
-
 
 def pair_weight(r2: ArrayLike, a: ArrayLike, b: ArrayLike, c: ArrayLike) -> NDArray[np.float64]:
     """Attraction/repulsion weight of a pair, ``a - b exp(-r^2/c)`` (derivative of eq. 44).
@@ -104,49 +101,8 @@ def pair_weight(r2: ArrayLike, a: ArrayLike, b: ArrayLike, c: ArrayLike) -> NDAr
     a, b, c : float or array of shape (...)
         Potential parameters (a, b dimensionless, c in m^2).
     """
-    return _pair_weight_neg(np.negative(np.asarray(r2, dtype=float)), a, b, c)
-
-
-def _pair_weight_neg(
-    neg_r2: NDArray[np.float64], a: ArrayLike, b: ArrayLike, c: ArrayLike
-) -> NDArray[np.float64]:
-    """:func:`pair_weight` from ``-r^2`` (the form in which the strategy of
-    :func:`~apf_swarm_core.gradients.gradient` for three trackers obtains it from its
-    reduction, a negation fewer): ``a - b exp(-r^2 / c)``.
-
-    ``(-r^2)/c`` equals ``-(r^2/c)`` and ``r^2/(-c)`` exactly (rounding is symmetric), so
-    the weight has the same bits whichever way the sign enters. Works in place on one
-    temporary when the shapes allow (``out`` given positionally: cheaper on small arrays).
-    """
-    a = a if type(a) is np.ndarray and a.dtype is _F64 and not a.ndim else shaped(a, 2)
-    b = b if type(b) is np.ndarray and b.dtype is _F64 and not b.ndim else shaped(b, 2)
-    c = c if type(c) is np.ndarray and c.dtype is _F64 and not c.ndim else shaped(c, 2)
-    w = np.divide(neg_r2, c)
-    if type(w) is not np.ndarray or (
-        a.ndim | b.ndim and w.shape != np.broadcast_shapes(w.shape, a.shape, b.shape)
-    ):
-        return a - b * np.exp(w)
-    np.exp(w, w)
-    np.multiply(b, w, w)
-    return np.subtract(a, w, w)
-
-
-def _pair_geometry(
-    x: NDArray[np.float64], rows: Rows
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Differences ``x_i - x_j`` (..., m, n, 3) and squared distances (..., m, n)."""
-    xi = x if rows is None else x[..., rows, :]
-    diff = xi[..., :, None, :] - x[..., None, :, :]
-    r2 = np.einsum('...k,...k->...', diff, diff)
-    return diff, r2
-
-
-@lru_cache(maxsize=64)
-def _off_diagonal(n: int) -> NDArray[np.bool_]:
-    """``~np.eye(n, dtype=bool)``, computed once per n (read-only: shared between calls)."""
-    out = ~np.eye(n, dtype=bool)
-    out.flags.writeable = False
-    return out
+    r2 = np.asarray(r2, dtype=float)
+    return shaped(a, 2) - shaped(b, 2) * np.exp(r2 / -shaped(c, 2))
 
 
 def potential(
@@ -183,9 +139,10 @@ def potential(
     x_target = np.asarray(x_target, dtype=float)
     rel = x - x_target[..., None, :]
     track = 0.5 * np.einsum('...ik,...ik->...', rel, rel)
-    _, r2 = _pair_geometry(x, None)
+    d = x[..., :, None, :] - x[..., None, :, :]
+    r2 = np.einsum('...k,...k->...', d, d)
     pair = 0.5 * shaped(a, 2) * r2 + 0.5 * shaped(b, 2) * shaped(c, 2) * np.exp(-r2 / shaped(c, 2))
-    offdiag = _off_diagonal(x.shape[-2])
+    offdiag = ~np.eye(x.shape[-2], dtype=bool)
     if mask is not None:
         offdiag = offdiag & np.asarray(mask, dtype=bool)
     # each unordered pair appears twice in the full (n, n) matrix

@@ -459,7 +459,7 @@ class BatchSimulator:
         buffer, the target's block and the progress reports; the same bits as
         :meth:`step` in a loop."""
         R, n = self.R, self.n
-        ctl = self.controller._gains or self.controller._prepare()
+        ctl = self.controller
         gains = np.empty((R, 5))
         for q, value in enumerate(self.params[key] for key in ('k_n', 'k_f', 'a', 'b', 'c')):
             gains[:, q] = np.broadcast_to(np.asarray(value, dtype=np.float64), (R,))
@@ -532,10 +532,10 @@ class BatchSimulator:
                 pre is not None,
                 mu,
                 trust,
-                ctl.ctl,
+                ctl.table,
                 ctl.manifold,
-                ctl.inv_phi is not None,
-                ctl.feedforward is not None,
+                ctl.switching == 'layer',
+                ctl.uses_feedforward,
                 mass,
                 drag,
                 dt,
