@@ -46,40 +46,19 @@ from .control import (
     make_predictor,
 )
 from .controller import CONTROLLER_GAINS, ControlOutput
-from .inputs import input_problem
+from .inputs import Sample, input_problem
 from .kernels import warm
 from .laws import switching_force
 from .neighbours import neighbour_mask
 from .plant import acceleration_setpoint, velocity_setpoint
 from .potential import POTENTIAL_KEYS
 
-__all__ = [
-    'Sample',
-    'TrackerAgent',
-    'brake_force',
-]
-
-#: the plant computes the formation error of /swarm/state up to this many trackers
-PLANT_FORMATION_METRIC_MAX = 12
+__all__ = ['TrackerAgent', 'brake_force']
 
 
 def brake_force(v: NDArray[np.float64], *, u0: float, drag: float) -> NDArray[np.float64]:
     """Safe command: eq. 24 on the manifold ``s = v``, ``u = -u0 sign(v) + drag v`` [N]."""
     return switching_force(v, v, u0=u0, drag=drag)
-
-
-@dataclass
-class Sample:
-    """The latest value of one input: step (lockstep) or -1, arrays, the time it was produced
-    [s] (on the clock the caller uses for ``now``), its order key, and whether its tracker is
-    active (commanding; always True for the target)."""
-
-    step: int
-    x: NDArray[np.float64]
-    v: NDArray[np.float64]
-    received: float
-    seq: int = -1
-    active: bool = True
 
 
 @dataclass

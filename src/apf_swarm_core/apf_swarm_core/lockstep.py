@@ -24,8 +24,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from .agents import Sample
-from .inputs import input_problem
+from .inputs import Sample, input_problem
 from .plant_model import Command, PlantModel
 
 __all__ = [

@@ -12,17 +12,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .agents import PLANT_FORMATION_METRIC_MAX, Sample
 from .config import SwarmConfig
 from .formation import expected_pairs
-from .inputs import input_problem
+from .inputs import Sample, input_problem
 from .kernels import warm
 from .metrics import centroid_error, formation_error
-from .plant import DisturbanceSource
+from .plant import DisturbanceSource, plant_step
 from .potential import potential
-from .simulator import initial_positions, integrate
+from .simulator import initial_positions
 
-__all__ = ['Command', 'PlantModel']
+__all__ = ['PLANT_FORMATION_METRIC_MAX', 'Command', 'PlantModel']
+
+#: the plant computes the formation error of /swarm/state up to this many trackers
+PLANT_FORMATION_METRIC_MAX = 12
 
 
 @dataclass(frozen=True)
@@ -234,7 +236,7 @@ class PlantModel:
     def advance(self, steps: int = 1) -> None:
         """Integrate ``steps`` steps with the held commands (lockstep: one)."""
         for _ in range(steps):
-            self.x, self.v = integrate(
+            self.x, self.v = plant_step(
                 self.x,
                 self.v,
                 self.u,

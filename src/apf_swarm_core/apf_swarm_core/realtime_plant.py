@@ -20,12 +20,11 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from .agents import Sample
-from .command_hold import STALE_AFTER
+from .inputs import Sample
 from .lockstep import Action, take_command, target_problem
 from .plant_model import Command, PlantModel
 
-__all__ = ['STALE_AFTER', 'RealtimePlant']
+__all__ = ['RealtimePlant']
 
 
 @dataclass
