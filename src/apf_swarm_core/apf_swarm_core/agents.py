@@ -1,32 +1,8 @@
-"""The per-process logic of the ROS nodes, free of ROS: a tracker and the plant.
-
-The nodes only convert messages to arrays, call these classes and publish. Both classes use the
-simulator's own functions (:func:`~apf_swarm_core.control.control_step`,
-:func:`~apf_swarm_core.simulator.integrate`, :class:`~apf_swarm_core.plant.DisturbanceSource`,
-:func:`~apf_swarm_core.simulator.initial_positions`), so a lockstep ROS run reproduces the
-headless simulator.
-
-Safe command: when an input a tracker needs is stale (older than its timeout) the tracker
-commands :func:`brake_force`, the switching law on the manifold ``s = v``: it drives the
-UAV's velocity to zero (hover in place) with the same bounded force ``u0``.
-
-Faults (docs/RELIABILITY.md):
-
-* Input checks: a value that is not finite, a position beyond :data:`MAX_POSITION`, a speed
-  beyond :data:`MAX_SPEED`, a force beyond :data:`MAX_FORCE`, an unknown source, an input
-  older than the one held (out of order) and a second command for a lockstep step already
-  answered (a duplicate ``uav_id``) are refused, counted and described in ``last_rejection``.
-* A tracker whose command is missing past the deadline (lockstep) or stale (realtime) is
-  *inactive* in :class:`PlantModel`: its UAV gets zero force (it drifts under drag and
-  noise), the lockstep barrier stops waiting for it, and the plant flags it inactive in what
-  it publishes. The other trackers take inactive neighbours out of the formation term of
-  their potential (the neighbour set shrinks: the rest form the formation of one tracker
-  fewer around the target, three trackers become a pair) but keep them as obstacles, with
-  the repulsive half of the pair term only
-  (:func:`~apf_swarm_core.gradients.obstacle_gradient`): a drifting UAV is avoided, not
-  followed. A command from an inactive tracker makes it active again (a respawned tracker
-  rejoins).
-"""
+"""One tracker's logic without ROS (:class:`TrackerAgent`): its inputs, checked
+(:func:`~apf_swarm_core.inputs.input_problem`) and held, and its command from the simulator's
+own :func:`~apf_swarm_core.control.control_step`, so that a lockstep run reproduces the
+headless simulator. A stale input gets :func:`brake_force` (hover in place); inactive
+neighbours leave the formation term and stay as obstacles (docs/RELIABILITY.md)."""
 
 from __future__ import annotations
 
@@ -100,14 +76,12 @@ class TrackerAgent:
         self.ids = sorted({self.uav_id, *self.neighbour_ids})
         self._id_set = frozenset(self.ids)
         self._own_row = self.ids.index(self.uav_id)
-        #: the latest /swarm/odom as arrays in the order of :attr:`ids` (x, v, active), while
-        #: no input of a single source has replaced a row of it (:meth:`command` reads it
-        #: instead of stacking one Sample per tracker: O(n) in numpy, not in Python)
+        #: the latest /swarm/odom as arrays (x, v, active) in the order of :attr:`ids`, while no
+        #: single odometry has replaced a row: :meth:`command` reads it, not one Sample per row
         self._swarm: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]] | None
         self._swarm = None
-        #: (step, produced, seq) of :attr:`_swarm` while its tracker rows are not in
-        #: :attr:`inputs` yet (realtime): one Sample per tracker is made only when a reader
-        #: needs them (:meth:`_held`), not on every state (docs/PERFORMANCE.md, "The command")
+        #: realtime: (step, produced, seq) of :attr:`_swarm` while its rows are not in
+        #: :attr:`inputs` yet; :meth:`_held` makes their Samples when a reader needs them
         self._lazy: tuple[int, float, int] | None = None
         self._seq_max = -1  # the largest order key held of any tracker
         #: the last /swarm/odom's ids and the rows of :attr:`ids` in it (:meth:`_rows_of`)
@@ -158,15 +132,13 @@ class TrackerAgent:
     ) -> bool:
         """Store an input (``source`` = tracker id, 0 = target); False if rejected.
 
-        ``now``: when the input was produced, on the caller's clock (arrival time minus the
-        age the message reports). ``seq``: order key (default: ``step``; realtime passes
-        the stamp in ns); an input with a smaller key than the one held is out of order.
-        ``active``: False when the plant reports that this neighbour's tracker is silent.
-        Non-finite or out-of-range values, unknown sources and out-of-order inputs are
-        rejected, counted and described in ``last_rejection``. Lockstep inputs
-        (``step >= 0``) are also kept by step, because the target publishes up to 63 steps
-        ahead; a target state of a step already answered, or already held, is the target
-        repeating a window for a late step (see the target node): ignored, not refused.
+        ``now``: when it was produced, on the caller's clock. ``seq``: order key (default
+        ``step``; realtime: the stamp [ns]); a key smaller than the one held is out of order.
+        ``active``: False when the plant reports this neighbour's tracker silent. Non-finite
+        or out-of-range values, unknown sources and out-of-order inputs are rejected, counted
+        and described in ``last_rejection``. Lockstep inputs are also kept by step (the
+        target publishes ahead); a target state of a step answered or held already is a
+        repeated window: ignored, not refused.
         """
         seq = step if seq is None else int(seq)
         if (

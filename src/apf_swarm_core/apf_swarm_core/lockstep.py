@@ -1,20 +1,11 @@
-"""The plant's lockstep barrier: the protocol that makes the ROS graph step exactly as the
-simulator does, without ROS.
+"""The plant's lockstep barrier without ROS (:class:`LockstepBarrier`): the protocol that
+makes the ROS graph step exactly as the simulator does (docs/ROS.md, "Timing modes"): the
+target's states asked for ahead, step k published once its target state is held, step k + 1
+once every active tracker's command of step k is in; past ``timeout`` step k again, past
+another a missing tracker inactive or the target's last state held.
 
-Step k: wait for the target's state of step k (asked for ahead, up to ``lookahead - 1``
-steps, once fewer than half of that are asked for), then publish ``/swarm/odom`` of step k,
-``/clock`` and the per-UAV odometry; wait until the command of step k of every active
-tracker has arrived; integrate to k + 1, publish step k + 1, and only then the
-``/swarm/state`` sample of step k. Past ``timeout`` seconds of wall time the step is
-published once more; still missing after another ``timeout``, each missing input is counted
-in ``missed`` and no longer waited for: a silent tracker becomes inactive (see
-:meth:`~apf_swarm_core.plant_model.PlantModel.deactivate`), a silent target's last state is held
-and its age grows. A command or a target state that arrives again ends that.
-
-:class:`LockstepBarrier` takes the events (start, a target state, an accepted command, a
-clock tick) and returns the :class:`Action` list the node carries out in order; the plant
-node converts messages and publishes, nothing more.
-"""
+The barrier takes the events (start, a target state, a command, a clock tick) and returns the
+:class:`Action` list the node carries out in order."""
 
 from __future__ import annotations
 

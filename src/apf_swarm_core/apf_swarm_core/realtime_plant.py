@@ -1,16 +1,10 @@
 """The realtime plant without ROS (:class:`RealtimePlant`): its physics clock, the target state
-it holds, and the inputs it refuses for their age or order.
+it holds, and the inputs it refuses for their age or order (docs/ROS.md, "Timing modes").
 
-The clock starts once every tracker has commanded from its inputs, or at ``arm_timeout``
-(:meth:`RealtimePlant.arm`); until then odometry goes out with the UAVs held still. The
-physics step (:meth:`RealtimePlant.physics`) integrates the steps of dt that wall time has
-advanced with the held commands: a tracker whose latest command is older than ``stale_after``
-gets zero force, older than ``command_timeout`` it becomes inactive, counted in
-``missed_deadlines``. Commands and target states whose stamp is older than
-``command_timeout``, or older than the one held, are refused. Times are the node's
-monotonic clock [s]; what to log comes back as the core's lockstep
-:class:`~apf_swarm_core.lockstep.Action` (``info`` and ``warn``), as from the lockstep barrier.
-"""
+The clock starts once every tracker has commanded, or at ``arm_timeout`` (:meth:`arm`); the
+physics step integrates the steps of dt wall time has advanced with the held commands. Times
+are the node's monotonic clock [s]; what to log comes back as lockstep's
+:class:`~apf_swarm_core.lockstep.Action` (``info``, ``warn``, ``refuse``)."""
 
 from __future__ import annotations
 
