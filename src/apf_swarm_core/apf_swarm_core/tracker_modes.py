@@ -96,10 +96,10 @@ class _TrackerMode:
             self.agent.report_latency(m.command_latency)
         return ok
 
-    def _brake(self, step: int, stale: list[int]) -> Reply:
+    def _brake(self, step: int, stale: list[int], force: NDArray[np.float64]) -> Reply:
         self.agent.stale += 1
         first, self._stale_reported = not self._stale_reported, True
-        return Reply(step, brake=self.agent.safe_command(), stale=stale, report_stale=first)
+        return Reply(step, brake=force, stale=stale, report_stale=first)
 
     def _command(self, step: int) -> Reply:
         out = self.agent.command(step)
@@ -142,11 +142,8 @@ class LockstepTracker(_TrackerMode):
         if not self.agent.ready(step):
             return None
         stale = self.agent.stale_sources(now, self.timeout)
-        if stale:
-            reply = self._brake(step, stale)
-            # the barrier still needs a command for this step
-            self.agent.brake(step)
-            return reply
+        if stale:  # the barrier still needs a command for this step
+            return self._brake(step, stale, self.agent.brake(step))
         return self._command(step)
 
 
@@ -200,7 +197,7 @@ class RealtimeTracker(_TrackerMode):
         self._last_command = mono
         stale = self.agent.stale_sources(mono, self.timeout)
         if stale:
-            return self._brake(self._tick, stale)
+            return self._brake(self._tick, stale, self.agent.safe_command())
         return self._command(self._tick)
 
 
