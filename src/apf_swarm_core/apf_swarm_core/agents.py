@@ -233,16 +233,9 @@ class TrackerAgent:
         act[self._own_row] = True
         self._seq_max = max(self._seq_max, seq)
         self._swarm = (xs, vs, act)
-        if step < 0:  # realtime: the rows stay arrays until a reader needs them
-            self._lazy = (step, now, seq)
-            return True
-        self._lazy = None
-        samples = {
-            j: Sample(step, xs[k], vs[k], now, seq, a)
-            for k, (j, a) in enumerate(zip(self.ids, act.tolist(), strict=True))
-        }
-        self.inputs.update(samples)
-        self.pending.setdefault(step, {}).update(samples)
+        self._lazy = (step, now, seq)
+        if step >= 0:  # lockstep: by step too; realtime: arrays until a reader needs rows
+            self.pending.setdefault(step, {}).update(self._rows())
         return True
 
     def _rows_of(self, ids: Sequence[int]) -> NDArray[np.intp] | None:
@@ -258,17 +251,23 @@ class TrackerAgent:
         self._order = (key.copy(), order)
         return order
 
-    def _held(self) -> dict[int, Sample]:
-        """:attr:`inputs`, the rows of the latest ``/swarm/odom`` held as arrays made into
-        one Sample each first."""
-        if self._lazy is not None and self._swarm is not None:
-            step, now, seq = self._lazy
-            xs, vs, act = self._swarm
-            self.inputs.update(
-                (j, Sample(step, xs[k], vs[k], now, seq, a))
-                for k, (j, a) in enumerate(zip(self.ids, act.tolist(), strict=True))
-            )
+    def _rows(self) -> dict[int, Sample]:
+        """The rows of the latest ``/swarm/odom`` held as arrays, one Sample each, now in
+        :attr:`inputs` (none when they are there already)."""
+        if self._lazy is None or self._swarm is None:
+            return {}
+        (step, now, seq), (xs, vs, act) = self._lazy, self._swarm
         self._lazy = None
+        rows = {
+            j: Sample(step, xs[k], vs[k], now, seq, a)
+            for k, (j, a) in enumerate(zip(self.ids, act.tolist(), strict=True))
+        }
+        self.inputs.update(rows)
+        return rows
+
+    def _held(self) -> dict[int, Sample]:
+        """:attr:`inputs`, with the rows of the latest ``/swarm/odom`` in it."""
+        self._rows()
         return self.inputs
 
     def _acceptable(
