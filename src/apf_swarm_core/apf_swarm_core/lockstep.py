@@ -22,6 +22,7 @@ __all__ = [
     'LOOKAHEAD',
     'Action',
     'LockstepBarrier',
+    'refusal',
     'take_command',
     'target_problem',
     'target_window',
@@ -65,17 +66,21 @@ def take_command(
     return True, [Action('info', text=text)]
 
 
+def refusal(model: PlantModel, why: str | None) -> list[Action]:
+    """An input refused for ``why``, counted in ``model``, as an action ([] for None)."""
+    if why is None:
+        return []
+    model.refuse(why)
+    return [Action('refuse', text=why)]
+
+
 def target_problem(
     model: PlantModel, x: NDArray[np.float64], v: NDArray[np.float64]
 ) -> list[Action]:
     """A target state the plant cannot use (not finite, out of range): refused and counted
     in ``model``; [] when it is usable."""
     problem = input_problem(x=x, v=v)
-    if problem is None:
-        return []
-    why = f'target state: {problem}'
-    model.refuse(why)
-    return [Action('refuse', text=why)]
+    return refusal(model, None if problem is None else f'target state: {problem}')
 
 
 @dataclass

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .inputs import Sample
-from .lockstep import Action, take_command, target_problem
+from .lockstep import Action, refusal, take_command, target_problem
 from .plant_model import Command, PlantModel
 
 __all__ = ['RealtimePlant']
@@ -90,10 +90,9 @@ class RealtimePlant:
     def take_command(self, c: Command, age: float, now: float) -> tuple[bool, list[Action]]:
         """A tracker's command stamped ``age`` seconds ago arrived at ``now``: refused if
         stale, else offered to the model with its latency (once the clock runs)."""
-        why = self.stale_command(c.uav_id, age)
-        if why is not None:
-            self.model.refuse(why)
-            return False, [Action('refuse', text=why)]
+        refused = refusal(self.model, self.stale_command(c.uav_id, age))
+        if refused:
+            return False, refused
         latency = age if self.command_arrives(now) else 0.0
         return take_command(self.model, self.running, c, latency=latency, now=now)
 
@@ -101,14 +100,9 @@ class RealtimePlant:
         self, x: NDArray[np.float64], v: NDArray[np.float64], stamp_ns: int, age: float, now: float
     ) -> list[Action]:
         """A target state stamped ``stamp_ns``, ``age`` seconds ago: held, or refused."""
-        refused = target_problem(self.model, x, v)
-        if refused:
-            return refused
-        why = self.offer_target(x, v, stamp_ns, age, now)
-        if why is None:
-            return []
-        self.model.refuse(why)
-        return [Action('refuse', text=why)]
+        return target_problem(self.model, x, v) or refusal(
+            self.model, self.offer_target(x, v, stamp_ns, age, now)
+        )
 
     def offer_target(
         self,
