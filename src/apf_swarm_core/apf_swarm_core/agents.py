@@ -311,24 +311,20 @@ class TrackerAgent:
     def command(self, step: int) -> ControlOutput:
         """The controller's command from the held inputs (one row, shape (1, 3) arrays)."""
         held = self.pending.pop(step, None) if step >= 0 else None
-        src = held if held is not None else self.inputs
         if held is None and self._swarm is not None:
-            # the latest /swarm/odom whole: the same arrays, without one Sample per tracker
-            xs, vs, act = self._swarm
-            n_active = int(np.count_nonzero(act))
-            row = int(np.count_nonzero(act[: self._own_row]))
-            x = xs if n_active == act.size else xs[act]
-            silent_x = xs[~act]
-            all_v = vs if n_active == act.size else vs[act]
-            own_v = vs[self._own_row]
+            # the latest /swarm/odom whole: its arrays, without one Sample per tracker
+            src, (xs, vs, act) = self.inputs, self._swarm
         else:
             src = held if held is not None else self._held()
-            own_v = src[self.uav_id].v
-            ids = [j for j in self.ids if src[j].active]
-            n_active, row = len(ids), ids.index(self.uav_id)
-            x = np.stack([src[j].x for j in ids])
-            silent_x = np.array([src[j].x for j in self.ids if not src[j].active]).reshape(-1, 3)
-            all_v = np.stack([src[j].v for j in ids])
+            rows = [src[j] for j in self.ids]
+            xs, vs = np.stack([r.x for r in rows]), np.stack([r.v for r in rows])
+            act = np.array([r.active for r in rows])
+        n_active = int(np.count_nonzero(act))
+        row = int(np.count_nonzero(act[: self._own_row]))
+        x = xs if n_active == act.size else xs[act]
+        silent_x = xs[~act]
+        all_v = vs if n_active == act.size else vs[act]
+        own_v = vs[self._own_row]
         rule = self.cfg.neighbour_rule()
         # a limited neighbour set (cfg.neighbours): this row of the simulator's mask
         mask = neighbour_mask(x, **rule, rows=[row]) if rule else None
