@@ -304,12 +304,9 @@ class SwarmConfig:
 
     def mass_matrix_diag(self) -> list[list[float]]:
         """Per-tracker diagonal of M, shape (n, 3), with per-UAV overrides applied."""
-        rows = []
-        for i in range(1, self.n_trackers + 1):
-            m = self.uav_overrides.get(i, {}).get('mass', self.mass)
-            m = tuple(m) if isinstance(m, (list, tuple)) else (float(m),)
-            rows.append(list(m) * 3 if len(m) == 1 else list(m))
-        return rows
+        over = self.uav_overrides  # validated: every mass a tuple of 1 or 3
+        masses = [over.get(i, {}).get('mass', self.mass) for i in range(1, self.n_trackers + 1)]
+        return [list(m) * 3 if len(m) == 1 else list(m) for m in masses]
 
     def swarm_b(self) -> float:
         """The repulsion gain b of eq. 44 for this swarm's size: ``b (n/3)^b_growth`` for
