@@ -165,21 +165,14 @@ class TrackerAgent:
         """Keep an input already checked by :meth:`_acceptable`."""
         if source != 0:
             self._held()  # the swarm's rows, before this one replaces one of them
-        sample = Sample(
-            step,
-            np.asarray(x, float),
-            np.asarray(v, float),
-            now,
-            seq,
-            bool(active) or source in (0, self.uav_id),
-        )
+        active = bool(active) or source in (0, self.uav_id)
+        sample = Sample(step, np.asarray(x, float), np.asarray(v, float), now, seq, active)
         self.inputs[source] = sample
         if source != 0:
             self._swarm = None
             self._seq_max = max(self._seq_max, seq)
         if step >= 0:
-            by_step = self.pending.setdefault(step, {})
-            by_step[source] = sample
+            self.pending.setdefault(step, {})[source] = sample
             for old in [k for k in self.pending if k < self._last_step - 1]:
                 del self.pending[old]
 
@@ -214,18 +207,15 @@ class TrackerAgent:
             return self._reject(
                 f'the message has no state of {[f"uav_{j}" for j in self.ids if j not in ids]}'
             )
-        before = self.rejected
         # the values of every row at once (two reductions); only a message that fails this is
         # checked row by row, for the reason and for rows that are not this tracker's inputs
         clean = input_problem(x=x, v=v) is None and input_problem(x=target_x, v=target_v) is None
         if not self._acceptable(0, target_x, target_v, seq, checked=clean):
-            self.rejected = before + 1
             return False
         # a tracker's row is out of order only if some row held is newer than this message
         if not clean or seq < self._seq_max:
             for j, r in zip(self.ids, order, strict=True):
                 if not self._acceptable(j, x[r], v[r], seq, checked=clean):
-                    self.rejected = before + 1
                     return False
         self._store(0, step, target_x, target_v, target_time, seq, True)
         xs, vs = x[order], v[order]
