@@ -1,22 +1,7 @@
-"""The configuration of a run: :class:`SwarmConfig`, every key with its meaning, unit and
-range, and what follows from the keys.
-
-A configuration file is a ROS 2 parameter file, so that the nodes read the very same file::
-
-    /**:
-      ros__parameters:
-        n_trackers: 3
-        law: proposed
-        ...
-    /uav_2/tracker:          # per-UAV overrides (keys in config_schema.PER_UAV_KEYS only)
-      ros__parameters:
-        mass: 1.2
-
-Every key of :class:`SwarmConfig` is declared once here with :func:`~apf_swarm_core.
-config_schema.key` (type, range, unit, help) and validated on construction by
-:func:`~apf_swarm_core.config_schema.validate`; files, presets and ``--set`` overrides are
-read by :mod:`apf_swarm_core.config_files`.
-"""
+"""The configuration of a run: :class:`SwarmConfig`, every key declared once with
+:func:`~apf_swarm_core.config_schema.key` (default, meaning, unit, range) and validated on
+construction, and what follows from the keys. A configuration file is a ROS 2 parameter file
+(docs/USAGE.md, "Configuration"), read by :mod:`apf_swarm_core.config_files`."""
 
 from __future__ import annotations
 
