@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .compensation import LatencyEstimate, compensation_horizon
-from .config import DEFAULT_LATENCY, SwarmConfig
+from .config import DEFAULT_LATENCY, KEYS, SwarmConfig
 from .control import (
     control_step,
     make_controller,
@@ -105,12 +105,9 @@ class TrackerAgent:
         The filter state and the held inputs are kept, so the controller continues from
         where it is. Only :data:`RETUNABLE` keys may differ from the current configuration.
         """
-        changed = [k for k in self.RETUNABLE if getattr(cfg, k) != getattr(self.cfg, k)]
-        others = [
-            f
-            for f in ('n_trackers', 'law', 'saturation', 'dt', 'seed')
-            if getattr(cfg, f) != getattr(self.cfg, f)
-        ]
+        differ = [k for k in KEYS if getattr(cfg, k) != getattr(self.cfg, k)]
+        changed = [k for k in self.RETUNABLE if k in differ]
+        others = [k for k in differ if k not in self.RETUNABLE]
         if others:
             raise ValueError(f'{", ".join(others)} cannot change while the tracker runs')
         for key in CONTROLLER_GAINS:
