@@ -39,7 +39,7 @@ class Action:
     """What the node does next: ``request`` the target's states up to ``step``; publish
     ``swarm_odom`` of ``step`` (the held target state, :attr:`LockstepBarrier.target`);
     publish ``step`` (``/clock`` and every UAV's odometry of the model's current state);
-    publish the ``state`` sample ``data`` of ``step`` (:meth:`LockstepBarrier.snapshot`);
+    publish the ``state`` sample ``data`` of ``step`` (:meth:`PlantModel.snapshot`);
     log ``text`` at ``info`` or ``warn``; ``refuse``: an input was refused (counted in the
     model), ``text`` says why."""
 
@@ -180,11 +180,6 @@ class LockstepBarrier:
         """Age of the held target state [s of simulated time; ``now``, wall time, unused]."""
         return max(0, self.model.k - self.target.step) * self.model.cfg.dt
 
-    def snapshot(self, k: int) -> dict[str, Any]:
-        """The ``/swarm/state`` fields of step ``k`` with the held target state, taken now
-        (:meth:`~apf_swarm_core.plant_model.PlantModel.snapshot`)."""
-        return self.model.snapshot(k, self.target, self.target_age())
-
     # --- the protocol ----------------------------------------------------------------
     def _publish_step(self, now: float, again: bool = False) -> list[Action]:
         if not again:
@@ -273,7 +268,7 @@ class LockstepBarrier:
             )
         # the state of step k goes out after step k + 1: the trackers, which wait for
         # /swarm/odom of k + 1, start while the node computes the metrics of k
-        state = Action('state', k, self.snapshot(k))
+        state = Action('state', k, m.snapshot(k, self.target, self.target_age()))
         m.advance()
         if m.k in self.targets:
             out += self._take_target()
