@@ -1,32 +1,8 @@
-"""The per-process logic of the ROS nodes, free of ROS: a tracker and the plant.
-
-The nodes only convert messages to arrays, call these classes and publish. Both classes use the
-simulator's own functions (:func:`~apf_swarm_core.control.control_step`,
-:func:`~apf_swarm_core.simulator.integrate`, :class:`~apf_swarm_core.plant.DisturbanceSource`,
-:func:`~apf_swarm_core.simulator.initial_positions`), so a lockstep ROS run reproduces the
-headless simulator.
-
-Safe command: when an input a tracker needs is stale (older than its timeout) the tracker
-commands :func:`brake_force`, the switching law on the manifold ``s = v``: it drives the
-UAV's velocity to zero (hover in place) with the same bounded force ``u0``.
-
-Faults (docs/RELIABILITY.md):
-
-* Input checks: a value that is not finite, a position beyond :data:`MAX_POSITION`, a speed
-  beyond :data:`MAX_SPEED`, a force beyond :data:`MAX_FORCE`, an unknown source, an input
-  older than the one held (out of order) and a second command for a lockstep step already
-  answered (a duplicate ``uav_id``) are refused, counted and described in ``last_rejection``.
-* A tracker whose command is missing past the deadline (lockstep) or stale (realtime) is
-  *inactive* in :class:`PlantModel`: its UAV gets zero force (it drifts under drag and
-  noise), the lockstep barrier stops waiting for it, and the plant flags it inactive in what
-  it publishes. The other trackers take inactive neighbours out of the formation term of
-  their potential (the neighbour set shrinks: the rest form the formation of one tracker
-  fewer around the target, three trackers become a pair) but keep them as obstacles, with
-  the repulsive half of the pair term only
-  (:func:`~apf_swarm_core.gradients.obstacle_gradient`): a drifting UAV is avoided, not
-  followed. A command from an inactive tracker makes it active again (a respawned tracker
-  rejoins).
-"""
+"""One tracker's logic without ROS (:class:`TrackerAgent`): its inputs, checked
+(:func:`~apf_swarm_core.inputs.input_problem`) and held, and its command from the simulator's
+own :func:`~apf_swarm_core.control.control_step`, so that a lockstep run reproduces the
+headless simulator. A stale input gets :func:`brake_force` (hover in place); inactive
+neighbours leave the formation term and stay as obstacles (docs/RELIABILITY.md)."""
 
 from __future__ import annotations
 
@@ -38,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .compensation import LatencyEstimate, compensation_horizon
-from .config import DEFAULT_LATENCY, SwarmConfig
+from .config import DEFAULT_LATENCY, KEYS, SwarmConfig
 from .control import (
     control_step,
     make_controller,
@@ -46,40 +22,19 @@ from .control import (
     make_predictor,
 )
 from .controller import CONTROLLER_GAINS, ControlOutput
-from .inputs import input_problem
+from .inputs import Sample, input_problem
 from .kernels import warm
 from .laws import switching_force
 from .neighbours import neighbour_mask
 from .plant import acceleration_setpoint, velocity_setpoint
 from .potential import POTENTIAL_KEYS
 
-__all__ = [
-    'Sample',
-    'TrackerAgent',
-    'brake_force',
-]
-
-#: the plant computes the formation error of /swarm/state up to this many trackers
-PLANT_FORMATION_METRIC_MAX = 12
+__all__ = ['TrackerAgent', 'brake_force']
 
 
 def brake_force(v: NDArray[np.float64], *, u0: float, drag: float) -> NDArray[np.float64]:
     """Safe command: eq. 24 on the manifold ``s = v``, ``u = -u0 sign(v) + drag v`` [N]."""
     return switching_force(v, v, u0=u0, drag=drag)
-
-
-@dataclass
-class Sample:
-    """The latest value of one input: step (lockstep) or -1, arrays, the time it was produced
-    [s] (on the clock the caller uses for ``now``), its order key, and whether its tracker is
-    active (commanding; always True for the target)."""
-
-    step: int
-    x: NDArray[np.float64]
-    v: NDArray[np.float64]
-    received: float
-    seq: int = -1
-    active: bool = True
 
 
 @dataclass
@@ -121,14 +76,12 @@ class TrackerAgent:
         self.ids = sorted({self.uav_id, *self.neighbour_ids})
         self._id_set = frozenset(self.ids)
         self._own_row = self.ids.index(self.uav_id)
-        #: the latest /swarm/odom as arrays in the order of :attr:`ids` (x, v, active), while
-        #: no input of a single source has replaced a row of it (:meth:`command` reads it
-        #: instead of stacking one Sample per tracker: O(n) in numpy, not in Python)
+        #: the latest /swarm/odom as arrays (x, v, active) in the order of :attr:`ids`, while no
+        #: single odometry has replaced a row: :meth:`command` reads it, not one Sample per row
         self._swarm: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]] | None
         self._swarm = None
-        #: (step, produced, seq) of :attr:`_swarm` while its tracker rows are not in
-        #: :attr:`inputs` yet (realtime): one Sample per tracker is made only when a reader
-        #: needs them (:meth:`_held`), not on every state (docs/PERFORMANCE.md, "The command")
+        #: realtime: (step, produced, seq) of :attr:`_swarm` while its rows are not in
+        #: :attr:`inputs` yet; :meth:`_held` makes their Samples when a reader needs them
         self._lazy: tuple[int, float, int] | None = None
         self._seq_max = -1  # the largest order key held of any tracker
         #: the last /swarm/odom's ids and the rows of :attr:`ids` in it (:meth:`_rows_of`)
@@ -152,12 +105,9 @@ class TrackerAgent:
         The filter state and the held inputs are kept, so the controller continues from
         where it is. Only :data:`RETUNABLE` keys may differ from the current configuration.
         """
-        changed = [k for k in self.RETUNABLE if getattr(cfg, k) != getattr(self.cfg, k)]
-        others = [
-            f
-            for f in ('n_trackers', 'law', 'saturation', 'dt', 'seed')
-            if getattr(cfg, f) != getattr(self.cfg, f)
-        ]
+        differ = [k for k in KEYS if getattr(cfg, k) != getattr(self.cfg, k)]
+        changed = [k for k in self.RETUNABLE if k in differ]
+        others = [k for k in differ if k not in self.RETUNABLE]
         if others:
             raise ValueError(f'{", ".join(others)} cannot change while the tracker runs')
         self.controller.retune(**{key: getattr(cfg, key) for key in CONTROLLER_GAINS})
@@ -178,15 +128,13 @@ class TrackerAgent:
     ) -> bool:
         """Store an input (``source`` = tracker id, 0 = target); False if rejected.
 
-        ``now``: when the input was produced, on the caller's clock (arrival time minus the
-        age the message reports). ``seq``: order key (default: ``step``; realtime passes
-        the stamp in ns); an input with a smaller key than the one held is out of order.
-        ``active``: False when the plant reports that this neighbour's tracker is silent.
-        Non-finite or out-of-range values, unknown sources and out-of-order inputs are
-        rejected, counted and described in ``last_rejection``. Lockstep inputs
-        (``step >= 0``) are also kept by step, because the target publishes up to 63 steps
-        ahead; a target state of a step already answered, or already held, is the target
-        repeating a window for a late step (see the target node): ignored, not refused.
+        ``now``: when it was produced, on the caller's clock. ``seq``: order key (default
+        ``step``; realtime: the stamp [ns]); a key smaller than the one held is out of order.
+        ``active``: False when the plant reports this neighbour's tracker silent. Non-finite
+        or out-of-range values, unknown sources and out-of-order inputs are rejected, counted
+        and described in ``last_rejection``. Lockstep inputs are also kept by step (the
+        target publishes ahead); a target state of a step answered or held already is a
+        repeated window: ignored, not refused.
         """
         seq = step if seq is None else int(seq)
         if (
@@ -213,21 +161,14 @@ class TrackerAgent:
         """Keep an input already checked by :meth:`_acceptable`."""
         if source != 0:
             self._held()  # the swarm's rows, before this one replaces one of them
-        sample = Sample(
-            step,
-            np.asarray(x, float),
-            np.asarray(v, float),
-            now,
-            seq,
-            bool(active) or source in (0, self.uav_id),
-        )
+        active = bool(active) or source in (0, self.uav_id)
+        sample = Sample(step, np.asarray(x, float), np.asarray(v, float), now, seq, active)
         self.inputs[source] = sample
         if source != 0:
             self._swarm = None
             self._seq_max = max(self._seq_max, seq)
         if step >= 0:
-            by_step = self.pending.setdefault(step, {})
-            by_step[source] = sample
+            self.pending.setdefault(step, {})[source] = sample
             for old in [k for k in self.pending if k < self._last_step - 1]:
                 del self.pending[old]
 
@@ -262,18 +203,15 @@ class TrackerAgent:
             return self._reject(
                 f'the message has no state of {[f"uav_{j}" for j in self.ids if j not in ids]}'
             )
-        before = self.rejected
         # the values of every row at once (two reductions); only a message that fails this is
         # checked row by row, for the reason and for rows that are not this tracker's inputs
         clean = input_problem(x=x, v=v) is None and input_problem(x=target_x, v=target_v) is None
         if not self._acceptable(0, target_x, target_v, seq, checked=clean):
-            self.rejected = before + 1
             return False
         # a tracker's row is out of order only if some row held is newer than this message
         if not clean or seq < self._seq_max:
             for j, r in zip(self.ids, order, strict=True):
                 if not self._acceptable(j, x[r], v[r], seq, checked=clean):
-                    self.rejected = before + 1
                     return False
         self._store(0, step, target_x, target_v, target_time, seq, True)
         xs, vs = x[order], v[order]
@@ -281,16 +219,9 @@ class TrackerAgent:
         act[self._own_row] = True
         self._seq_max = max(self._seq_max, seq)
         self._swarm = (xs, vs, act)
-        if step < 0:  # realtime: the rows stay arrays until a reader needs them
-            self._lazy = (step, now, seq)
-            return True
-        self._lazy = None
-        samples = {
-            j: Sample(step, xs[k], vs[k], now, seq, a)
-            for k, (j, a) in enumerate(zip(self.ids, act.tolist(), strict=True))
-        }
-        self.inputs.update(samples)
-        self.pending.setdefault(step, {}).update(samples)
+        self._lazy = (step, now, seq)
+        if step >= 0:  # lockstep: by step too; realtime: arrays until a reader needs rows
+            self.pending.setdefault(step, {}).update(self._rows())
         return True
 
     def _rows_of(self, ids: Sequence[int]) -> NDArray[np.intp] | None:
@@ -306,17 +237,23 @@ class TrackerAgent:
         self._order = (key.copy(), order)
         return order
 
-    def _held(self) -> dict[int, Sample]:
-        """:attr:`inputs`, the rows of the latest ``/swarm/odom`` held as arrays made into
-        one Sample each first."""
-        if self._lazy is not None and self._swarm is not None:
-            step, now, seq = self._lazy
-            xs, vs, act = self._swarm
-            self.inputs.update(
-                (j, Sample(step, xs[k], vs[k], now, seq, a))
-                for k, (j, a) in enumerate(zip(self.ids, act.tolist(), strict=True))
-            )
+    def _rows(self) -> dict[int, Sample]:
+        """The rows of the latest ``/swarm/odom`` held as arrays, one Sample each, now in
+        :attr:`inputs` (none when they are there already)."""
+        if self._lazy is None or self._swarm is None:
+            return {}
+        (step, now, seq), (xs, vs, act) = self._lazy, self._swarm
         self._lazy = None
+        rows = {
+            j: Sample(step, xs[k], vs[k], now, seq, a)
+            for k, (j, a) in enumerate(zip(self.ids, act.tolist(), strict=True))
+        }
+        self.inputs.update(rows)
+        return rows
+
+    def _held(self) -> dict[int, Sample]:
+        """:attr:`inputs`, with the rows of the latest ``/swarm/odom`` in it."""
+        self._rows()
         return self.inputs
 
     def _acceptable(
@@ -360,24 +297,20 @@ class TrackerAgent:
     def command(self, step: int) -> ControlOutput:
         """The controller's command from the held inputs (one row, shape (1, 3) arrays)."""
         held = self.pending.pop(step, None) if step >= 0 else None
-        src = held if held is not None else self.inputs
         if held is None and self._swarm is not None:
-            # the latest /swarm/odom whole: the same arrays, without one Sample per tracker
-            xs, vs, act = self._swarm
-            n_active = int(np.count_nonzero(act))
-            row = int(np.count_nonzero(act[: self._own_row]))
-            x = xs if n_active == act.size else xs[act]
-            silent_x = xs[~act]
-            all_v = vs if n_active == act.size else vs[act]
-            own_v = vs[self._own_row]
+            # the latest /swarm/odom whole: its arrays, without one Sample per tracker
+            src, (xs, vs, act) = self.inputs, self._swarm
         else:
             src = held if held is not None else self._held()
-            own_v = src[self.uav_id].v
-            ids = [j for j in self.ids if src[j].active]
-            n_active, row = len(ids), ids.index(self.uav_id)
-            x = np.stack([src[j].x for j in ids])
-            silent_x = np.array([src[j].x for j in self.ids if not src[j].active]).reshape(-1, 3)
-            all_v = np.stack([src[j].v for j in ids])
+            rows = [src[j] for j in self.ids]
+            xs, vs = np.stack([r.x for r in rows]), np.stack([r.v for r in rows])
+            act = np.array([r.active for r in rows])
+        n_active = int(np.count_nonzero(act))
+        row = int(np.count_nonzero(act[: self._own_row]))
+        x = xs if n_active == act.size else xs[act]
+        silent_x = xs[~act]
+        all_v = vs if n_active == act.size else vs[act]
+        own_v = vs[self._own_row]
         rule = self.cfg.neighbour_rule()
         # a limited neighbour set (cfg.neighbours): this row of the simulator's mask
         mask = neighbour_mask(x, **rule, rows=[row]) if rule else None

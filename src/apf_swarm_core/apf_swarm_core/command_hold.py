@@ -1,10 +1,7 @@
-"""The plant's side of a sampled, delayed control loop: which command each UAV holds at each
-step when commands take effect after a latency (:class:`CommandHold`).
-
-The headless emulation of real time (:mod:`apf_swarm_core.simulator` with ``latency`` or
-measured ``latency_samples``) applies every command through it, as the realtime plant holds
-the latest command of each tracker and refuses one that arrives out of order.
-"""
+"""The plant's side of a sampled, delayed control loop (:class:`CommandHold`): which command
+each UAV holds when commands take effect after a latency, as the realtime plant holds them.
+The headless emulation of real time (:mod:`apf_swarm_core.simulator`) applies every command
+through it; :func:`answers` turns a realtime run's record into delays it replays."""
 
 from __future__ import annotations
 
@@ -16,11 +13,8 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = ['STALE_AFTER', 'CommandHold', 'answers']
 
 #: the plant's default ``stale_after`` [s]: a tracker that has not answered a state published
-#: this long ago gets zero force instead of its held command (the live view draws a UAV whose
-#: command answered an older state as stale)
+#: this long ago gets zero force instead of its held command (the live view draws it stale)
 STALE_AFTER = 0.1
-
-
 #: the delay [steps] of a command that never arrives
 NEVER = 2**40
 
@@ -46,19 +40,16 @@ def answers(t: ArrayLike, held: ArrayLike) -> NDArray[np.float64]:
 
 
 class CommandHold:
-    """The plant's side of a sampled, delayed control loop: which command each UAV holds.
+    """Which command each UAV holds at each step.
 
-    :meth:`submit` hands over the commands computed at step k; each tracker's takes effect at
-    step ``k + d``, d its delay in steps (a fixed ``latency``; one drawn from
-    ``latency_samples`` per tracker and sample; or, with ``latency_samples`` of shape (m, n),
-    a run's own delays replayed in their order, row ``c mod m`` for the c-th submission, so
-    that delays correlated in time and across trackers stay so; all rounded to steps of
-    dt). Until then the
-    UAV keeps the command it holds (zero force before the first). A command that arrives
-    after a newer one of the same tracker is dropped (out of order). With ``stale_after``,
-    as the realtime plant does (:meth:`~apf_swarm_core.plant_model.PlantModel.expire`), a UAV
-    whose held command answers a state older than the newest one submitted ``stale_after``
-    ago or earlier gets zero force until a newer command arrives.
+    :meth:`submit` hands over the commands of step k; each tracker's takes effect at step
+    ``k + d``, d its delay rounded to steps of dt: a fixed ``latency``; a draw from
+    ``latency_samples`` (k,) per tracker and submission; or with ``latency_samples`` (m, n)
+    row ``c mod m`` for the c-th submission (a run's own delays replayed in order, their
+    correlations kept). Until then the UAV keeps its held command (zero before the first);
+    one that arrives after a newer one is dropped. With ``stale_after``, as
+    :meth:`~apf_swarm_core.plant_model.PlantModel.expire` does, a UAV whose command answers a
+    state older than the newest one submitted ``stale_after`` ago gets zero force.
 
     Parameters
     ----------
@@ -86,20 +77,17 @@ class CommandHold:
         if latency_samples is not None:
             delays = np.asarray(latency_samples, dtype=float)
             # an unanswered state (inf): its command never arrives
-            self.samples = np.where(
+            samples = np.where(
                 np.isposinf(delays), NEVER, np.rint(np.nan_to_num(delays, posinf=0.0) / dt)
             ).astype(np.int64)
-        if self.samples is not None and (self.samples.size == 0 or np.any(self.samples < 0)):
-            raise ValueError('latency_samples must be a non-empty array of delays >= 0 s')
-        if (
-            self.samples is not None
-            and self.samples.ndim == 2
-            and self.samples.shape[1] != shape[1]
-        ):
-            raise ValueError(
-                f'latency_samples of shape {self.samples.shape}: a replayed sequence needs '
-                f'one column per tracker ({shape[1]})'
-            )
+            if samples.size == 0 or np.any(samples < 0):
+                raise ValueError('latency_samples must be a non-empty array of delays >= 0 s')
+            if samples.ndim == 2 and samples.shape[1] != shape[1]:
+                raise ValueError(
+                    f'latency_samples of shape {samples.shape}: a replayed sequence needs '
+                    f'one column per tracker ({shape[1]})'
+                )
+            self.samples = samples
         self.rng = rng if rng is not None else np.random.default_rng()
         self.force = np.zeros((*shape, 3))
         self.seq = np.full(shape, -1, dtype=np.int64)

@@ -1,22 +1,7 @@
-"""The configuration of a run: :class:`SwarmConfig`, every key with its meaning, unit and
-range, and what follows from the keys.
-
-A configuration file is a ROS 2 parameter file, so that the nodes read the very same file::
-
-    /**:
-      ros__parameters:
-        n_trackers: 3
-        law: proposed
-        ...
-    /uav_2/tracker:          # per-UAV overrides (keys in config_schema.PER_UAV_KEYS only)
-      ros__parameters:
-        mass: 1.2
-
-Every key of :class:`SwarmConfig` is declared once here with :func:`~apf_swarm_core.
-config_schema.key` (type, range, unit, help) and validated on construction by
-:func:`~apf_swarm_core.config_schema.validate`; files, presets and ``--set`` overrides are
-read by :mod:`apf_swarm_core.config_files`.
-"""
+"""The configuration of a run: :class:`SwarmConfig`, every key declared once with
+:func:`~apf_swarm_core.config_schema.key` (default, meaning, unit, range) and validated on
+construction, and what follows from the keys. A configuration file is a ROS 2 parameter file
+(docs/USAGE.md, "Configuration"), read by :mod:`apf_swarm_core.config_files`."""
 
 from __future__ import annotations
 
@@ -303,12 +288,9 @@ class SwarmConfig:
 
     def mass_matrix_diag(self) -> list[list[float]]:
         """Per-tracker diagonal of M, shape (n, 3), with per-UAV overrides applied."""
-        rows = []
-        for i in range(1, self.n_trackers + 1):
-            m = self.uav_overrides.get(i, {}).get('mass', self.mass)
-            m = tuple(m) if isinstance(m, (list, tuple)) else (float(m),)
-            rows.append(list(m) * 3 if len(m) == 1 else list(m))
-        return rows
+        over = self.uav_overrides  # validated: every mass a tuple of 1 or 3
+        masses = [over.get(i, {}).get('mass', self.mass) for i in range(1, self.n_trackers + 1)]
+        return [list(m) * 3 if len(m) == 1 else list(m) for m in masses]
 
     def swarm_b(self) -> float:
         """The repulsion gain b of eq. 44 for this swarm's size: ``b (n/3)^b_growth`` for

@@ -32,16 +32,18 @@ __all__ = [
 ]
 
 _UAV_SECTION = re.compile(r'^/?uav_(\d+)(/.*)?$')
+#: a number in exponent notation without a dot, which YAML 1.1 leaves a string
+_EXPONENT = re.compile(r'[-+]?\d+[eE][-+]?\d+')
+
+
+#: keys the ROS nodes declare that are not part of the swarm configuration
+_NODE_KEYS = ('uav_id', 'mode', 'use_sim_time')
 
 
 def _unknown(name: str, where: str) -> ConfigError:
     close = difflib.get_close_matches(name, KEYS, n=3)
     hint = f' (did you mean {", ".join(close)}?)' if close else ''
     return ConfigError(f'unknown key {name!r} in {where}{hint}; known keys: {", ".join(KEYS)}')
-
-
-# keys the ROS nodes declare that are not part of the swarm configuration
-_NODE_KEYS = ('uav_id', 'mode', 'use_sim_time')
 
 
 def config_from_mapping(
@@ -70,12 +72,6 @@ def config_from_mapping(
         missing = [k for k in REQUIRED_KEYS if k not in kwargs]
         if missing:
             raise ConfigError(f'{source} is missing required keys: {", ".join(missing)}')
-    if (
-        'mass' in kwargs
-        and isinstance(kwargs['mass'], (int, float))
-        and not isinstance(kwargs['mass'], bool)
-    ):
-        kwargs['mass'] = (kwargs['mass'],)
     return SwarmConfig(**kwargs, uav_overrides=dict(overrides or {}))
 
 
@@ -110,6 +106,7 @@ def load_config(path: str | os.PathLike[str]) -> SwarmConfig:
             raise ConfigError(
                 f"{path}: section {section!r} must contain a 'ros__parameters:' mapping"
             )
+        # sections of other nodes (/plant, /target, ...) carry node-only settings: skipped
         params = body['ros__parameters']
         m = _UAV_SECTION.match(str(section))
         if str(section) in ('/**', '**'):
@@ -118,9 +115,6 @@ def load_config(path: str | os.PathLike[str]) -> SwarmConfig:
             overrides.setdefault(int(m.group(1)), {}).update(
                 {k: v for k, v in params.items() if k not in _NODE_KEYS}
             )
-        else:
-            # sections for other nodes (/plant, /target, ...) may carry node-only settings
-            continue
     if not base:
         raise ConfigError(f"{path}: no '/**: ros__parameters:' section with the swarm keys")
     return config_from_mapping(base, source=str(path), overrides=overrides)
@@ -195,10 +189,6 @@ def parse_set(items: list[str] | tuple[str, ...]) -> dict[str, Any]:
             value = float(value)
         out[key] = value
     return out
-
-
-#: a number in exponent notation without a dot, which YAML 1.1 leaves a string
-_EXPONENT = re.compile(r'[-+]?\d+[eE][-+]?\d+')
 
 
 def apply_overrides(cfg: SwarmConfig, values: Mapping[str, Any]) -> SwarmConfig:

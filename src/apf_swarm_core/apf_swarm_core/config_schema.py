@@ -1,11 +1,7 @@
 """The schema of the configuration's keys: how a key of
-:class:`~apf_swarm_core.config.SwarmConfig` is declared (:func:`key`: default, meaning, unit,
-range, choices, length, flags) and how a configuration is held to it (:func:`validate`:
-types, ranges, choices and the rules between keys).
-
-A key's declaration is field metadata with the entries ``unit``, ``help``, ``lo``,
-``lo_open``, ``hi``, ``choices``, ``length``, ``required`` and ``read_only``; validation,
-the ``--set`` parser and the nodes' parameter descriptors all read it.
+:class:`~apf_swarm_core.config.SwarmConfig` is declared (:func:`key`: its default and field
+metadata, which validation and the nodes' parameter descriptors read) and how a
+configuration is held to it (:func:`validate`: types, ranges, choices, rules between keys).
 """
 
 from __future__ import annotations

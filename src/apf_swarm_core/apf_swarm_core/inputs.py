@@ -1,17 +1,34 @@
-"""What an input of a node is refused for before it reaches the mathematics: values that
-are not finite or not physical (:func:`input_problem`)."""
+"""A node's inputs: the latest value of one (:class:`Sample`), and what one is refused for
+before it reaches the mathematics: values that are not finite or not physical
+(:func:`input_problem`)."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ['MAX_FORCE', 'MAX_POSITION', 'MAX_SPEED', 'input_problem']
+__all__ = ['MAX_FORCE', 'MAX_POSITION', 'MAX_SPEED', 'Sample', 'input_problem']
 
 #: inputs beyond these magnitudes are refused as not physical (componentwise) [m, m/s, N]
 MAX_POSITION = 1.0e6
 MAX_SPEED = 1.0e4
 MAX_FORCE = 1.0e6
+
+
+@dataclass
+class Sample:
+    """The latest value of one input: step (lockstep) or -1, arrays, the time it was produced
+    [s] (on the clock the caller uses for ``now``), its order key, and whether its tracker is
+    active (commanding; always True for the target)."""
+
+    step: int
+    x: NDArray[np.float64]
+    v: NDArray[np.float64]
+    received: float
+    seq: int = -1
+    active: bool = True
 
 
 _LIMITS = {

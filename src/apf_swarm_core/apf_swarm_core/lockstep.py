@@ -1,20 +1,11 @@
-"""The plant's lockstep barrier: the protocol that makes the ROS graph step exactly as the
-simulator does, without ROS.
+"""The plant's lockstep barrier without ROS (:class:`LockstepBarrier`): the protocol that
+makes the ROS graph step exactly as the simulator does (docs/ROS.md, "Timing modes"): the
+target's states asked for ahead, step k published once its target state is held, step k + 1
+once every active tracker's command of step k is in; past ``timeout`` step k again, past
+another a missing tracker inactive or the target's last state held.
 
-Step k: wait for the target's state of step k (asked for ahead, up to ``lookahead - 1``
-steps, once fewer than half of that are asked for), then publish ``/swarm/odom`` of step k,
-``/clock`` and the per-UAV odometry; wait until the command of step k of every active
-tracker has arrived; integrate to k + 1, publish step k + 1, and only then the
-``/swarm/state`` sample of step k. Past ``timeout`` seconds of wall time the step is
-published once more; still missing after another ``timeout``, each missing input is counted
-in ``missed`` and no longer waited for: a silent tracker becomes inactive (see
-:meth:`~apf_swarm_core.plant_model.PlantModel.deactivate`), a silent target's last state is held
-and its age grows. A command or a target state that arrives again ends that.
-
-:class:`LockstepBarrier` takes the events (start, a target state, an accepted command, a
-clock tick) and returns the :class:`Action` list the node carries out in order; the plant
-node converts messages and publishes, nothing more.
-"""
+The barrier takes the events (start, a target state, a command, a clock tick) and returns the
+:class:`Action` list the node carries out in order."""
 
 from __future__ import annotations
 
@@ -24,14 +15,14 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from .agents import Sample
-from .inputs import input_problem
+from .inputs import Sample, input_problem
 from .plant_model import Command, PlantModel
 
 __all__ = [
     'LOOKAHEAD',
     'Action',
     'LockstepBarrier',
+    'refusal',
     'take_command',
     'target_problem',
     'target_window',
@@ -48,7 +39,7 @@ class Action:
     """What the node does next: ``request`` the target's states up to ``step``; publish
     ``swarm_odom`` of ``step`` (the held target state, :attr:`LockstepBarrier.target`);
     publish ``step`` (``/clock`` and every UAV's odometry of the model's current state);
-    publish the ``state`` sample ``data`` of ``step`` (:meth:`LockstepBarrier.snapshot`);
+    publish the ``state`` sample ``data`` of ``step`` (:meth:`PlantModel.snapshot`);
     log ``text`` at ``info`` or ``warn``; ``refuse``: an input was refused (counted in the
     model), ``text`` says why."""
 
@@ -75,17 +66,21 @@ def take_command(
     return True, [Action('info', text=text)]
 
 
+def refusal(model: PlantModel, why: str | None) -> list[Action]:
+    """An input refused for ``why``, counted in ``model``, as an action ([] for None)."""
+    if why is None:
+        return []
+    model.refuse(why)
+    return [Action('refuse', text=why)]
+
+
 def target_problem(
     model: PlantModel, x: NDArray[np.float64], v: NDArray[np.float64]
 ) -> list[Action]:
     """A target state the plant cannot use (not finite, out of range): refused and counted
     in ``model``; [] when it is usable."""
     problem = input_problem(x=x, v=v)
-    if problem is None:
-        return []
-    why = f'target state: {problem}'
-    model.refuse(why)
-    return [Action('refuse', text=why)]
+    return refusal(model, None if problem is None else f'target state: {problem}')
 
 
 @dataclass
@@ -185,11 +180,6 @@ class LockstepBarrier:
         """Age of the held target state [s of simulated time; ``now``, wall time, unused]."""
         return max(0, self.model.k - self.target.step) * self.model.cfg.dt
 
-    def snapshot(self, k: int) -> dict[str, Any]:
-        """The ``/swarm/state`` fields of step ``k`` with the held target state, taken now
-        (:meth:`~apf_swarm_core.plant_model.PlantModel.snapshot`)."""
-        return self.model.snapshot(k, self.target, self.target_age())
-
     # --- the protocol ----------------------------------------------------------------
     def _publish_step(self, now: float, again: bool = False) -> list[Action]:
         if not again:
@@ -278,7 +268,7 @@ class LockstepBarrier:
             )
         # the state of step k goes out after step k + 1: the trackers, which wait for
         # /swarm/odom of k + 1, start while the node computes the metrics of k
-        state = Action('state', k, self.snapshot(k))
+        state = Action('state', k, m.snapshot(k, self.target, self.target_age()))
         m.advance()
         if m.k in self.targets:
             out += self._take_target()

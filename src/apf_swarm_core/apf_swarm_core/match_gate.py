@@ -13,7 +13,8 @@ from collections.abc import Callable
 
 __all__ = ['MatchGate']
 
-Action = Callable[[], None]
+#: a publication to run once its readers are matched
+Publication = Callable[[], None]
 
 
 class MatchGate:
@@ -23,27 +24,27 @@ class MatchGate:
     is held, the newest replacing an older one, until :meth:`retry` finds the readers.
 
     The node passes its publisher's matched count to :meth:`offer` and :meth:`retry`, runs
-    the action they return, and retries on a timer while :attr:`holding`.
+    the publication they return, and retries on a timer while :attr:`holding`.
     """
 
     def __init__(self, need: int = 1, first: int | None = None) -> None:
         self.need = int(need)
         self._want = self.need if first is None else int(first)
-        self._held: Action | None = None
+        self._held: Publication | None = None
 
     @property
     def holding(self) -> bool:
-        """Whether an action waits for its readers."""
+        """Whether a publication waits for its readers."""
         return self._held is not None
 
-    def offer(self, action: Action, matched: int) -> Action | None:
+    def offer(self, action: Publication, matched: int) -> Publication | None:
         """``action`` to run now when ``matched`` readers suffice, else None (it is held, in
         place of one held before)."""
         self._held = action
         return self.retry(matched)
 
-    def retry(self, matched: int) -> Action | None:
-        """The held action to run now that ``matched`` readers suffice, or None."""
+    def retry(self, matched: int) -> Publication | None:
+        """The held publication to run now that ``matched`` readers suffice, or None."""
         if self._held is None or matched < self._want:
             return None
         action, self._held = self._held, None

@@ -12,17 +12,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .agents import PLANT_FORMATION_METRIC_MAX, Sample
 from .config import SwarmConfig
 from .formation import expected_pairs
-from .inputs import input_problem
+from .inputs import Sample, input_problem
 from .kernels import warm
 from .metrics import centroid_error, formation_error
-from .plant import DisturbanceSource
+from .plant import DisturbanceSource, plant_step
 from .potential import potential
-from .simulator import initial_positions, integrate
+from .simulator import initial_positions
 
-__all__ = ['Command', 'PlantModel']
+__all__ = ['PLANT_FORMATION_METRIC_MAX', 'Command', 'PlantModel']
+
+#: the plant computes the formation error of /swarm/state up to this many trackers
+PLANT_FORMATION_METRIC_MAX = 12
 
 
 @dataclass(frozen=True)
@@ -44,14 +46,10 @@ class Command:
 
 @dataclass
 class PlantModel:
-    """Dynamics of all trackers (eq. 19-21), as the simulator integrates them.
-
-    Holds x, v (n, 3), the disturbance source and the latest commands. Lockstep: collect the
-    commands of step k from the active trackers (:meth:`missing`), then :meth:`advance`; a
-    tracker still silent after the deadline is deactivated (:meth:`deactivate`). Realtime:
-    :meth:`expire` deactivates the trackers whose latest command is older than the timeout.
-    An inactive tracker's UAV gets zero force until its next command, which reactivates it.
-    """
+    """Dynamics of all trackers (eq. 19-21), as the simulator integrates them: x, v (n, 3),
+    the disturbance source and the latest commands. Lockstep: the commands of step k of the
+    active trackers (:meth:`missing`), then :meth:`advance`; realtime: :meth:`advance_to` and
+    :meth:`expire`. An inactive tracker's UAV gets zero force until its next command."""
 
     cfg: SwarmConfig
     k: int = 0
@@ -80,9 +78,8 @@ class PlantModel:
         self.command_time = np.zeros(n)  # realtime: when each latest command arrived
         self.latency = np.zeros(n)  # realtime: its arrival minus its state's stamp [s]
         self._asked: list[float] = []  # realtime: when the state went out, ascending
-        # the formation error published every step needs the design shape; for more than
-        # 12 trackers it is a numerical minimization of seconds, which would delay the
-        # plant's start: /swarm/state then carries NaN (summary.json still has the metric)
+        # the formation error of /swarm/state needs the design shape, a minimization of
+        # seconds beyond PLANT_FORMATION_METRIC_MAX trackers: NaN there (summary.json has it)
         pairs = expected_pairs(self.cfg) if n <= PLANT_FORMATION_METRIC_MAX else None
         self.expected_pairs = None if pairs is None else np.asarray(pairs)
         warm()  # the compiled plant loaded now, not in the first step's deadline
@@ -113,15 +110,13 @@ class PlantModel:
         latency: float = 0.0,
         run: int = 0,
     ) -> bool:
-        """Store the command of one tracker; False (counted, ``last_rejection`` says why) if
-        the id is unknown, a value is not finite or out of range, the command comes from
-        another tracker process (``instance``) than the one this ``uav_id`` follows (a
-        duplicate ``uav_id``), the step is older than the one held, or (lockstep) this step
-        was answered already. An accepted command makes its tracker active; an inactive
-        tracker follows the next instance that commands (a respawned tracker). A ``stale``
-        command (the tracker's safe brake) counts in ``stale`` only once its process has
-        commanded from its inputs: the brakes before its first inputs are its start-up. A
-        command of another ``run`` than the plant's (:attr:`run`, when not 0) is refused."""
+        """Store the command of one tracker; False (counted, ``last_rejection`` says why) for
+        another ``run``, an unknown id, a value not finite or out of range, a second tracker
+        process (``instance``) on a followed ``uav_id``, a step older than the one held or
+        (lockstep) answered already. An accepted command makes its tracker active; an
+        inactive tracker follows the next instance that commands (a respawn). A ``stale``
+        command (the safe brake) counts in ``stale`` once its process has commanded from its
+        inputs (the brakes before are its start-up)."""
         foreign = self._foreign(uav_id, run)
         if foreign is not None:
             return self.refuse(foreign)
@@ -130,23 +125,23 @@ class PlantModel:
             return self.refuse(f'command of uav_{uav_id}: {problem}')
         j = uav_id - 1
         followed = self.instances.get(uav_id)
-        if followed is not None and instance != followed:
-            if self.active[j]:
-                return self.refuse(
-                    f'duplicate uav_id {uav_id}: a command from a second '
-                    f'tracker process (instance {instance:x}; following '
-                    f'{followed:x})'
-                )
-            self.got.pop(uav_id, None)  # a new process starts its own sequence
-        if self.instances.get(uav_id) != instance:
-            self.commanded.discard(uav_id)  # a new process starts without inputs
-        self.instances[uav_id] = instance
+        if followed != instance:
+            if followed is not None:
+                if self.active[j]:
+                    return self.refuse(
+                        f'duplicate uav_id {uav_id}: a command from a second '
+                        f'tracker process (instance {instance:x}; following '
+                        f'{followed:x})'
+                    )
+                self.got.pop(uav_id, None)  # a new process starts its own sequence
+            self.commanded.discard(uav_id)  # and without inputs
+            self.instances[uav_id] = instance
         held = self.got.get(uav_id, -1)
-        if step >= 0 and step < held:
+        if 0 <= step < held:
             return self.refuse(
                 f'command of uav_{uav_id} for step {step} is out of order (step {held} held)'
             )
-        if step >= 0 and step == held:
+        if 0 <= step == held:
             return self.refuse(
                 f'second command of uav_{uav_id} for step {step}: another '
                 f'tracker with the same uav_id? (the first one is used)'
@@ -198,11 +193,9 @@ class PlantModel:
     def expire(self, now: float, zero_after: float, inactive_after: float) -> list[int]:
         """Realtime: a tracker that has not answered a state published ``zero_after`` seconds
         ago or earlier gets zero force (a held bang-bang command would fling the UAV); one
-        that has not answered a state published ``inactive_after`` ago is deactivated (left
-        out of the others' formation: a short hiccup does not reshape it). Measured from the
-        publications (:meth:`published`), not from the clock alone, so a plant that was
-        itself late in publishing does not blame the trackers. Returns the ids just
-        deactivated."""
+        that has not answered a state published ``inactive_after`` ago is deactivated.
+        Measured from the publications (:meth:`published`), so a plant itself late in
+        publishing does not blame the trackers. Returns the ids just deactivated."""
         zero_ref = self._asked_before(now - zero_after)
         if zero_ref is None:
             return []
@@ -222,11 +215,10 @@ class PlantModel:
         return newly
 
     def advance_to(self, elapsed: float, most: int = 1000) -> None:
-        """Realtime: integrate the steps of dt that ``elapsed`` seconds of wall time since
-        the start contain and that are not integrated yet (at most ``most``), with the held
-        commands. Called before a new command is stored too, so that each command acts
-        from its arrival on (a zero-order hold with the loop's true delay), as the
-        emulation's :class:`~apf_swarm_core.command_hold.CommandHold` assumes."""
+        """Realtime: integrate with the held commands the steps of dt in ``elapsed`` seconds
+        since the start not integrated yet (at most ``most``); before a new command is
+        stored too, so that it acts from its arrival on (a zero-order hold with the loop's
+        true delay, as :class:`~apf_swarm_core.command_hold.CommandHold` assumes)."""
         due = int(elapsed / self.cfg.dt) - self.k
         if due > 0:
             self.advance(min(due, most))
@@ -234,7 +226,7 @@ class PlantModel:
     def advance(self, steps: int = 1) -> None:
         """Integrate ``steps`` steps with the held commands (lockstep: one)."""
         for _ in range(steps):
-            self.x, self.v = integrate(
+            self.x, self.v = plant_step(
                 self.x,
                 self.v,
                 self.u,
@@ -275,9 +267,6 @@ class PlantModel:
         x = self.x if x is None else x
         j = float(potential(x, target_x, **self.cfg.potential_params()))
         ce = float(centroid_error(x, target_x))
-        fe = (
-            float(formation_error(x, self.expected_pairs))
-            if (self.expected_pairs is not None)
-            else float('nan')
-        )
+        pairs = self.expected_pairs
+        fe = float('nan') if pairs is None else float(formation_error(x, pairs))
         return j, ce, fe

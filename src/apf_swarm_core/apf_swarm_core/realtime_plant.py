@@ -1,16 +1,10 @@
 """The realtime plant without ROS (:class:`RealtimePlant`): its physics clock, the target state
-it holds, and the inputs it refuses for their age or order.
+it holds, and the inputs it refuses for their age or order (docs/ROS.md, "Timing modes").
 
-The clock starts once every tracker has commanded from its inputs, or at ``arm_timeout``
-(:meth:`RealtimePlant.arm`); until then odometry goes out with the UAVs held still. The
-physics step (:meth:`RealtimePlant.physics`) integrates the steps of dt that wall time has
-advanced with the held commands: a tracker whose latest command is older than ``stale_after``
-gets zero force, older than ``command_timeout`` it becomes inactive, counted in
-``missed_deadlines``. Commands and target states whose stamp is older than
-``command_timeout``, or older than the one held, are refused. Times are the node's
-monotonic clock [s]; what to log comes back as the core's lockstep
-:class:`~apf_swarm_core.lockstep.Action` (``info`` and ``warn``), as from the lockstep barrier.
-"""
+The clock starts once every tracker has commanded, or at ``arm_timeout`` (:meth:`arm`); the
+physics step integrates the steps of dt wall time has advanced with the held commands. Times
+are the node's monotonic clock [s]; what to log comes back as lockstep's
+:class:`~apf_swarm_core.lockstep.Action` (``info``, ``warn``, ``refuse``)."""
 
 from __future__ import annotations
 
@@ -20,12 +14,11 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from .agents import Sample
-from .command_hold import STALE_AFTER
-from .lockstep import Action, take_command, target_problem
+from .inputs import Sample
+from .lockstep import Action, refusal, take_command, target_problem
 from .plant_model import Command, PlantModel
 
-__all__ = ['STALE_AFTER', 'RealtimePlant']
+__all__ = ['RealtimePlant']
 
 
 @dataclass
@@ -97,10 +90,9 @@ class RealtimePlant:
     def take_command(self, c: Command, age: float, now: float) -> tuple[bool, list[Action]]:
         """A tracker's command stamped ``age`` seconds ago arrived at ``now``: refused if
         stale, else offered to the model with its latency (once the clock runs)."""
-        why = self.stale_command(c.uav_id, age)
-        if why is not None:
-            self.model.refuse(why)
-            return False, [Action('refuse', text=why)]
+        refused = refusal(self.model, self.stale_command(c.uav_id, age))
+        if refused:
+            return False, refused
         latency = age if self.command_arrives(now) else 0.0
         return take_command(self.model, self.running, c, latency=latency, now=now)
 
@@ -108,14 +100,9 @@ class RealtimePlant:
         self, x: NDArray[np.float64], v: NDArray[np.float64], stamp_ns: int, age: float, now: float
     ) -> list[Action]:
         """A target state stamped ``stamp_ns``, ``age`` seconds ago: held, or refused."""
-        refused = target_problem(self.model, x, v)
-        if refused:
-            return refused
-        why = self.offer_target(x, v, stamp_ns, age, now)
-        if why is None:
-            return []
-        self.model.refuse(why)
-        return [Action('refuse', text=why)]
+        return target_problem(self.model, x, v) or refusal(
+            self.model, self.offer_target(x, v, stamp_ns, age, now)
+        )
 
     def offer_target(
         self,

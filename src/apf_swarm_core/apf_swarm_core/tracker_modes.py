@@ -81,13 +81,25 @@ class _TrackerMode:
         #: why the last input was refused (None: accepted)
         self.refused: str | None = None
 
-    def _refuse(self) -> None:
-        self.refused = self.agent.last_rejection
+    def _took(self, ok: bool) -> bool:
+        """Whether the agent took an input; else why not in :attr:`refused`."""
+        self.refused = None if ok else self.agent.last_rejection
+        return ok
 
-    def _brake(self, step: int, stale: list[int]) -> Reply:
+    def _offer_swarm(self, m: SwarmOdom, step: int, now: float, seq: int) -> bool:
+        """Offer ``m``, produced at ``now``, to the agent with its command latencies."""
+        ok = self.agent.offer_swarm(
+            step, m.uav_ids, m.x, m.v, m.active, m.target_x, m.target_v, now,
+            now - m.target_age, seq=seq, run=m.run,
+        )  # fmt: skip
+        if self._took(ok) and m.command_latency.size:
+            self.agent.report_latency(m.command_latency)
+        return ok
+
+    def _brake(self, step: int, stale: list[int], force: NDArray[np.float64]) -> Reply:
         self.agent.stale += 1
         first, self._stale_reported = not self._stale_reported, True
-        return Reply(step, brake=self.agent.safe_command(), stale=stale, report_stale=first)
+        return Reply(step, brake=force, stale=stale, report_stale=first)
 
     def _command(self, step: int) -> Reply:
         out = self.agent.command(step)
@@ -111,29 +123,16 @@ class LockstepTracker(_TrackerMode):
         """A ``/swarm/odom`` of step ``m.step``: its command, its brake, or None (refused, see
         :attr:`refused`, or not complete yet)."""
         now = m.stamp_ns * 1e-9
-        self.refused = None
-        if not self.agent.offer_swarm(
-            m.step, m.uav_ids, m.x, m.v, m.active, m.target_x, m.target_v, now,
-            now - m.target_age, seq=m.step, run=m.run,
-        ):  # fmt: skip
-            self._refuse()
-            return None
-        if m.command_latency.size:
-            self.agent.report_latency(m.command_latency)
-        return self._answer(m.step, now)
+        return self._answer(m.step, now) if self._offer_swarm(m, m.step, now, m.step) else None
 
     def on_odom(
         self, source: int, stamp_ns: int, x: NDArray[np.float64], v: NDArray[np.float64],
         ros_now_ns: int = 0, mono: float = 0.0,
     ) -> Reply | None:  # fmt: skip
         """One odometry (``source`` 0: the target): as :meth:`on_swarm`."""
-        step = stamp_ns // self.dt_ns
-        now = stamp_ns * 1e-9
-        self.refused = None
-        if not self.agent.offer(source, step, x, v, now, seq=step):
-            self._refuse()
-            return None
-        return self._answer(step, now)
+        step, now = stamp_ns // self.dt_ns, stamp_ns * 1e-9
+        ok = self._took(self.agent.offer(source, step, x, v, now, seq=step))
+        return self._answer(step, now) if ok else None
 
     def on_timer(self, ros_now_ns: int, mono: float) -> Reply | None:
         """Lockstep runs no timer: nothing."""
@@ -143,11 +142,8 @@ class LockstepTracker(_TrackerMode):
         if not self.agent.ready(step):
             return None
         stale = self.agent.stale_sources(now, self.timeout)
-        if stale:
-            reply = self._brake(step, stale)
-            # the barrier still needs a command for this step
-            self.agent.brake(step)
-            return reply
+        if stale:  # the barrier still needs a command for this step
+            return self._brake(step, stale, self.agent.brake(step))
         return self._command(step)
 
 
@@ -170,16 +166,9 @@ class RealtimeTracker(_TrackerMode):
     def on_swarm(self, m: SwarmOdom, ros_now_ns: int, mono: float) -> Reply | None:
         """A ``/swarm/odom``: held; with the odom trigger, answered at once."""
         t = self._arrival(m.stamp_ns, ros_now_ns, mono)
-        self.refused = None
-        if not self.agent.offer_swarm(
-            -1, m.uav_ids, m.x, m.v, m.active, m.target_x, m.target_v, t, t - m.target_age,
-            seq=m.stamp_ns, run=m.run,
-        ):  # fmt: skip
-            self._refuse()
-            return None
-        if m.command_latency.size:
-            self.agent.report_latency(m.command_latency)
-        return self.command_now(mono) if self.on_own_odom else None
+        if self._offer_swarm(m, -1, t, m.stamp_ns) and self.on_own_odom:
+            return self.command_now(mono)
+        return None
 
     def on_odom(
         self, source: int, stamp_ns: int, x: NDArray[np.float64], v: NDArray[np.float64],
@@ -187,11 +176,8 @@ class RealtimeTracker(_TrackerMode):
     ) -> Reply | None:  # fmt: skip
         """One odometry: held; the own one answered at once with the odom trigger."""
         t = self._arrival(stamp_ns, ros_now_ns, mono)
-        self.refused = None
-        if not self.agent.offer(source, -1, x, v, t, seq=stamp_ns):
-            self._refuse()
-            return None
-        if self.on_own_odom and source == self.agent.uav_id:
+        ok = self._took(self.agent.offer(source, -1, x, v, t, seq=stamp_ns))
+        if ok and self.on_own_odom and source == self.agent.uav_id:
             return self.command_now(mono)
         return None
 
@@ -211,7 +197,7 @@ class RealtimeTracker(_TrackerMode):
         self._last_command = mono
         stale = self.agent.stale_sources(mono, self.timeout)
         if stale:
-            return self._brake(self._tick, stale)
+            return self._brake(self._tick, stale, self.agent.safe_command())
         return self._command(self._tick)
 
 

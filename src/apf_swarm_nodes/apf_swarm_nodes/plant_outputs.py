@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from apf_swarm_core.agents import Sample
+from apf_swarm_core.inputs import Sample
 from apf_swarm_core.plant_model import PlantModel
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
