@@ -126,12 +126,8 @@ def equilibrium_formations(
     **gains: Unpack[Gains[float]],
 ) -> list[Formation]:
     """The distinct minima of J whose potential is within ``tolerance`` (relative) of the
-    lowest found from ``starts`` random shapes, lowest first.
-
-    A larger swarm's J has minima that differ in J by a few parts in 1e8 and in shape by
-    several percent (32 trackers, default potential: J = 1418.37769 with the closest pair at
-    0.708 m, and 1418.37776 at 0.669 m): a swarm descending J settles in one of them, and
-    each is the formation the potential designs. Gains as for :func:`equilibrium_formation`.
+    lowest found from ``starts`` random shapes, lowest first: a larger swarm settles in any
+    of them (docs/THEORY.md, section 4). Gains as for :func:`equilibrium_formation`.
     """
     from scipy.optimize import minimize
 
@@ -188,12 +184,8 @@ def polish_minimum(
     """From a point where a quasi-Newton search stopped, a true minimum of J (target at
     the origin): saddle-free Newton steps ``-|H|^{-1} grad J`` with a backtracking line
     search while the gradient is not yet ~0, and a step along the most negative curvature
-    while the Hessian (the three rotations set aside) has one.
-
-    L-BFGS stops on a flat J: for 64 trackers of the ``realtime`` potential it stops at a
-    saddle with six negative curvatures of -1e-5 and a closest pair 8 % below the nearby
-    minimum's; a design that is a saddle would judge every run against a formation that no
-    swarm keeps. Cost O(n^3) per iteration: for the design, never on the control path.
+    while the Hessian (the three rotations set aside) has one: L-BFGS may stop at a saddle
+    of a flat J, a formation no swarm keeps. O(n^3) per iteration, never on the control path.
     """
     origin = np.zeros(3)
 

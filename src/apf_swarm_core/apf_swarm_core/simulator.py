@@ -1,27 +1,13 @@
-"""Headless fixed-step simulator of the closed loop, single or batched.
+"""Headless fixed-step simulator of the closed loop: R runs (seeds, parameter values) as one
+array program with a leading run axis; a single run is the batch R = 1.
 
-One step ``k -> k+1`` (``t_k = k dt``), the order a lockstep ROS run follows too:
-
-1. the target state ``x_N(t_k), xdot_N(t_k)`` from its trajectory (eq. 1);
-2. :func:`~apf_swarm_core.control.control_step`: gradients (eq. 2 / 44) and the sliding-mode
-   command of every tracker from the state at step k (eq. 22-28, 31, 24) -- the tracker node
-   calls the same function for its own row;
-3. :func:`integrate`: the plant (eq. 19-21) advances with the command held over the step and a
-   seeded bounded disturbance -- the plant node calls the same function.
-
-Real time emulated (``control_rate`` > 0, ``latency``): step 2 runs only every
-``hold_steps`` steps (sample and hold, the controller's filter advancing by the period), and
-each tracker's command takes effect ``latency`` seconds after its sample, rounded to steps,
-or after a delay drawn per tracker and sample from measured latencies (``latency_samples``,
-stream ``[seed, 3]``); until then the plant keeps the command it holds, and a command
-overtaken by a newer one is dropped, as the realtime plant refuses an out-of-order command
-(:class:`~apf_swarm_core.command_hold.CommandHold`). With ``control_rate = 0`` and no
-latency the loop is the lockstep one, unchanged.
-
-The batched form runs R independent runs (different seeds and/or parameter values, the same
-number of trackers) as one array program with a leading run axis; a single run is the batch
-R = 1, so there is one code path. Random streams: ``default_rng([seed, 1])`` draws the initial
-positions, ``default_rng([seed, 2])`` the disturbance (see :mod:`apf_swarm_core.plant`).
+A step k -> k+1 follows a lockstep ROS run: the target at ``t_k = k dt`` (eq. 1), then
+:func:`~apf_swarm_core.control.control_step` for every tracker (as the tracker node), then the
+plant (eq. 19-21, as the plant node) with the command held over the step. With
+``control_rate`` > 0 or a latency it emulates the realtime loop: a command every
+``hold_steps`` steps, acting after its delay (:class:`~apf_swarm_core.command_hold.CommandHold`).
+Random streams: ``[seed, 1]`` the start, ``[seed, 2]`` the disturbance, ``[seed, 3]`` the
+delays drawn from ``latency_samples``.
 """
 
 from __future__ import annotations
