@@ -360,57 +360,32 @@ class BatchSimulator:
             'target_v': np.empty((R, T, 3)),
             'saturated': np.empty((R, T, n), dtype=bool),
         }
-        # step-major views: sample j of every run is rec_*[j]. Per step, one copy each of
-        # the state, the command and the mask; the times and the target's samples are
-        # copied in slices: t_k = k dt afterwards, the target rows from each block of the
-        # target's path when the block is replaced (and at the end)
-        rec_x, rec_v, rec_u, rec_s, rec_sat = (
-            rec[key].swapaxes(0, 1) for key in ('x', 'v', 'u', 's', 'saturated')
-        )
-        rec_tx, rec_tv = (rec[key].swapaxes(0, 1) for key in ('target_x', 'target_v'))
         k0 = self.k
-        first = (-k0) % every  # the first recorded step is k0 + first
         if self._compiled():
             self._run_compiled(steps, record, rec, progress, progress_every)
-            if record:
-                m = len(range(first, steps, every))
-                rec['t'][:m] = (k0 + first + every * np.arange(m)) * dt  # k dt, as k * dt
-            if progress is not None:
-                progress(steps, steps)
-            return rec
-        held = [0, 0]  # samples from the current block: j, count
-        target = self.target
-
-        def target_samples(block: tuple[int, Any, Any]) -> None:
-            j, m = held
-            if m:
-                base, pos, vel = block
-                k = k0 + first + j * every - base  # row of sample j in the block
-                rows = slice(k, k + (m - 1) * every + 1, every)
-                rec_tx[j : j + m] = target.gather(pos[rows])
-                rec_tv[j : j + m] = target.gather(vel[rows])
-                held[:] = [j + m, 0]
-
-        for i in range(steps):
-            block = target.block
-            x, v, k = self.x, self.v, self.k
-            out, _, _ = self.step()
-            if record:
-                if target.block is not block:  # a new block: the old one's samples
-                    target_samples(block)
-                if k % every == 0:
+        else:
+            # step-major views: sample j of every run is rec_*[j]
+            rec_x, rec_v, rec_u, rec_s, rec_sat, rec_tx, rec_tv = (
+                rec[key].swapaxes(0, 1)
+                for key in ('x', 'v', 'u', 's', 'saturated', 'target_x', 'target_v')
+            )
+            for i in range(steps):
+                x, v, k = self.x, self.v, self.k
+                out, tx, tv = self.step()
+                if record and k % every == 0:
                     j = i // every
                     rec_x[j] = x
                     rec_v[j] = v
                     rec_u[j] = self.force
                     rec_s[j] = out.sliding_surface
                     rec_sat[j] = out.saturated
-                    held[1] += 1
-            if progress is not None and (i + 1) % progress_every == 0:
-                progress(i + 1, steps)
+                    rec_tx[j] = tx
+                    rec_tv[j] = tv
+                if progress is not None and (i + 1) % progress_every == 0:
+                    progress(i + 1, steps)
         if record:
-            target_samples(target.block)
-            m = held[0]
+            first = (-k0) % every  # the first recorded step is k0 + first
+            m = len(range(first, steps, every))
             rec['t'][:m] = (k0 + first + every * np.arange(m)) * dt  # k dt, as k * dt
         if progress is not None:
             progress(steps, steps)
@@ -472,21 +447,11 @@ class BatchSimulator:
             ):
                 held[q] = arr
             outside[:] = out.saturated
-        if record:
-            views = [
-                rec[key].swapaxes(0, 1)
-                for key in ('x', 'v', 'u', 's', 'saturated', 'target_x', 'target_v')
-            ]
-        else:
-            views = [
-                np.empty((R, 0, n, 3)).swapaxes(0, 1),
-                np.empty((R, 0, n, 3)).swapaxes(0, 1),
-                np.empty((R, 0, n, 3)).swapaxes(0, 1),
-                np.empty((R, 0, n, 3)).swapaxes(0, 1),
-                np.empty((R, 0, n), dtype=np.bool_).swapaxes(0, 1),
-                np.empty((R, 0, 3)).swapaxes(0, 1),
-                np.empty((R, 0, 3)).swapaxes(0, 1),
-            ]
+        # without a record the arrays of rec hold no samples
+        views = [
+            rec[key].swapaxes(0, 1)
+            for key in ('x', 'v', 'u', 's', 'saturated', 'target_x', 'target_v')
+        ]
         dt = float(self.dt)
         have = out is not None
         i = 0

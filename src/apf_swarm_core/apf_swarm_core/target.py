@@ -327,10 +327,3 @@ class BatchTarget:
                 vel[k - base, 0], shape
             )
         return pos[k - base][self.index], vel[k - base][self.index]
-
-    def gather(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Rows of a block, shape (m, trajectories, 3), for every run: (m, R, 3) or
-        (m, 1, 3) when one trajectory serves every run (broadcast on assignment)."""
-        if self.identity or len(self.distinct) == 1:
-            return rows
-        return rows[:, self.index]
