@@ -13,7 +13,7 @@ Conditions checked (each a :class:`Finding`):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 from .advice import PLAIN, Advice
@@ -268,10 +268,7 @@ def check_config(
     rep.findings += _bound_findings(cfg, bounds, 'a priori estimate (conservative)', 'info')
     if run is not None:
         mbounds, mest = gain_bounds_from_run(cfg, run['t'], run['x'], run['target_x'])
-        rep.bounds += [
-            GainBound(b.name + '_measured', b.regime, b.printed, b.corrected, b.u0)
-            for b in mbounds
-        ]
+        rep.bounds += [replace(b, name=b.name + '_measured') for b in mbounds]
         rep.estimates.update({f'measured_{k}': v for k, v in mest.items()})
         rep.findings += _bound_findings(
             cfg, mbounds, 'measured on a run (steady window)', 'warning'
