@@ -429,12 +429,7 @@ class BatchSimulator:
         mass = as_kernel(self.mass, (R, n, 3))
         drag = as_kernel(self.drag, (R,))
         target = self.target
-        if target.identity:
-            tindex = np.arange(R, dtype=np.int64)
-        elif len(target.distinct) == 1:
-            tindex = np.zeros(R, dtype=np.int64)
-        else:
-            tindex = target.index.astype(np.int64)
+        tindex = target.index.astype(np.int64)  # the trajectory of each run
         x = np.array(self.x, dtype=float)
         v = np.array(self.v, dtype=float)
         z = np.array(self.controller.z, dtype=float).reshape(R, n, 3)
