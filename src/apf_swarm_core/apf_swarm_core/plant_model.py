@@ -18,9 +18,9 @@ from .formation import expected_pairs
 from .inputs import input_problem
 from .kernels import warm
 from .metrics import centroid_error, formation_error
-from .plant import DisturbanceSource
+from .plant import DisturbanceSource, plant_step
 from .potential import potential
-from .simulator import initial_positions, integrate
+from .simulator import initial_positions
 
 __all__ = ['Command', 'PlantModel']
 
@@ -234,7 +234,7 @@ class PlantModel:
     def advance(self, steps: int = 1) -> None:
         """Integrate ``steps`` steps with the held commands (lockstep: one)."""
         for _ in range(steps):
-            self.x, self.v = integrate(
+            self.x, self.v = plant_step(
                 self.x,
                 self.v,
                 self.u,

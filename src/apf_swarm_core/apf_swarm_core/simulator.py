@@ -46,7 +46,6 @@ __all__ = [
     'SimResult',
     'formation_start',
     'initial_positions',
-    'integrate',
     'simulate',
     'simulate_batch',
     'start_radius',
@@ -158,20 +157,6 @@ def start_radius(n: int, separation: float) -> float:
     :data:`START_PACKING` of the volume: ``n (d/2)^3 = 0.2 R^3``, well below the 0.38 at which
     random sequential addition jams (0 for d = 0)."""
     return 0.5 * separation * (n / START_PACKING) ** (1 / 3)
-
-
-def integrate(
-    x: ArrayLike,
-    v: ArrayLike,
-    force: ArrayLike,
-    *,
-    mass: ArrayLike,
-    dt: float,
-    drag: ArrayLike,
-    disturbance: ArrayLike,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Advance the plant one step (eq. 19-21); see :func:`apf_swarm_core.plant.plant_step`."""
-    return plant_step(x, v, force, mass=mass, dt=dt, drag=drag, disturbance=disturbance)
 
 
 @dataclass
@@ -326,7 +311,7 @@ class BatchSimulator:
                 self.actuator.submit(self.k, out.force)
         force = self.force = out.force if self.actuator is None else self.actuator.applied(self.k)
         dist = self.noise.next()
-        self.x, self.v = integrate(
+        self.x, self.v = plant_step(
             self.x, self.v, force, mass=self.mass, dt=self.dt, drag=self.drag, disturbance=dist
         )
         self.k += 1
