@@ -202,6 +202,8 @@ def summarize_run(
 #: tracker-steps a step (runs x trackers) up to which :meth:`BatchSimulator.run` takes the
 #: compiled loop (docs/PERFORMANCE.md, "Headless simulator")
 COMPILED_LOOP_MAX = 1024
+#: steps between two calls of :meth:`BatchSimulator.run`'s ``progress``
+PROGRESS_EVERY = 1000
 
 
 class BatchSimulator:
@@ -323,7 +325,6 @@ class BatchSimulator:
         *,
         record: bool = True,
         progress: Callable[[int, int], None] | None = None,
-        progress_every: int = 1000,
     ) -> dict[str, NDArray[Any]]:
         """Run ``steps`` steps (default: the configured duration) and return the trajectory.
 
@@ -347,7 +348,7 @@ class BatchSimulator:
         }
         k0 = self.k
         if self._compiled():
-            self._run_compiled(steps, record, rec, progress, progress_every)
+            self._run_compiled(steps, record, rec, progress)
         else:
             # step-major views: sample j of every run is rec_*[j]
             rec_x, rec_v, rec_u, rec_s, rec_sat, rec_tx, rec_tv = (
@@ -366,7 +367,7 @@ class BatchSimulator:
                     rec_sat[j] = out.saturated
                     rec_tx[j] = tx
                     rec_tv[j] = tv
-                if progress is not None and (i + 1) % progress_every == 0:
+                if progress is not None and (i + 1) % PROGRESS_EVERY == 0:
                     progress(i + 1, steps)
         if record:
             first = (-k0) % every  # the first recorded step is k0 + first
@@ -399,7 +400,6 @@ class BatchSimulator:
         record: bool,
         rec: dict[str, NDArray[Any]],
         progress: Callable[[int, int], None] | None,
-        progress_every: int,
     ) -> None:
         """:meth:`run`'s steps in the compiled loop, in pieces bounded by the disturbance's
         buffer, the target's block and the progress reports; the same bits as
@@ -441,7 +441,7 @@ class BatchSimulator:
             base, pos, vel = target.block
             limit = min(steps - i, base + target.BLOCK - k)
             if progress is not None:
-                limit = min(limit, progress_every - i % progress_every)
+                limit = min(limit, PROGRESS_EVERY - i % PROGRESS_EVERY)
             dist = self.noise.take(limit)
             count = limit if self.noise.silent else dist.shape[0]
             have = simulate_steps(
@@ -477,7 +477,7 @@ class BatchSimulator:
             )
             i += count
             self.k += count
-            if progress is not None and i % progress_every == 0:
+            if progress is not None and i % PROGRESS_EVERY == 0:
                 progress(i, steps)
         self.x, self.v = x, v
         self.controller.z = z.reshape(self.controller.shape)
