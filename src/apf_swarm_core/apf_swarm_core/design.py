@@ -1,15 +1,6 @@
-"""Formation design: equilibrium spacings of the potential (eq. 44) and their inverses.
-
-Closed forms (docs/THEORY.md section 2):
-
-* three trackers on an equilateral triangle centred on the target are in equilibrium when
-  ``a - b exp(-d^2/c) = -k_N / (3 k_f)``, i.e. side ``d = sqrt(c ln(b / (a + k_N/(3 k_f))))``,
-  which exists only for ``b > a + k_N/(3 k_f)``;
-* the same argument for n trackers on a regular polygon gives no single closed form (the pair
-  distances differ), so :func:`equilibrium_formation` minimizes J numerically;
-* two agents without a target (Gazi & Passino, IEEE TAC 48(4), 2003) rest at
-  ``delta = sqrt(c ln(b/a))``, and a whole swarm stays within ``(b/a) sqrt(c/2) e^{-1/2}`` of
-  its centroid.
+"""Formation design: the equilibria of the potential J (eq. 44) for n trackers, their
+spacings and the gains that give a spacing; closed forms for 3 trackers (the triangle) and
+for a pair, a numerical minimization of J otherwise (docs/THEORY.md, section 2).
 """
 
 from __future__ import annotations

@@ -257,8 +257,7 @@ def make_trajectory(
     waypoints: Sequence[Sequence[float]] = (),
 ) -> Trajectory:
     """Build a trajectory by name (one of :data:`TRAJECTORIES`); angles in radians."""
-    sx, sy, sz = (float(s) for s in start)
-    start_t = (sx, sy, sz)
+    start_t = _point(start)
     if kind == 'straight':
         return Straight(start_t, speed, yaw=yaw, pitch=pitch)
     if kind == 'hover':
