@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -133,9 +133,7 @@ class SampledPrediction:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values, for summary.json."""
-        out = {k: getattr(self, k) for k in self.__dataclass_fields__}
-        out['holds'] = self.holds
-        return out
+        return {**asdict(self), 'holds': self.holds}
 
 
 def predict(
