@@ -86,6 +86,14 @@ BATCHABLE = (
 )
 
 
+#: the size of the formation start against the design's: room to expand into it
+START_SCALE = 0.7
+#: draws of one tracker's start before :func:`initial_positions` gives up
+MAX_DRAWS = 10_000
+#: the fraction of the start ball that the trackers' separation spheres fill
+START_PACKING = 0.2
+
+
 def initial_positions(cfg: SwarmConfig) -> NDArray[np.float64]:
     """Initial tracker positions, shape (n, 3) [m]: uniform in a ball of radius
     ``init_spread`` around ``init_center`` (stream ``[seed, 1]``), then per-UAV overrides;
@@ -140,16 +148,6 @@ def formation_start(cfg: SwarmConfig, rng: np.random.Generator) -> NDArray[np.fl
     q = q * np.sign(np.diag(r))  # uniform over the orthogonal group
     q[:, 0] *= np.linalg.det(q)  # and a rotation, not a reflection
     return np.asarray(START_SCALE * rel @ q.T, dtype=float)
-
-
-#: the size of the formation start against the design's: room to expand into it
-START_SCALE = 0.7
-
-
-#: draws of one tracker's start before :func:`initial_positions` gives up
-MAX_DRAWS = 10_000
-#: the fraction of the start ball that the trackers' separation spheres fill
-START_PACKING = 0.2
 
 
 def start_radius(n: int, separation: float) -> float:
