@@ -290,14 +290,16 @@ def check_config(
         f'period T = {cfg.control_period:g} s (docs/THEORY.md): it scales with the period.',
     )
     if cfg.law == 'proposed' and cfg.beta >= vn:
-        lag = vn / (cfg.k_n * (cfg.alpha + cfg.beta / cfg.gamma))
+        w = cfg.feedforward  # the lag of sampled.predict, at any rate
+        lag = (1.0 - w) * vn / (cfg.k_n * (cfg.alpha + cfg.beta / cfg.gamma))
         add(
             'info',
             'lag',
             f'inside the boundary layer the law is linear with gain '
             f'alpha + beta/gamma = {cfg.alpha + cfg.beta / cfg.gamma:.4g} 1/s: a target '
-            f'at {vn:g} m/s is trailed by about v_N / (k_n (alpha + beta/gamma)) = '
-            f'{lag:.3g} m (smaller gamma: less lag, more switching).',
+            f'at {vn:g} m/s is trailed by about (1 - w) v_N / (k_n (alpha + beta/gamma)) = '
+            f'{lag:.3g} m with the feed-forward w = {w:g} (smaller gamma: less lag, more '
+            'switching).',
         )
     if realtime:
         rep.findings += sampled_findings(cfg, run, advice)
