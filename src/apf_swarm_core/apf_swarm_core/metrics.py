@@ -271,16 +271,11 @@ def flight(
         and closest >= criteria['closest']
     )
     out.update(
+        flies=converged and rms <= criteria['formation_rms'],  # converged: the closest pair
         formation_error_rms=_f(rms),
         closest_pair=_f(closest),
         centroid_error_rms=_f(float(np.sqrt(np.mean(ce**2)))),
         converged=converged,
-    )
-    out['flies'] = bool(
-        math.isfinite(rms)
-        and rms <= criteria['formation_rms']
-        and closest >= criteria['closest']
-        and converged
     )
     return out
 
