@@ -345,14 +345,15 @@ class BatchSimulator:
             'saturated': np.empty((R, T, n), dtype=bool),
         }
         k0 = self.k
+        # step-major views: sample j of every run is view[j] (no samples without a record)
+        views = [
+            rec[key].swapaxes(0, 1)
+            for key in ('x', 'v', 'u', 's', 'saturated', 'target_x', 'target_v')
+        ]
         if self._compiled():
-            self._run_compiled(steps, record, rec, progress)
+            self._run_compiled(steps, record, views, progress)
         else:
-            # step-major views: sample j of every run is rec_*[j]
-            rec_x, rec_v, rec_u, rec_s, rec_sat, rec_tx, rec_tv = (
-                rec[key].swapaxes(0, 1)
-                for key in ('x', 'v', 'u', 's', 'saturated', 'target_x', 'target_v')
-            )
+            rec_x, rec_v, rec_u, rec_s, rec_sat, rec_tx, rec_tv = views
             for i in range(steps):
                 x, v, k = self.x, self.v, self.k
                 out, tx, tv = self.step()
@@ -396,7 +397,7 @@ class BatchSimulator:
         self,
         steps: int,
         record: bool,
-        rec: dict[str, NDArray[Any]],
+        views: list[NDArray[Any]],
         progress: Callable[[int, int], None] | None,
     ) -> None:
         """:meth:`run`'s steps in the compiled loop, in pieces bounded by the disturbance's
@@ -425,11 +426,6 @@ class BatchSimulator:
             ):
                 held[q] = arr
             outside[:] = out.saturated
-        # without a record the arrays of rec hold no samples
-        views = [
-            rec[key].swapaxes(0, 1)
-            for key in ('x', 'v', 'u', 's', 'saturated', 'target_x', 'target_v')
-        ]
         dt = float(self.dt)
         have = out is not None
         i = 0
