@@ -14,12 +14,11 @@ from apf_swarm_core.metrics import (
     pair_distances,
     steady_slice,
 )
-from apf_swarm_core.plant import DisturbanceSource
+from apf_swarm_core.plant import DisturbanceSource, plant_step
 from apf_swarm_core.simulator import (
     TRAJECTORY_KEYS,
     BatchSimulator,
     initial_positions,
-    integrate,
 )
 
 from apf_swarm_core import load_preset, simulate, simulate_batch
@@ -155,7 +154,7 @@ def test_simulate_equals_a_hand_written_loop():
         np.testing.assert_allclose(v, tr['v'][k], rtol=1e-12, atol=1e-12)
         out = control_step(ctl, x, v, tx, cfg.potential_params())
         np.testing.assert_allclose(out.force, tr['u'][k], rtol=1e-12, atol=1e-12)
-        x, v = integrate(
+        x, v = plant_step(
             x, v, out.force, mass=mass, dt=cfg.dt, drag=cfg.drag, disturbance=noise.next()
         )
 

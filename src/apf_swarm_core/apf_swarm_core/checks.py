@@ -13,7 +13,7 @@ Conditions checked (each a :class:`Finding`):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 from .advice import PLAIN, Advice
@@ -268,10 +268,7 @@ def check_config(
     rep.findings += _bound_findings(cfg, bounds, 'a priori estimate (conservative)', 'info')
     if run is not None:
         mbounds, mest = gain_bounds_from_run(cfg, run['t'], run['x'], run['target_x'])
-        rep.bounds += [
-            GainBound(b.name + '_measured', b.regime, b.printed, b.corrected, b.u0)
-            for b in mbounds
-        ]
+        rep.bounds += [replace(b, name=b.name + '_measured') for b in mbounds]
         rep.estimates.update({f'measured_{k}': v for k, v in mest.items()})
         rep.findings += _bound_findings(
             cfg, mbounds, 'measured on a run (steady window)', 'warning'
@@ -293,14 +290,16 @@ def check_config(
         f'period T = {cfg.control_period:g} s (docs/THEORY.md): it scales with the period.',
     )
     if cfg.law == 'proposed' and cfg.beta >= vn:
-        lag = vn / (cfg.k_n * (cfg.alpha + cfg.beta / cfg.gamma))
+        w = cfg.feedforward  # the lag of sampled.predict, at any rate
+        lag = (1.0 - w) * vn / (cfg.k_n * (cfg.alpha + cfg.beta / cfg.gamma))
         add(
             'info',
             'lag',
             f'inside the boundary layer the law is linear with gain '
             f'alpha + beta/gamma = {cfg.alpha + cfg.beta / cfg.gamma:.4g} 1/s: a target '
-            f'at {vn:g} m/s is trailed by about v_N / (k_n (alpha + beta/gamma)) = '
-            f'{lag:.3g} m (smaller gamma: less lag, more switching).',
+            f'at {vn:g} m/s is trailed by about (1 - w) v_N / (k_n (alpha + beta/gamma)) = '
+            f'{lag:.3g} m with the feed-forward w = {w:g} (smaller gamma: less lag, more '
+            'switching).',
         )
     if realtime:
         rep.findings += sampled_findings(cfg, run, advice)

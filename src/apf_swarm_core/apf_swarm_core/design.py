@@ -1,15 +1,6 @@
-"""Formation design: equilibrium spacings of the potential (eq. 44) and their inverses.
-
-Closed forms (docs/THEORY.md section 2):
-
-* three trackers on an equilateral triangle centred on the target are in equilibrium when
-  ``a - b exp(-d^2/c) = -k_N / (3 k_f)``, i.e. side ``d = sqrt(c ln(b / (a + k_N/(3 k_f))))``,
-  which exists only for ``b > a + k_N/(3 k_f)``;
-* the same argument for n trackers on a regular polygon gives no single closed form (the pair
-  distances differ), so :func:`equilibrium_formation` minimizes J numerically;
-* two agents without a target (Gazi & Passino, IEEE TAC 48(4), 2003) rest at
-  ``delta = sqrt(c ln(b/a))``, and a whole swarm stays within ``(b/a) sqrt(c/2) e^{-1/2}`` of
-  its centroid.
+"""Formation design: the equilibria of the potential J (eq. 44) for n trackers, their
+spacings and the gains that give a spacing; closed forms for 3 trackers (the triangle) and
+for a pair, a numerical minimization of J otherwise (docs/THEORY.md, section 2).
 """
 
 from __future__ import annotations
@@ -126,12 +117,8 @@ def equilibrium_formations(
     **gains: Unpack[Gains[float]],
 ) -> list[Formation]:
     """The distinct minima of J whose potential is within ``tolerance`` (relative) of the
-    lowest found from ``starts`` random shapes, lowest first.
-
-    A larger swarm's J has minima that differ in J by a few parts in 1e8 and in shape by
-    several percent (32 trackers, default potential: J = 1418.37769 with the closest pair at
-    0.708 m, and 1418.37776 at 0.669 m): a swarm descending J settles in one of them, and
-    each is the formation the potential designs. Gains as for :func:`equilibrium_formation`.
+    lowest found from ``starts`` random shapes, lowest first: a larger swarm settles in any
+    of them (docs/THEORY.md, section 4). Gains as for :func:`equilibrium_formation`.
     """
     from scipy.optimize import minimize
 
@@ -188,12 +175,8 @@ def polish_minimum(
     """From a point where a quasi-Newton search stopped, a true minimum of J (target at
     the origin): saddle-free Newton steps ``-|H|^{-1} grad J`` with a backtracking line
     search while the gradient is not yet ~0, and a step along the most negative curvature
-    while the Hessian (the three rotations set aside) has one.
-
-    L-BFGS stops on a flat J: for 64 trackers of the ``realtime`` potential it stops at a
-    saddle with six negative curvatures of -1e-5 and a closest pair 8 % below the nearby
-    minimum's; a design that is a saddle would judge every run against a formation that no
-    swarm keeps. Cost O(n^3) per iteration: for the design, never on the control path.
+    while the Hessian (the three rotations set aside) has one: L-BFGS may stop at a saddle
+    of a flat J, a formation no swarm keeps. O(n^3) per iteration, never on the control path.
     """
     origin = np.zeros(3)
 

@@ -9,7 +9,7 @@ configuration, in words, is :func:`apf_swarm_core.checks.check_config`'s.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -41,11 +41,7 @@ class GainBound:
 
     def as_dict(self) -> dict[str, Any]:
         return {
-            'name': self.name,
-            'regime': self.regime,
-            'printed': self.printed,
-            'corrected': self.corrected,
-            'u0': self.u0,
+            **asdict(self),
             'holds_printed': self.holds_printed,
             'holds_corrected': self.holds_corrected,
         }

@@ -208,14 +208,11 @@ def time_to_converge(t: ArrayLike, ok: ArrayLike) -> float | None:
     return float(np.asarray(t)[0 if bad.size == 0 else bad[-1] + 1])
 
 
-#: when a swarm flies (holds its formation), judged over the last ``window`` of a run: the
-#: formation error RMS at most ``formation_rms`` of the mean design spacing, the closest
-#: pair at least ``closest`` of the design's closest, the centroid within
-#: ``centroid_tol`` m of the target, and at every sample the formation error within
-#: ``formation_tol`` of the design's closest pair and the closest pair at least ``closest``
-#: of the design's (``converged`` of :func:`summarize`): a swarm is settled by its
-#: distances, never by J alone -- the sorted-pair RMS of a large swarm hides one pair that
-#: has closed in
+#: when a swarm flies, judged over the last ``window`` of a run: formation error RMS at most
+#: ``formation_rms`` of the mean design spacing, closest pair at least ``closest`` of the
+#: design's, and converged (:func:`summarize`): at every sample the centroid within
+#: ``centroid_tol`` m, the formation error within ``formation_tol`` of the design's closest
+#: pair and the closest pair at least ``closest`` of it -- judged by distances, never by J
 FLIGHT_CRITERIA = {
     'window': 0.4,
     'formation_rms': 0.03,
@@ -228,7 +225,6 @@ FLIGHT_CRITERIA = {
 def flight(
     traj: Mapping[str, Any],
     expected_pairs: ArrayLike | list[ArrayLike] | None,
-    criteria: Mapping[str, float] = FLIGHT_CRITERIA,
 ) -> dict[str, Any]:
     """Whether a run flies by :data:`FLIGHT_CRITERIA`, with the numbers it is judged by.
 
@@ -240,9 +236,9 @@ def flight(
     the run is judged against the one its pair distances are nearest to.
     """
     if isinstance(expected_pairs, list):
-        judged = [flight(traj, e, criteria) for e in expected_pairs]
+        judged = [flight(traj, e) for e in expected_pairs]
         if not judged:
-            return flight(traj, None, criteria)
+            return flight(traj, None)
         # the nearest design, whether or not the run flies against it
         return min(
             judged,
@@ -250,6 +246,7 @@ def flight(
                 f['formation_error_rms'] if f['formation_error_rms'] is not None else math.inf
             ),
         )
+    criteria = FLIGHT_CRITERIA
     x = np.asarray(traj['x'], dtype=float)
     tx = np.asarray(traj['target_x'], dtype=float)
     st = steady_slice(x.shape[0], criteria['window'])
@@ -274,16 +271,11 @@ def flight(
         and closest >= criteria['closest']
     )
     out.update(
+        flies=converged and rms <= criteria['formation_rms'],  # converged: the closest pair
         formation_error_rms=_f(rms),
         closest_pair=_f(closest),
         centroid_error_rms=_f(float(np.sqrt(np.mean(ce**2)))),
         converged=converged,
-    )
-    out['flies'] = bool(
-        math.isfinite(rms)
-        and rms <= criteria['formation_rms']
-        and closest >= criteria['closest']
-        and converged
     )
     return out
 
@@ -325,18 +317,12 @@ def summarize(
     potential_params: PotentialParams,
     expected_pairs: ArrayLike | list[ArrayLike] | None,
     steady_fraction: float = 0.25,
-    centroid_tol: float = 0.5,
-    formation_tol: float = 0.05,
-    closest: float = FLIGHT_CRITERIA['closest'],
-    chatter_window: float = 0.1,
     warnings: list[str] | None = None,
 ) -> dict[str, Any]:
     """The summary.json document (schema :data:`SUMMARY_KEYS`) of a trajectory.
 
-    ``converged`` is true when, over the steady window, the centroid error stays below
-    ``centroid_tol`` [m] and (when the design has a spacing) the formation error stays below
-    ``formation_tol`` times the design spacing and the closest pair at or above
-    ``closest`` times the design's closest pair (:data:`FLIGHT_CRITERIA`).
+    ``converged`` is true when, over the steady window, the centroid error, the formation
+    error and the closest pair stay within :data:`FLIGHT_CRITERIA`.
     ``time_to_converge`` is the first time after which all hold until the end.
     ``expected_pairs`` may be a list of designs, as for :func:`flight`: the run is
     summarized against the one nearest over the steady window (:func:`nearest_design`), so
@@ -353,7 +339,8 @@ def summarize(
     pd = per_sample(_pair_stats, x) if n > 1 else np.zeros((t.size, 0))  # (T, 3): min, max, mean
     j = potential_series(x, tx, potential_params)
     dj = np.diff(j)
-    ok = ce <= centroid_tol
+    crit = FLIGHT_CRITERIA
+    ok = ce <= crit['centroid_tol']
     if isinstance(expected_pairs, list):
         expected_pairs = nearest_design(x[st], expected_pairs)
     formation: dict[str, Any] = {
@@ -374,8 +361,8 @@ def summarize(
             else [float(e) for e in np.sort(exp)]
         )
         formation['error_rms_steady'] = _f(float(np.sqrt(np.mean(fe[st] ** 2))))
-        ok = ok & (fe <= formation_tol * float(exp.min()))
-        ok = ok & (pd[:, 0] >= closest * float(exp.min()))
+        ok = ok & (fe <= crit['formation_tol'] * float(exp.min()))
+        ok = ok & (pd[:, 0] >= crit['closest'] * float(exp.min()))
     summary: dict[str, Any] = {
         'law': law,
         'n_trackers': int(n),
@@ -389,8 +376,8 @@ def summarize(
         },
         'formation': formation,
         'chattering': {
-            'hf_velocity_rms': _f(hf_velocity_rms(v[st], sample_dt, chatter_window)),
-            'heading_rate': _f(heading_rate(v[st], sample_dt, chatter_window)),
+            'hf_velocity_rms': _f(hf_velocity_rms(v[st], sample_dt)),
+            'heading_rate': _f(heading_rate(v[st], sample_dt)),
         },
         'potential': {
             'initial': _f(float(j[0])),

@@ -1,30 +1,8 @@
-"""The linear model of the formation under sampled, delayed control: its modes and how much
-each decays per control period (derivation in docs/THEORY.md, "Sampled-data control").
-
-A real-time loop samples the state every T seconds, and the command computed from a sample
-acts tau seconds later and is held until the next one arrives.
-
-1. **Modes.** Near the design equilibrium x* (positions relative to the target), inside the
-   boundary layer of eq. 8, the manifold of eq. 31 is linear, ``s = v_rel + K H e`` with
-   ``e = x - x*``, ``K = alpha + beta/gamma`` (the layer gain) and H the Hessian of J at x*
-   (:func:`apf_swarm_core.newton.hessian`). H is symmetric: in its eigenvectors the
-   swarm splits into independent modes, one per eigenvalue lambda, ``s_l = e_l' + K lambda
-   e_l``; the rigid rotations have lambda = 0, the centroid lambda = k_N, and the stiffest
-   mode ``lambda_max`` grows with the number of trackers.
-2. **Inner loop.** With the boundary-layer switching (``switching = layer``,
-   docs/THEORY.md) the force inside the layer is ``u = -(u0/phi) s``: per mode
-   ``M e'' = -(u0/phi)(e' + K lambda e)``, a linear loop with velocity rate
-   ``g = u0/(phi M)``. The sign law of eq. 24 held over T changes the velocity by
-   ``u0 T / M`` per period (the ripple) and so corrects a velocity error within about one
-   period: its equivalent rate is ``g = 1/T`` (the relay's gain at its own ripple).
-3. **Sampling and delay.** A mode is a double integrator driven by a held command: over a
-   hold of h seconds with force u, ``e += e' h + u h^2/(2M)``, ``e' += u h / M``. With
-   ``tau = m T + r`` (0 <= r < T), period k applies the command of sample ``k - m - 1`` for r
-   seconds and that of ``k - m`` for the rest, so the state ``(e_k, e'_k, u_{k-1}, ...,
-   u_{k-m-1})`` advances by a constant matrix (:func:`mode_matrix`). Its spectral radius
-   rho is the mode's decay per period; the loop is stable when every mode has rho < 1.
-
-:mod:`apf_swarm_core.sampled` turns the model into a verdict on a configuration.
+"""The linear model of the formation under sampled, delayed control: near the design and
+inside the boundary layer the swarm splits into the Hessian's modes, each a double integrator
+under a held, delayed command; :func:`mode_matrix` is one mode's transition over a control
+period. Derivation: docs/THEORY.md, "Sampled-data control"; the verdict on a configuration
+is :mod:`apf_swarm_core.sampled`'s.
 """
 
 from __future__ import annotations
@@ -68,7 +46,7 @@ def mode_matrix(
     mass: float = 1.0,
     horizon: float = 0.0,
 ) -> NDArray[np.float64]:
-    """Transition matrix of one formation mode over one control period (step 3 above).
+    """Transition matrix of one formation mode over one control period.
 
     State ``(e_k, e'_k, u_{k-1}, ..., u_{k-m-1})`` with ``latency = m T + r``; the command
     of sample k is ``u_k = -g M (e'_k + K lambda e_k)``, or with delay compensation
@@ -149,8 +127,7 @@ def effective_spectrum(cfg: SwarmConfig, eigs: NDArray[np.float64]) -> NDArray[n
     :func:`apf_swarm_core.newton.newton_direction`): 1 for every mode at least as stiff as
     ``mu``; along the block direction (``precondition = block``,
     :class:`apf_swarm_core.control.BlockPreconditioner`) the eigenvalues of ``P H`` at the design
-    (:func:`design_block_spectrum`, ``eigs`` unused): 1 for the centroid, from about 0.003
-    to 3.3 for the formation's modes whatever the size (realtime preset, 3-128 trackers)."""
+    (:func:`design_block_spectrum`, ``eigs`` unused)."""
     eigs = np.asarray(eigs, dtype=float)
     if cfg.precondition == 'block':
         return design_block_spectrum(cfg)
@@ -193,7 +170,7 @@ def design_block_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
 
 
 def loop_modes(cfg: SwarmConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The modes of the formation's loop ``e' = -K A e`` near the design (step 1, with the
+    """The modes of the formation's loop ``e' = -K A e`` near the design (with the
     configuration's direction: A = H along the gradient, ``|H|_mu^-1 H`` along the Newton
     direction, ``P H`` along the block direction): their rates in units of K, shape (3n,),
     and their shapes, the columns of a (3n, 3n) array (tracker-major, as ``e.ravel()``)."""
@@ -229,6 +206,6 @@ def start_residual(
 
 
 def inner_rate(cfg: SwarmConfig, period: float, mass: float) -> float:
-    """The inner loop's rate g of step 2 [1/s]: ``u0 / (phi M)`` for the boundary layer,
+    """The inner loop's rate g [1/s]: ``u0 / (phi M)`` for the boundary layer,
     ``1 / T`` for the sign law."""
     return cfg.u0 / (cfg.phi * mass) if cfg.switching == 'layer' else 1.0 / period

@@ -1,44 +1,14 @@
 """Sampled-data prediction: whether the formation holds at a control period T and a delay
-tau, and the gains that make it hold.
-
-A real-time loop samples the state every T seconds, and the command computed from a sample
-acts tau seconds later and is held until the next one arrives. This module predicts from the
-configuration alone whether the formation then holds, from the linear model of the
-formation's modes (:mod:`apf_swarm_core.modes`, steps 1-3 there; derivation in
-docs/THEORY.md, "Sampled-data control"):
-
-4. **Verdict.** The linear model says how a mode behaves while the force stays inside the
-   layer (:attr:`SampledPrediction.linear_radius`, the stiffest mode's radius). The sign
-   law, and the layer law with a layer about as narrow as the ripple, saturate at +-u0
-   before that: a relay, whose gain falls as its oscillation grows, so a linearly unstable
-   stiff mode settles into a small limit cycle instead of diverging. Seen as a first-order
-   kinematic loop ``e' = -kappa e`` acting after the effective delay ``T + tau`` (one period
-   to realize the velocity, then the latency), the loop holds while
-   ``kappa (T + tau) < RELAY_LIMIT`` with ``kappa = K lambda_max``, the formation loop's
-   rate (:attr:`SampledPrediction.rate_allowed` is ``RELAY_LIMIT / (T + tau)``). A linear
-   loop with that delay would stop at pi/2; the relay's boundary, 2.5, is where the
-   emulation's grid (n = 3, 8, 16 at 50-500 Hz and 0-4 ms) changes from holding to failing,
-   for both switchings (the test of :func:`predict`). Along the Newton direction
-   (``precondition = newton``) every mode has the curvature 1 near the equilibrium and the
-   bound is ``K (T + tau) < NEWTON_LIMIT = 0.5``, also measured (16 and 32 trackers,
-   20-200 Hz, 5-30 ms: 0.5 holds, 1.0 fails), with and without the delay compensation of
-   :mod:`apf_swarm_core.compensation` (``compensation = predict``, which the linear model
-   carries: ``horizon`` of :func:`~apf_swarm_core.modes.mode_matrix`): the linear model
-   would allow 2.5, but far from the equilibrium the direction turns with the state. The
-   steady lag behind a target moving at v_N is ``(1 - w) v_N / (k_N K)`` (eq. 31 with s = 0
-   and the feed-forward weight w of
-   :mod:`apf_swarm_core.laws`), and the sign law's ripple ``u0 T / M`` is large when it
-   exceeds half the target speed.
-
-The prediction is validated against the emulation (:mod:`apf_swarm_core.simulator` with
-``control_rate`` and ``latency``) on a grid of sizes and rates in the test suite.
+tau (:func:`predict`), and the gains that make it hold (:func:`propose_gains`,
+:func:`schedule_gains`), from the linear modes of :mod:`apf_swarm_core.modes`. The verdict and
+how its limits were measured on the emulation: docs/THEORY.md, "Sampled-data control".
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -81,35 +51,23 @@ __all__ = [
 
 #: the loop holds while K lambda_max (T + tau) stays below this (the sampled relay)
 RELAY_LIMIT = 2.5
-#: along the Newton direction the loop holds while K (T + tau) stays below this (measured on
-#: the emulation's grid: the linear model near the equilibrium would allow RELAY_LIMIT, but
-#: far from it the direction turns with the state, which the model does not see)
+#: the same bound along the Newton direction (the curvature 1), measured on the emulation
 NEWTON_LIMIT = 0.5
+#: the same bound along the block direction (K mu_max, :func:`~.modes.design_block_spectrum`)
+BLOCK_LIMIT = 1.5
 #: :func:`propose_gains` keeps K lambda_max (T + tau) at this fraction of its limit
 DESIGN_MARGIN = 0.8
-#: the softest deformation mode's time constant 1 / (K lambda_soft) must fit this many times
-#: into the part of the run before the judged window (the first 60 % of it): the initial
-#: deformation has to decay before the formation is judged
+#: the softest mode's time constant 1 / (K lambda_soft) must fit this many times into the
+#: part of the run before the judged window
 SOFT_SETTLE = 2.0
-#: the boundary layer phi in units of u0 (T + tau) / M that :func:`propose_gains` takes: the
-#: inner loop's rate g = u0 / (phi M) then satisfies g (T + tau) = 1/2, linearly stable with
-#: the latency doubled (a narrower layer chatters once the delay jitters)
+#: the boundary layer phi in units of u0 (T + tau) / M that :func:`propose_gains` takes
 LAYER_WIDTH = 2.0
-#: the inner loop of a boundary layer is linear (and its chattering predicted by the linear
-#: model) where its rate u0 / (phi M) is at least this many times the formation's K lambda_max
+#: a boundary layer is linear where its rate u0 / (phi M) is this many times K lambda_max
 CASCADE = 2.0
-#: a steady lag behind the target above this [m] is warned about (the centroid tolerance of
-#: :data:`apf_swarm_core.metrics.FLIGHT_CRITERIA`)
+#: a steady lag behind the target above this [m] is warned about
 LAG_LIMIT = 0.5
 #: the sign law's ripple u0 T / M is large above this fraction of the target speed
 RIPPLE_FRACTION = 0.5
-
-
-#: along the block direction the loop holds while K mu_max (T + tau) stays below this,
-#: mu_max the stiffest rate of :func:`~apf_swarm_core.modes.design_block_spectrum`
-#: (measured on the emulation: 64 trackers at 20 Hz with 30 ms hold at 0.9 and 1.5 and
-#: fail at 2.2; docs/THEORY.md, "Large swarms")
-BLOCK_LIMIT = 1.5
 
 
 def loop_limit(cfg: SwarmConfig) -> float:
@@ -175,9 +133,7 @@ class SampledPrediction:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values, for summary.json."""
-        out = {k: getattr(self, k) for k in self.__dataclass_fields__}
-        out['holds'] = self.holds
-        return out
+        return {**asdict(self), 'holds': self.holds}
 
 
 def predict(
@@ -392,19 +348,13 @@ def propose_gains(
     latency: float,
     spectrum: NDArray[np.float64] | None = None,
 ) -> dict[str, float | str]:
-    """Gains that :func:`predict` passes at this rate and delay, for ``cfg.n_trackers``.
-
-    For a direction (the configuration's; along the gradient, then the Newton direction if
-    that one's prediction fails or warns of a slow formation): the layer gain
-    ``K = DESIGN_MARGIN loop_limit / (lambda_max (T + tau))`` with the direction's stiffest
-    curvature (:func:`effective_spectrum`: 1 along
-    the Newton direction, whatever n), at most the configuration's own K, i.e.
-    ``gamma = beta / (K - alpha)``; ``feedforward = 1``, since a smaller K alone would trail
-    the target by ``v_N / (k_N K)``; and the boundary-layer switching with
-    ``phi = LAYER_WIDTH u0 (T + tau) / M`` where that linear inner loop is at least
-    :data:`CASCADE` times faster than ``K lambda_max`` (it then does not chatter), else
-    ``phi = u0 T / M`` (the relay regime of the stiff gradient modes).
-    ValueError when neither holds (the delay alone is too long).
+    """Gains that :func:`predict` passes at this rate and delay, for ``cfg.n_trackers``: for
+    the configuration's direction (the gradient, then the Newton direction if that fails or
+    settles too slowly), ``K = DESIGN_MARGIN loop_limit / (lambda_max (T + tau))`` at most the
+    configuration's (``gamma = beta / (K - alpha)``), ``feedforward = 1`` against the lag, and
+    the layer ``phi = LAYER_WIDTH u0 (T + tau) / M`` where that inner loop is :data:`CASCADE`
+    times faster than ``K lambda_max``, else ``phi = u0 T / M`` (docs/THEORY.md, *Design*).
+    ValueError when no direction has a K above alpha (the delay alone is too long).
     """
     T = 1.0 / control_rate
     eigs = design_hessian_spectrum(cfg) if spectrum is None else np.asarray(spectrum)
@@ -465,13 +415,9 @@ SMALLER_SIZES = (0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)
 def largest_holding(
     cfg: SwarmConfig, latency_of: Callable[[int], float]
 ) -> tuple[int, SampledPrediction, dict[str, Any]] | None:
-    """The largest swarm, smaller than ``cfg.n_trackers``, whose :func:`schedule_gains` are
-    predicted to hold the formation at ``cfg.control_rate`` with ``latency_of(n)`` [s] of
-    latency for n trackers (a machine's latency grows with the swarm it carries), with its
-    prediction and the gains scheduled for it (empty: the configuration's); the sizes
-    tried are :data:`SMALLER_SIZES` of ``cfg.n_trackers`` (at least 2, and none the
-    configuration refuses), largest first. None if none of them holds. Whether its soft
-    modes settle within the run is the emulation's to say (:attr:`SampledPrediction.holds`)."""
+    """The largest swarm, of :data:`SMALLER_SIZES` of ``cfg.n_trackers`` (at least 2, none
+    the configuration refuses), whose :func:`schedule_gains` hold at ``cfg.control_rate`` with
+    ``latency_of(n)`` [s] for n trackers: ``(n, prediction, gains or {})``, or None."""
     n = cfg.n_trackers
     for m in sorted({int(n * f) for f in SMALLER_SIZES if 2 <= int(n * f) < n}, reverse=True):
         try:

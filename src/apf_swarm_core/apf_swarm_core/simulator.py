@@ -1,27 +1,13 @@
-"""Headless fixed-step simulator of the closed loop, single or batched.
+"""Headless fixed-step simulator of the closed loop: R runs (seeds, parameter values) as one
+array program with a leading run axis; a single run is the batch R = 1.
 
-One step ``k -> k+1`` (``t_k = k dt``), the order a lockstep ROS run follows too:
-
-1. the target state ``x_N(t_k), xdot_N(t_k)`` from its trajectory (eq. 1);
-2. :func:`~apf_swarm_core.control.control_step`: gradients (eq. 2 / 44) and the sliding-mode
-   command of every tracker from the state at step k (eq. 22-28, 31, 24) -- the tracker node
-   calls the same function for its own row;
-3. :func:`integrate`: the plant (eq. 19-21) advances with the command held over the step and a
-   seeded bounded disturbance -- the plant node calls the same function.
-
-Real time emulated (``control_rate`` > 0, ``latency``): step 2 runs only every
-``hold_steps`` steps (sample and hold, the controller's filter advancing by the period), and
-each tracker's command takes effect ``latency`` seconds after its sample, rounded to steps,
-or after a delay drawn per tracker and sample from measured latencies (``latency_samples``,
-stream ``[seed, 3]``); until then the plant keeps the command it holds, and a command
-overtaken by a newer one is dropped, as the realtime plant refuses an out-of-order command
-(:class:`~apf_swarm_core.command_hold.CommandHold`). With ``control_rate = 0`` and no
-latency the loop is the lockstep one, unchanged.
-
-The batched form runs R independent runs (different seeds and/or parameter values, the same
-number of trackers) as one array program with a leading run axis; a single run is the batch
-R = 1, so there is one code path. Random streams: ``default_rng([seed, 1])`` draws the initial
-positions, ``default_rng([seed, 2])`` the disturbance (see :mod:`apf_swarm_core.plant`).
+A step k -> k+1 follows a lockstep ROS run: the target at ``t_k = k dt`` (eq. 1), then
+:func:`~apf_swarm_core.control.control_step` for every tracker (as the tracker node), then the
+plant (eq. 19-21, as the plant node) with the command held over the step. With
+``control_rate`` > 0 or a latency it emulates the realtime loop: a command every
+``hold_steps`` steps, acting after its delay (:class:`~apf_swarm_core.command_hold.CommandHold`).
+Random streams: ``[seed, 1]`` the start, ``[seed, 2]`` the disturbance, ``[seed, 3]`` the
+delays drawn from ``latency_samples``.
 """
 
 from __future__ import annotations
@@ -60,7 +46,6 @@ __all__ = [
     'SimResult',
     'formation_start',
     'initial_positions',
-    'integrate',
     'simulate',
     'simulate_batch',
     'start_radius',
@@ -99,6 +84,14 @@ BATCHABLE = (
     'latency',
     'steady_fraction',
 )
+
+
+#: the size of the formation start against the design's: room to expand into it
+START_SCALE = 0.7
+#: draws of one tracker's start before :func:`initial_positions` gives up
+MAX_DRAWS = 10_000
+#: the fraction of the start ball that the trackers' separation spheres fill
+START_PACKING = 0.2
 
 
 def initial_positions(cfg: SwarmConfig) -> NDArray[np.float64]:
@@ -157,35 +150,11 @@ def formation_start(cfg: SwarmConfig, rng: np.random.Generator) -> NDArray[np.fl
     return np.asarray(START_SCALE * rel @ q.T, dtype=float)
 
 
-#: the size of the formation start against the design's: room to expand into it
-START_SCALE = 0.7
-
-
-#: draws of one tracker's start before :func:`initial_positions` gives up
-MAX_DRAWS = 10_000
-#: the fraction of the start ball that the trackers' separation spheres fill
-START_PACKING = 0.2
-
-
 def start_radius(n: int, separation: float) -> float:
     """The radius [m] of a ball in which ``n`` spheres of diameter ``separation`` fill
     :data:`START_PACKING` of the volume: ``n (d/2)^3 = 0.2 R^3``, well below the 0.38 at which
     random sequential addition jams (0 for d = 0)."""
     return 0.5 * separation * (n / START_PACKING) ** (1 / 3)
-
-
-def integrate(
-    x: ArrayLike,
-    v: ArrayLike,
-    force: ArrayLike,
-    *,
-    mass: ArrayLike,
-    dt: float,
-    drag: ArrayLike,
-    disturbance: ArrayLike,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Advance the plant one step (eq. 19-21); see :func:`apf_swarm_core.plant.plant_step`."""
-    return plant_step(x, v, force, mass=mass, dt=dt, drag=drag, disturbance=disturbance)
 
 
 @dataclass
@@ -231,6 +200,8 @@ def summarize_run(
 #: tracker-steps a step (runs x trackers) up to which :meth:`BatchSimulator.run` takes the
 #: compiled loop (docs/PERFORMANCE.md, "Headless simulator")
 COMPILED_LOOP_MAX = 1024
+#: steps between two calls of :meth:`BatchSimulator.run`'s ``progress``
+PROGRESS_EVERY = 1000
 
 
 class BatchSimulator:
@@ -340,7 +311,7 @@ class BatchSimulator:
                 self.actuator.submit(self.k, out.force)
         force = self.force = out.force if self.actuator is None else self.actuator.applied(self.k)
         dist = self.noise.next()
-        self.x, self.v = integrate(
+        self.x, self.v = plant_step(
             self.x, self.v, force, mass=self.mass, dt=self.dt, drag=self.drag, disturbance=dist
         )
         self.k += 1
@@ -352,7 +323,6 @@ class BatchSimulator:
         *,
         record: bool = True,
         progress: Callable[[int, int], None] | None = None,
-        progress_every: int = 1000,
     ) -> dict[str, NDArray[Any]]:
         """Run ``steps`` steps (default: the configured duration) and return the trajectory.
 
@@ -374,57 +344,33 @@ class BatchSimulator:
             'target_v': np.empty((R, T, 3)),
             'saturated': np.empty((R, T, n), dtype=bool),
         }
-        # step-major views: sample j of every run is rec_*[j]. Per step, one copy each of
-        # the state, the command and the mask; the times and the target's samples are
-        # copied in slices: t_k = k dt afterwards, the target rows from each block of the
-        # target's path when the block is replaced (and at the end)
-        rec_x, rec_v, rec_u, rec_s, rec_sat = (
-            rec[key].swapaxes(0, 1) for key in ('x', 'v', 'u', 's', 'saturated')
-        )
-        rec_tx, rec_tv = (rec[key].swapaxes(0, 1) for key in ('target_x', 'target_v'))
         k0 = self.k
-        first = (-k0) % every  # the first recorded step is k0 + first
+        # step-major views: sample j of every run is view[j] (no samples without a record)
+        views = [
+            rec[key].swapaxes(0, 1)
+            for key in ('x', 'v', 'u', 's', 'saturated', 'target_x', 'target_v')
+        ]
         if self._compiled():
-            self._run_compiled(steps, record, rec, progress, progress_every)
-            if record:
-                m = len(range(first, steps, every))
-                rec['t'][:m] = (k0 + first + every * np.arange(m)) * dt  # k dt, as k * dt
-            if progress is not None:
-                progress(steps, steps)
-            return rec
-        held = [0, 0]  # samples from the current block: j, count
-        target = self.target
-
-        def target_samples(block: tuple[int, Any, Any]) -> None:
-            j, m = held
-            if m:
-                base, pos, vel = block
-                k = k0 + first + j * every - base  # row of sample j in the block
-                rows = slice(k, k + (m - 1) * every + 1, every)
-                rec_tx[j : j + m] = target.gather(pos[rows])
-                rec_tv[j : j + m] = target.gather(vel[rows])
-                held[:] = [j + m, 0]
-
-        for i in range(steps):
-            block = target.block
-            x, v, k = self.x, self.v, self.k
-            out, _, _ = self.step()
-            if record:
-                if target.block is not block:  # a new block: the old one's samples
-                    target_samples(block)
-                if k % every == 0:
+            self._run_compiled(steps, record, views, progress)
+        else:
+            rec_x, rec_v, rec_u, rec_s, rec_sat, rec_tx, rec_tv = views
+            for i in range(steps):
+                x, v, k = self.x, self.v, self.k
+                out, tx, tv = self.step()
+                if record and k % every == 0:
                     j = i // every
                     rec_x[j] = x
                     rec_v[j] = v
                     rec_u[j] = self.force
                     rec_s[j] = out.sliding_surface
                     rec_sat[j] = out.saturated
-                    held[1] += 1
-            if progress is not None and (i + 1) % progress_every == 0:
-                progress(i + 1, steps)
+                    rec_tx[j] = tx
+                    rec_tv[j] = tv
+                if progress is not None and (i + 1) % PROGRESS_EVERY == 0:
+                    progress(i + 1, steps)
         if record:
-            target_samples(target.block)
-            m = held[0]
+            first = (-k0) % every  # the first recorded step is k0 + first
+            m = len(range(first, steps, every))
             rec['t'][:m] = (k0 + first + every * np.arange(m)) * dt  # k dt, as k * dt
         if progress is not None:
             progress(steps, steps)
@@ -451,9 +397,8 @@ class BatchSimulator:
         self,
         steps: int,
         record: bool,
-        rec: dict[str, NDArray[Any]],
+        views: list[NDArray[Any]],
         progress: Callable[[int, int], None] | None,
-        progress_every: int,
     ) -> None:
         """:meth:`run`'s steps in the compiled loop, in pieces bounded by the disturbance's
         buffer, the target's block and the progress reports; the same bits as
@@ -468,12 +413,7 @@ class BatchSimulator:
         mass = as_kernel(self.mass, (R, n, 3))
         drag = as_kernel(self.drag, (R,))
         target = self.target
-        if target.identity:
-            tindex = np.arange(R, dtype=np.int64)
-        elif len(target.distinct) == 1:
-            tindex = np.zeros(R, dtype=np.int64)
-        else:
-            tindex = target.index.astype(np.int64)
+        tindex = target.index.astype(np.int64)  # the trajectory of each run
         x = np.array(self.x, dtype=float)
         v = np.array(self.v, dtype=float)
         z = np.array(self.controller.z, dtype=float).reshape(R, n, 3)
@@ -486,21 +426,6 @@ class BatchSimulator:
             ):
                 held[q] = arr
             outside[:] = out.saturated
-        if record:
-            views = [
-                rec[key].swapaxes(0, 1)
-                for key in ('x', 'v', 'u', 's', 'saturated', 'target_x', 'target_v')
-            ]
-        else:
-            views = [
-                np.empty((R, 0, n, 3)).swapaxes(0, 1),
-                np.empty((R, 0, n, 3)).swapaxes(0, 1),
-                np.empty((R, 0, n, 3)).swapaxes(0, 1),
-                np.empty((R, 0, n, 3)).swapaxes(0, 1),
-                np.empty((R, 0, n), dtype=np.bool_).swapaxes(0, 1),
-                np.empty((R, 0, 3)).swapaxes(0, 1),
-                np.empty((R, 0, 3)).swapaxes(0, 1),
-            ]
         dt = float(self.dt)
         have = out is not None
         i = 0
@@ -510,7 +435,7 @@ class BatchSimulator:
             base, pos, vel = target.block
             limit = min(steps - i, base + target.BLOCK - k)
             if progress is not None:
-                limit = min(limit, progress_every - i % progress_every)
+                limit = min(limit, PROGRESS_EVERY - i % PROGRESS_EVERY)
             dist = self.noise.take(limit)
             count = limit if self.noise.silent else dist.shape[0]
             have = simulate_steps(
@@ -546,7 +471,7 @@ class BatchSimulator:
             )
             i += count
             self.k += count
-            if progress is not None and i % progress_every == 0:
+            if progress is not None and i % PROGRESS_EVERY == 0:
                 progress(i, steps)
         self.x, self.v = x, v
         self.controller.z = z.reshape(self.controller.shape)

@@ -257,8 +257,7 @@ def make_trajectory(
     waypoints: Sequence[Sequence[float]] = (),
 ) -> Trajectory:
     """Build a trajectory by name (one of :data:`TRAJECTORIES`); angles in radians."""
-    sx, sy, sz = (float(s) for s in start)
-    start_t = (sx, sy, sz)
+    start_t = _point(start)
     if kind == 'straight':
         return Straight(start_t, speed, yaw=yaw, pitch=pitch)
     if kind == 'hover':
@@ -327,10 +326,3 @@ class BatchTarget:
                 vel[k - base, 0], shape
             )
         return pos[k - base][self.index], vel[k - base][self.index]
-
-    def gather(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Rows of a block, shape (m, trajectories, 3), for every run: (m, R, 3) or
-        (m, 1, 3) when one trajectory serves every run (broadcast on assignment)."""
-        if self.identity or len(self.distinct) == 1:
-            return rows
-        return rows[:, self.index]
