@@ -3,6 +3,7 @@ every message), and the checks that name a broken bag."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from collections import defaultdict
@@ -87,7 +88,6 @@ def _reindex_hint(path: Path) -> str:
 
 
 def _check_bag_dir(path: Path) -> Path:
-    path = Path(path)
     if not path.exists():
         raise BagError(
             f'{path}: no such file or directory; pass a bag directory (one with metadata.yaml)'
@@ -319,14 +319,11 @@ def format_info(info: BagInfo) -> str:
         lines.append(
             f'  {t.name:{w}s}  {t.type:{wt}s}  {t.count:9d}  {freq}  {_qos_short(t.offered_qos)}'
         )
-    rec = info.custom_data.get(CUSTOM_RECORDER)
-    if rec:
-        try:
-            r = json.loads(rec)
+    with contextlib.suppress(ValueError):
+        r = json.loads(info.custom_data.get(CUSTOM_RECORDER) or 'null') or {}
+        if r:
             lines.append(
                 f'Recorder:     received {r.get("received")}, written '
                 f'{r.get("written")}, dropped {r.get("dropped")}'
             )
-        except ValueError:
-            pass
     return '\n'.join(lines)

@@ -99,28 +99,22 @@ def swarm_state_decoder() -> Callable[[bytes], Any]:
     return partial(typestore().deserialize_cdr, typename=SWARM_STATE_TYPE)
 
 
-def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str, *, quiet: bool = True) -> Any:
-    """Every ``/swarm/state`` message of the bag through the bring-up's StateAccumulator
-    (the live run's raw-bytes path and conversion; the CDR decoded by rosbags, so that the
-    bag tools need no rclpy). ``quiet=False``: a progress bar on stderr."""
+def bag_trajectory(
+    path: Path | str, config: Path | None = None, *, quiet: bool = True
+) -> tuple[dict[str, Any], Any, str, Any]:
+    """``(trajectory, cfg, mode, accumulator)`` of a bag's ``/swarm/state``: every message
+    through the bring-up's StateAccumulator (the CDR decoded by rosbags, so that the bag tools
+    need no rclpy). ``quiet=False``: a progress bar on stderr."""
     from ..analysis.samples import StateAccumulator
     from ..progress import progress_iter
 
+    info = open_bag(path)
+    cfg, mode = bag_config(info, config)
     count = info.topic(SWARM_STATE).count
     acc = StateAccumulator(mode, cfg.steps, cfg.record_every, swarm_state_decoder())
     messages = iter_raw(info.path, [SWARM_STATE], info=info)
     for _topic, _type, _ts, raw in progress_iter(messages, SWARM_STATE, total=count, quiet=quiet):
         acc.add_raw(raw)
-    return acc
-
-
-def bag_trajectory(
-    path: Path | str, config: Path | None = None, *, quiet: bool = True
-) -> tuple[dict[str, Any], Any, str, Any]:
-    """``(trajectory, cfg, mode, accumulator)`` of a bag's ``/swarm/state``."""
-    info = open_bag(path)
-    cfg, mode = bag_config(info, config)
-    acc = swarm_state_accumulator(info, cfg, mode, quiet=quiet)
     traj = acc.trajectory()
     if traj is None:
         raise BagError(f'{info.path}: /swarm/state has no message; nothing to compute')

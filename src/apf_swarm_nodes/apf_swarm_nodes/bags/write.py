@@ -37,7 +37,9 @@ class Topic:
 
 
 @dataclass
-class _FileStats:
+class FileStats:
+    """One MCAP file of a bag being written (or rebuilt), as metadata.yaml describes it."""
+
     path: str
     first: int = 0  # the first message's timestamp (split_duration counts from it)
     start: int = 2**63 - 1
@@ -65,6 +67,23 @@ def mcap_writer(file: IO[bytes], compress: bool, chunk_size: int, library: str) 
     return writer
 
 
+def topic_entry(
+    name: str, msgtype: str, qos: list[Any], rihs01: str, count: int, fmt: str = 'cdr'
+) -> dict[str, Any]:
+    """A ``topics_with_message_count`` entry of metadata.yaml (``qos``: as metadata.yaml
+    writes it)."""
+    return {
+        'topic_metadata': {
+            'name': name,
+            'type': msgtype,
+            'serialization_format': fmt,
+            'offered_qos_profiles': qos,
+            'type_description_hash': rihs01,
+        },
+        'message_count': count,
+    }
+
+
 def build_metadata(
     files: Sequence[Mapping[str, Any]],
     topics: Sequence[Mapping[str, Any]],
@@ -72,7 +91,7 @@ def build_metadata(
     ros_distro: str = ROS_DISTRO,
 ) -> dict[str, Any]:
     """The ``rosbag2_bagfile_information`` document (version 9) of a bag from its ``files``
-    (as :meth:`_FileStats.as_dict`) and ``topics`` (``topics_with_message_count`` entries)."""
+    (as :meth:`FileStats.as_dict`) and ``topics`` (``topics_with_message_count`` entries)."""
     spans = [
         (f['starting_time']['nanoseconds_since_epoch'], f['duration']['nanoseconds'])
         for f in files
@@ -151,7 +170,7 @@ class BagWriter:
         self.split_ns = int(round(split_duration * 1e9))
         self.topics: list[Topic] = []
         self.custom_data: dict[str, str] = {}
-        self.files: list[_FileStats] = []
+        self.files: list[FileStats] = []
         self._early: dict[str, str] = {}  # custom_data also in an MCAP metadata record
         self._file: IO[bytes] | None = None
         self._writer: Any = None
@@ -171,7 +190,7 @@ class BagWriter:
 
     def _new_file(self) -> None:
         name = f'{self.path.name}_{len(self.files)}.mcap'
-        self.files.append(_FileStats(name))
+        self.files.append(FileStats(name))
         self._file = (self.path / name).open('xb')
         self._writer = mcap_writer(self._file, self.compress, self.chunk_size, 'apf_swarm (mcap)')
         self._schemas = {}
@@ -277,16 +296,7 @@ class BagWriter:
         from rosbags.rosbag2.metadata import dump_qos_v9
 
         topics = [
-            {
-                'topic_metadata': {
-                    'name': t.topic,
-                    'type': t.msgtype,
-                    'serialization_format': 'cdr',
-                    'offered_qos_profiles': dump_qos_v9(t.offered_qos),
-                    'type_description_hash': t.rihs01,
-                },
-                'message_count': t.count,
-            }
+            topic_entry(t.topic, t.msgtype, dump_qos_v9(t.offered_qos), t.rihs01, t.count)
             for t in self.topics
         ]
         return build_metadata([f.as_dict() for f in self.files], topics, self.custom_data)
