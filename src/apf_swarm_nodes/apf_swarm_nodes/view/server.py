@@ -23,17 +23,12 @@ from ..topics import FOXGLOVE_FRAMES, FOXGLOVE_METRICS, FOXGLOVE_SCENE
 from .errors import ViewError
 from .scene import SceneBuilder
 
-__all__ = ['DEFAULT_PORT', 'VIEW_RATE', 'LiveView', 'foxglove_url']
+__all__ = ['DEFAULT_PORT', 'VIEW_RATE', 'LiveView']
 
 #: the Foxglove app's default WebSocket port
 DEFAULT_PORT = 8765
 #: frames per second the view sends at most
 VIEW_RATE = 20.0
-
-
-def foxglove_url(host: str, port: int) -> str:
-    """The address to open in the Foxglove app (Open connection, Foxglove WebSocket)."""
-    return f'ws://{host}:{port}'
 
 
 class LiveView:
@@ -76,7 +71,8 @@ class LiveView:
 
     @property
     def url(self) -> str:
-        return foxglove_url(self.host, self.port)
+        """The address to open in the Foxglove app (Open connection, Foxglove WebSocket)."""
+        return f'ws://{self.host}:{self.port}'
 
     def watched(self) -> bool:
         """A client subscribes to one of the view's channels."""
