@@ -34,15 +34,11 @@ TARGET_SILENT_AGE = 0.1
 
 def _intervals(t: np.ndarray, flag: np.ndarray) -> list[list[float]]:
     """[t_first, t_last] of every run of consecutive samples where ``flag`` holds."""
-    out, start = [], None
-    for k, f in enumerate(flag):
-        if f and start is None:
-            start = k
-        if start is not None and (not f or k == len(flag) - 1):
-            end = k if f else k - 1
-            out.append([round(float(t[start]), 6), round(float(t[end]), 6)])
-            start = None
-    return out
+    edges = np.diff(np.concatenate([[0], np.asarray(flag, dtype=int), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return [
+        [round(float(t[a]), 6), round(float(t[b]), 6)] for a, b in zip(starts, ends, strict=True)
+    ]
 
 
 def fault_report(
