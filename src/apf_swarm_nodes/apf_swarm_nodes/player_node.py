@@ -28,7 +28,7 @@ from .node_common import CLOCK_QOS, freeze_startup_heap, msg_class, run_node, ru
 from .params import EXECUTOR_PARAM, NodeParam, declare_node_params, declare_str_array
 from .topics import CLOCK
 
-__all__ = ['PRELOAD_BYTES', 'PlayerNode', 'main']
+__all__ = ['PRELOAD_BYTES', 'PlayerNode', 'main', 'run_player']
 
 #: bags up to this size are read into memory before the start (no reading on the schedule)
 PRELOAD_BYTES = 256 << 20
@@ -235,7 +235,7 @@ class PlayerNode(Node):
         )
 
 
-def _run(node: PlayerNode) -> None:
+def run_player(node: PlayerNode) -> None:
     node.play()
     node.get_logger().info(node.report())
     if not node.p['exit_when_done']:
@@ -245,7 +245,7 @@ def _run(node: PlayerNode) -> None:
 
 def main(args: list[str] | None = None) -> None:
     """``player --ros-args -p bag:=DIR [-p rate:=2.0] [-r /a:=/b] ...``"""
-    sys.exit(run_node('player', PlayerNode, args, run=_run))
+    sys.exit(run_node('player', PlayerNode, args, run=run_player))
 
 
 if __name__ == '__main__':

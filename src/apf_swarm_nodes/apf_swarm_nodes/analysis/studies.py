@@ -19,7 +19,7 @@ from apf_swarm_core.simulator import BATCHABLE, simulate, simulate_batch
 from ..advice import CLI_ADVICE
 from .errors import AnalysisError
 from .plots import paper_figures, plot_tradeoff
-from .runio import _fmt, write_run
+from .runio import fmt, write_run
 
 __all__ = ['GAMMA_VALUES', 'LAWS', 'reproduce', 'sweep', 'write_sweep']
 
@@ -108,7 +108,7 @@ def _table(summaries: dict[str, dict[str, Any]]) -> list[str]:
         '|---|---|---|---|---|---|---|---|---|',
     ]
     for law, s in summaries.items():
-        lines.append(f'| {law} | ' + ' | '.join(_fmt(v) for v in measures(s).values()) + ' |')
+        lines.append(f'| {law} | ' + ' | '.join(fmt(v) for v in measures(s).values()) + ' |')
     return lines
 
 
@@ -132,11 +132,11 @@ def _gamma_conclusion(rows: list[dict[str, Any]]) -> tuple[list[str], list[float
         if acc and calm:
             both.append(r['value'])
         lines.append(
-            f'| {r["value"]:g} | {_fmt(r["centroid_rms"])} | '
-            f'{_fmt(r["hf_velocity_rms"])} | {_fmt(r["heading_rate"])} | '
-            f'{_fmt(acc)} | {_fmt(calm)} |'
+            f'| {r["value"]:g} | {fmt(r["centroid_rms"])} | '
+            f'{fmt(r["hf_velocity_rms"])} | {fmt(r["heading_rate"])} | '
+            f'{fmt(acc)} | {fmt(calm)} |'
         )
-    lines.append(f'| traditional (any gamma) | {_fmt(t_err)} | {_fmt(t_hf)} | {_fmt(t_hr)} | | |')
+    lines.append(f'| traditional (any gamma) | {fmt(t_err)} | {fmt(t_hf)} | {fmt(t_hr)} | | |')
     return lines, both
 
 
@@ -254,15 +254,15 @@ def reproduce(
         report.append(
             f"- **Less chattering** (the paper's claim about rotation buffeting): "
             f'{"holds" if calmer else "does not hold"} with the `triangle` preset '
-            f'(gamma = {tri.gamma:g}): HF velocity RMS {_fmt(p["hf_velocity_rms"])} '
-            f'vs {_fmt(t["hf_velocity_rms"])} m/s, heading rate '
-            f'{_fmt(p["heading_rate"])} vs {_fmt(t["heading_rate"])} '
+            f'(gamma = {tri.gamma:g}): HF velocity RMS {fmt(p["hf_velocity_rms"])} '
+            f'vs {fmt(t["hf_velocity_rms"])} m/s, heading rate '
+            f'{fmt(p["heading_rate"])} vs {fmt(t["heading_rate"])} '
             'rad/s (proposed vs traditional).'
         )
         report.append(
             f"- **Higher tracking accuracy** (Figure 7's claim): "
             f'{"holds" if closer else "does not hold"} at gamma = {tri.gamma:g}: steady centroid '
-            f'error {_fmt(p["centroid_rms"])} vs {_fmt(t["centroid_rms"])} m. '
+            f'error {fmt(p["centroid_rms"])} vs {fmt(t["centroid_rms"])} m. '
             + (
                 f'Both claims hold together for gamma in {{{", ".join(f"{g:g}" for g in both)}}} '
                 'of the values swept.'
@@ -273,12 +273,12 @@ def reproduce(
         )
     pap = everything.get('paper', {}).get('summaries', {})
     if pap:
-        p = pap['proposed']
+        p = measures(pap['proposed'])
         report.append(
             f"- **The paper's literal numbers** (b = 0.6 < a = 1, beta = 2 < v_N = 10): no "
-            f'formation forms (mean pair distance {_fmt(p["formation"]["pair_distance_mean"])} m, '
+            f'formation forms (mean pair distance {fmt(p["pair_distance_mean"])} m, '
             'the trackers collapse onto each other) and the target outruns them (steady centroid '
-            f'error {_fmt(p["centroid_error"]["rms_steady"])} m). With the target outside reach, '
+            f'error {fmt(p["centroid_rms"])} m). With the target outside reach, '
             'the gradient never enters the boundary layer, so both laws coincide.'
         )
     report.append('')

@@ -11,8 +11,8 @@ from typing import Any
 
 from ..topics import SWARM_STATE
 from .errors import BagError
-from .info import BagInfo, _reindex_hint, open_bag
-from .types import CUSTOM_CONFIG, CUSTOM_MODE, SWARM_STATE_TYPE, _one_line, typestore
+from .info import BagInfo, open_bag, reindex_hint
+from .types import CUSTOM_CONFIG, CUSTOM_MODE, SWARM_STATE_TYPE, one_line, typestore
 
 
 @contextlib.contextmanager
@@ -22,8 +22,8 @@ def _damaged(path: Path, what: str) -> Iterator[None]:
         yield
     except Exception as exc:
         raise BagError(
-            f'{path}: cannot read {what}, the file is damaged ({_one_line(exc)}); '
-            f'{_reindex_hint(path)}'
+            f'{path}: cannot read {what}, the file is damaged ({one_line(exc)}); '
+            f'{reindex_hint(path)}'
         ) from None
 
 
@@ -45,7 +45,7 @@ def messages(
     except Exception as exc:
         raise BagError(
             f'{info.path}: cannot load the type definitions stored in the bag '
-            f'({_one_line(exc)}); it was not written with full, valid ros2msg definitions'
+            f'({one_line(exc)}); it was not written with full, valid ros2msg definitions'
         ) from None
 
     def read() -> Iterator[tuple[Any, Any, int, bytes]]:

@@ -14,8 +14,8 @@ from typing import Any, TextIO
 import yaml
 
 from .errors import BagError
-from .info import _read_metadata, bag_files
-from .types import DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME, ROS_DISTRO, _one_line
+from .info import bag_files, read_metadata
+from .types import DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME, ROS_DISTRO, one_line
 from .write import FileStats, build_metadata, mcap_writer, topic_entry, write_metadata
 
 
@@ -55,7 +55,7 @@ def _scan_mcap(file: Path) -> _Recovered:
                         out.metadata.update(r.metadata)
             out.complete = True
         except Exception as exc:  # the truncated tail: EndOfFile, struct.error, zstd errors
-            out.error = _one_line(exc)
+            out.error = one_line(exc)
     return out
 
 
@@ -119,7 +119,7 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
     old_meta: dict[str, Any] = {}
     if meta_file.is_file():
         with contextlib.suppress(BagError):
-            old_meta = _read_metadata(path)
+            old_meta = read_metadata(path)
     old_topics = [
         e.get('topic_metadata', {}) for e in old_meta.get('topics_with_message_count') or []
     ]

@@ -17,7 +17,7 @@ from .types import (
     DEFAULT_CHUNK_SIZE,
     MCAP_METADATA_NAME,
     ROS_DISTRO,
-    _qos_text,
+    qos_text,
     type_definition,
 )
 
@@ -206,7 +206,7 @@ class BagWriter:
             sid = self._schemas[t.msgtype] = self._writer.register_schema(
                 t.msgtype, 'ros2msg', t.msgdef.encode()
             )
-        meta = {'offered_qos_profiles': _qos_text(t.offered_qos)}
+        meta = {'offered_qos_profiles': qos_text(t.offered_qos)}
         t.channel = self._writer.register_channel(t.topic, 'cdr', sid, meta)
 
     def set_custom_data(self, key: str, value: str, *, early: bool = False) -> None:

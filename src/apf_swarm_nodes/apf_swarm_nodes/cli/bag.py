@@ -137,10 +137,10 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
     for rule in args.remap:
         ros += ['-r', rule]
     from ..node_common import run_node
-    from ..player_node import PlayerNode, _run
+    from ..player_node import PlayerNode, run_player
 
     if args.view is None:
-        return run_node(PROG, PlayerNode, [PROG, *ros], run=_run)
+        return run_node(PROG, PlayerNode, [PROG, *ros], run=run_player)
     from ..view.bag import live_view_of_bag
 
     view, observe = live_view_of_bag(info, host=args.view_host, port=args.view, config=args.config)
@@ -152,7 +152,7 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
         return node
 
     try:
-        return run_node(PROG, player, [PROG, *ros], run=_run)
+        return run_node(PROG, player, [PROG, *ros], run=run_player)
     finally:
         view.close()
 
