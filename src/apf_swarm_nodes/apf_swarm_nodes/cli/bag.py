@@ -92,13 +92,12 @@ def cmd_bag_export(args: argparse.Namespace) -> int:
     if args.csv.exists() and not args.force:
         raise ApfSwarmError(f'{args.csv} exists; choose another file or pass --force')
     tmp = args.csv.with_name(args.csv.name + '.tmp')
-    with open(tmp, 'w', newline='') as fh:
-        try:
+    try:
+        with open(tmp, 'w', newline='') as fh:
             n = export_csv(args.bag, args.topic, fh, quiet=args.quiet)
-        except BaseException:
-            fh.close()
-            tmp.unlink(missing_ok=True)
-            raise
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     tmp.replace(args.csv)
     print(f'wrote {n} rows of {args.topic} to {args.csv}', file=sys.stderr)
     return 0
@@ -119,9 +118,6 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
 
     for t in args.topics or [t.name for t in info.topics]:
         msg_class(info.topic(t).type)  # a type that is not installed: one line, exit 2
-    for rule in args.remap:
-        if ':=' not in rule:
-            raise ApfSwarmError(f'--remap {rule!r}: expected FROM:=TO')
     params = {
         'bag': info.path.resolve(),
         'rate': repr(args.rate),
@@ -135,6 +131,8 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
     for name, value in params.items():
         ros += ['-p', f'{name}:={value}'] if value is not None else []
     for rule in args.remap:
+        if ':=' not in rule:
+            raise ApfSwarmError(f'--remap {rule!r}: expected FROM:=TO')
         ros += ['-r', rule]
     from ..node_common import run_node
     from ..player_node import PlayerNode, run_player
