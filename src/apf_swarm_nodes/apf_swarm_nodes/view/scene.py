@@ -1,12 +1,6 @@
-"""One ``/swarm/state`` sample as Foxglove messages: the 3-D scene, the target's frame and
-the time series (:class:`SceneBuilder`).
-
-The scene (``foxglove.SceneUpdate``, frame ``world``): a sphere per UAV coloured by its state
-(``analysis.style``), the target, the formation's edges coloured by their error against
-the nearest design minimum (:func:`apf_swarm_core.metrics.formation_edges`), a short trail
-per UAV and the world axes. The frame ``target`` (a ``foxglove.FrameTransform`` from
-``world``) lets the 3-D panel follow the target. The time series are one JSON message per
-frame (:meth:`SceneBuilder.metrics`).
+"""One ``/swarm/state`` sample as Foxglove messages (:class:`SceneBuilder`): the 3-D scene in
+frame ``world``, the frame ``target`` that follows the target, and the time series as JSON
+(what each shows: docs/USAGE.md, *Watching a run*).
 """
 
 from __future__ import annotations
