@@ -126,7 +126,7 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
     old_hash = {tm.get('name'): tm.get('type_description_hash', '') for tm in old_topics}
     backup = path / f'reindex-backup-{time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())}'
     report: dict[str, Any] = {'path': str(path), 'files': [], 'backup': None}
-    file_stats: list[dict[str, Any]] = []
+    file_stats: list[FileStats] = []
     topics: dict[str, dict[str, Any]] = {}
     custom = {str(k): str(v) for k, v in (old_meta.get('custom_data') or {}).items()}
     for file in files:
@@ -155,8 +155,7 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
         for k, v in rec.metadata.items():
             custom.setdefault(k, v)
         ts = [m.log_time for m in rec.messages]
-        stats = FileStats(file.name, 0, min(ts, default=0), max(ts, default=0), len(ts))
-        file_stats.append(stats.as_dict())
+        file_stats.append(FileStats(file.name, 0, min(ts, default=0), max(ts, default=0), len(ts)))
         report['files'].append(
             {'path': file.name, 'action': action, 'messages': len(ts), 'error': rec.error}
         )

@@ -85,32 +85,28 @@ def topic_entry(
 
 
 def build_metadata(
-    files: Sequence[Mapping[str, Any]],
+    files: Sequence[FileStats],
     topics: Sequence[Mapping[str, Any]],
     custom_data: Mapping[str, str],
     ros_distro: str = ROS_DISTRO,
 ) -> dict[str, Any]:
     """The ``rosbag2_bagfile_information`` document (version 9) of a bag from its ``files``
-    (as :meth:`FileStats.as_dict`) and ``topics`` (``topics_with_message_count`` entries)."""
-    spans = [
-        (f['starting_time']['nanoseconds_since_epoch'], f['duration']['nanoseconds'])
-        for f in files
-        if f['message_count']
-    ]
-    start = min((s for s, _ in spans), default=0)
-    end = max((s + d for s, d in spans), default=0)
+    and ``topics`` (``topics_with_message_count`` entries)."""
+    used = [f for f in files if f.count]
+    start = min((f.start for f in used), default=0)
+    end = max((f.end for f in used), default=0)
     return {
         'rosbag2_bagfile_information': {
             'version': BAG_VERSION,
             'storage_identifier': 'mcap',
-            'relative_file_paths': [f['path'] for f in files],
+            'relative_file_paths': [f.path for f in files],
             'duration': {'nanoseconds': max(0, end - start)},
             'starting_time': {'nanoseconds_since_epoch': start},
-            'message_count': sum(int(f['message_count']) for f in files),
+            'message_count': sum(f.count for f in files),
             'topics_with_message_count': list(topics),
             'compression_format': '',
             'compression_mode': '',
-            'files': [dict(f) for f in files],
+            'files': [f.as_dict() for f in files],
             'custom_data': dict(custom_data) or None,
             'ros_distro': ros_distro,
         }
@@ -299,7 +295,7 @@ class BagWriter:
             topic_entry(t.topic, t.msgtype, dump_qos_v9(t.offered_qos), t.rihs01, t.count)
             for t in self.topics
         ]
-        return build_metadata([f.as_dict() for f in self.files], topics, self.custom_data)
+        return build_metadata(self.files, topics, self.custom_data)
 
     def close(self) -> None:
         """Write the MCAP summary and metadata.yaml (again: nothing)."""
