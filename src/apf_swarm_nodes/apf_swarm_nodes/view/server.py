@@ -76,9 +76,7 @@ class LiveView:
 
     def watched(self) -> bool:
         """A client subscribes to one of the view's channels."""
-        return (
-            self.scene_ch.has_sinks() or self.frames_ch.has_sinks() or self.metrics_ch.has_sinks()
-        )
+        return any(ch.has_sinks() for ch in (self.scene_ch, self.frames_ch, self.metrics_ch))
 
     def show(self, sample: Any, stamp_ns: int | None = None) -> bool:
         """Send ``sample`` (stamped ``stamp_ns``, default now) if a client watches; True
