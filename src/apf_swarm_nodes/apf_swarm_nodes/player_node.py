@@ -1,17 +1,10 @@
 """Player node: republishes a bag's raw CDR messages with their recorded timing.
 
-Schedule: message i goes out at ``t0 + (stamp_i - stamp_first) / rate`` on the monotonic clock,
-``t0`` being when the first message was out, computed from the start every time (an absolute
-schedule: lateness never accumulates), after
-waiting (``wait_for``) until the listed topics have a matched subscriber. ``start_offset``
-skips the first seconds of the bag; ``loop`` plays it again (each pass starting where the
-previous one ended); ``topics`` selects topics; ROS remapping (``-r FROM:=TO``) renames
-them. With ``clock`` > 0 it publishes ``/clock`` (the bag time being played) at that rate, so
-that nodes with ``use_sim_time`` follow, and does not replay a recorded ``/clock``.
-
-Each topic gets a publisher with its first recorded publisher's reliability and durability
-and keep-last ``max(recorded depth, queue_depth)``. At the end it waits (bounded) until the
-reliable subscribers acknowledged everything. ``apf-swarm bag play`` runs this node in-process.
+Message i goes out at ``t0 + (stamp_i - stamp_first) / rate`` (an absolute schedule: lateness
+never accumulates), after the ``wait_for`` topics have a subscriber; ``start_offset``,
+``loop``, ``topics``, remapping and ``/clock`` as docs/USAGE.md, *Bags*, describes. Each
+publisher takes its first recorded publisher's reliability and durability.
+``apf-swarm bag play`` runs this node in-process.
 """
 
 from __future__ import annotations
@@ -35,7 +28,7 @@ from .node_common import CLOCK_QOS, freeze_startup_heap, msg_class, run_node, ru
 from .params import EXECUTOR_PARAM, NodeParam, declare_node_params, declare_str_array
 from .topics import CLOCK
 
-__all__ = ['PRELOAD_BYTES', 'PlayerNode', 'main']
+__all__ = ['PRELOAD_BYTES', 'PlayerNode', 'main', 'run_player']
 
 #: bags up to this size are read into memory before the start (no reading on the schedule)
 PRELOAD_BYTES = 256 << 20
@@ -173,10 +166,16 @@ class PlayerNode(Node):
                 time.sleep((rem - 200_000) / 1e9)
             # else: the last 0.3 ms without sleeping (a sleep overshoots its request)
 
-    def _publish(self, topic: str, raw: bytes) -> None:
+    def _publish(self, topic: str, raw: bytes, due: int | None = None) -> int:
+        """Publish, hand to :attr:`on_published`, note the lateness against ``due`` (None:
+        the first message, which starts the schedule); returns the time it was out."""
         self.pubs[topic].publish(raw)
         if self.on_published is not None:
             self.on_published(topic, raw)
+        now = time.monotonic_ns()
+        self.lateness_ns.append(0 if due is None else now - due)
+        self.published += 1
+        return now
 
     def play(self) -> int:
         """Play (``loop``: forever); returns the number of messages published."""
@@ -196,15 +195,10 @@ class PlayerNode(Node):
                     first = ts
                     if not started:
                         # the schedule starts when the first message is out: the first
-                        # write to a newly matched reader can take tens of ms (measured:
-                        # up to 0.2 s under load), which would make every later one late
+                        # write to a newly matched reader can take tens of ms, which would
+                        # make every later one late
                         started = True
-                        self._publish(topic, raw)
-                        t0 = time.monotonic_ns()
-                        self._next_clock = t0
-                        self.lateness_ns.append(0)
-                        self.published += 1
-                        last_due = t0
+                        t0 = last_due = self._next_clock = self._publish(topic, raw)
                         continue
 
                 def bag_at(now: int, first: int = first, t0: int = t0) -> int:
@@ -213,9 +207,7 @@ class PlayerNode(Node):
                 due = t0 + int((ts - first) / self.rate)
                 if not self._wait_until(due, bag_at):
                     return self.published
-                self._publish(topic, raw)
-                self.lateness_ns.append(time.monotonic_ns() - due)
-                self.published += 1
+                self._publish(topic, raw, due)
                 last_due = due
             if not self.p['loop'] or first is None:
                 break
@@ -243,7 +235,7 @@ class PlayerNode(Node):
         )
 
 
-def _run(node: PlayerNode) -> None:
+def run_player(node: PlayerNode) -> None:
     node.play()
     node.get_logger().info(node.report())
     if not node.p['exit_when_done']:
@@ -253,7 +245,7 @@ def _run(node: PlayerNode) -> None:
 
 def main(args: list[str] | None = None) -> None:
     """``player --ros-args -p bag:=DIR [-p rate:=2.0] [-r /a:=/b] ...``"""
-    sys.exit(run_node('player', PlayerNode, args, run=_run))
+    sys.exit(run_node('player', PlayerNode, args, run=run_player))
 
 
 if __name__ == '__main__':

@@ -1,28 +1,10 @@
 """Recorder node: every selected topic, as received (raw CDR), into a rosbag2 bag (MCAP).
 
-The graph is polled every ``discovery_period``; each new topic that matches the selection
-(``topics`` list, ``regex``, minus ``exclude``) and has a publisher gets a raw subscription
-whose QoS follows its publishers (reliable only if every publisher is, transient local only if
-every publisher is, keep last ``queue_depth``), and a connection in the bag with the full type
-definition and the publishers' offered QoS (:class:`~apf_swarm_nodes.bags.BagWriter`). Messages
-are stamped with their reception time and written without deserializing; the pending
-chunk is flushed every ``flush_period`` so that a recorder killed by SIGKILL loses at most
-that much (``apf-swarm bag reindex`` recovers the rest).
-
-``~/status`` (std_msgs/String, JSON, reliable, transient local) says which topics are
-recorded and whether every one of their publishers is matched (``ready``), and the counts
-(:mod:`.recording`: ``received``, ``written``, ``lost`` in transport, ``dropped``); the
-bring-up waits on it before it starts the clock. The counts go into metadata.yaml
-``custom_data`` (``apf_swarm.recorder``) and the last log line.
-
-Spinning (:func:`spin`): a single-threaded executor hands each subscription's callback the
-message with its MessageInfo: the stamp is the DDS reception time (taken by the middleware when
-the sample arrived, not when the recorder got the CPU), and the publication sequence number
-shows losses (the events executor cannot hand a callback the MessageInfo). The periodic work
-(discovery, flush, status) runs between two turns of the executor.
-
-SIGINT / SIGTERM: stop, take what is still queued (bounded ``drain_timeout``), close the bag
-(summary, metadata.yaml), exit 0.
+New topics are found by polling the graph; each gets a raw subscription whose QoS follows its
+publishers and a connection in the bag (:class:`~apf_swarm_nodes.bags.BagWriter`), flushed
+every ``flush_period``. ``~/status`` (JSON) says which topics are recorded and matched and
+the counts (:mod:`.recording`). SIGINT / SIGTERM: take what is queued, close the bag, exit 0.
+docs/USAGE.md, *Bags*, tells the rest (stamps, losses, spinning).
 """
 
 from __future__ import annotations
@@ -105,9 +87,8 @@ NODE_PARAMS = (
 )
 
 
-#: the pause after each turn of the executor [s]: a turn costs the CPU of several messages,
-#: and the next one takes at once what arrived meanwhile (the stamps are the middleware's
-#: reception times, which the pause does not change; bench/bench_bags.py measures it)
+#: the pause after each turn of the executor [s], so that the next turn takes at once what
+#: arrived meanwhile (the stamps are the middleware's reception times, which it does not change)
 TURN_PAUSE = 0.005
 #: no QoS event handlers on the subscriptions (see RecorderNode.__init__)
 NO_EVENTS = SubscriptionEventCallbacks(use_default_callbacks=False)
@@ -234,11 +215,9 @@ class RecorderNode(Node):
             self._publish_status()
 
     def take_all(self, t: RecordedTopic) -> int:
-        """Take every message queued on ``t`` (with its MessageInfo); returns how many.
-
-        ``take_message`` on rclpy's subscription handle: draining by rclpy's public API
-        (``spin_once(timeout_sec=0)`` until two turns in a row run nothing) costs 3-4x the CPU
-        per message (docs/PERFORMANCE.md, Bags)."""
+        """Take every message queued on ``t`` (with its MessageInfo); returns how many
+        (``take_message`` on the subscription's handle: docs/PERFORMANCE.md, Bags, ``take_all``,
+        compares it with ``spin_once``)."""
         n = 0
         handle = t.sub.handle
         with handle:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -56,28 +57,20 @@ class TopicSelection:
         )
 
 
+@dataclass(slots=True, eq=False)
 class RecordedTopic:
     """One recorded topic: its bag connection ``conn``, its subscription ``sub`` (set by the
     node) and its counts."""
 
-    __slots__ = (
-        'conn',
-        'last_seq',
-        'lost',
-        'name',
-        'received',
-        'single_pub',
-        'sub',
-        'type',
-        'written',
-    )
-
-    def __init__(self, name: str, msgtype: str, conn: Any) -> None:
-        self.name, self.type, self.conn = name, msgtype, conn
-        self.sub: Any = None
-        self.received = self.written = self.lost = 0
-        self.last_seq = 0
-        self.single_pub = False
+    name: str
+    type: str
+    conn: Any
+    sub: Any = None
+    received: int = 0
+    written: int = 0
+    lost: int = 0
+    last_seq: int = 0
+    single_pub: bool = False
 
     def take(self, seq: int | None) -> None:
         """A message received with publication sequence number ``seq`` (None or 0: not

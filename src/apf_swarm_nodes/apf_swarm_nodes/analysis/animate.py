@@ -112,17 +112,16 @@ def animate(
     dims = 3 if view == '3d' else 2
     ax.set_xlim(centre[0] - half, centre[0] + half)
     ax.set_ylim(centre[1] - half, centre[1] + half)
-    if view == '3d':
-        ax.set_zlim(centre[2] - half, centre[2] + half)
     ax.set_xlabel('x [m]')
     ax.set_ylabel('y [m]')
+    ax.set_title(title)
     if view == '3d':
+        ax.set_zlim(centre[2] - half, centre[2] + half)
         ax.set_zlabel('z [m]')
+        stamp = ax.text2D(0.02, 0.95, '', transform=ax.transAxes)
     else:
         ax.set_aspect('equal')
-    ax.set_title(title)
-    stamp = ax.text2D(0.02, 0.95, '', transform=ax.transAxes) if view == '3d' else None
-    stamp = stamp or ax.text(0.02, 0.95, '', transform=ax.transAxes)
+        stamp = ax.text(0.02, 0.95, '', transform=ax.transAxes)
     lines: list[Any] = []
     design_list = list(designs)
 

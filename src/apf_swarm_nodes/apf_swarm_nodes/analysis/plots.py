@@ -117,28 +117,16 @@ def paper_figures(trajs: Mapping[str, Traj], out: Path, prefix: str = '') -> lis
     out.mkdir(parents=True, exist_ok=True)
     paths = []
     numbers = {'traditional': (1, 3, 5), 'proposed': (2, 4, 6)}
+    figures = (
+        (plot_trajectories_3d, 'trajectories', 'trajectories'),
+        (plot_xy_time, 'x and y', 'xy'),
+        (plot_centroid, 'formation centre', 'centroid'),
+    )
     for law, traj in trajs.items():
-        f3d, fxy, fc = numbers.get(law, (0, 0, 0))
         name = _LAW_TITLE.get(law, law)
-        paths.append(
-            plot_trajectories_3d(
-                traj,
-                f'Fig. {f3d}: trajectories, {name}',
-                out / f'{prefix}fig{f3d}_trajectories_{law}.png',
-            )
-        )
-        paths.append(
-            plot_xy_time(
-                traj, f'Fig. {fxy}: x and y, {name}', out / f'{prefix}fig{fxy}_xy_{law}.png'
-            )
-        )
-        paths.append(
-            plot_centroid(
-                traj,
-                f'Fig. {fc}: formation centre, {name}',
-                out / f'{prefix}fig{fc}_centroid_{law}.png',
-            )
-        )
+        for (plot, what, stem), number in zip(figures, numbers.get(law, (0, 0, 0)), strict=True):
+            title = f'Fig. {number}: {what}, {name}'
+            paths.append(plot(traj, title, out / f'{prefix}fig{number}_{stem}_{law}.png'))
     paths.append(
         plot_centroid_error(
             trajs, 'Fig. 7: centroid error', out / f'{prefix}fig7_centroid_error.png'

@@ -17,6 +17,7 @@ __all__ = [
     'RUN_ARRAYS',
     'TARGET_SILENT_AGE',
     'fault_report',
+    'fmt',
     'format_summary',
     'run_summary',
     'write_run',
@@ -34,15 +35,11 @@ TARGET_SILENT_AGE = 0.1
 
 def _intervals(t: np.ndarray, flag: np.ndarray) -> list[list[float]]:
     """[t_first, t_last] of every run of consecutive samples where ``flag`` holds."""
-    out, start = [], None
-    for k, f in enumerate(flag):
-        if f and start is None:
-            start = k
-        if start is not None and (not f or k == len(flag) - 1):
-            end = k if f else k - 1
-            out.append([round(float(t[start]), 6), round(float(t[end]), 6)])
-            start = None
-    return out
+    edges = np.diff(np.concatenate([[0], np.asarray(flag, dtype=int), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return [
+        [round(float(t[a]), 6), round(float(t[b]), 6)] for a, b in zip(starts, ends, strict=True)
+    ]
 
 
 def fault_report(
@@ -165,7 +162,7 @@ def run_summary(
     return summary
 
 
-def _fmt(v: Any, digits: int = 3) -> str:
+def fmt(v: Any, digits: int = 3) -> str:
     """A value of a summary in a table or a line of text: ``digits`` significant digits,
     yes/no, ``-`` for none, the range of a list of distances (n > 3 designs)."""
     if v is None:
@@ -190,25 +187,25 @@ def format_summary(summary: Mapping[str, Any]) -> str:
     ]
     ce, fo, ch, po = s['centroid_error'], s['formation'], s['chattering'], s['potential']
     lines.append(
-        f'  centroid error   rms_steady {_fmt(ce["rms_steady"], 4)} m, max_steady '
-        f'{_fmt(ce["max_steady"], 4)} m, final {_fmt(ce["final"], 4)} m'
+        f'  centroid error   rms_steady {fmt(ce["rms_steady"], 4)} m, max_steady '
+        f'{fmt(ce["max_steady"], 4)} m, final {fmt(ce["final"], 4)} m'
     )
     lines.append(
-        f'  pair distance    min {_fmt(fo["pair_distance_min"], 4)} m, max '
-        f'{_fmt(fo["pair_distance_max"], 4)} m, mean {_fmt(fo["pair_distance_mean"], 4)} m, '
-        f'expected {_fmt(fo["pair_distance_expected"], 4)} m; closest approach '
-        f'{_fmt(fo.get("closest_approach"), 4)} m'
+        f'  pair distance    min {fmt(fo["pair_distance_min"], 4)} m, max '
+        f'{fmt(fo["pair_distance_max"], 4)} m, mean {fmt(fo["pair_distance_mean"], 4)} m, '
+        f'expected {fmt(fo["pair_distance_expected"], 4)} m; closest approach '
+        f'{fmt(fo.get("closest_approach"), 4)} m'
     )
-    lines.append(f'  formation error  rms_steady {_fmt(fo["error_rms_steady"], 4)} m')
+    lines.append(f'  formation error  rms_steady {fmt(fo["error_rms_steady"], 4)} m')
     lines.append(
-        f'  chattering       hf_velocity_rms {_fmt(ch["hf_velocity_rms"], 4)} m/s, '
-        f'heading_rate {_fmt(ch["heading_rate"], 4)} rad/s'
+        f'  chattering       hf_velocity_rms {fmt(ch["hf_velocity_rms"], 4)} m/s, '
+        f'heading_rate {fmt(ch["heading_rate"], 4)} rad/s'
     )
     lines.append(
-        f'  potential J      initial {_fmt(po["initial"], 4)}, final {_fmt(po["final"], 4)}, '
-        f'decreasing {_fmt(po["decreasing_fraction"], 4)}'
+        f'  potential J      initial {fmt(po["initial"], 4)}, final {fmt(po["final"], 4)}, '
+        f'decreasing {fmt(po["decreasing_fraction"], 4)}'
     )
-    lines.append(f'  converged        {s["converged"]} (after {_fmt(s["time_to_converge"], 4)} s)')
+    lines.append(f'  converged        {s["converged"]} (after {fmt(s["time_to_converge"], 4)} s)')
     for w in s.get('warnings', []):
         lines.append(f'  warning: {w}')
     return '\n'.join(lines)

@@ -10,10 +10,6 @@ from typing import Any
 
 from .errors import AnalysisError
 
-# --------------------------------------------------------------------------------------------
-# the run's data
-# --------------------------------------------------------------------------------------------
-
 
 def rclpy_decode(raw: bytes) -> Any:
     """A serialized ``SwarmState`` deserialized by rclpy (the live run's path)."""
@@ -72,7 +68,7 @@ class StateAccumulator:
 
     def add_raw(self, raw: bytes) -> None:
         """A serialized SwarmState: kept as bytes, deserialized only when needed (the
-        bring-up shares the CPU with the swarm; deserializing every step costs ~0.4 ms)."""
+        bring-up shares the CPU with the swarm)."""
         from ..conversions import swarm_state_step
 
         try:
@@ -86,22 +82,17 @@ class StateAccumulator:
     def add(self, sample: Any) -> None:
         self.received += 1
         self.last_time = time.monotonic()
-        if self.mode == 'lockstep':
-            step = int(sample.step)
-            if step <= self.last_step:
+        step = int(sample.step)
+        if step <= self.last_step:
+            if self.mode == 'lockstep':
                 self.out_of_order += 1
-                return
-            if step != self.last_step + 1:
-                self.dropped += step - self.last_step - 1
-                self.gaps.append((self.last_step + 1, step - 1))
-            self.last_step = step
-        else:
-            # realtime: the publish timer may repeat a step the physics timer has not advanced
-            step = int(sample.step)
-            if step <= self.last_step:
+            else:  # the publish timer repeated a step the physics timer has not advanced
                 self.repeated += 1
-                return
-            self.last_step = step
+            return
+        if self.mode == 'lockstep' and step != self.last_step + 1:
+            self.dropped += step - self.last_step - 1
+            self.gaps.append((self.last_step + 1, step - 1))
+        self.last_step = step
         self._last = sample
         self.samples.append(sample)
 

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import csv
 import json
+import operator
 from collections.abc import Callable, Mapping, Sequence
+from functools import reduce
 from pathlib import Path
 from typing import Any
 
@@ -17,26 +19,29 @@ from apf_swarm_core.simulator import BATCHABLE, simulate, simulate_batch
 from ..advice import CLI_ADVICE
 from .errors import AnalysisError
 from .plots import paper_figures, plot_tradeoff
-from .runio import _fmt, write_run
+from .runio import fmt, write_run
 
 __all__ = ['GAMMA_VALUES', 'LAWS', 'reproduce', 'sweep', 'write_sweep']
 
 LAWS = ('proposed', 'traditional')
 GAMMA_VALUES = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0)
-SWEEP_FIELDS = (
-    'law',
-    'param',
-    'value',
-    'seed',
-    'centroid_rms',
-    'centroid_max',
-    'formation_error_rms',
-    'pair_distance_mean',
-    'hf_velocity_rms',
-    'heading_rate',
-    'time_to_converge',
-    'converged',
-)
+#: the measures of a sweep row and of the report's tables: their paths in summary.json
+MEASURES = {
+    'centroid_rms': ('centroid_error', 'rms_steady'),
+    'centroid_max': ('centroid_error', 'max_steady'),
+    'formation_error_rms': ('formation', 'error_rms_steady'),
+    'pair_distance_mean': ('formation', 'pair_distance_mean'),
+    'hf_velocity_rms': ('chattering', 'hf_velocity_rms'),
+    'heading_rate': ('chattering', 'heading_rate'),
+    'time_to_converge': ('time_to_converge',),
+    'converged': ('converged',),
+}
+SWEEP_FIELDS = ('law', 'param', 'value', 'seed', *MEASURES)
+
+
+def measures(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """The :data:`MEASURES` of a summary.json document."""
+    return {k: reduce(operator.getitem, path, summary) for k, path in MEASURES.items()}
 
 
 def sweep(
@@ -62,31 +67,20 @@ def sweep(
                     )
                 except Exception as exc:  # ConfigError names the key and the value
                     raise AnalysisError(f'--values {v!r} for {param}: {exc}') from None
-        groups: list[list[int]] = []
         if param in BATCHABLE:
             groups = [list(range(len(cfgs)))]
         else:
-            for i in range(0, len(cfgs), seeds):
-                groups.append(list(range(i, i + seeds)))
+            groups = [list(range(i, i + seeds)) for i in range(0, len(cfgs), seeds)]
         for g in groups:
             res = simulate_batch([cfgs[i] for i in g], progress=progress)
             for j, i in enumerate(g):
-                s = res.summary(run=j)
-                v = values[i // seeds]
                 rows.append(
                     {
                         'law': law,
                         'param': param,
-                        'value': v,
+                        'value': values[i // seeds],
                         'seed': cfgs[i].seed,
-                        'centroid_rms': s['centroid_error']['rms_steady'],
-                        'centroid_max': s['centroid_error']['max_steady'],
-                        'formation_error_rms': s['formation']['error_rms_steady'],
-                        'pair_distance_mean': s['formation']['pair_distance_mean'],
-                        'hf_velocity_rms': s['chattering']['hf_velocity_rms'],
-                        'heading_rate': s['chattering']['heading_rate'],
-                        'time_to_converge': s['time_to_converge'],
-                        'converged': s['converged'],
+                        **measures(res.summary(run=j)),
                     }
                 )
     return rows
@@ -114,15 +108,7 @@ def _table(summaries: dict[str, dict[str, Any]]) -> list[str]:
         '|---|---|---|---|---|---|---|---|---|',
     ]
     for law, s in summaries.items():
-        lines.append(
-            f'| {law} | {_fmt(s["centroid_error"]["rms_steady"])} | '
-            f'{_fmt(s["centroid_error"]["max_steady"])} | '
-            f'{_fmt(s["formation"]["error_rms_steady"])} | '
-            f'{_fmt(s["formation"]["pair_distance_mean"])} | '
-            f'{_fmt(s["chattering"]["hf_velocity_rms"])} | '
-            f'{_fmt(s["chattering"]["heading_rate"])} | {_fmt(s["time_to_converge"])} | '
-            f'{_fmt(s["converged"])} |'
-        )
+        lines.append(f'| {law} | ' + ' | '.join(fmt(v) for v in measures(s).values()) + ' |')
     return lines
 
 
@@ -146,11 +132,11 @@ def _gamma_conclusion(rows: list[dict[str, Any]]) -> tuple[list[str], list[float
         if acc and calm:
             both.append(r['value'])
         lines.append(
-            f'| {r["value"]:g} | {_fmt(r["centroid_rms"])} | '
-            f'{_fmt(r["hf_velocity_rms"])} | {_fmt(r["heading_rate"])} | '
-            f'{_fmt(acc)} | {_fmt(calm)} |'
+            f'| {r["value"]:g} | {fmt(r["centroid_rms"])} | '
+            f'{fmt(r["hf_velocity_rms"])} | {fmt(r["heading_rate"])} | '
+            f'{fmt(acc)} | {fmt(calm)} |'
         )
-    lines.append(f'| traditional (any gamma) | {_fmt(t_err)} | {_fmt(t_hf)} | {_fmt(t_hr)} | | |')
+    lines.append(f'| traditional (any gamma) | {fmt(t_err)} | {fmt(t_hf)} | {fmt(t_hr)} | | |')
     return lines, both
 
 
@@ -260,25 +246,23 @@ def reproduce(
     tri_s = everything.get('triangle', {}).get('summaries', {})
     report += ['## Conclusion', '']
     if tri_s:
-        p, t = tri_s['proposed'], tri_s['traditional']
+        p, t = measures(tri_s['proposed']), measures(tri_s['traditional'])
         calmer = (
-            p['chattering']['hf_velocity_rms'] < t['chattering']['hf_velocity_rms']
-            and p['chattering']['heading_rate'] < t['chattering']['heading_rate']
+            p['hf_velocity_rms'] < t['hf_velocity_rms'] and p['heading_rate'] < t['heading_rate']
         )
-        closer = p['centroid_error']['rms_steady'] < t['centroid_error']['rms_steady']
+        closer = p['centroid_rms'] < t['centroid_rms']
         report.append(
             f"- **Less chattering** (the paper's claim about rotation buffeting): "
             f'{"holds" if calmer else "does not hold"} with the `triangle` preset '
-            f'(gamma = {tri.gamma:g}): HF velocity RMS {_fmt(p["chattering"]["hf_velocity_rms"])} '
-            f'vs {_fmt(t["chattering"]["hf_velocity_rms"])} m/s, heading rate '
-            f'{_fmt(p["chattering"]["heading_rate"])} vs {_fmt(t["chattering"]["heading_rate"])} '
+            f'(gamma = {tri.gamma:g}): HF velocity RMS {fmt(p["hf_velocity_rms"])} '
+            f'vs {fmt(t["hf_velocity_rms"])} m/s, heading rate '
+            f'{fmt(p["heading_rate"])} vs {fmt(t["heading_rate"])} '
             'rad/s (proposed vs traditional).'
         )
         report.append(
             f"- **Higher tracking accuracy** (Figure 7's claim): "
             f'{"holds" if closer else "does not hold"} at gamma = {tri.gamma:g}: steady centroid '
-            f'error {_fmt(p["centroid_error"]["rms_steady"])} vs '
-            f'{_fmt(t["centroid_error"]["rms_steady"])} m. '
+            f'error {fmt(p["centroid_rms"])} vs {fmt(t["centroid_rms"])} m. '
             + (
                 f'Both claims hold together for gamma in {{{", ".join(f"{g:g}" for g in both)}}} '
                 'of the values swept.'
@@ -289,12 +273,12 @@ def reproduce(
         )
     pap = everything.get('paper', {}).get('summaries', {})
     if pap:
-        p = pap['proposed']
+        p = measures(pap['proposed'])
         report.append(
             f"- **The paper's literal numbers** (b = 0.6 < a = 1, beta = 2 < v_N = 10): no "
-            f'formation forms (mean pair distance {_fmt(p["formation"]["pair_distance_mean"])} m, '
+            f'formation forms (mean pair distance {fmt(p["pair_distance_mean"])} m, '
             'the trackers collapse onto each other) and the target outruns them (steady centroid '
-            f'error {_fmt(p["centroid_error"]["rms_steady"])} m). With the target outside reach, '
+            f'error {fmt(p["centroid_rms"])} m). With the target outside reach, '
             'the gradient never enters the boundary layer, so both laws coincide.'
         )
     report.append('')

@@ -12,7 +12,7 @@ import numpy as np
 from .errors import BagError
 from .info import open_bag
 from .read import messages
-from .types import _one_line
+from .types import one_line
 
 
 def flatten(msg: Any, prefix: str = '') -> dict[str, Any]:
@@ -61,7 +61,7 @@ def export_csv(path: Path | str, topic: str, out: TextIO, *, quiet: bool = True)
             msg = reader.deserialize(raw, conn.msgtype)
         except Exception as exc:
             raise BagError(
-                f"{topic}: cannot decode type {t.type} ({_one_line(exc)}); the bag's "
+                f"{topic}: cannot decode type {t.type} ({one_line(exc)}); the bag's "
                 'definition of it is missing or wrong'
             ) from None
         rows.append({'timestamp_ns': ts, **flatten(msg)})

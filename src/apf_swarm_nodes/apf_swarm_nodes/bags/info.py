@@ -3,6 +3,7 @@ every message), and the checks that name a broken bag."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from collections import defaultdict
@@ -14,7 +15,7 @@ from typing import Any
 import yaml
 
 from .errors import BagError
-from .types import _FILE_RE, CUSTOM_RECORDER, _one_line
+from .types import CUSTOM_RECORDER, FILE_RE, one_line
 
 
 @dataclass
@@ -76,18 +77,17 @@ def bag_files(path: Path) -> list[Path]:
     """The MCAP files of a bag directory, in split order."""
 
     def key(p: Path) -> tuple[str, int]:
-        m = _FILE_RE.match(p.name)
+        m = FILE_RE.match(p.name)
         return (m.group('stem'), int(m.group('index') or -1)) if m else (p.name, -1)
 
     return sorted((p for p in path.glob('*.mcap') if p.is_file()), key=key)
 
 
-def _reindex_hint(path: Path) -> str:
+def reindex_hint(path: Path) -> str:
     return f'run `apf-swarm bag reindex {path}` to rebuild it from the MCAP files'
 
 
 def _check_bag_dir(path: Path) -> Path:
-    path = Path(path)
     if not path.exists():
         raise BagError(
             f'{path}: no such file or directory; pass a bag directory (one with metadata.yaml)'
@@ -104,13 +104,13 @@ def _check_bag_dir(path: Path) -> Path:
         if bag_files(path):
             raise BagError(
                 f'{path}: metadata.yaml is missing (the recorder did not close the '
-                f'bag?); {_reindex_hint(path)}'
+                f'bag?); {reindex_hint(path)}'
             )
         raise BagError(f'{path} is not a bag: no metadata.yaml and no .mcap file in it')
     return path
 
 
-def _read_metadata(path: Path) -> dict[str, Any]:
+def read_metadata(path: Path) -> dict[str, Any]:
     meta = path / 'metadata.yaml'
     try:
         doc = yaml.safe_load(meta.read_text())
@@ -119,7 +119,7 @@ def _read_metadata(path: Path) -> dict[str, Any]:
             raise KeyError('relative_file_paths')
     except (yaml.YAMLError, KeyError, TypeError, UnicodeDecodeError) as exc:
         raise BagError(
-            f'{meta} is not rosbag2 metadata ({_one_line(exc)}); {_reindex_hint(path)}'
+            f'{meta} is not rosbag2 metadata ({one_line(exc)}); {reindex_hint(path)}'
         ) from None
     return info
 
@@ -134,12 +134,12 @@ def _mcap_summary(file: Path) -> Any:
             summary = make_reader(f).get_summary()
     except Exception as exc:  # mcap raises McapError, EndOfFile, struct.error, ValueError...
         raise BagError(
-            f'{file}: truncated or corrupt MCAP file ({_one_line(exc)}); '
-            f'{_reindex_hint(bag)} (it keeps every complete chunk)'
+            f'{file}: truncated or corrupt MCAP file ({one_line(exc)}); '
+            f'{reindex_hint(bag)} (it keeps every complete chunk)'
         ) from None
     if summary is None or summary.statistics is None:
         raise BagError(
-            f'{file}: the MCAP file has no summary section (not closed?); {_reindex_hint(bag)}'
+            f'{file}: the MCAP file has no summary section (not closed?); {reindex_hint(bag)}'
         )
     return summary
 
@@ -151,7 +151,7 @@ def open_bag(path: Path | str) -> BagInfo:
     so the time does not grow with the number of messages beyond the chunk index.
     """
     path = _check_bag_dir(Path(path))
-    meta = _read_metadata(path)
+    meta = read_metadata(path)
     storage = str(meta.get('storage_identifier', ''))
     if storage != 'mcap':
         raise BagError(
@@ -164,7 +164,7 @@ def open_bag(path: Path | str) -> BagInfo:
         file = path / rel
         if not file.is_file():
             raise BagError(
-                f'{path}: {rel} is listed in metadata.yaml but missing; {_reindex_hint(path)}'
+                f'{path}: {rel} is listed in metadata.yaml but missing; {reindex_hint(path)}'
             )
         s = _mcap_summary(file)
         st = s.statistics
@@ -319,14 +319,11 @@ def format_info(info: BagInfo) -> str:
         lines.append(
             f'  {t.name:{w}s}  {t.type:{wt}s}  {t.count:9d}  {freq}  {_qos_short(t.offered_qos)}'
         )
-    rec = info.custom_data.get(CUSTOM_RECORDER)
-    if rec:
-        try:
-            r = json.loads(rec)
+    with contextlib.suppress(ValueError):
+        r = json.loads(info.custom_data.get(CUSTOM_RECORDER) or 'null') or {}
+        if r:
             lines.append(
                 f'Recorder:     received {r.get("received")}, written '
                 f'{r.get("written")}, dropped {r.get("dropped")}'
             )
-        except ValueError:
-            pass
     return '\n'.join(lines)

@@ -11,8 +11,8 @@ from typing import Any
 
 from ..topics import SWARM_STATE
 from .errors import BagError
-from .info import BagInfo, _reindex_hint, open_bag
-from .types import CUSTOM_CONFIG, CUSTOM_MODE, SWARM_STATE_TYPE, _one_line, typestore
+from .info import BagInfo, open_bag, reindex_hint
+from .types import CUSTOM_CONFIG, CUSTOM_MODE, SWARM_STATE_TYPE, one_line, typestore
 
 
 @contextlib.contextmanager
@@ -22,8 +22,8 @@ def _damaged(path: Path, what: str) -> Iterator[None]:
         yield
     except Exception as exc:
         raise BagError(
-            f'{path}: cannot read {what}, the file is damaged ({_one_line(exc)}); '
-            f'{_reindex_hint(path)}'
+            f'{path}: cannot read {what}, the file is damaged ({one_line(exc)}); '
+            f'{reindex_hint(path)}'
         ) from None
 
 
@@ -45,7 +45,7 @@ def messages(
     except Exception as exc:
         raise BagError(
             f'{info.path}: cannot load the type definitions stored in the bag '
-            f'({_one_line(exc)}); it was not written with full, valid ros2msg definitions'
+            f'({one_line(exc)}); it was not written with full, valid ros2msg definitions'
         ) from None
 
     def read() -> Iterator[tuple[Any, Any, int, bytes]]:
@@ -99,28 +99,22 @@ def swarm_state_decoder() -> Callable[[bytes], Any]:
     return partial(typestore().deserialize_cdr, typename=SWARM_STATE_TYPE)
 
 
-def swarm_state_accumulator(info: BagInfo, cfg: Any, mode: str, *, quiet: bool = True) -> Any:
-    """Every ``/swarm/state`` message of the bag through the bring-up's StateAccumulator
-    (the live run's raw-bytes path and conversion; the CDR decoded by rosbags, so that the
-    bag tools need no rclpy). ``quiet=False``: a progress bar on stderr."""
+def bag_trajectory(
+    path: Path | str, config: Path | None = None, *, quiet: bool = True
+) -> tuple[dict[str, Any], Any, str, Any]:
+    """``(trajectory, cfg, mode, accumulator)`` of a bag's ``/swarm/state``: every message
+    through the bring-up's StateAccumulator (the CDR decoded by rosbags, so that the bag tools
+    need no rclpy). ``quiet=False``: a progress bar on stderr."""
     from ..analysis.samples import StateAccumulator
     from ..progress import progress_iter
 
+    info = open_bag(path)
+    cfg, mode = bag_config(info, config)
     count = info.topic(SWARM_STATE).count
     acc = StateAccumulator(mode, cfg.steps, cfg.record_every, swarm_state_decoder())
     messages = iter_raw(info.path, [SWARM_STATE], info=info)
     for _topic, _type, _ts, raw in progress_iter(messages, SWARM_STATE, total=count, quiet=quiet):
         acc.add_raw(raw)
-    return acc
-
-
-def bag_trajectory(
-    path: Path | str, config: Path | None = None, *, quiet: bool = True
-) -> tuple[dict[str, Any], Any, str, Any]:
-    """``(trajectory, cfg, mode, accumulator)`` of a bag's ``/swarm/state``."""
-    info = open_bag(path)
-    cfg, mode = bag_config(info, config)
-    acc = swarm_state_accumulator(info, cfg, mode, quiet=quiet)
     traj = acc.trajectory()
     if traj is None:
         raise BagError(f'{info.path}: /swarm/state has no message; nothing to compute')

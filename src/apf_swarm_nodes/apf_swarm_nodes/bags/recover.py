@@ -14,9 +14,9 @@ from typing import Any, TextIO
 import yaml
 
 from .errors import BagError
-from .info import _read_metadata, bag_files
-from .types import DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME, ROS_DISTRO, _one_line
-from .write import build_metadata, mcap_writer, write_metadata
+from .info import bag_files, read_metadata
+from .types import DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME, ROS_DISTRO, one_line
+from .write import FileStats, build_metadata, mcap_writer, topic_entry, write_metadata
 
 
 @dataclass
@@ -55,7 +55,7 @@ def _scan_mcap(file: Path) -> _Recovered:
                         out.metadata.update(r.metadata)
             out.complete = True
         except Exception as exc:  # the truncated tail: EndOfFile, struct.error, zstd errors
-            out.error = _one_line(exc)
+            out.error = one_line(exc)
     return out
 
 
@@ -119,16 +119,14 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
     old_meta: dict[str, Any] = {}
     if meta_file.is_file():
         with contextlib.suppress(BagError):
-            old_meta = _read_metadata(path)
-    old_hash = {
-        e.get('topic_metadata', {}).get('name'): e.get('topic_metadata', {}).get(
-            'type_description_hash', ''
-        )
-        for e in (old_meta.get('topics_with_message_count') or [])
-    }
+            old_meta = read_metadata(path)
+    old_topics = [
+        e.get('topic_metadata', {}) for e in old_meta.get('topics_with_message_count') or []
+    ]
+    old_hash = {tm.get('name'): tm.get('type_description_hash', '') for tm in old_topics}
     backup = path / f'reindex-backup-{time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())}'
     report: dict[str, Any] = {'path': str(path), 'files': [], 'backup': None}
-    file_stats: list[dict[str, Any]] = []
+    file_stats: list[FileStats] = []
     topics: dict[str, dict[str, Any]] = {}
     custom = {str(k): str(v) for k, v in (old_meta.get('custom_data') or {}).items()}
     for file in files:
@@ -157,14 +155,7 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
         for k, v in rec.metadata.items():
             custom.setdefault(k, v)
         ts = [m.log_time for m in rec.messages]
-        file_stats.append(
-            {
-                'path': file.name,
-                'starting_time': {'nanoseconds_since_epoch': min(ts, default=0)},
-                'duration': {'nanoseconds': (max(ts) - min(ts)) if ts else 0},
-                'message_count': len(ts),
-            }
-        )
+        file_stats.append(FileStats(file.name, 0, min(ts, default=0), max(ts, default=0), len(ts)))
         report['files'].append(
             {'path': file.name, 'action': action, 'messages': len(ts), 'error': rec.error}
         )
@@ -172,20 +163,10 @@ def reindex(path: Path | str, *, stream: TextIO | None = None) -> dict[str, Any]
         for cid, ch in sorted(rec.channels.items()):
             schema = rec.schemas.get(ch.schema_id)
             qos = yaml.safe_load(ch.metadata.get('offered_qos_profiles', '') or '[]') or []
+            rihs01 = old_hash.get(ch.topic) or (_hash_of(schema) if schema else '')
+            msgtype = schema.name if schema else ''
             t = topics.setdefault(
-                ch.topic,
-                {
-                    'topic_metadata': {
-                        'name': ch.topic,
-                        'type': schema.name if schema else '',
-                        'serialization_format': ch.message_encoding,
-                        'offered_qos_profiles': qos,
-                        'type_description_hash': (
-                            old_hash.get(ch.topic) or (_hash_of(schema) if schema else '')
-                        ),
-                    },
-                    'message_count': 0,
-                },
+                ch.topic, topic_entry(ch.topic, msgtype, qos, rihs01, 0, ch.message_encoding)
             )
             t['message_count'] += per_channel[cid]
     custom['apf_swarm.reindexed'] = time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())

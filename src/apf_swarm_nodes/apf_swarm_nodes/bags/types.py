@@ -25,7 +25,7 @@ CUSTOM_MODE = 'apf_swarm.mode'  # lockstep | realtime
 MCAP_METADATA_NAME = 'apf_swarm'
 DEFAULT_CHUNK_SIZE = 1 << 20
 SWARM_STATE_TYPE = 'apf_swarm_msgs/msg/SwarmState'
-_FILE_RE = re.compile(r'^(?P<stem>.*?)(?:_(?P<index>\d+))?\.mcap$')
+FILE_RE = re.compile(r'^(?P<stem>.*?)(?:_(?P<index>\d+))?\.mcap$')
 
 
 def _msg_search_dirs() -> list[Path]:
@@ -83,19 +83,19 @@ def type_definition(msgtype: str) -> tuple[str, str]:
     except Exception as exc:  # rosbags raises TypesysError / KeyError for missing dependencies
         raise BagError(
             f'message type {msgtype} is unknown: it is not a ROS 2 Jazzy type and no '
-            f'{msgtype}.msg is in the ament index ({_one_line(exc)}); build and '
+            f'{msgtype}.msg is in the ament index ({one_line(exc)}); build and '
             'source the package that defines it'
         ) from None
 
 
-def _qos_text(qos: Sequence[Any]) -> str:
+def qos_text(qos: Sequence[Any]) -> str:
     """offered_qos_profiles as the YAML string stored in an MCAP channel (as rosbags does)."""
     from rosbags.rosbag2.metadata import dump_qos_v9
 
     return yaml.safe_dump(dump_qos_v9(list(qos)), default_flow_style=False).strip()
 
 
-def _one_line(exc: BaseException) -> str:
+def one_line(exc: BaseException) -> str:
     """``Type: message`` of an exception on one line (parsers report over several)."""
     text = ' '.join(str(exc).split())
     if len(text) > 300:

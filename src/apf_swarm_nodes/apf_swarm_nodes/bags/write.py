@@ -17,7 +17,7 @@ from .types import (
     DEFAULT_CHUNK_SIZE,
     MCAP_METADATA_NAME,
     ROS_DISTRO,
-    _qos_text,
+    qos_text,
     type_definition,
 )
 
@@ -37,7 +37,9 @@ class Topic:
 
 
 @dataclass
-class _FileStats:
+class FileStats:
+    """One MCAP file of a bag being written (or rebuilt), as metadata.yaml describes it."""
+
     path: str
     first: int = 0  # the first message's timestamp (split_duration counts from it)
     start: int = 2**63 - 1
@@ -65,33 +67,46 @@ def mcap_writer(file: IO[bytes], compress: bool, chunk_size: int, library: str) 
     return writer
 
 
+def topic_entry(
+    name: str, msgtype: str, qos: list[Any], rihs01: str, count: int, fmt: str = 'cdr'
+) -> dict[str, Any]:
+    """A ``topics_with_message_count`` entry of metadata.yaml (``qos``: as metadata.yaml
+    writes it)."""
+    return {
+        'topic_metadata': {
+            'name': name,
+            'type': msgtype,
+            'serialization_format': fmt,
+            'offered_qos_profiles': qos,
+            'type_description_hash': rihs01,
+        },
+        'message_count': count,
+    }
+
+
 def build_metadata(
-    files: Sequence[Mapping[str, Any]],
+    files: Sequence[FileStats],
     topics: Sequence[Mapping[str, Any]],
     custom_data: Mapping[str, str],
     ros_distro: str = ROS_DISTRO,
 ) -> dict[str, Any]:
     """The ``rosbag2_bagfile_information`` document (version 9) of a bag from its ``files``
-    (as :meth:`_FileStats.as_dict`) and ``topics`` (``topics_with_message_count`` entries)."""
-    spans = [
-        (f['starting_time']['nanoseconds_since_epoch'], f['duration']['nanoseconds'])
-        for f in files
-        if f['message_count']
-    ]
-    start = min((s for s, _ in spans), default=0)
-    end = max((s + d for s, d in spans), default=0)
+    and ``topics`` (``topics_with_message_count`` entries)."""
+    used = [f for f in files if f.count]
+    start = min((f.start for f in used), default=0)
+    end = max((f.end for f in used), default=0)
     return {
         'rosbag2_bagfile_information': {
             'version': BAG_VERSION,
             'storage_identifier': 'mcap',
-            'relative_file_paths': [f['path'] for f in files],
+            'relative_file_paths': [f.path for f in files],
             'duration': {'nanoseconds': max(0, end - start)},
             'starting_time': {'nanoseconds_since_epoch': start},
-            'message_count': sum(int(f['message_count']) for f in files),
+            'message_count': sum(f.count for f in files),
             'topics_with_message_count': list(topics),
             'compression_format': '',
             'compression_mode': '',
-            'files': [dict(f) for f in files],
+            'files': [f.as_dict() for f in files],
             'custom_data': dict(custom_data) or None,
             'ros_distro': ros_distro,
         }
@@ -151,7 +166,7 @@ class BagWriter:
         self.split_ns = int(round(split_duration * 1e9))
         self.topics: list[Topic] = []
         self.custom_data: dict[str, str] = {}
-        self.files: list[_FileStats] = []
+        self.files: list[FileStats] = []
         self._early: dict[str, str] = {}  # custom_data also in an MCAP metadata record
         self._file: IO[bytes] | None = None
         self._writer: Any = None
@@ -171,7 +186,7 @@ class BagWriter:
 
     def _new_file(self) -> None:
         name = f'{self.path.name}_{len(self.files)}.mcap'
-        self.files.append(_FileStats(name))
+        self.files.append(FileStats(name))
         self._file = (self.path / name).open('xb')
         self._writer = mcap_writer(self._file, self.compress, self.chunk_size, 'apf_swarm (mcap)')
         self._schemas = {}
@@ -187,7 +202,7 @@ class BagWriter:
             sid = self._schemas[t.msgtype] = self._writer.register_schema(
                 t.msgtype, 'ros2msg', t.msgdef.encode()
             )
-        meta = {'offered_qos_profiles': _qos_text(t.offered_qos)}
+        meta = {'offered_qos_profiles': qos_text(t.offered_qos)}
         t.channel = self._writer.register_channel(t.topic, 'cdr', sid, meta)
 
     def set_custom_data(self, key: str, value: str, *, early: bool = False) -> None:
@@ -277,19 +292,10 @@ class BagWriter:
         from rosbags.rosbag2.metadata import dump_qos_v9
 
         topics = [
-            {
-                'topic_metadata': {
-                    'name': t.topic,
-                    'type': t.msgtype,
-                    'serialization_format': 'cdr',
-                    'offered_qos_profiles': dump_qos_v9(t.offered_qos),
-                    'type_description_hash': t.rihs01,
-                },
-                'message_count': t.count,
-            }
+            topic_entry(t.topic, t.msgtype, dump_qos_v9(t.offered_qos), t.rihs01, t.count)
             for t in self.topics
         ]
-        return build_metadata([f.as_dict() for f in self.files], topics, self.custom_data)
+        return build_metadata(self.files, topics, self.custom_data)
 
     def close(self) -> None:
         """Write the MCAP summary and metadata.yaml (again: nothing)."""

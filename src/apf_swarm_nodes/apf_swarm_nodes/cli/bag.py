@@ -92,13 +92,12 @@ def cmd_bag_export(args: argparse.Namespace) -> int:
     if args.csv.exists() and not args.force:
         raise ApfSwarmError(f'{args.csv} exists; choose another file or pass --force')
     tmp = args.csv.with_name(args.csv.name + '.tmp')
-    with open(tmp, 'w', newline='') as fh:
-        try:
+    try:
+        with open(tmp, 'w', newline='') as fh:
             n = export_csv(args.bag, args.topic, fh, quiet=args.quiet)
-        except BaseException:
-            fh.close()
-            tmp.unlink(missing_ok=True)
-            raise
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     tmp.replace(args.csv)
     print(f'wrote {n} rows of {args.topic} to {args.csv}', file=sys.stderr)
     return 0
@@ -119,9 +118,6 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
 
     for t in args.topics or [t.name for t in info.topics]:
         msg_class(info.topic(t).type)  # a type that is not installed: one line, exit 2
-    for rule in args.remap:
-        if ':=' not in rule:
-            raise ApfSwarmError(f'--remap {rule!r}: expected FROM:=TO')
     params = {
         'bag': info.path.resolve(),
         'rate': repr(args.rate),
@@ -135,12 +131,14 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
     for name, value in params.items():
         ros += ['-p', f'{name}:={value}'] if value is not None else []
     for rule in args.remap:
+        if ':=' not in rule:
+            raise ApfSwarmError(f'--remap {rule!r}: expected FROM:=TO')
         ros += ['-r', rule]
     from ..node_common import run_node
-    from ..player_node import PlayerNode, _run
+    from ..player_node import PlayerNode, run_player
 
     if args.view is None:
-        return run_node(PROG, PlayerNode, [PROG, *ros], run=_run)
+        return run_node(PROG, PlayerNode, [PROG, *ros], run=run_player)
     from ..view.bag import live_view_of_bag
 
     view, observe = live_view_of_bag(info, host=args.view_host, port=args.view, config=args.config)
@@ -152,7 +150,7 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
         return node
 
     try:
-        return run_node(PROG, player, [PROG, *ros], run=_run)
+        return run_node(PROG, player, [PROG, *ros], run=run_player)
     finally:
         view.close()
 
@@ -167,47 +165,49 @@ def _add_bag_parser(sub: Any) -> None:
     )
     bsub = p.add_subparsers(dest='bag_command', required=True, metavar='BAG_COMMAND')
 
-    q = bsub.add_parser(
+    def command(name: str, func: Any, help: str) -> argparse.ArgumentParser:
+        q: argparse.ArgumentParser = bsub.add_parser(name, help=help)
+        q.add_argument('bag', type=Path, metavar='BAG')
+        q.set_defaults(func=func)
+        return q
+
+    def config(q: argparse.ArgumentParser, help: str | None = None) -> None:
+        q.add_argument('--config', type=Path, metavar='FILE', help=help)
+
+    def quiet(q: argparse.ArgumentParser) -> None:
+        q.add_argument('--quiet', action='store_true', help='no progress bar')
+
+    q = command(
         'info',
-        help='storage, duration, size, counts; per topic type, count, '
+        cmd_bag_info,
+        'storage, duration, size, counts; per topic type, count, '
         'frequency, QoS (from the summaries, fast on big bags)',
     )
-    q.add_argument('bag', type=Path, metavar='BAG')
     q.add_argument('--json', action='store_true')
-    q.set_defaults(func=cmd_bag_info)
 
-    q = bsub.add_parser('metrics', help="the run's summary.json computed from /swarm/state")
-    q.add_argument('bag', type=Path, metavar='BAG')
-    q.add_argument(
-        '--config',
-        type=Path,
-        metavar='FILE',
-        help='parameter file of the run (default: the one stored in the bag)',
-    )
+    q = command('metrics', cmd_bag_metrics, "the run's summary.json computed from /swarm/state")
+    config(q, 'parameter file of the run (default: the one stored in the bag)')
     q.add_argument('--json', action='store_true')
-    q.add_argument('--quiet', action='store_true', help='no progress bar')
-    q.set_defaults(func=cmd_bag_metrics)
+    quiet(q)
 
-    q = bsub.add_parser('plot', help='the figures of `apf-swarm reproduce` from /swarm/state')
-    q.add_argument('bag', type=Path, metavar='BAG')
+    q = command('plot', cmd_bag_plot, 'the figures of `apf-swarm reproduce` from /swarm/state')
     q.add_argument('--out', type=Path, required=True, metavar='DIR')
-    q.add_argument('--config', type=Path, metavar='FILE')
-    q.add_argument('--quiet', action='store_true', help='no progress bar')
-    q.set_defaults(func=cmd_bag_plot)
+    config(q)
+    quiet(q)
 
-    q = bsub.add_parser('animate', help='an animation of the run (.gif or .mp4) from /swarm/state')
-    q.add_argument('bag', type=Path, metavar='BAG')
-    q.add_argument('--out', type=Path, required=True, metavar='FILE')
-    q.add_argument('--config', type=Path, metavar='FILE')
-    add_animation_args(q)
-    q.add_argument('--quiet', action='store_true', help='no progress bar')
-    q.set_defaults(func=cmd_bag_animate)
-
-    q = bsub.add_parser(
-        'view',
-        help='serve the run to the Foxglove app (WebSocket) as a live run is served, no ROS graph',
+    q = command(
+        'animate', cmd_bag_animate, 'an animation of the run (.gif or .mp4) from /swarm/state'
     )
-    q.add_argument('bag', type=Path, metavar='BAG')
+    q.add_argument('--out', type=Path, required=True, metavar='FILE')
+    config(q)
+    add_animation_args(q)
+    quiet(q)
+
+    q = command(
+        'view',
+        cmd_bag_view,
+        'serve the run to the Foxglove app (WebSocket) as a live run is served, no ROS graph',
+    )
     add_view_args(q, flag='--port', default=DEFAULT_PORT)
     q.add_argument('--rate', type=positive_float, default=1.0, metavar='R', help='speed (1)')
     q.add_argument('--loop', action='store_true', help='play again until Ctrl-C')
@@ -218,27 +218,22 @@ def _add_bag_parser(sub: Any) -> None:
         metavar='S',
         help='give up when no client subscribed within S seconds (default: wait)',
     )
-    q.add_argument('--config', type=Path, metavar='FILE')
-    q.set_defaults(func=cmd_bag_view)
+    config(q)
 
-    q = bsub.add_parser('export', help='flattened fields of one topic as CSV')
-    q.add_argument('bag', type=Path, metavar='BAG')
+    q = command('export', cmd_bag_export, 'flattened fields of one topic as CSV')
     q.add_argument('--topic', required=True, metavar='T')
     q.add_argument('--csv', type=Path, metavar='FILE', help='output file (default: stdout)')
     q.add_argument('--force', action='store_true', help='overwrite FILE')
-    q.add_argument('--quiet', action='store_true', help='no progress bar')
-    q.set_defaults(func=cmd_bag_export)
+    quiet(q)
 
-    q = bsub.add_parser(
+    command(
         'reindex',
-        help='rebuild metadata.yaml (and truncated MCAP files) from '
+        cmd_bag_reindex,
+        'rebuild metadata.yaml (and truncated MCAP files) from '
         'the MCAP files; keeps a backup of what it replaces',
     )
-    q.add_argument('bag', type=Path, metavar='BAG')
-    q.set_defaults(func=cmd_bag_reindex)
 
-    q = bsub.add_parser('play', help='republish the bag with its recorded timing (ROS graph)')
-    q.add_argument('bag', type=Path, metavar='BAG')
+    q = command('play', cmd_bag_play, 'republish the bag with its recorded timing (ROS graph)')
     q.add_argument('--rate', type=positive_float, default=1.0, metavar='R')
     q.add_argument('--loop', action='store_true')
     q.add_argument('--start-offset', type=nonneg_float, default=0.0, metavar='S')
@@ -256,8 +251,5 @@ def _add_bag_parser(sub: Any) -> None:
     q.add_argument(
         '--wait-for', nargs='+', metavar='T', help='start only when these topics have a subscriber'
     )
-    q.add_argument(
-        '--config', type=Path, metavar='FILE', help="with --view: the run's parameter file"
-    )
+    config(q, "with --view: the run's parameter file")
     add_view_args(q)
-    q.set_defaults(func=cmd_bag_play)

@@ -8,6 +8,6 @@
 * :mod:`.bag` -- :func:`serve_bag`, a bag served without a ROS graph (``apf-swarm bag view``).
 """
 
-from .server import DEFAULT_PORT, VIEW_RATE, LiveView, foxglove_url
+from .server import DEFAULT_PORT, VIEW_RATE, LiveView
 
-__all__ = ['DEFAULT_PORT', 'VIEW_RATE', 'LiveView', 'foxglove_url']
+__all__ = ['DEFAULT_PORT', 'VIEW_RATE', 'LiveView']

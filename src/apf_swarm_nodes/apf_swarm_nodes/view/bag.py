@@ -12,26 +12,29 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.samples import RawSample
+from ..topics import SWARM_STATE
 from .errors import ViewError
 from .server import VIEW_RATE, LiveView
 
 __all__ = ['bag_samples', 'live_view_of_bag', 'serve_bag']
 
 
-def bag_samples(info: Any) -> list[tuple[int, RawSample]]:
-    """``(timestamp_ns, RawSample)`` of every ``/swarm/state`` message of a bag: the CDR
-    bytes, decoded by rosbags only when a frame shows them."""
-    from ..bags import iter_raw
+def _raw_sample() -> Callable[[bytes], RawSample]:
+    """``/swarm/state`` CDR bytes as a RawSample, decoded by rosbags only when shown."""
     from ..bags.read import swarm_state_decoder
     from ..conversions import swarm_state_step
-    from ..topics import SWARM_STATE
+
+    decode = swarm_state_decoder()
+    return lambda raw: RawSample(swarm_state_step(raw), raw, decode)
+
+
+def bag_samples(info: Any) -> list[tuple[int, RawSample]]:
+    """``(timestamp_ns, RawSample)`` of every ``/swarm/state`` message of a bag."""
+    from ..bags import iter_raw
 
     info.topic(SWARM_STATE)  # BagError naming the topic when the bag has none
-    decode = swarm_state_decoder()
-    return [
-        (ts, RawSample(swarm_state_step(raw), raw, decode))
-        for _topic, _type, ts, raw in iter_raw(info.path, [SWARM_STATE], info=info)
-    ]
+    sample = _raw_sample()
+    return [(ts, sample(raw)) for *_x, ts, raw in iter_raw(info.path, [SWARM_STATE], info=info)]
 
 
 def _designs(info: Any, config: Path | None, say: Callable[[str], None]) -> list[Any]:
@@ -55,18 +58,14 @@ def live_view_of_bag(
     """A live view of a bag being played and the observer to hand each played message to:
     it keeps the newest ``/swarm/state``, which the view shows (decoded only while a
     client watches)."""
-    from ..bags.read import swarm_state_decoder
-    from ..conversions import swarm_state_step
-    from ..topics import SWARM_STATE
-
     view = LiveView(host=host, port=port)
     view.builder.designs = _designs(info, config, lambda m: print(m, file=sys.stderr))
-    decode = swarm_state_decoder()
+    sample = _raw_sample()
     newest: list[RawSample | None] = [None]
 
     def observe(topic: str, raw: bytes) -> None:
         if topic == SWARM_STATE:
-            newest[0] = RawSample(swarm_state_step(raw), raw, decode)
+            newest[0] = sample(raw)
 
     view.follow(lambda: newest[0])
     return view, observe

@@ -1,12 +1,6 @@
-"""One ``/swarm/state`` sample as Foxglove messages: the 3-D scene, the target's frame and
-the time series (:class:`SceneBuilder`).
-
-The scene (``foxglove.SceneUpdate``, frame ``world``): a sphere per UAV coloured by its state
-(``analysis.style``), the target, the formation's edges coloured by their error against
-the nearest design minimum (:func:`apf_swarm_core.metrics.formation_edges`), a short trail
-per UAV and the world axes. The frame ``target`` (a ``foxglove.FrameTransform`` from
-``world``) lets the 3-D panel follow the target. The time series are one JSON message per
-frame (:meth:`SceneBuilder.metrics`).
+"""One ``/swarm/state`` sample as Foxglove messages (:class:`SceneBuilder`): the 3-D scene in
+frame ``world``, the frame ``target`` that follows the target, and the time series as JSON
+(what each shows: docs/USAGE.md, *Watching a run*).
 """
 
 from __future__ import annotations
@@ -97,143 +91,98 @@ class SceneBuilder:
         self._trails: dict[int, deque[tuple[float, NDArray[np.float64]]]] = {}
         self.last_states: list[str] = []
 
-    def _trail_points(self, t: float, uid: int, p: NDArray[np.float64]) -> list[Any]:
-        from foxglove.messages import Point3
-
+    def _trail(self, t: float, uid: int, p: NDArray[np.float64]) -> list[Any]:
         q = self._trails.setdefault(uid, deque())
         if q and t < q[-1][0]:
             q.clear()  # time went back: a looped bag or a new run
         q.append((t, p.copy()))
         while q and t - q[0][0] > self.trail:
             q.popleft()
-        return [Point3(x=float(a[0]), y=float(a[1]), z=float(a[2])) for _, a in q]
+        return [_point(a) for _, a in q]
 
     def scene(self, sample: Any, stamp_ns: int) -> Any:
         """A ``foxglove.SceneUpdate`` of the sample, stamped ``stamp_ns``."""
         from apf_swarm_core.metrics import formation_edges, nearest_design
         from foxglove.messages import (
             ArrowPrimitive,
-            Color,
             KeyValuePair,
             LinePrimitive,
             LinePrimitiveLineType,
-            Point3,
-            Pose,
-            Quaternion,
             SceneEntity,
             SceneUpdate,
             SpherePrimitive,
-            Timestamp,
             Vector3,
         )
 
-        ts = Timestamp(sec=stamp_ns // 1_000_000_000, nsec=stamp_ns % 1_000_000_000)
-        unit = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+        ts = _timestamp(stamp_ns)
+        origin = _pose((0.0, 0.0, 0.0))
 
-        def pose(p: Any, q: Any = unit) -> Any:
-            return Pose(
-                position=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])), orientation=q
-            )
+        def entity(id: str, **kw: Any) -> Any:
+            return SceneEntity(timestamp=ts, frame_id=WORLD, id=id, **kw)
 
-        def colour(c: tuple[float, float, float, float]) -> Any:
-            return Color(r=c[0], g=c[1], b=c[2], a=c[3])
+        def sphere(p: Any, d: float, rgba: tuple[float, float, float, float]) -> Any:
+            return SpherePrimitive(pose=_pose(p), size=Vector3(x=d, y=d, z=d), color=_colour(rgba))
+
+        def line(kind: Any, width: float, rgba: Any, points: list[Any]) -> Any:
+            c = _colour(rgba)
+            return LinePrimitive(type=kind, pose=origin, thickness=width, color=c, points=points)
 
         x = np.asarray(sample.x, dtype=float)
         t = float(sample.t)
         states = self.states.update(t, sample.uav_ids, sample.active, sample.command_latency)
         self.last_states = states
         entities = []
-        d = 2.0 * self.radius
         for j, uid in enumerate(sample.uav_ids):
             rgba = STATE_COLOURS[states[j]]
-            trail = self._trail_points(t, int(uid), x[j])
+            trail = self._trail(t, int(uid), x[j])
+            strip = LinePrimitiveLineType.LineStrip
             entities.append(
-                SceneEntity(
-                    timestamp=ts,
-                    frame_id=WORLD,
-                    id=f'uav_{uid}',
+                entity(
+                    f'uav_{uid}',
                     metadata=[
                         KeyValuePair(key='state', value=states[j]),
                         KeyValuePair(key='step', value=str(int(sample.step))),
                     ],
-                    spheres=[
-                        SpherePrimitive(
-                            pose=pose(x[j]), size=Vector3(x=d, y=d, z=d), color=colour(rgba)
-                        )
-                    ],
-                    lines=[
-                        LinePrimitive(
-                            type=LinePrimitiveLineType.LineStrip,
-                            pose=pose((0.0, 0.0, 0.0)),
-                            thickness=0.02,
-                            color=colour((*rgba[:3], 0.5)),
-                            points=trail,
-                        )
-                    ]
-                    if len(trail) > 1
-                    else [],
+                    spheres=[sphere(x[j], 2.0 * self.radius, rgba)],
+                    lines=[line(strip, 0.02, (*rgba[:3], 0.5), trail)] if len(trail) > 1 else [],
                 )
             )
-        td = 2.6 * self.radius
-        entities.append(
-            SceneEntity(
-                timestamp=ts,
-                frame_id=WORLD,
-                id='target',
-                spheres=[
-                    SpherePrimitive(
-                        pose=pose(sample.target_x),
-                        size=Vector3(x=td, y=td, z=td),
-                        color=colour(TARGET_COLOUR),
-                    )
-                ],
-            )
-        )
+        target = sphere(sample.target_x, 2.6 * self.radius, TARGET_COLOUR)
+        entities.append(entity('target', spheres=[target]))
         edges = []
         design = nearest_design(x[None], list(self.designs)) if self.designs else None
         if design is not None and len(design) == len(x) * (len(x) - 1) // 2:
             i, k, dist, err = formation_edges(x, design)
             for a, b, dd, e in zip(i, k, dist, err, strict=True):
-                edges.append(
-                    LinePrimitive(
-                        type=LinePrimitiveLineType.LineList,
-                        pose=pose((0.0, 0.0, 0.0)),
-                        thickness=0.03,
-                        color=colour(edge_colour(float(e / dd))),
-                        points=[
-                            Point3(x=float(x[a, 0]), y=float(x[a, 1]), z=float(x[a, 2])),
-                            Point3(x=float(x[b, 0]), y=float(x[b, 1]), z=float(x[b, 2])),
-                        ],
-                    )
-                )
-        entities.append(SceneEntity(timestamp=ts, frame_id=WORLD, id='formation', lines=edges))
-        axes = []
-        for axis, (r, g, b) in zip(np.eye(3), ((1, 0, 0), (0, 1, 0), (0, 0, 1)), strict=True):
-            axes.append(
-                ArrowPrimitive(
-                    pose=pose((0.0, 0.0, 0.0), _rotation_to(axis)),
-                    shaft_length=0.8,
-                    shaft_diameter=0.04,
-                    head_length=0.2,
-                    head_diameter=0.1,
-                    color=Color(r=r, g=g, b=b, a=1.0),
-                )
+                rgba = edge_colour(float(e / dd))
+                pair = [_point(x[a]), _point(x[b])]
+                edges.append(line(LinePrimitiveLineType.LineList, 0.03, rgba, pair))
+        entities.append(entity('formation', lines=edges))
+        axes = [
+            ArrowPrimitive(
+                pose=_pose((0.0, 0.0, 0.0), _rotation_to(axis)),
+                shaft_length=0.8,
+                shaft_diameter=0.04,
+                head_length=0.2,
+                head_diameter=0.1,
+                color=_colour((*rgb, 1.0)),
             )
-        entities.append(SceneEntity(timestamp=ts, frame_id=WORLD, id='world_axes', arrows=axes))
+            for axis, rgb in zip(np.eye(3), ((1, 0, 0), (0, 1, 0), (0, 0, 1)), strict=True)
+        ]
+        entities.append(entity('world_axes', arrows=axes))
         return SceneUpdate(entities=entities)
 
     @staticmethod
     def target_frame(sample: Any, stamp_ns: int) -> Any:
         """``foxglove.FrameTransform`` world -> target (the target's position)."""
-        from foxglove.messages import FrameTransform, Quaternion, Timestamp, Vector3
+        from foxglove.messages import FrameTransform
 
-        p = np.asarray(sample.target_x, dtype=float)
         return FrameTransform(
-            timestamp=Timestamp(sec=stamp_ns // 1_000_000_000, nsec=stamp_ns % 1_000_000_000),
+            timestamp=_timestamp(stamp_ns),
             parent_frame_id=WORLD,
             child_frame_id=TARGET_FRAME,
-            translation=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-            rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+            translation=_vector(sample.target_x),
+            rotation=_unrotated(),
         )
 
     def metrics(self, sample: Any) -> dict[str, Any]:
@@ -259,6 +208,43 @@ def _finite(v: float) -> float | None:
     return v if np.isfinite(v) else None
 
 
+def _timestamp(ns: int) -> Any:
+    from foxglove.messages import Timestamp
+
+    return Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
+
+
+def _point(p: Any) -> Any:
+    from foxglove.messages import Point3
+
+    return Point3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
+def _vector(p: Any) -> Any:
+    from foxglove.messages import Vector3
+
+    return Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
+def _unrotated() -> Any:
+    from foxglove.messages import Quaternion
+
+    return Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+
+
+def _pose(p: Any, rotation: Any = None) -> Any:
+    """The pose at position ``p``, turned by ``rotation`` (None: not at all)."""
+    from foxglove.messages import Pose
+
+    return Pose(position=_vector(p), orientation=_unrotated() if rotation is None else rotation)
+
+
+def _colour(c: Sequence[float]) -> Any:
+    from foxglove.messages import Color
+
+    return Color(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3]))
+
+
 def _rotation_to(axis: NDArray[np.float64]) -> Any:
     """The quaternion turning +x onto ``axis`` (one of the unit axes)."""
     from foxglove.messages import Quaternion
@@ -268,4 +254,4 @@ def _rotation_to(axis: NDArray[np.float64]) -> Any:
         return Quaternion(x=0.0, y=0.0, z=s, w=s)  # +90 deg about z
     if axis[2] > 0:
         return Quaternion(x=0.0, y=-s, z=0.0, w=s)  # -90 deg about y
-    return Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+    return _unrotated()

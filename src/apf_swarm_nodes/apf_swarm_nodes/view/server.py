@@ -23,17 +23,12 @@ from ..topics import FOXGLOVE_FRAMES, FOXGLOVE_METRICS, FOXGLOVE_SCENE
 from .errors import ViewError
 from .scene import SceneBuilder
 
-__all__ = ['DEFAULT_PORT', 'VIEW_RATE', 'LiveView', 'foxglove_url']
+__all__ = ['DEFAULT_PORT', 'VIEW_RATE', 'LiveView']
 
 #: the Foxglove app's default WebSocket port
 DEFAULT_PORT = 8765
 #: frames per second the view sends at most
 VIEW_RATE = 20.0
-
-
-def foxglove_url(host: str, port: int) -> str:
-    """The address to open in the Foxglove app (Open connection, Foxglove WebSocket)."""
-    return f'ws://{host}:{port}'
 
 
 class LiveView:
@@ -76,13 +71,12 @@ class LiveView:
 
     @property
     def url(self) -> str:
-        return foxglove_url(self.host, self.port)
+        """The address to open in the Foxglove app (Open connection, Foxglove WebSocket)."""
+        return f'ws://{self.host}:{self.port}'
 
     def watched(self) -> bool:
         """A client subscribes to one of the view's channels."""
-        return (
-            self.scene_ch.has_sinks() or self.frames_ch.has_sinks() or self.metrics_ch.has_sinks()
-        )
+        return any(ch.has_sinks() for ch in (self.scene_ch, self.frames_ch, self.metrics_ch))
 
     def show(self, sample: Any, stamp_ns: int | None = None) -> bool:
         """Send ``sample`` (stamped ``stamp_ns``, default now) if a client watches; True
