@@ -31,7 +31,6 @@ if TYPE_CHECKING:
 __all__ = [
     'LAW_CODES',
     'WORLD',
-    'SwarmOdom',
     'SwarmSample',
     'accel_msg',
     'clock_msg',
