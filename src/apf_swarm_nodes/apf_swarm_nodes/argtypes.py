@@ -117,12 +117,11 @@ def add_view_args(
     given, 8765 when given without a value) and ``--view-host``."""
     from .view.server import DEFAULT_PORT
 
-    port = port_number
     if default is None:
         p.add_argument(
             flag,
             dest='view',
-            type=port,
+            type=port_number,
             nargs='?',
             const=DEFAULT_PORT,
             default=None,
@@ -134,7 +133,7 @@ def add_view_args(
         p.add_argument(
             flag,
             dest='port',
-            type=port,
+            type=port_number,
             default=default,
             metavar='PORT',
             help=f'WebSocket port of the view (default {default}; 0: any free port, printed)',
