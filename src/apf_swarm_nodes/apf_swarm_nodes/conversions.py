@@ -1,4 +1,4 @@
-"""The one place where ROS messages meet numpy arrays, by message: stamps and ``/clock``,
+"""The one place where ROS messages meet numpy arrays, by message: stamps,
 Odometry and SwarmOdometry, ForceCommand, the setpoints (AccelStamped, TwistStamped),
 SwarmState, MarkerArray.
 
@@ -21,7 +21,6 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import AccelStamped, Point, TwistStamped, Vector3
 from nav_msgs.msg import Odometry
 from numpy.typing import NDArray
-from rosgraph_msgs.msg import Clock
 
 from apf_swarm_msgs.msg import ForceCommand, SwarmOdometry, SwarmState
 
@@ -33,7 +32,6 @@ __all__ = [
     'WORLD',
     'SwarmSample',
     'accel_msg',
-    'clock_msg',
     'dt_to_ns',
     'force_arrays',
     'force_msg',
@@ -92,11 +90,6 @@ def step_stamp(step: int, dt_ns: int) -> Time:
 def stamp_ns(stamp: Time) -> int:
     """A ``builtin_interfaces/Time`` in integer nanoseconds."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def clock_msg(stamp: Time) -> Clock:
-    """``rosgraph_msgs/Clock`` for a stamp."""
-    return Clock(clock=stamp)
 
 
 # --- odometry ---------------------------------------------------------------------------------
