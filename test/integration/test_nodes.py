@@ -9,14 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from apf_swarm_core.agents import TrackerAgent
+from apf_swarm_core.lockstep import LOOKAHEAD
 from apf_swarm_nodes.conversions import dt_to_ns, odom_msg, step_stamp, swarm_state_arrays
-from apf_swarm_nodes.node_common import (
-    REQUEST_QOS,
-    START_QOS,
-    STATE_QOS,
-    TARGET_LOOKAHEAD,
-    control_qos,
-)
+from apf_swarm_nodes.node_common import REQUEST_QOS, START_QOS, STATE_QOS, control_qos
 from nav_msgs.msg import Odometry
 from std_msgs.msg import Empty, UInt64
 
@@ -99,7 +94,7 @@ def test_lockstep_target_answers_requests_ahead_with_the_exact_trajectory(graph)
     """The lockstep target publishes the states the plant asks for on /target/request:
     every step up to the request, once, each exactly trajectory.state(k dt); asked far
     ahead of what it sent (a target that was stopped, or one that joins late), it skips to
-    the last TARGET_LOOKAHEAD steps instead of replaying the run from step 0; asked the same
+    the last LOOKAHEAD steps instead of replaying the run from step 0; asked the same
     again, it sends that window again."""
     cfg = load_preset('triangle')
     graph.start(
@@ -139,7 +134,7 @@ def test_lockstep_target_answers_requests_ahead_with_the_exact_trajectory(graph)
     far = 5000
     req.publish(UInt64(data=far))
     graph.spin_until(lambda: far in got, 10, f'the state of step {far}')
-    window = list(range(far + 1 - TARGET_LOOKAHEAD, far + 1))
+    window = list(range(far + 1 - LOOKAHEAD, far + 1))
     assert sorted(got) == list(range(1, 21)) + window
     assert all(len(v) == 1 for v in got.values())  # each step once
     # the same request again (the plant's step is late): that window once more

@@ -24,14 +24,16 @@ __all__ = [
 ]
 
 
-def _number(kind: type, lo: float, strict: bool, what: str) -> Callable[[str], float]:
+def _number(
+    kind: type, lo: float, strict: bool, what: str, hi: float = math.inf
+) -> Callable[[str], float]:
     def convert(text: str) -> float:
         try:
             val = kind(text)
         except ValueError:
             name = 'a number' if kind is float else 'an integer'
             raise argparse.ArgumentTypeError(f'{text!r} is not {name}') from None
-        if not (math.isfinite(val) and (val > lo if strict else val >= lo)):
+        if not (math.isfinite(val) and (val > lo if strict else val >= lo) and val <= hi):
             raise argparse.ArgumentTypeError(f'{text}: {what}')
         return val
 
@@ -42,6 +44,9 @@ positive_float = _number(float, 0.0, True, 'must be a positive number')
 nonneg_float = _number(float, 0.0, False, 'must be >= 0')
 positive_int = _number(int, 1, False, 'must be >= 1')
 nonneg_int = _number(int, 0, False, 'must be >= 0')
+#: a TCP port (0: any free port) and a ROS domain id
+port_number = _number(int, 0, False, 'a TCP port is 0..65535', hi=65535)
+domain_id = _number(int, 0, False, 'a ROS domain id is 0..232', hi=232)
 
 
 def node_param(text: str) -> str:
@@ -53,22 +58,6 @@ def node_param(text: str) -> str:
             f'{text!r}: expected NAME:=VALUE, e.g. executor:=events or stale_after:=0.2'
         )
     return text
-
-
-def port_number(text: str) -> int:
-    """A TCP port, 0..65535 (0: any free port)."""
-    val = int(nonneg_int(text))
-    if val > 65535:
-        raise argparse.ArgumentTypeError(f'{val}: a TCP port is 0..65535')
-    return val
-
-
-def domain_id(text: str) -> int:
-    """A ROS domain id, 0..232."""
-    val = int(nonneg_int(text))
-    if val > 232:
-        raise argparse.ArgumentTypeError(f'{val}: a ROS domain id is 0..232')
-    return val
 
 
 def add_config_args(
@@ -117,12 +106,11 @@ def add_view_args(
     given, 8765 when given without a value) and ``--view-host``."""
     from .view.server import DEFAULT_PORT
 
-    port = port_number
     if default is None:
         p.add_argument(
             flag,
             dest='view',
-            type=port,
+            type=port_number,
             nargs='?',
             const=DEFAULT_PORT,
             default=None,
@@ -134,7 +122,7 @@ def add_view_args(
         p.add_argument(
             flag,
             dest='port',
-            type=port,
+            type=port_number,
             default=default,
             metavar='PORT',
             help=f'WebSocket port of the view (default {default}; 0: any free port, printed)',

@@ -1,27 +1,7 @@
-"""What every apf_swarm node shares: QoS profiles per topic (the topic names are
-:mod:`.topics`'), the executor choice and the Jazzy ``main()`` pattern; for the nodes that
-handle any message type (recorder, player), the message class of a type name and the
-start-up heap kept from the collector.
-
-QoS per topic: the table of docs/ROS.md, section "Topics and QoS" (the one table).
-
-``/swarm/odom`` (apf_swarm_msgs/SwarmOdometry, flat arrays) carries every tracker's odometry
-and the target state the plant received, for step k, in one message: trackers with
-``inputs:=aggregate`` (the default) read it instead of n + 1 separate odometry topics, which
-cuts the deliveries per step from n(n + 1) to n.
-
-Lockstep needs every message of every step (a lost one would stall the barrier), so its
-control topics are reliable; realtime control wants the newest sample, never a queue of old
-ones, so its control topics are best effort with depth 1 (the nodes' ``qos_depth``).
-
-Lockstep target: the plant asks for the target's states ahead of the step it integrates
-(``/target/request``, std_msgs/UInt64: the last step it wants, ``TARGET_LOOKAHEAD - 1``
-steps ahead, sent again every ``TARGET_LOOKAHEAD / 2`` steps); the target answers with the
-states it has not sent yet, at most ``TARGET_LOOKAHEAD`` of them (a repeated request: that
-window again, for a step that is late). The target's trajectory does
-not depend on the swarm, so this takes the target and its two deliveries per step off the
-barrier: ``/clock`` has no reader in the swarm itself (it is still published every step, for
-recorders and ``use_sim_time`` nodes).
+"""What every apf_swarm node shares: the QoS profile of each topic (the table and its
+reasons: docs/ROS.md, "Topics and QoS"; the names are :mod:`.topics`'), the lockstep match
+gate, the executor and the Jazzy ``main()``; for the recorder and player, the message class
+of a type name and the start-up heap kept from the collector.
 """
 
 from __future__ import annotations
@@ -39,9 +19,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
-from apf_swarm_core.config import REALTIME_RATE
 from apf_swarm_core.errors import ApfSwarmError
-from apf_swarm_core.lockstep import LOOKAHEAD
 from apf_swarm_core.match_gate import MatchGate as CoreMatchGate
 from rclpy.exceptions import ParameterException
 from rclpy.executors import (
@@ -64,11 +42,9 @@ __all__ = [
     'EXECUTORS',
     'INPUTS',
     'MATCH_RETRY',
-    'REALTIME_RATE',
     'REQUEST_QOS',
     'START_QOS',
     'STATE_QOS',
-    'TARGET_LOOKAHEAD',
     'MatchGate',
     'RejectionLog',
     'control_qos',
@@ -82,21 +58,15 @@ __all__ = [
 ]
 
 INPUTS = ('aggregate', 'odom')
-#: lockstep: how many steps ahead the plant asks for the target's states (the core's)
-TARGET_LOOKAHEAD = LOOKAHEAD
 
-#: deep enough that a reader paused for seconds loses nothing in lockstep (5000 steps; a
-#: depth of 100 loses samples over a pause of a few seconds)
+#: deep enough that a reader paused for seconds loses nothing in lockstep
 STATE_QOS = make_profile(reliable=True, transient_local=False, depth=5000)
 START_QOS = make_profile(reliable=True, transient_local=True, depth=1)
 #: only the latest request matters; a (re)started target gets it on joining
 REQUEST_QOS = START_QOS
 #: lockstep control topics and /clock: a reliable keep-last writer drops what a reader has not
-#: acknowledged once ``depth`` newer samples exist, so a reader starved for ``depth`` steps
-#: (the recorder on a loaded machine: ten steps pass in a few milliseconds) loses them.
-#: 1000 steps cost nothing in the
-#: live loop (at most a step or two is ever in flight) and let a recorder, or a tracker fed
-#: from a bag, fall behind by over a second.
+#: acknowledged once ``depth`` newer samples exist; 1000 lets a recorder, or a tracker fed
+#: from a bag, fall behind by over a second
 LOCKSTEP_DEPTH = 1000
 
 
@@ -178,9 +148,7 @@ def msg_class(msgtype: str) -> Any:
 
 def freeze_startup_heap() -> None:
     """Move what start-up made (the rosbags type store alone is thousands of classes) out of
-    the collector's reach, before a timed loop: a full collection of it stalled the player's
-    schedule by ~0.3 s in 3 of 5 runs under load, none in 3 runs with it frozen; the
-    recorder's take loop would stall alike."""
+    the collector's reach before a timed loop, which a full collection of it would stall."""
     gc.collect()
     gc.freeze()
 
@@ -191,16 +159,11 @@ DEFAULT_EXECUTOR = 'events'
 
 
 def spin(node: Node | Sequence[Node], kind: str = DEFAULT_EXECUTOR) -> None:
-    """Spin ``node`` (or several nodes on one executor) with the chosen executor until
-    shutdown or until SIGINT / SIGTERM (:func:`run_nodes`), always between callbacks.
-
-    ``events`` (the nodes' default): ``rclpy.experimental.EventsExecutor``;
-    ``single``: SingleThreadedExecutor; ``multi``: MultiThreadedExecutor (measured here:
-    about 2 lockstep steps/s, and not one realtime tracker flies at 50 Hz; kept selectable
-    only for comparison, docs/PERFORMANCE.md).
-    Each is driven by a ``spin_once`` loop with a 0.1 s timeout that checks for a stop
-    request between callbacks (the EventsExecutor's ``spin()`` busy-loops and ignores SIGINT
-    in these wheels, docs/THEORY.md section 5), so a stop is seen within 0.1 s.
+    """Spin ``node`` (or several nodes on one executor) until shutdown or SIGINT / SIGTERM
+    (:func:`run_nodes`), always between callbacks: ``events`` (the default)
+    ``rclpy.experimental.EventsExecutor``, ``single`` or ``multi`` (for comparison only,
+    docs/PERFORMANCE.md), each driven by ``spin_once`` with a 0.1 s timeout (the
+    EventsExecutor's ``spin()`` ignores SIGINT in these wheels, docs/THEORY.md section 5).
     """
     nodes = [node] if isinstance(node, Node) else list(node)
     if kind == 'events':
@@ -211,7 +174,6 @@ def spin(node: Node | Sequence[Node], kind: str = DEFAULT_EXECUTOR) -> None:
         executor = MultiThreadedExecutor() if kind == 'multi' else SingleThreadedExecutor()
     for n in nodes:
         executor.add_node(n)
-    # a timeout, because the Python signal handler only runs once the wait returns
     try:
         while running():
             executor.spin_once(timeout_sec=0.1)

@@ -1,12 +1,6 @@
-"""ROS 2 parameters of the nodes, declared from the one description in ``SwarmConfig``.
-
-Every configuration key becomes a parameter with its unit, range and help text in the
-descriptor (read-only where a change at run time makes no sense). :func:`read_config` builds
-the validated :class:`~apf_swarm_core.config.SwarmConfig` from the node's parameters, and
-:func:`install_validator` rejects a bad value set at run time with the core's reason. The
-node-only parameters (:class:`NodeParam`) are declared here too: those of every swarm node
-once (:data:`SWARM_NODE_PARAMS`, :func:`declare_swarm_node`), string lists
-(:func:`declare_str_array`).
+"""ROS 2 parameters of the nodes: every ``SwarmConfig`` key with its unit, range and help in
+the descriptor (:func:`declare_config`, :func:`read_config`; :func:`install_validator` rejects a
+bad run-time value with the core's reason), and the node-only parameters (:class:`NodeParam`).
 """
 
 from __future__ import annotations
@@ -36,11 +30,7 @@ from .node_common import DEFAULT_EXECUTOR, EXECUTORS, INPUTS
 __all__ = [
     'EXECUTOR_PARAM',
     'MODES',
-    'MODE_PARAM',
     'OUTPUTS',
-    'QOS_DEPTH_PARAM',
-    'RECORDED_PARAM',
-    'RUN_PARAM',
     'SWARM_NODE_PARAMS',
     'TRACKER_PARAMS',
     'WATCHDOG_RATE',
@@ -71,22 +61,16 @@ def _descriptor(
         name=name, type=ptype, description=text, read_only=read_only, dynamic_typing=dynamic
     )
     lo, hi = meta.get('lo'), meta.get('hi')
-    if ptype == ParameterType.PARAMETER_DOUBLE and (lo is not None or hi is not None):
+    if lo is None and hi is None:
+        return d
+    if ptype == ParameterType.PARAMETER_DOUBLE:
+        lo, hi = (-1e300 if lo is None else lo), (1e300 if hi is None else hi)
         d.floating_point_range = [
-            FloatingPointRange(
-                from_value=float(lo if lo is not None else -1e300),
-                to_value=float(hi if hi is not None else 1e300),
-                step=0.0,
-            )
+            FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)
         ]
-    if ptype == ParameterType.PARAMETER_INTEGER and (lo is not None or hi is not None):
-        d.integer_range = [
-            IntegerRange(
-                from_value=int(lo if lo is not None else -(2**62)),
-                to_value=int(hi if hi is not None else 2**62),
-                step=0,
-            )
-        ]
+    elif ptype == ParameterType.PARAMETER_INTEGER:
+        lo, hi = (-(2**62) if lo is None else lo), (2**62 if hi is None else hi)
+        d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=0)]
     return d
 
 
@@ -139,41 +123,42 @@ class NodeParam:
 
 
 #: the executor the node spins with (see :func:`apf_swarm_nodes.node_common.spin`)
-#: events is the default: measured here about 1.5x the lockstep steps/s of single
 EXECUTOR_PARAM = NodeParam(
     'executor',
     DEFAULT_EXECUTOR,
     'executor: events (rclpy.experimental, driven by spin_once), single or multi',
     choices=EXECUTORS,
 )
-QOS_DEPTH_PARAM = NodeParam(
-    'qos_depth',
-    1,
-    'realtime: keep-last depth of the best-effort '
-    'control topics (odometry, /swarm/odom, force commands; 1: the '
-    'newest sample only); lockstep always uses reliable, keep last '
-    '1000',
-    lo=1,
-    hi=1000,
-)
-MODE_PARAM = NodeParam('mode', 'lockstep', 'timing mode', choices=MODES)
-RUN_PARAM = NodeParam(
-    'run',
-    0,
-    "the run's identity (the bring-up sets a random one for every node): the plant refuses "
-    'commands, a tracker /swarm/odom messages, of another run (0: no identity, accept any)',
-    lo=0,
-    hi=2**63 - 1,
-)
-RECORDED_PARAM = NodeParam(
-    'recorded',
-    False,
-    'lockstep: a recorder reads every topic of this node (the bring-up sets it with '
-    '--record): each publisher holds its first message until it has matched the recorder '
-    'too, or the bag would miss the first steps',
-)
 #: what every node of the swarm (plant, target, tracker) declares before its own parameters
-SWARM_NODE_PARAMS = (EXECUTOR_PARAM, QOS_DEPTH_PARAM, MODE_PARAM, RUN_PARAM, RECORDED_PARAM)
+SWARM_NODE_PARAMS = (
+    EXECUTOR_PARAM,
+    NodeParam(
+        'qos_depth',
+        1,
+        'realtime: keep-last depth of the best-effort control topics (odometry, /swarm/odom, '
+        'force commands; 1: the newest sample only); lockstep always uses reliable, keep '
+        'last 1000',
+        lo=1,
+        hi=1000,
+    ),
+    NodeParam('mode', 'lockstep', 'timing mode', choices=MODES),
+    NodeParam(
+        'run',
+        0,
+        "the run's identity (the bring-up sets a random one for every node): the plant "
+        'refuses commands, a tracker /swarm/odom messages, of another run (0: no identity, '
+        'accept any)',
+        lo=0,
+        hi=2**63 - 1,
+    ),
+    NodeParam(
+        'recorded',
+        False,
+        'lockstep: a recorder reads every topic of this node (the bring-up sets it with '
+        '--record): each publisher holds its first message until it has matched the '
+        'recorder too, or the bag would miss the first steps',
+    ),
+)
 
 
 #: what a tracker can publish (the ``outputs`` parameter)

@@ -12,6 +12,7 @@ import time
 from functools import partial
 from typing import Any
 
+from apf_swarm_core.config import REALTIME_RATE
 from apf_swarm_core.lockstep import Action, LockstepBarrier
 from apf_swarm_core.plant_model import PlantModel
 from apf_swarm_core.realtime_plant import RealtimePlant
@@ -23,7 +24,7 @@ from std_msgs.msg import Empty
 from apf_swarm_msgs.msg import ForceCommand, ForceCommands
 
 from .conversions import dt_to_ns, force_arrays, odom_arrays, stamp_ns, step_stamp
-from .node_common import REALTIME_RATE, START_QOS, RejectionLog, control_qos, run_node
+from .node_common import START_QOS, RejectionLog, control_qos, run_node
 from .params import PLANT_PARAMS, declare_swarm_node
 from .plant_outputs import PlantOutputs
 from .topics import SWARM_FORCE_CMDS, SWARM_START, TARGET_ODOM, force_topic
@@ -32,8 +33,7 @@ __all__ = ['PlantNode', 'main']
 
 
 class PlantNode(Node):
-    """Owns the swarm's physical state; the core's PlantModel integrates it, the core's
-    object of its timing mode decides."""
+    """Owns the swarm's state: the core's PlantModel integrates, its mode's object decides."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', **kwargs)

@@ -18,7 +18,7 @@ from visualization_msgs.msg import MarkerArray
 
 from apf_swarm_msgs.msg import SwarmOdometry, SwarmState
 
-from .conversions import clock_msg, markers_msg, odom_msg, swarm_odom_msg, swarm_state_msg
+from .conversions import markers_msg, odom_msg, swarm_odom_msg, swarm_state_msg
 from .node_common import CLOCK_QOS, REQUEST_QOS, STATE_QOS
 from .topics import CLOCK, SWARM_MARKERS, SWARM_ODOM, SWARM_STATE, TARGET_REQUEST, odom_topic
 
@@ -79,7 +79,7 @@ class PlantOutputs:
 
     def step(self, stamp: Time) -> None:
         """Lockstep: ``/clock`` and every UAV's odometry of the model's current state."""
-        self.clock_pub.publish(clock_msg(stamp))
+        self.clock_pub.publish(Clock(clock=stamp))
         self.odoms(stamp)
 
     def odoms(self, stamp: Time) -> None:

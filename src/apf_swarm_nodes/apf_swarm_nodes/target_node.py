@@ -1,15 +1,8 @@
-"""Target node: flies the target along its trajectory (eq. 1), publishes ``odom`` (relative;
-``/target/odom`` with the namespace ``/target``).
-
-Lockstep: when the plant asks for the states up to step K (``request``, std_msgs/UInt64,
-``/target/request``), publishes the states of the steps up to K it has not published yet, at
-most ``TARGET_LOOKAHEAD`` of them (stamps ``k dt``); asked again for states it has published,
-it publishes that window again. The plant asks up to 63 steps ahead, so the target is off the
-barrier's critical path and is woken once per batch, not per step; a restarted target starts
-at the window of the plant's latest request, not at step 0.
-Realtime: publishes at ``publish_rate`` with the wall-clock time since the start. With
-``wait_for_start`` it waits for ``/swarm/start`` before the trajectory's time 0.
-"""
+"""Target node: flies the target along its trajectory (eq. 1), publishes ``odom``
+(``/target/odom`` in the namespace ``/target``). Lockstep: answers each ``request`` (the last
+step the plant wants) with the core's window of states (``target_window``); realtime: publishes
+at ``publish_rate`` from the start (``/swarm/start`` with ``wait_for_start``). docs/ROS.md,
+"Timing modes"."""
 
 from __future__ import annotations
 
@@ -18,21 +11,14 @@ import time
 from functools import partial
 from typing import Any
 
-from apf_swarm_core.lockstep import target_window
+from apf_swarm_core.lockstep import LOOKAHEAD, target_window
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from std_msgs.msg import Empty, UInt64
 
 from .conversions import dt_to_ns, odom_msg, step_stamp
-from .node_common import (
-    REQUEST_QOS,
-    START_QOS,
-    TARGET_LOOKAHEAD,
-    MatchGate,
-    control_qos,
-    run_node,
-)
+from .node_common import REQUEST_QOS, START_QOS, MatchGate, control_qos, run_node
 from .params import NodeParam, declare_swarm_node
 from .topics import ODOM, REQUEST, SWARM_START
 
@@ -83,7 +69,7 @@ class TargetNode(Node):
         """The plant wants the states up to step ``last``: publish the core's window of them
         (:func:`~apf_swarm_core.lockstep.target_window`). The state of step k is exactly
         ``trajectory.state(k dt)`` whenever it is published."""
-        for j in target_window(last, self.next_step, TARGET_LOOKAHEAD):
+        for j in target_window(last, self.next_step, LOOKAHEAD):
             self._publish(j * self.cfg.dt, step_stamp(j, self.dt_ns))
         self.next_step = max(self.next_step, last + 1)
 

@@ -13,7 +13,7 @@ from functools import partial
 from typing import Any
 
 from apf_swarm_core.agents import TrackerAgent
-from apf_swarm_core.config import SwarmConfig
+from apf_swarm_core.config import REALTIME_RATE, SwarmConfig
 from apf_swarm_core.tracker_modes import Reply, SwarmOdom, tracker_mode
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import AccelStamped, TwistStamped
@@ -31,7 +31,7 @@ from .conversions import (
     swarm_odom_arrays,
     twist_msg,
 )
-from .node_common import REALTIME_RATE, MatchGate, RejectionLog, control_qos, run_node
+from .node_common import MatchGate, RejectionLog, control_qos, run_node
 from .params import (
     TRACKER_PARAMS,
     WATCHDOG_RATE,

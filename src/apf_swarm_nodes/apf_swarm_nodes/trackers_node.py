@@ -12,6 +12,8 @@ from .node_common import control_qos, run_nodes
 from .topics import SWARM_FORCE_CMDS, uav_namespace
 from .tracker_node import TrackerNode
 
+__all__ = ['LeadTrackerNode', 'group_main', 'parse_uav_ids']
+
 
 class LeadTrackerNode(TrackerNode):
     """The tracker node that reads ``/swarm/odom`` for its process and hands each state to
@@ -22,10 +24,10 @@ class LeadTrackerNode(TrackerNode):
         super().__init__(**kwargs)
         self.batch: list[ForceCommand] | None = None
         self.batch_pub = None
-        batching = self.get_parameter('batch_commands').value
-        if batching and self.mode == 'realtime' and self.inputs == 'aggregate':
-            depth = self.get_parameter('qos_depth').value
-            qos = control_qos(self.mode, depth)
+        #: whether this node reads /swarm/odom for its process (realtime, aggregate inputs)
+        self.leads = self.mode == 'realtime' and self.inputs == 'aggregate'
+        if self.leads and self.get_parameter('batch_commands').value:
+            qos = control_qos(self.mode, self.get_parameter('qos_depth').value)
             self.batch_pub = self.create_publisher(ForceCommands, SWARM_FORCE_CMDS, qos)
             self.join(self)
             self.get_logger().info(
@@ -33,25 +35,24 @@ class LeadTrackerNode(TrackerNode):
             )
 
     def join(self, node: TrackerNode) -> None:
-        """``node``'s commands on a state go into the batch (its others, brakes on the
-        watchdog's timer, on its own topic as before)."""
+        """``node`` answers the states this one hands it; with ``batch_commands`` its commands
+        on a state go into the batch (its others, brakes on the watchdog's timer, on its own
+        topic as before)."""
+        if node is not self:
+            self.fanout.append(node)
+        if self.batch_pub is None:
+            return
         alone = node._publish
         node._publish = lambda msg: alone(msg) if self.batch is None else self.batch.append(msg)
 
     def _on_swarm_odom(self, msg: Any) -> None:
-        if self.batch_pub is None:
-            super()._on_swarm_odom(msg)
-            return
-        self.batch = []
+        self.batch = None if self.batch_pub is None else []
         try:
             super()._on_swarm_odom(msg)
         finally:
             batch, self.batch = self.batch, None
-        if batch:
+        if batch and self.batch_pub is not None:
             self.batch_pub.publish(ForceCommands(commands=batch))
-
-
-__all__ = ['LeadTrackerNode', 'group_main', 'parse_uav_ids']
 
 
 def parse_uav_ids(text: str) -> list[int]:
@@ -98,23 +99,15 @@ def group_main(args: list[str] | None = None) -> None:
     lead: list[LeadTrackerNode] = []  # the node that subscribes for the process, if any
 
     def make(i: int) -> TrackerNode:
-        kind = TrackerNode if lead else LeadTrackerNode
-        node = kind(
-            namespace=uav_namespace(i),
-            parameter_overrides=[Parameter('uav_id', value=i)],
-            swarm_odom=not lead,
-        )
+        ns, uav_id = uav_namespace(i), [Parameter('uav_id', value=i)]
         if lead:
-            lead[0].fanout.append(node)
-            if lead[0].batch_pub is not None:
-                lead[0].join(node)
-        elif (
-            isinstance(node, LeadTrackerNode)
-            and node.mode == 'realtime'
-            and node.inputs == 'aggregate'
-        ):
-            lead.append(node)
-        return node
+            node = TrackerNode(namespace=ns, parameter_overrides=uav_id, swarm_odom=False)
+            lead[0].join(node)
+            return node
+        first = LeadTrackerNode(namespace=ns, parameter_overrides=uav_id)
+        if first.leads:
+            lead.append(first)
+        return first
 
     factories = [lambda i=i: make(i) for i in ids]
     sys.exit(run_nodes('trackers', factories, argv))

@@ -69,15 +69,11 @@ def latency_samples(path: Path) -> np.ndarray:
 
 def _realtime_extra(args: argparse.Namespace) -> tuple[dict[str, Any], np.ndarray | None]:
     """--control-rate / --latency as configuration values, and latency samples."""
-    extra: dict[str, Any] = {'control_rate': getattr(args, 'control_rate', None)}
-    lat = getattr(args, 'latency', None)
-    samples = None
+    lat, samples = args.latency, None
     if isinstance(lat, Path):
         samples = latency_samples(lat)
-        extra['latency'] = float(np.median(samples))
-    else:
-        extra['latency'] = lat
-    return extra, samples
+        lat = float(np.median(samples))
+    return {'control_rate': args.control_rate, 'latency': lat}, samples
 
 
 def machine_latency(n: int, rate: float | None = None) -> float:

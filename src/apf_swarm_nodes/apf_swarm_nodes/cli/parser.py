@@ -7,9 +7,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from apf_swarm_core.config import (
-    DEFAULT_LATENCY,
-)
+from apf_swarm_core.config import DEFAULT_LATENCY
 from apf_swarm_core.errors import ApfSwarmError
 
 from ..argtypes import add_animation_args, add_config_args, positive_float
@@ -56,8 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_config_args(p)
     p.add_argument('--law', choices=('proposed', 'traditional'))
     p.add_argument('--n-trackers', type=int)
-    p.add_argument('--duration', type=float, metavar='S')
-    p.add_argument('--dt', type=float, metavar='S')
+    p.add_argument('--duration', type=positive_float, metavar='S')
+    p.add_argument('--dt', type=positive_float, metavar='S')
     p.add_argument('--seed', type=int)
     _add_realtime_args(p)
     p.add_argument('--out', type=Path, required=True, metavar='DIR')
@@ -92,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser('design', help='b (or c) for a spacing, and the equilibrium shape')
     add_config_args(p, required=False, default_preset='triangle')
     p.add_argument(
-        '--spacing', type=float, metavar='D', help='wanted nearest-neighbour distance [m]'
+        '--spacing', type=positive_float, metavar='D', help='wanted nearest-neighbour distance [m]'
     )
     p.add_argument('--n-trackers', type=int)
     _add_realtime_args(
@@ -104,7 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('reproduce', help="the paper's Figures 1-7 and report.md")
     p.add_argument('--out', type=Path, required=True, metavar='DIR')
-    p.add_argument('--duration', type=float, metavar='S', help="override the presets' duration")
+    p.add_argument(
+        '--duration', type=positive_float, metavar='S', help="override the presets' duration"
+    )
     p.add_argument('--quick', action='store_true', help='3 gamma values instead of 8')
     p.add_argument(
         '--no-animations', action='store_true', help='skip the animation of each law (GIF)'
@@ -117,7 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--param', required=True, metavar='NAME')
     p.add_argument('--values', required=True, metavar='V1,V2,...')
     p.add_argument('--seeds', type=int, default=1, metavar='K')
-    p.add_argument('--duration', type=float, metavar='S')
+    p.add_argument('--duration', type=positive_float, metavar='S')
     p.add_argument('--out', type=Path, required=True, metavar='DIR')
     p.add_argument('--quiet', action='store_true')
     p.set_defaults(func=cmd_sweep)
@@ -154,12 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    for attr in ('spacing', 'duration', 'dt'):
-        val = getattr(args, attr, None)
-        if val is not None and not val > 0:
-            parser.error(f'--{attr} {val}: must be a positive number')
+    args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
     except ApfSwarmError as exc:

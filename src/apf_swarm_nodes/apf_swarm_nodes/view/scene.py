@@ -15,7 +15,7 @@ from apf_swarm_core.command_hold import STALE_AFTER
 from numpy.typing import NDArray
 
 from ..analysis.style import STATE_COLOURS, TARGET_COLOUR, edge_colour
-from ..conversions.fields import WORLD
+from ..conversions import WORLD
 
 __all__ = ['SceneBuilder', 'UavStates']
 
