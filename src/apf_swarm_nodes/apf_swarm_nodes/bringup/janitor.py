@@ -23,12 +23,10 @@ from pathlib import Path
 
 import psutil
 
-from .zygote import close_helper, orphaned_cleanup
+from .zygote import BYE, close_helper, orphaned_cleanup
 
-__all__ = ['BYE', 'Janitor', 'main']
+__all__ = ['Janitor', 'main']
 
-#: the line that ends a janitor's input when its bring-up closes it
-BYE = 'bye'
 #: the start of a line that names a directory of host keys (DIR/dds/)
 KEYS = 'keys '
 
