@@ -1,14 +1,7 @@
 """One swarm per domain: before a run starts, whether its domain already carries a swarm
-(:func:`refuse_other_swarm`), and Fast DDS's port mapping that tells which participants run
-here (:func:`domain_participant_ports`).
-
-:func:`refuse_other_swarm` looks at the domain before a run
-starts: a publisher of a topic only a swarm publishes (:data:`SWARM_PUBLISHED`), whatever
-its process (another bring-up, nodes started by hand, a bag being played), refuses the run
-with a :class:`~apf_swarm_nodes.errors.DdsError` that names the domain and the topics;
-subscribers (a viewer, ``ros2 topic echo``, a recorder) do not. On a localhost run the
-domain's ports tell whether anything runs there at all, so a free domain costs no wait.
-"""
+(:func:`refuse_other_swarm`: a publisher of a topic only a swarm publishes; subscribers such
+as a viewer or a recorder do not count), and Fast DDS's port mapping, which tells whether
+any participant runs on the domain here (:func:`domain_participant_ports`)."""
 
 from __future__ import annotations
 
@@ -39,8 +32,8 @@ MAX_PARTICIPANTS = (_DOMAIN_GAIN - _META_OFFSET) // 2
 #: how long a network run's domain is watched for a swarm [s] (no local port tells
 #: whether a remote participant is there)
 NETWORK_WATCH = 2.0
-#: how long the domain probe waits at most [s]: longer than LEASE_ANNOUNCEMENT, after which
-#: every participant there has announced itself again, whatever was lost
+#: how long the domain probe waits at most [s]: longer than a lease announcement period,
+#: after which every participant there has announced itself again
 PROBE_TIMEOUT = 4.0
 
 _UNKNOWN_NAME = '_NODE_NAME_UNKNOWN_'
