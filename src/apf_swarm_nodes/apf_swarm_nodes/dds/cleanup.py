@@ -136,18 +136,13 @@ def run(args: argparse.Namespace, say: Callable[[str], None] = print) -> int:
     leases = expired_leases()
     for path in leases:
         say(f'expired lease: {path}')
-    if args.dry_run:
-        found = stale_fastdds_files()
-        for path in found.stale:
-            say(f'stale: {path}')
-        removed, stopped = len(found.stale), 0
-    else:
-        # the orphans first: what they hold is stale once they are gone
-        stopped = _stop(orphans, say)
-        found = stale_fastdds_files()
-        for path in found.stale:
-            say(f'stale: {path}')
-        removed = found.remove()
+    # the orphans first: what they hold is stale once they are gone
+    stopped = 0 if args.dry_run else _stop(orphans, say)
+    found = stale_fastdds_files()
+    for path in found.stale:
+        say(f'stale: {path}')
+    removed = len(found.stale) if args.dry_run else found.remove()
+    if not args.dry_run:
         for path in leases:
             with contextlib.suppress(OSError):
                 path.unlink()

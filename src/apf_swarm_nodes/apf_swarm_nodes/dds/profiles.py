@@ -20,6 +20,7 @@ from .participant import (
     LOCALHOST_PROFILE,
     OWN_PROFILE,
     PROFILE_VARIABLES,
+    named_profile,
     own_participant,
     own_participant_environment,
 )
@@ -198,9 +199,11 @@ def write_profile(path: Path, **kwargs: Any) -> Path:
 
 def localhost_environment(profile: Path) -> dict[str, str]:
     """The variables a process needs to run localhost only with the ``profile`` written by
-    :func:`write_profile` (and :data:`NOT_LOCAL` unset)."""
+    :func:`write_profile` (and :data:`NOT_LOCAL` unset); a secure run's too, with its
+    own profile: SUBNET is the one range in which rmw adds no transport of its own to the
+    profile's (LOCALHOST adds a socket on 0.0.0.0)."""
     env = dict.fromkeys(PROFILE_VARIABLES, str(profile))
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'  # LOCALHOST adds rmw's own 0.0.0.0 socket
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
     return env
 
 
@@ -243,7 +246,7 @@ def isolate_dds(
     env = os.environ if environ is None else environ
     if discovery_range == 'OFF':
         return None
-    own = next((env[v] for v in PROFILE_VARIABLES if env.get(v)), None)
+    own = named_profile(env)
     path: Path | None = None
     if discovery_range == 'LOCALHOST':
         check_rmw(env)

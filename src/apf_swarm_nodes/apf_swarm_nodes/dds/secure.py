@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .errors import DdsError
-from .participant import PROFILE_VARIABLES
 from .participant import SECURE_PROFILE as PROFILE_FILE
 from .participant import SECURE_SERVER_PROFILE as SERVER_PROFILE
+from .participant import named_profile
 from .profiles import (
     LEASE_ANNOUNCEMENT,
     LEASE_DURATION,
@@ -36,6 +36,7 @@ from .profiles import (
     check_rmw,
     discovery_timing,
     duration,
+    localhost_environment,
     profiles_file,
 )
 
@@ -402,11 +403,8 @@ def profile_xml(
 def secure_environment(profile: Path, openssl: Path) -> dict[str, str]:
     """The variables a process of a secure run needs (with ``ROS_DOMAIN_ID``; no
     ``ROS_STATIC_PEERS`` / ``ROS_DISCOVERY_SERVER``, which would add UDP)."""
-    env = dict.fromkeys(PROFILE_VARIABLES, str(Path(profile).resolve()))
-    env['OPENSSL_CONF'] = str(Path(openssl).resolve())
-    # SUBNET: the one range in which rmw adds no transport of its own to the profile's
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
-    return env
+    env = localhost_environment(Path(profile).resolve())  # the profile, and SUBNET
+    return {**env, 'OPENSSL_CONF': str(Path(openssl).resolve())}
 
 
 #: what a secure run does not take from the environment: each would add UDP
@@ -424,7 +422,7 @@ def complete_environment(environ: MutableMapping[str, str]) -> None:
     or none. DdsError naming the variable and the fix when the environment contradicts the
     profile: another ``OPENSSL_CONF``, a discovery range other than SUBNET, or a variable
     that adds UDP (:data:`NOT_SECURE`)."""
-    profile = next((environ[v] for v in PROFILE_VARIABLES if environ.get(v)), None)
+    profile = named_profile(environ)
     if profile is None or not Path(profile).is_file():
         return
     head = Path(profile).read_text(errors='replace')[:2000]
