@@ -133,9 +133,6 @@ def profile_xml(
     *,
     localhost: bool = True,
     participants: int = 32,
-    peers: int | None = None,
-    period: float | None = None,
-    window: float | None = None,
     lease_announcement: float | None = None,
     shm: bool = True,
 ) -> str:
@@ -144,16 +141,13 @@ def profile_xml(
 
     ``localhost``: UDPv4 on 127.0.0.1 only (``interfaces/allowlist``) and, with ``shm``,
     shared memory, no builtin transport, discovery by unicast to the 127.0.0.1 ports of
-    ``peers`` participants (default :func:`max_participants`); use it with
-    ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``. Otherwise the middleware's transports and
-    discovery. Both: the announcements of :func:`discovery_timing`, unless given."""
-    p, w, lease = discovery_timing(participants)
-    period = p if period is None else period
-    window = w if window is None else window
+    :func:`max_participants`; use it with ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``.
+    Otherwise the middleware's transports and discovery. Both: the announcements of
+    :func:`discovery_timing` (``lease_announcement``: another period after the start-up)."""
+    period, window, lease = discovery_timing(participants)
     lease = lease if lease_announcement is None else lease_announcement
-    peers = max_participants(participants) if peers is None else peers
-    if not (period > 0 and window >= period and LEASE_DURATION > lease > 0):
-        raise ValueError(f'bad discovery timing: period {period}, window {window}, lease {lease}')
+    if not LEASE_DURATION > lease > 0:
+        raise ValueError(f'bad discovery timing: lease announcement {lease} s')
     discovery = {
         'leaseDuration': duration(LEASE_DURATION),
         'leaseAnnouncement': duration(lease),
@@ -169,7 +163,7 @@ def profile_xml(
             {
                 'transport_id': udp,
                 'type': 'UDPv4',
-                'maxInitialPeersRange': peers,
+                'maxInitialPeersRange': max_participants(participants),
                 'interfaces': {'allowlist': {'interface': {'@name': '127.0.0.1'}}},
             }
         ]
