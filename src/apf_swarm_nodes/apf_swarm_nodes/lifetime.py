@@ -12,11 +12,9 @@ import subprocess
 from collections.abc import Sequence
 from typing import Protocol
 
-__all__ = ['STOP_CPU_PER_PROCESS', 'Process', 'describe_rc', 'dying_with_parent', 'stop_process']
-
 #: CPU seconds a node takes to leave DDS after SIGINT: the first stage of a stop waits this
 #: much longer per process still running, shared over the cores, so that a loaded machine
-#: does not turn a stop into SIGKILLs (66 processes on 2 cores: 55 SIGKILLs at 5 s)
+#: does not turn a stop into SIGKILLs
 STOP_CPU_PER_PROCESS = 0.3
 
 
@@ -41,13 +39,11 @@ def describe_rc(rc: int) -> str:
 
 
 def dying_with_parent(argv: Sequence[str], sig: str = 'KILL') -> list[str]:
-    """``argv`` run so that it gets SIGKILL when the bring-up that started it dies, even by
-    SIGKILL: util-linux ``setpriv --pdeathsig`` (no ``preexec_fn``, unsafe in a process with
-    DDS threads); unchanged where there is no setpriv. SIGKILL, not SIGINT: a node busy in a
-    callback may not see one SIGINT, and with the bring-up gone nothing would escalate (a
-    forked node gets SIGINT, and its zygote escalates); the shared memory it leaves is
-    removed by the next run or ``apf-swarm clean``. ``sig``: another signal, for a process
-    whose own stop is bounded (the probe's processes: ``INT``)."""
+    """``argv`` run so that it gets SIGKILL (or ``sig``) when the process that started it
+    dies, even by SIGKILL: util-linux ``setpriv --pdeathsig`` (no ``preexec_fn``, unsafe in a
+    process with DDS threads); unchanged where there is no setpriv. SIGKILL, as with the
+    bring-up gone nothing would escalate a SIGINT a busy node missed (the shared memory it
+    leaves is removed later); ``INT`` for a process whose own stop is bounded (the probe's)."""
     setpriv = shutil.which('setpriv')
     return [setpriv, '--pdeathsig', sig, '--', *argv] if setpriv else list(argv)
 

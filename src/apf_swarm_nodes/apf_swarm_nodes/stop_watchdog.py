@@ -1,20 +1,14 @@
 """A bound on how long a process takes to end once it is told to stop, whatever its main
-thread is doing.
+thread is doing (a main thread blocked inside a DDS call never runs a Python signal
+handler).
 
-Python runs a signal's handler only between bytecodes of the main thread: a main thread
-blocked inside a DDS call (a Fast DDS shared-memory mutex that a killed process held) never
-sees SIGINT or SIGTERM, and the process outlives every signal but SIGKILL (a bring-up that
-ignored the SIGTERM of ``timeout`` for 85 minutes). :class:`StopWatchdog` does not depend on
-the main thread: the C-level handler writes each signal's number to a pipe at once
-(``signal.set_wakeup_fd``), and a thread reading it gives the process :attr:`bound` seconds
-from the first SIGINT / SIGTERM (or from :meth:`StopWatchdog.arm`, a stop without a signal),
-:attr:`hard_after` seconds from a second one, then writes one line saying why and ends the
-process with ``os._exit``. A process that ends in time never notices it.
-
-The bring-up (:class:`~.bringup.supervision.Signals`), every node process
-(:func:`~.node_common.run_nodes`: the nodes, the player, ``apf-swarm bag play``) and the
-recorder install one. The wakeup pipe only receives signals that have a Python handler:
-install the handlers first.
+The C-level handler writes each signal's number to a pipe (``signal.set_wakeup_fd``); a
+thread reading it gives the process :attr:`~StopWatchdog.bound` seconds from the first
+SIGINT / SIGTERM (or from :meth:`~StopWatchdog.arm`, a stop without a signal),
+:attr:`~StopWatchdog.hard_after` seconds from a second one, then writes one line saying why
+and ends the process with ``os._exit``. The bring-up, every node process and the recorder
+install one (docs/RELIABILITY.md, "Shared memory and orphans"). The wakeup pipe only
+receives signals that have a Python handler: install the handlers first.
 """
 
 from __future__ import annotations
@@ -25,8 +19,6 @@ import select
 import signal
 import threading
 import time
-
-__all__ = ['HARD_STOP_AFTER', 'NODE_STOP_BOUND', 'StopWatchdog']
 
 #: seconds from a second SIGINT / SIGTERM to the hard exit
 HARD_STOP_AFTER = 5.0
@@ -108,34 +100,27 @@ class StopWatchdog:
     # --- the thread ---------------------------------------------------------------------
     def _watch(self, fd: int) -> None:
         try:
-            self._watch_fd(fd)
+            while not self._done.is_set():
+                deadline = self.deadline
+                timeout = None if deadline is None else max(0.0, deadline - time.monotonic())
+                ready, _, _ = select.select([fd], [], [], timeout)
+                if self._done.is_set():
+                    return
+                if ready:
+                    data = os.read(fd, 64)
+                    if not data:
+                        return
+                    self._take(data, time.monotonic())
+                elif self.deadline is not None and time.monotonic() >= self.deadline:
+                    why = f'{self.who}: still not ended {self._why} (a call blocked inside DDS?)'
+                    with contextlib.suppress(OSError):
+                        os.write(2, f'{why}: exiting now, outputs may be missing\n'.encode())
+                    os._exit(self.code)
+        except OSError:
+            return
         finally:
             with contextlib.suppress(OSError):
                 os.close(fd)
-
-    def _watch_fd(self, fd: int) -> None:
-        while not self._done.is_set():
-            deadline = self.deadline
-            timeout = None if deadline is None else max(0.0, deadline - time.monotonic())
-            ready, _, _ = select.select([fd], [], [], timeout)
-            if self._done.is_set():
-                return
-            if ready:
-                try:
-                    data = os.read(fd, 64)
-                except OSError:
-                    return
-                if not data:
-                    return
-                self._take(data, time.monotonic())
-                continue
-            if self.deadline is not None and time.monotonic() >= self.deadline:
-                os.write(
-                    2,
-                    f'{self.who}: still not ended {self._why} (a call blocked inside DDS?): '
-                    'exiting now, outputs may be missing\n'.encode(),
-                )
-                os._exit(self.code)
 
     def _take(self, data: bytes, now: float) -> None:
         """What the bytes read from the pipe do to the deadline."""

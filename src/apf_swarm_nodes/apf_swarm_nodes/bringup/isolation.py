@@ -11,10 +11,6 @@ from .errors import BringupError
 
 __all__ = ['DOMAIN_LEASE', 'check_capacity', 'domain_looks_busy', 'env_domain', 'pick_domain_id']
 
-# --------------------------------------------------------------------------------------------
-# configuration, isolation, command lines
-# --------------------------------------------------------------------------------------------
-
 
 def check_capacity(
     n_trackers: int,
@@ -42,7 +38,7 @@ def check_capacity(
             say(f'warning: {exc}; the tracker process limit is not known, none applied')
         return
     limit = probe.process_limit(machine)
-    if procs > limit['processes'] and not allow_overload:
+    if procs > limit['processes']:
         raise BringupError(
             f'n_trackers = {n_trackers} in {procs} processes is more than this '
             f'machine runs: its probe (`apf-swarm probe`) allows '

@@ -1,16 +1,11 @@
-"""What a killed bring-up cannot do for the nodes it executed: the janitor.
+"""The janitor: what a killed bring-up cannot do for the nodes it executed.
 
-A bring-up that forks its nodes has its zygote clean up after it if it is killed
-(:func:`~.zygote.orphaned_cleanup`). One that executes them (``--spawn exec``, or no zygote)
-starts this small process instead: it is told the pid of every node executed (a line each on
-its stdin) and ``"bye"`` when the bring-up closes it normally. An input that ends without
-the goodbye means the bring-up died (SIGKILL): the janitor then does what the zygote would,
-waits for those nodes to end on their parent-death signal, kills any still running, and
-removes the Fast DDS shared memory no live process holds. A secure run's bring-up starts
-one with either spawn mode and tells it where the hosts' private keys lie (a line
-``keys DIR``): the janitor of a killed bring-up removes them, as its end would have. It
-imports no ROS (started in a fraction of a second) and ignores SIGINT (Ctrl-C is the
-bring-up's). Run as ``python -m apf_swarm_nodes.bringup.janitor``.
+A bring-up that executes its nodes (``--spawn exec``, or no zygote), or runs secure, starts
+this small process (no ROS: it starts in a fraction of a second) and tells it, a line each,
+the pid of every node executed and where a secure run's host keys lie (``keys DIR``), and
+``"bye"`` when it closes normally. An input that ends without the goodbye means that the
+bring-up died: the janitor removes the keys and does what the zygote would
+(:func:`~.zygote.orphaned_cleanup`). Run as ``python -m apf_swarm_nodes.bringup.janitor``.
 """
 
 from __future__ import annotations
@@ -23,12 +18,8 @@ from pathlib import Path
 
 import psutil
 
-from .zygote import close_helper, orphaned_cleanup
+from .zygote import BYE, close_helper, orphaned_cleanup
 
-__all__ = ['BYE', 'Janitor', 'main']
-
-#: the line that ends a janitor's input when its bring-up closes it
-BYE = 'bye'
 #: the start of a line that names a directory of host keys (DIR/dds/)
 KEYS = 'keys '
 

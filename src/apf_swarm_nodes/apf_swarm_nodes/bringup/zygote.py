@@ -1,31 +1,19 @@
-"""Fast start of a run's node processes: a zygote.
+"""The zygote: one process that has imported rclpy, numpy, the project and every message
+type once, and forks each node process of a run on request (``--spawn fork``; what it buys:
+docs/PERFORMANCE.md, "Fast start: the zygote").
 
-Each node process of a run spends about 0.3 s of CPU importing Python, rclpy, numpy and the
-project before it creates its node; 34 of them starting together on two cores wait seconds
-for each other before discovery can even begin. The zygote is one process that imports all
-of that once and then forks each node process on request: the child runs the very ``main()``
-of the executable that ``ros2 run apf_swarm_nodes <node>`` runs, with the same argv,
-environment, working directory and log file, and the same command line in ``ps``. It never
-initialises ROS itself (a process whose DDS threads already run must not fork), so it can
-also fork the respawn of a crashed node.
+A forked node runs the very ``main()`` of its executable, with its argv, environment,
+working directory, log file and command line in ``ps``. The zygote never initialises ROS (a
+process whose DDS threads run must not fork), so it forks respawns too. It forks twice and
+the middle process exits, so that the node is re-parented to the bring-up (a child
+subreaper), which waits for it as for a process it started (:class:`ForkedProcess`). A
+graph is forked as one batch, and no node of a batch runs before the last is forked.
 
-Each node is a child of the bring-up, not of the zygote: the zygote forks twice and the first
-child exits at once, so that the node is re-parented to the bring-up, which has made itself
-a child subreaper (``PR_SET_CHILD_SUBREAPER``). The bring-up then waits for it, signals its
-process group and reads its exit code as it does for a process it started itself
-(:class:`ForkedProcess` has the part of :class:`subprocess.Popen` the supervision uses).
-
-A whole graph is forked as one batch, and no node of a batch runs before the last is forked:
-forks requested one at a time, each waiting for a zygote that competes for the CPU with the
-nodes already running, took seconds for 34 nodes.
-
-Protocol: a JSON list of requests a line on the zygote's stdin (each with ``entry``,
-``argv``, ``env``, ``cwd``, ``log``), the list of replies a line on its stdout (each
-``{"pid": N}`` or ``{"error": "..."}``); the line ``"bye"`` and end of input end it. An
-input that ends without ``"bye"`` means that the bring-up died (SIGKILL): the zygote then
-waits for the nodes it forked to stop on their parent-death signal, kills those still
-running and removes the shared memory they left (:func:`orphaned_cleanup`). Run as
-``python -m apf_swarm_nodes.bringup.zygote``.
+Protocol: a JSON list of requests a line on stdin (``entry``, ``argv``, ``env``, ``cwd``,
+``log``, ``netns``), the list of replies a line on stdout (``{"pid": N}`` or
+``{"error": "..."}``); the line ``"bye"`` ends it. An input that ends without it means that
+the bring-up died: the zygote then stops the nodes it forked and removes the shared memory
+they left (:func:`orphaned_cleanup`). Run as ``python -m apf_swarm_nodes.bringup.zygote``.
 """
 
 from __future__ import annotations
@@ -38,7 +26,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -47,23 +34,20 @@ from typing import IO, Any
 
 import psutil
 
-__all__ = [
-    'DIST',
-    'ForkedProcess',
-    'Spawn',
-    'Zygote',
-    'become_subreaper',
-    'close_helper',
-    'main',
-    'node_entry_points',
-]
-
 #: the distribution whose console scripts are the node executables
 DIST = 'apf-swarm-nodes'
 #: console scripts that are not nodes (never preloaded or forked)
 NOT_NODES = frozenset({'apf-swarm'})
-PR_SET_CHILD_SUBREAPER = 36
-PR_SET_PDEATHSIG = 1
+#: prctl(2) options, and setns(2)'s type of a network namespace
+PR_SET_CHILD_SUBREAPER, PR_SET_PDEATHSIG, CLONE_NEWNET = 36, 1, 0x40000000
+#: the line that ends a zygote's input when its bring-up closes it (an input that ends
+#: without it: the bring-up died)
+BYE = 'bye'
+#: seconds the zygote of a bring-up that died gives the nodes (stopping on their parent-death
+#: signal) before it kills them, and before it looks for stale shared memory a second time
+ORPHAN_GRACE, ORPHAN_SECOND_LOOK = 5.0, 1.0
+#: the node processes this zygote forked (the run's nodes and their respawns)
+FORKED: list[psutil.Process] = []
 
 
 def node_entry_points() -> dict[str, str]:
@@ -158,13 +142,9 @@ class ForkedProcess:
 
 
 class Zygote:
-    """The bring-up's handle on a zygote process.
-
-    Started early (its imports overlap the bring-up's own preparation); :meth:`spawn` forks a
-    node process and returns it, or None when this zygote cannot (not a node executable of
-    the package, or the zygote is gone), in which case the caller starts the executable
-    itself. :meth:`close` ends the zygote; the node processes live on.
-    """
+    """The bring-up's handle on a zygote process, started early (its imports overlap the
+    bring-up's own preparation). :meth:`spawn_all` forks node processes; :meth:`close` ends
+    the zygote, the node processes live on."""
 
     def __init__(self) -> None:
         self.entries = node_entry_points()
@@ -182,29 +162,25 @@ class Zygote:
             close_fds=True,
         )
 
-    def entry_of(self, argv: Sequence[str]) -> str | None:
-        """The entry point of ``argv`` when it runs a node executable of the package."""
-        if not argv:
-            return None
-        return self.entries.get(Path(argv[0]).name)
-
     def spawn_all(self, spawns: Sequence[Spawn]) -> list[ForkedProcess | None]:
-        """Fork node processes as one batch (None for each that this zygote cannot fork)."""
+        """Fork node processes as one batch; None for each that this zygote cannot fork (not
+        a node executable of the package, or the zygote is gone: the caller executes it)."""
         out: list[ForkedProcess | None] = [None] * len(spawns)
-        batch = [(i, entry) for i, s in enumerate(spawns) if (entry := self.entry_of(s.argv))]
+        entries = [self.entries.get(Path(s.argv[0]).name) if s.argv else None for s in spawns]
+        batch = [i for i, entry in enumerate(entries) if entry]
         proc = self.proc
         if not batch or proc is None or proc.stdin is None or proc.stdout is None:
             return out
         requests = [
             {
-                'entry': entry,
-                'argv': list(spawn.argv),
-                'env': dict(os.environ) if spawn.env is None else dict(spawn.env),
-                'cwd': str(spawn.cwd) if spawn.cwd is not None else None,
-                'log': str(spawn.log_path),
-                'netns': spawn.netns,
+                'entry': entries[i],
+                'argv': list(s.argv),
+                'env': dict(os.environ) if s.env is None else dict(s.env),
+                'cwd': None if s.cwd is None else str(s.cwd),
+                'log': str(s.log_path),
+                'netns': s.netns,
             }
-            for spawn, entry in ((spawns[i], entry) for i, entry in batch)
+            for i, s in ((i, spawns[i]) for i in batch)
         ]
         try:
             proc.stdin.write(json.dumps(requests).encode() + b'\n')
@@ -217,7 +193,7 @@ class Zygote:
             self.error = self.error or f'zygote ended ({proc.poll()})'
             self.close()
             return out
-        for (i, _), reply in zip(batch, json.loads(line), strict=True):
+        for i, reply in zip(batch, json.loads(line), strict=True):
             if 'pid' in reply:
                 out[i] = ForkedProcess(int(reply['pid']), spawns[i].argv)
             else:
@@ -304,10 +280,6 @@ def fork_node() -> int:
     return int(data)
 
 
-#: setns(2)'s type of a network namespace
-CLONE_NEWNET = 0x40000000
-
-
 def enter_netns(name: str) -> None:
     """Move this (single-threaded) process into the named network namespace (root), or end it
     with exit code 2 and the reason in its log: it must not run on the wrong host."""
@@ -360,16 +332,16 @@ def become_node(request: Mapping[str, Any]) -> None:
     if request.get('cwd'):
         os.chdir(request['cwd'])
     sys.argv = list(request['argv'])
-    with contextlib.suppress(ImportError):
-        import setproctitle
+    import setproctitle
 
-        setproctitle.setproctitle(' '.join([sys.executable, *sys.argv]))
-        setproctitle.setthreadtitle(Path(sys.argv[0]).name)  # what top shows
+    setproctitle.setproctitle(' '.join([sys.executable, *sys.argv]))
+    setproctitle.setthreadtitle(Path(sys.argv[0]).name)  # what top shows
 
 
 def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
-    """Answer batches of requests until end of input (returns None); in a forked node
-    process, return its request once the whole batch is forked."""
+    """Answer batches of requests until the goodbye (the zygote exits) or the end of input
+    (returns None); in a forked node process, return its request once the whole batch is
+    forked."""
     for line in requests:
         try:
             batch = json.loads(line)
@@ -377,8 +349,7 @@ def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
             batch, bad = [], f'ValueError: {exc}'
         else:
             if batch == BYE:  # the bring-up closes it: it stops its nodes itself
-                CLOSED.set()
-                return None
+                sys.exit(0)
             bad = None if isinstance(batch, list) else 'expected a JSON list of requests'
         if bad is not None:
             replies.write(json.dumps([{'error': bad}]).encode() + b'\n')
@@ -407,59 +378,41 @@ def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
     return None
 
 
-#: seconds the zygote of a bring-up that died gives the nodes (stopping on their parent-death
-#: signal) before it removes the shared memory they left
-ORPHAN_GRACE = 5.0
+def _running_after(procs: Sequence[psutil.Process], seconds: float) -> list[psutil.Process]:
+    """Those of ``procs`` still running (a zombie holds no lock and no mapping) once all
+    have ended or ``seconds`` have passed."""
 
+    def running(procs: Sequence[psutil.Process]) -> list[psutil.Process]:
+        out = []
+        for p in procs:
+            with contextlib.suppress(psutil.Error):
+                if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
+                    out.append(p)
+        return out
 
-#: the line that ends a zygote's input when its bring-up closes it (an input that ends
-#: without it: the bring-up died)
-BYE = 'bye'
-#: set once the bring-up said goodbye
-CLOSED = threading.Event()
-
-#: the node processes this zygote forked (the run's nodes and their respawns)
-FORKED: list[psutil.Process] = []
-
-
-def _running(procs: Sequence[psutil.Process]) -> list[psutil.Process]:
-    """Those of ``procs`` that still run (a zombie holds no lock and no mapping)."""
-    out = []
-    for p in procs:
-        with contextlib.suppress(psutil.Error):
-            if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
-                out.append(p)
-    return out
-
-
-#: seconds after an orphaned run's cleanup before it looks for stale shared memory again
-ORPHAN_SECOND_LOOK = 1.0
+    deadline = time.monotonic() + seconds
+    pending = running(procs)
+    while pending and time.monotonic() < deadline:
+        time.sleep(0.05)
+        pending = running(pending)
+    return pending
 
 
 def orphaned_cleanup(nodes: Sequence[psutil.Process] | None = None) -> None:
-    """The bring-up died (SIGKILL: it could clean nothing up) and its nodes are stopping on
-    their parent-death signal: once they are gone (at most :data:`ORPHAN_GRACE` s, and
-    :data:`~..lifetime.STOP_CPU_PER_PROCESS` more per node over the cores, as the
-    bring-up's own stop waits), SIGKILL the process group of every one still running (a
-    node that missed or could not act on its SIGINT; all of them are orphans, wherever
-    they were reparented), wait until they are gone, then remove the Fast DDS shared memory
-    no live process holds, as the bring-up would have at its end."""
+    """The bring-up died without cleaning up and its nodes (default :data:`FORKED`) are
+    stopping on their parent-death signal: give them :data:`ORPHAN_GRACE` s and
+    :data:`~..lifetime.STOP_CPU_PER_PROCESS` per node over the cores (as the bring-up's own
+    stop), SIGKILL the session of each one still running, then remove the Fast DDS shared
+    memory no live process holds, as the bring-up would have at its end."""
     from ..dds import shm
     from ..lifetime import STOP_CPU_PER_PROCESS
 
-    pending = _running(FORKED if nodes is None else nodes)
-    deadline = time.monotonic() + ORPHAN_GRACE
-    deadline += STOP_CPU_PER_PROCESS * len(pending) / (os.cpu_count() or 1)
-    while pending and time.monotonic() < deadline:
-        time.sleep(0.1)
-        pending = _running(pending)
-    for p in pending:
+    pending = _running_after(FORKED if nodes is None else nodes, 0.0)
+    grace = ORPHAN_GRACE + STOP_CPU_PER_PROCESS * len(pending) / (os.cpu_count() or 1)
+    for p in _running_after(pending, grace):
         with contextlib.suppress(OSError):
             os.killpg(p.pid, signal.SIGKILL)  # its own session: the node and its children
-    deadline = time.monotonic() + 5.0  # the kernel drops a killed node's locks at its exit
-    while pending and time.monotonic() < deadline:
-        time.sleep(0.05)
-        pending = _running(pending)
+    _running_after(pending, 5.0)  # the kernel drops a killed node's locks at its exit
     with contextlib.suppress(OSError):
         shm.remove_stale()
         # a node the dead bring-up had just started, and not yet told us of, ends on its
@@ -474,11 +427,10 @@ def main() -> None:
     requests, replies = sys.stdin.buffer, sys.stdout.buffer
     entries = node_entry_points()
     preload(entries)
-    with contextlib.suppress(ImportError):
-        import setproctitle
+    import setproctitle
 
-        # set up here, once, while the environment still lies behind argv (where it finds it)
-        setproctitle.setproctitle(setproctitle.getproctitle())
+    # set up here, once, while the environment still lies behind argv (where it finds it)
+    setproctitle.setproctitle(setproctitle.getproctitle())
     import gc
 
     gc.collect()
@@ -487,8 +439,7 @@ def main() -> None:
     if request is None:
         # the input ended without a goodbye: the bring-up died (SIGKILL) and could stop
         # nothing (its parent pid cannot tell: the input ends before the reparenting)
-        if not CLOSED.is_set():
-            orphaned_cleanup()
+        orphaned_cleanup()
         return
     become_node(request)
     module, _, func = request['entry'].partition(':')

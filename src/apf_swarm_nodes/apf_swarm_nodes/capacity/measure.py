@@ -1,15 +1,8 @@
 """How the capacity probe measures this machine (:func:`measure`, JSON for :mod:`.probe`):
-
-* **round trip**: a raw rclpy ping-pong between this process and an echo process (the echo
-  takes the CDR bytes and publishes them back, as little work as a message can cost) with a
-  ``SwarmOdometry`` of 16 trackers at the realtime rate: p50 / p90 / p99 [s];
-* **CPU per message**: the echo process's CPU time (:mod:`.machine`) over the messages
-  it took and sent [s];
-* **command cost**: the core's :class:`~apf_swarm_core.agents.TrackerAgent` command of the
-  ``realtime`` preset for 3, 16 and 32 trackers, in this process [s];
-* **memory per process**: the echo node process's resident set [bytes], what every node
-  process costs at least.
-"""
+the round trip of a ``SwarmOdometry`` of 16 trackers between this process and an echo
+process that publishes the CDR bytes back (p50 / p90 / p99 [s]); the echo's CPU per message
+[s] and resident set [bytes] (what every node process costs at least); and the cost of one
+tracker's state, offer and command, for :data:`COMMAND_SIZES` trackers [s]."""
 
 from __future__ import annotations
 
@@ -21,8 +14,6 @@ from typing import Any
 import numpy as np
 
 from .machine import identity, process_cpu_seconds, process_rss
-
-__all__ = ['COMMAND_SIZES', 'echo', 'measure', 'ping_pong', 'state_cost']
 
 #: tracker counts whose command cost is measured (others are interpolated, and extrapolated
 #: linearly beyond: the block direction's cost grows with the tracker's own gradient)

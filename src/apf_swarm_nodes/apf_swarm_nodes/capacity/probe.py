@@ -1,22 +1,13 @@
-"""Capacity probe: this machine's control-loop latency and cost per message, measured once and
-cached, and what follows from them (``apf-swarm probe``).
+"""Capacity probe (``apf-swarm probe``): this machine's control-loop latency and cost per
+message, measured once (:mod:`.measure`) and cached, and what follows from them
+(:func:`derive`: the latency ``check`` and ``design`` assume, how many trackers fit at each
+rate, the default rate; :func:`process_limit`: how many tracker processes the bring-up
+starts). Machines of one kind differ 3-4x in speed, so these come from the machine in use.
 
-Machines of one kind differ 3-4x in speed, so the realtime defaults come from a measurement
-of the machine in use (:mod:`.measure`: the round trip, the CPU per message, the
-cost of a tracker's state (offer and command) and the memory per process), not from
-constants measured elsewhere.
-
-From them (:func:`derive`): the control-loop latency ``check`` and ``design`` assume (the
-round trip's p90 plus a command, stretched by the machine's utilization), the most trackers
-that fit in :data:`CPU_BUDGET` of the cores at a rate (each costs per period its state's
-delivery, its command's publication, the plant's receipt and a command), and the default
-rate (the highest of :data:`RATES` that fits); and the most tracker processes the bring-up
-starts (:func:`process_limit`): as many one-tracker processes as fit in the CPU budget at the
-lowest rate, and in :data:`MEMORY_BUDGET` of the memory available now. The cache is
-``$XDG_CACHE_HOME/apf_swarm/probe.json`` (``~/.cache``), or ``$APF_SWARM_CACHE/probe.json``;
-it is measured again when the machine (CPU model, cores, host name) differs, or with
+The cache is ``$APF_SWARM_CACHE/probe.json``, else ``$XDG_CACHE_HOME/apf_swarm/probe.json``
+(``~/.cache``), measured again for another machine (CPU model, cores, host name) or with
 ``--refresh``. ``python -m apf_swarm_nodes.capacity.probe --measure`` measures in a process
-of its own (JSON on stdout), ``--echo`` is the measurement's echo process.
+of its own (JSON on stdout); ``--echo`` is the measurement's echo process.
 """
 
 from __future__ import annotations
@@ -33,21 +24,6 @@ import numpy as np
 import psutil
 
 from .machine import identity
-
-__all__ = [
-    'CPU_BUDGET',
-    'MEMORY_BUDGET',
-    'PROCESSES_PER_CORE',
-    'RATES',
-    'add_arguments',
-    'cache_path',
-    'derive',
-    'ensure',
-    'load',
-    'process_limit',
-    'run',
-    'trackers_per_process',
-]
 
 #: the share of the machine's cores the swarm's messages and commands may take
 CPU_BUDGET = 0.5
@@ -153,15 +129,13 @@ def derive(
 ) -> dict[str, Any]:
     """What the probe implies for n trackers hosted ``per_process`` to a process:
     ``capacity`` (trackers that fit in CPU_BUDGET of the cores, per rate of RATES and the
-    given one), ``rate`` (the
-    given one, or the default: the highest of RATES that fits n, else the lowest), the
-    swarm's CPU ``utilization`` at that rate (mean costs), and the ``latency`` [s] check
-    and design assume: the idle round trip's p90 plus the longer of the process's commands
-    at their p99 and the swarm's burst (every tracker wakes on the same state, so the last
-    command waits until the cores have done the work of all n: ``n per_tracker / cores``),
-    stretched by ``1 / (1 - utilization)`` for the queueing of a busy machine (capped at
-    0.9). At 128 trackers and 20 Hz on 2 cores this is 36 ms where the runs measure a
-    median of 29-39 ms (docs/PERFORMANCE.md); the process's commands alone gave 7 ms."""
+    given one), ``rate`` (the given one, or the default: the highest of RATES that fits n,
+    else the lowest), the swarm's CPU ``utilization`` at that rate (mean costs), and the
+    ``latency`` [s] check and design assume: the idle round trip's p90 plus the longer of
+    the process's commands at their p99 and the swarm's burst (every tracker wakes on the
+    same state, so the last command waits until the cores have done the work of all n),
+    stretched by ``1 / (1 - utilization)`` (capped at 0.9) for the queueing of a busy
+    machine."""
     cores = int(probe['machine']['cores'])
     msg = float(probe['cpu_per_message'])
     cmd = _state_cost_at(probe, n)

@@ -23,16 +23,6 @@ import psutil
 
 from .shm import stale_fastdds_files
 
-__all__ = [
-    'BRINGUP_ENV',
-    'add_arguments',
-    'bringup_alive',
-    'bringup_mark',
-    'expired_leases',
-    'orphan_nodes',
-    'run',
-]
-
 #: a process runs one of our node executables when its command line names this directory
 NODE_DIR = f'{os.sep}apf_swarm_nodes{os.sep}lib{os.sep}apf_swarm_nodes{os.sep}'
 #: the variable that names a node's bring-up: ``<pid>:<start time>``
@@ -136,18 +126,13 @@ def run(args: argparse.Namespace, say: Callable[[str], None] = print) -> int:
     leases = expired_leases()
     for path in leases:
         say(f'expired lease: {path}')
-    if args.dry_run:
-        found = stale_fastdds_files()
-        for path in found.stale:
-            say(f'stale: {path}')
-        removed, stopped = len(found.stale), 0
-    else:
-        # the orphans first: what they hold is stale once they are gone
-        stopped = _stop(orphans, say)
-        found = stale_fastdds_files()
-        for path in found.stale:
-            say(f'stale: {path}')
-        removed = found.remove()
+    # the orphans first: what they hold is stale once they are gone
+    stopped = 0 if args.dry_run else _stop(orphans, say)
+    found = stale_fastdds_files()
+    for path in found.stale:
+        say(f'stale: {path}')
+    removed = len(found.stale) if args.dry_run else found.remove()
+    if not args.dry_run:
         for path in leases:
             with contextlib.suppress(OSError):
                 path.unlink()

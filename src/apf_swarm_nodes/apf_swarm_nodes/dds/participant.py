@@ -9,16 +9,6 @@ import os
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
-__all__ = [
-    'LOCALHOST_PROFILE',
-    'OWN_PROFILE',
-    'PROFILE_VARIABLES',
-    'SECURE_PROFILE',
-    'SECURE_SERVER_PROFILE',
-    'own_participant',
-    'own_participant_environment',
-]
-
 #: the variables that name a Fast DDS profile file (both names Fast DDS 2.x reads)
 PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
 #: a run's profile on one machine (:mod:`.profiles` writes it in DIR/dds/)
@@ -31,25 +21,28 @@ OWN_PROFILE = 'fastdds_localhost_udp.xml'
 SECURE_PROFILE, SECURE_SERVER_PROFILE = 'fastdds_secure.xml', 'fastdds_secure_server.xml'
 
 
+def named_profile(environ: Mapping[str, str]) -> str | None:
+    """The Fast DDS profile file ``environ`` names, or None."""
+    return next((environ[v] for v in PROFILE_VARIABLES if environ.get(v)), None)
+
+
 def own_participant_environment(environ: Mapping[str, str] | None = None) -> dict[str, str]:
     """The variables that put the bring-up's own participant on UDP only, never on shared
     memory: a participant whose call blocks on a shared-memory mutex that a killed node
     held cannot stop the run then. Localhost runs: the run's profile without its SHM
-    transport (written beside it by :func:`~.profiles.isolate_dds`); secure runs: the discovery
-    server's profile (:mod:`.secure`); otherwise ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``. Set
-    them for ``rclpy.init`` only: the nodes keep shared memory."""
-    env = os.environ if environ is None else environ
-    own = next((env[v] for v in PROFILE_VARIABLES if env.get(v)), None)
-    if own is not None and Path(own).name == LOCALHOST_PROFILE:
-        udp = Path(own).with_name(OWN_PROFILE)
-        if udp.is_file():
-            return dict.fromkeys(PROFILE_VARIABLES, str(udp))
-    if own is not None and Path(own).name == SECURE_PROFILE:
-        # a secure run (apf_swarm_nodes.dds.secure): the bring-up's participant is its
-        # discovery server, on TCP with TLS as every other
-        server = Path(own).parent.parent / SECURE_SERVER_PROFILE
-        if server.is_file():
-            return dict.fromkeys(PROFILE_VARIABLES, str(server))
+    transport (written beside it by :func:`~.profiles.isolate_dds`); secure runs: the
+    discovery server's profile (TCP with TLS, :mod:`.secure`); otherwise
+    ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``. Set them for ``rclpy.init`` only: the nodes keep
+    shared memory."""
+    own = named_profile(os.environ if environ is None else environ)
+    if own is not None:
+        path = Path(own)
+        beside = {
+            LOCALHOST_PROFILE: path.with_name(OWN_PROFILE),
+            SECURE_PROFILE: path.parent.parent / SECURE_SERVER_PROFILE,
+        }.get(path.name)
+        if beside is not None and beside.is_file():
+            return dict.fromkeys(PROFILE_VARIABLES, str(beside))
     return {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
 
 

@@ -1,38 +1,10 @@
-"""A multi-host run that admits only its own hosts: Fast DDS over TCP with TLS, both sides
-verified, nothing else (``apf-swarm up --discovery-range SUBNET --secure``; the default of
-``scripts/multihost.py``). docs/RELIABILITY.md, "Multi-host runs: threat model", says what
-it protects and what not.
-
-**The run's authority.** :func:`make_pki` makes a certificate authority for the run and a
-certificate and key per host (``cryptography``; EC P-256, ECDSA-SHA256). The authority's
-key lives in memory only and is dropped once the hosts' certificates are signed: nobody,
-not even the bring-up, can admit another host to the run afterwards. Keys are written
-mode 0600 and removed at the run's end unless kept (:func:`remove_keys`).
-
-**The profile.** :func:`profile_xml`: one TCPv4 transport with a ``<tls>`` block (the
-run's CA, the host's certificate and key, ``VERIFY_PEER``), no builtin transport (no UDP,
-no shared memory), and discovery through a Fast DDS discovery server over that same
-transport: the bring-up's own participant is the server (its profile:
-``fastdds_secure_server.xml``, a fixed TCP port); every node listens on a port of the
-system's choosing and is a super client (told the whole graph), except the processes of
-trackers only, plain clients (:data:`CLIENT_PROFILE_FILE`). Simple discovery cannot work
-over TCP here: a participant only learns the participants it has connected to, and the node
-processes of a host cannot share one listening port.
-
-**Why an OpenSSL configuration too.** The TLS transport of Fast DDS 2.14 (these wheels)
-never asks a connecting peer for its certificate: the acceptor's handshake runs on a
-context whose verify mode the profile's ``<verify_mode>`` never reaches (it is applied to
-the socket after the handshake), so *anyone* that speaks TLS is accepted, with no
-certificate, a self-signed one or one from another authority
-(``test/integration/test_secure_transport.py`` shows it). The connecting side does verify
-the server. :func:`openssl_conf` sets the verify mode of every TLS context the process's
-OpenSSL makes, through OpenSSL's own configuration (``OPENSSL_CONF``, section
-``system_default``: ``VerifyMode = Peer,Require``, ``MinProtocol = TLSv1.2``): the acceptor
-then requests a certificate and refuses a connection without one signed by the run's CA.
-A process of the run therefore needs both variables (:func:`secure_environment`); the run's
-nodes take the second from the profile themselves (:func:`complete_environment`), so the
-profile is all a joining host needs. The bring-up checks, before it starts any node, that
-its own listening port refuses a TLS client without a certificate (:func:`check_refuses`).
+"""A multi-host run that admits only its own hosts (``apf-swarm up --discovery-range SUBNET
+--secure``): a certificate authority per run and a certificate and key per host
+(:func:`make_pki`), Fast DDS profiles of TCPv4 with TLS only and discovery through the
+bring-up's own participant (:func:`profile_xml`), and an OpenSSL configuration that makes
+every TLS context require the peer's certificate (:data:`OPENSSL_CONFIG`: Fast DDS 2.14 never
+asks a connecting peer for one). docs/RELIABILITY.md, "Multi-host runs: threat model", says
+what it protects, what not, and why each part is there.
 
 ``python -m apf_swarm_nodes.dds.secure check DIR/dds/HOST`` checks a host's files before it
 joins; ``python -m apf_swarm_nodes.dds.secure env DIR/dds/HOST`` prints its environment.
@@ -51,40 +23,25 @@ import sys
 from collections.abc import Callable, Mapping, MutableMapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from .errors import DdsError
-from .participant import PROFILE_VARIABLES
 from .participant import SECURE_PROFILE as PROFILE_FILE
 from .participant import SECURE_SERVER_PROFILE as SERVER_PROFILE
+from .participant import named_profile
+from .profiles import (
+    LEASE_ANNOUNCEMENT,
+    LEASE_DURATION,
+    NETWORK_RANGES,
+    check_rmw,
+    discovery_timing,
+    duration,
+    localhost_environment,
+    profiles_file,
+)
 
 if TYPE_CHECKING:
     from cryptography import x509
-    from cryptography.hazmat.primitives.asymmetric import ec
-
-__all__ = [
-    'CA_FILE',
-    'CERT_FILE',
-    'CLIENT_PROFILE_FILE',
-    'KEY_FILE',
-    'OPENSSL_FILE',
-    'PROFILE_FILE',
-    'SERVER_PROFILE',
-    'THIS_HOST',
-    'HostFiles',
-    'Pki',
-    'check_files',
-    'check_refuses',
-    'complete_environment',
-    'make_pki',
-    'openssl_conf',
-    'profile_xml',
-    'remove_keys',
-    'secure_dds',
-    'secure_environment',
-    'server_port',
-    'write_run_files',
-]
 
 #: the files of a run's security, under DIR/dds/: the authority's certificate and the
 #: OpenSSL configuration, shared; per host (DIR/dds/HOST/): its certificate, key, profile
@@ -107,6 +64,8 @@ BACKDATE = dt.timedelta(minutes=10)
 SOCKET_BUFFER = 4 * 2**20
 #: the Fast DDS transport id in the profile
 TRANSPORT_ID = 'apf_swarm_tls'
+#: the protocols a TLS connection of the run refuses (Fast DDS TLS options)
+TLS_REFUSED = ('NO_SSLV2', 'NO_SSLV3', 'NO_TLSV1', 'NO_TLSV1_1')
 
 
 def server_port(domain: int) -> int:
@@ -141,41 +100,6 @@ class Pki:
     server_profile: Path
 
 
-def _certificate(
-    subject: str,
-    public_key: ec.EllipticCurvePublicKey,
-    *,
-    issuer: str,
-    issuer_key: ec.EllipticCurvePrivateKey,
-    start: dt.datetime,
-    end: dt.datetime,
-    extensions: Sequence[tuple[x509.ExtensionType, bool]],
-) -> x509.Certificate:
-    """A certificate of ``public_key`` for the common name ``subject``, issued by the common
-    name ``issuer`` and signed with ``issuer_key`` (ECDSA-SHA256), valid from ``start`` until
-    ``end``, with a random serial number and ``extensions`` ((extension, critical), in
-    order)."""
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes
-    from cryptography.x509.oid import NameOID
-
-    def name(common_name: str) -> x509.Name:
-        return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
-
-    builder = (
-        x509.CertificateBuilder()
-        .subject_name(name(subject))
-        .issuer_name(name(issuer))
-        .public_key(public_key)
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(start)
-        .not_valid_after(end)
-    )
-    for extension, critical in extensions:
-        builder = builder.add_extension(extension, critical)
-    return builder.sign(issuer_key, hashes.SHA256())
-
-
 def _write_private(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` readable by its owner only (created 0600, never wider)."""
     with contextlib.suppress(FileNotFoundError):
@@ -195,20 +119,37 @@ def make_pki(
 ) -> dict[str, tuple[Path, Path]]:
     """A certificate authority for a run (``directory``/ca.pem; its key is never written)
     and a certificate and key per host (``directory``/HOST/cert.pem, key.pem, mode 0600),
-    valid from ``now`` - :data:`BACKDATE` for ``validity``. Returns {host: (cert, key)}."""
+    EC P-256 and ECDSA-SHA256, valid from ``now`` - :data:`BACKDATE` for ``validity``.
+    Returns {host: (cert, key)}."""
     from cryptography import x509
-    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives import hashes, serialization
     from cryptography.hazmat.primitives.asymmetric import ec
-    from cryptography.x509.oid import ExtendedKeyUsageOID
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
     if len(set(hosts)) != len(hosts) or not hosts:
         raise ValueError(f'hosts must be distinct and at least one: {hosts}')
     now = now or dt.datetime.now(dt.UTC)
-    start, end = now - BACKDATE, now + validity
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     ca_key = ec.generate_private_key(ec.SECP256R1())
     ca_name = f'{run} run authority'
+
+    def issue(subject: str, key: ec.EllipticCurvePrivateKey, *extensions: Any) -> bytes:
+        """The PEM certificate of ``key`` for ``subject``, signed by the authority, with
+        ``extensions`` ((extension, critical), in order)."""
+        builder = (
+            x509.CertificateBuilder()
+            .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, subject)]))
+            .issuer_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, ca_name)]))
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(now - BACKDATE)
+            .not_valid_after(now + validity)
+        )
+        for extension, critical in extensions:
+            builder = builder.add_extension(extension, critical)
+        return builder.sign(ca_key, hashes.SHA256()).public_bytes(serialization.Encoding.PEM)
+
     ca_usage = x509.KeyUsage(
         digital_signature=False,
         content_commitment=False,
@@ -220,43 +161,39 @@ def make_pki(
         encipher_only=False,
         decipher_only=False,
     )
-    ca_cert = _certificate(
-        ca_name, ca_key.public_key(), issuer=ca_name, issuer_key=ca_key, start=start, end=end,
-        extensions=[
+    (directory / CA_FILE).write_bytes(
+        issue(
+            ca_name,
+            ca_key,
             (x509.BasicConstraints(ca=True, path_length=0), True),
             (ca_usage, True),
             (x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key()), False),
-        ],
-    )  # fmt: skip
-    (directory / CA_FILE).write_bytes(ca_cert.public_bytes(serialization.Encoding.PEM))
+        )
+    )
     usage = [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
     out = {}
     for host in hosts:
         key = ec.generate_private_key(ec.SECP256R1())
-        cert = _certificate(
-            f'{run} {host}', key.public_key(), issuer=ca_name, issuer_key=ca_key,
-            start=start, end=end,
-            extensions=[
+        where = directory / host
+        where.mkdir(parents=True, exist_ok=True)
+        (where / CERT_FILE).write_bytes(
+            issue(
+                f'{run} {host}',
+                key,
                 (x509.BasicConstraints(ca=False, path_length=None), True),
                 (x509.ExtendedKeyUsage(usage), False),
                 (x509.SubjectAlternativeName([x509.DNSName(host)]), False),
                 (x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), False),
-            ],
-        )  # fmt: skip
-        where = directory / host
-        where.mkdir(parents=True, exist_ok=True)
-        (where / CERT_FILE).write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-        _write_private(
-            where / KEY_FILE,
-            key.private_bytes(
-                serialization.Encoding.PEM,
-                serialization.PrivateFormat.PKCS8,
-                serialization.NoEncryption(),
-            ),
+            )
         )
+        pem = key.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.PKCS8,
+            serialization.NoEncryption(),
+        )
+        _write_private(where / KEY_FILE, pem)
         out[host] = (where / CERT_FILE, where / KEY_FILE)
-    del ca_key  # the authority signs nothing more
-    return out
+    return out  # the authority's key goes with this call: it signs nothing more
 
 
 def remove_keys(directory: Path) -> list[Path]:
@@ -276,20 +213,17 @@ def remove_keys(directory: Path) -> list[Path]:
 _AGAIN = 'start the run again (it issues new ones), or copy them again from its DIR/dds/'
 
 
-def _load_cert(path: Path, what: str) -> object:
+def _current_cert(path: Path, what: str, now: dt.datetime) -> x509.Certificate:
+    """The PEM certificate ``path`` (``what`` it is), valid at ``now``, else DdsError."""
     from cryptography import x509
 
     if not path.is_file():
         raise DdsError(f'{path}: {what} missing; {_AGAIN}')
     try:
-        return x509.load_pem_x509_certificate(path.read_bytes())
+        cert = x509.load_pem_x509_certificate(path.read_bytes())
     except (ValueError, OSError) as exc:
         raise DdsError(f'{path}: not a PEM certificate ({exc}); {_AGAIN}') from exc
-
-
-def _check_dates(cert: object, path: Path, now: dt.datetime) -> None:
-    start = cert.not_valid_before_utc  # type: ignore[attr-defined]
-    end = cert.not_valid_after_utc  # type: ignore[attr-defined]
+    start, end = cert.not_valid_before_utc, cert.not_valid_after_utc
     if now >= end:
         raise DdsError(f'{path}: certificate expired at {end:%Y-%m-%d %H:%M} UTC; {_AGAIN}')
     if now < start:
@@ -297,6 +231,7 @@ def _check_dates(cert: object, path: Path, now: dt.datetime) -> None:
             f'{path}: certificate not valid before {start:%Y-%m-%d %H:%M} UTC (is this '
             "host's clock right?); set the clock, or " + _AGAIN
         )
+    return cert
 
 
 def check_files(ca: Path, cert: Path, key: Path, *, now: dt.datetime | None = None) -> None:
@@ -308,12 +243,10 @@ def check_files(ca: Path, cert: Path, key: Path, *, now: dt.datetime | None = No
 
     now = now or dt.datetime.now(dt.UTC)
     ca, cert, key = Path(ca), Path(cert), Path(key)
-    ca_cert = _load_cert(ca, "the run's authority certificate")
-    _check_dates(ca_cert, ca, now)
-    host_cert = _load_cert(cert, "the host's certificate")
-    _check_dates(host_cert, cert, now)
+    ca_cert = _current_cert(ca, "the run's authority certificate", now)
+    host_cert = _current_cert(cert, "the host's certificate", now)
     try:
-        host_cert.verify_directly_issued_by(ca_cert)  # type: ignore[attr-defined]
+        host_cert.verify_directly_issued_by(ca_cert)
     except (ValueError, TypeError, InvalidSignature) as exc:
         raise DdsError(
             f"{cert}: not issued by the run's authority {ca} (a certificate of another "
@@ -331,11 +264,7 @@ def check_files(ca: Path, cert: Path, key: Path, *, now: dt.datetime | None = No
         private = serialization.load_pem_private_key(key.read_bytes(), password=None)
     except (ValueError, TypeError, OSError) as exc:
         raise DdsError(f'{key}: not an unencrypted PEM private key ({exc}); {_AGAIN}') from exc
-    pem = serialization.Encoding.PEM
-    spki = serialization.PublicFormat.SubjectPublicKeyInfo
-    if private.public_key().public_bytes(pem, spki) != host_cert.public_key().public_bytes(  # type: ignore[attr-defined]
-        pem, spki
-    ):
+    if private.public_key() != host_cert.public_key():
         raise DdsError(f'{key}: not the key of the certificate {cert} (mismatched); {_AGAIN}')
 
 
@@ -344,33 +273,24 @@ def check_files(ca: Path, cert: Path, key: Path, *, now: dt.datetime | None = No
 # --------------------------------------------------------------------------------------------
 
 
-def openssl_conf() -> str:
-    """The OpenSSL configuration of a run's processes: every TLS context verifies its peer
-    and, when it accepts, requires a certificate (the module's docstring says why)."""
-    return '\n'.join(
-        [
-            '# apf_swarm, written by apf_swarm_nodes.dds.secure: every TLS context of the',
-            "# process verifies its peer and requires the peer's certificate (Fast DDS 2.14",
-            "# does not apply the profile's verify mode to the connections it accepts)",
-            'openssl_conf = apf_swarm_init',
-            '',
-            '[apf_swarm_init]',
-            'ssl_conf = apf_swarm_ssl',
-            '',
-            '[apf_swarm_ssl]',
-            'system_default = apf_swarm_tls',
-            '',
-            '[apf_swarm_tls]',
-            'VerifyMode = Peer,Require',
-            'MinProtocol = TLSv1.2',
-            '',
-        ]
-    )
+#: the OpenSSL configuration of a run's processes (DIR/dds/openssl.cnf): every TLS context
+#: verifies its peer and, when it accepts, requires a certificate
+OPENSSL_CONFIG = """\
+# apf_swarm, written by apf_swarm_nodes.dds.secure: every TLS context of the
+# process verifies its peer and requires the peer's certificate (Fast DDS 2.14
+# does not apply the profile's verify mode to the connections it accepts)
+openssl_conf = apf_swarm_init
 
+[apf_swarm_init]
+ssl_conf = apf_swarm_ssl
 
-def _duration(seconds: float) -> str:
-    sec = int(seconds)
-    return f'<sec>{sec}</sec><nanosec>{round((seconds - sec) * 1e9)}</nanosec>'
+[apf_swarm_ssl]
+system_default = apf_swarm_tls
+
+[apf_swarm_tls]
+VerifyMode = Peer,Require
+MinProtocol = TLSv1.2
+"""
 
 
 def server_prefix(run: str) -> str:
@@ -399,90 +319,54 @@ def profile_xml(
     client that learns only what matches its own endpoints. Its comment names the run's
     OpenSSL configuration ``openssl`` (default: beside ``ca``) for
     :func:`complete_environment`."""
-    from .profiles import LEASE_ANNOUNCEMENT, LEASE_DURATION, discovery_timing
-
-    period, _, _ = discovery_timing(participants)
     address, port = server
-    locator = (
-        f'<locator><tcpv4><address>{address}</address><physical_port>{port}</physical_port>'
-        f'<port>{port}</port></tcpv4></locator>'
-    )
-    tls = [
-        '<tls>',
-        f'  <private_key_file>{Path(key).resolve()}</private_key_file>',
-        f'  <cert_chain_file>{Path(cert).resolve()}</cert_chain_file>',
-        f'  <verify_file>{Path(ca).resolve()}</verify_file>',
-        # Fast DDS applies the first of these only, to the connections it makes; the
-        # ones it accepts are verified by OpenSSL's configuration (openssl_conf)
-        (
-            '  <verify_mode><verify>VERIFY_PEER</verify>'
-            '<verify>VERIFY_FAIL_IF_NO_PEER_CERT</verify></verify_mode>'
-        ),
-        (
-            '  <options><option>DEFAULT_WORKAROUNDS</option><option>NO_COMPRESSION</option>'
-            '<option>NO_SSLV2</option><option>NO_SSLV3</option><option>NO_TLSV1</option>'
-            '<option>NO_TLSV1_1</option></options>'
-        ),
-        '  <handshake_role>DEFAULT</handshake_role>',
-        '</tls>',
-    ]
-    transports = [
-        '<transport_descriptors>',
-        '  <transport_descriptor>',
-        f'    <transport_id>{TRANSPORT_ID}</transport_id>',
-        '    <type>TCPv4</type>',
+    locator = {'locator': {'tcpv4': {'address': address, 'physical_port': port, 'port': port}}}
+    tls = {
+        'private_key_file': Path(key).resolve(),
+        'cert_chain_file': Path(cert).resolve(),
+        'verify_file': Path(ca).resolve(),
+        # Fast DDS applies the first of these only, to the connections it makes; the ones
+        # it accepts are verified by OpenSSL's configuration (OPENSSL_CONFIG)
+        'verify_mode': {'verify': ['VERIFY_PEER', 'VERIFY_FAIL_IF_NO_PEER_CERT']},
+        'options': {'option': ['DEFAULT_WORKAROUNDS', 'NO_COMPRESSION', *TLS_REFUSED]},
+        'handshake_role': 'DEFAULT',
+    }
+    transport = {
+        'transport_id': TRANSPORT_ID,
+        'type': 'TCPv4',
         # the server on its known port; a node on one the system picks (announced)
-        f'    <listening_ports><port>{port if is_server else 0}</port></listening_ports>',
-        '    <enable_tcp_nodelay>true</enable_tcp_nodelay>',
-        # a blocking send on a full socket deadlocks the discovery of a large swarm (at 128
-        # trackers, node processes hung while creating their nodes; eProsima/Fast-DDS#5235):
-        # a send that would block drops its message, which reliability sends again; and
-        # buffers large enough that a discovery burst does not fill them
-        '    <non_blocking_send>true</non_blocking_send>',
-        f'    <sendBufferSize>{SOCKET_BUFFER}</sendBufferSize>',
-        f'    <receiveBufferSize>{SOCKET_BUFFER}</receiveBufferSize>',
-        *(f'    {line}' for line in tls),
-        '  </transport_descriptor>',
-        '</transport_descriptors>',
-    ]
-    timing = [
-        f'<leaseDuration>{_duration(LEASE_DURATION)}</leaseDuration>',
-        f'<leaseAnnouncement>{_duration(LEASE_ANNOUNCEMENT)}</leaseAnnouncement>',
-        f'<clientAnnouncementPeriod>{_duration(period)}</clientAnnouncementPeriod>',
-    ]
+        'listening_ports': {'port': port if is_server else 0},
+        'enable_tcp_nodelay': 'true',
+        # a blocking send on a full socket deadlocks the discovery of a large swarm
+        # (eProsima/Fast-DDS#5235): a send that would block drops its message, which
+        # reliability sends again; and buffers that a discovery burst does not fill
+        'non_blocking_send': 'true',
+        'sendBufferSize': SOCKET_BUFFER,
+        'receiveBufferSize': SOCKET_BUFFER,
+        'tls': tls,
+    }
+    # a super client learns the whole graph (the plant's and the viewers' checks); a client
+    # only the endpoints that match its own (the trackers)
+    kind = 'SERVER' if is_server else 'SUPER_CLIENT' if super_client else 'CLIENT'
+    discovery: dict[str, Any] = {
+        'discoveryProtocol': kind,
+        'leaseDuration': duration(LEASE_DURATION),
+        'leaseAnnouncement': duration(LEASE_ANNOUNCEMENT),
+        'clientAnnouncementPeriod': duration(discovery_timing(participants)[0]),
+    }
+    builtin: dict[str, Any] = {'discovery_config': discovery}
     if is_server:
-        builtin = [
-            '<discovery_config>',
-            '  <discoveryProtocol>SERVER</discoveryProtocol>',
-            *(f'  {line}' for line in timing),
-            '</discovery_config>',
-            f'<metatrafficUnicastLocatorList>{locator}</metatrafficUnicastLocatorList>',
-        ]
+        builtin['metatrafficUnicastLocatorList'] = locator
     else:
-        kind = 'SUPER_CLIENT' if super_client else 'CLIENT'
-        builtin = [
-            '<discovery_config>',
-            # a super client learns the whole graph (the plant's and the viewers' checks);
-            # a client only the endpoints that match its own (the trackers)
-            f'  <discoveryProtocol>{kind}</discoveryProtocol>',
-            *(f'  {line}' for line in timing),
-            '  <discoveryServersList>',
-            f'    <RemoteServer prefix="{prefix}">',
-            f'      <metatrafficUnicastLocatorList>{locator}</metatrafficUnicastLocatorList>',
-            '    </RemoteServer>',
-            '  </discoveryServersList>',
-            '</discovery_config>',
-        ]
-    rtps = [
-        *([f'<prefix>{prefix}</prefix>'] if is_server else []),
-        f'<userTransports><transport_id>{TRANSPORT_ID}</transport_id></userTransports>',
-        '<useBuiltinTransports>false</useBuiltinTransports>',
-        '<builtin>',
-        *(f'  {line}' for line in builtin),
-        '</builtin>',
-    ]
-    from .profiles import profiles_file
-
+        discovery['discoveryServersList'] = {
+            'RemoteServer': {'@prefix': prefix, 'metatrafficUnicastLocatorList': locator}
+        }
+    rtps = {
+        **({'prefix': prefix} if is_server else {}),
+        'userTransports': {'transport_id': TRANSPORT_ID},
+        'useBuiltinTransports': 'false',
+        'builtin': builtin,
+    }
     what = 'discovery server' if is_server else 'node'
     comment = (
         f'apf_swarm, secure multi-host run ({what}): TCPv4 with TLS only, peers '
@@ -490,17 +374,14 @@ def profile_xml(
         "run's nodes take their OpenSSL configuration from here, any other process needs "
         f'OPENSSL_CONF={Path(openssl or Path(ca).parent / OPENSSL_FILE).resolve()}'
     )
-    return profiles_file(comment, 'apf_swarm_secure', transports, rtps)
+    return profiles_file(comment, 'apf_swarm_secure', [transport], rtps)
 
 
 def secure_environment(profile: Path, openssl: Path) -> dict[str, str]:
     """The variables a process of a secure run needs (with ``ROS_DOMAIN_ID``; no
     ``ROS_STATIC_PEERS`` / ``ROS_DISCOVERY_SERVER``, which would add UDP)."""
-    env = dict.fromkeys(PROFILE_VARIABLES, str(Path(profile).resolve()))
-    env['OPENSSL_CONF'] = str(Path(openssl).resolve())
-    # SUBNET: the one range in which rmw adds no transport of its own to the profile's
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
-    return env
+    env = localhost_environment(Path(profile).resolve())  # the profile, and SUBNET
+    return {**env, 'OPENSSL_CONF': str(Path(openssl).resolve())}
 
 
 #: what a secure run does not take from the environment: each would add UDP
@@ -518,7 +399,7 @@ def complete_environment(environ: MutableMapping[str, str]) -> None:
     or none. DdsError naming the variable and the fix when the environment contradicts the
     profile: another ``OPENSSL_CONF``, a discovery range other than SUBNET, or a variable
     that adds UDP (:data:`NOT_SECURE`)."""
-    profile = next((environ[v] for v in PROFILE_VARIABLES if environ.get(v)), None)
+    profile = named_profile(environ)
     if profile is None or not Path(profile).is_file():
         return
     head = Path(profile).read_text(errors='replace')[:2000]
@@ -555,10 +436,10 @@ def write_run_files(
 ) -> Pki:
     """Everything a secure run needs under ``directory`` (DIR/dds/): the authority, each
     host's certificate, key and profile, the server's profile (``server_host``'s files),
-    the OpenSSL configuration; each host's files checked (:func:`check_files`: DdsError
-    naming the file and what to do). ``reuse``: the DIR/dds/ of an earlier run whose keys
-    were kept (``--keep-keys``): its authority and host files instead of new ones (the
-    new profiles name them; nothing is copied), for hosts that hold them already."""
+    the OpenSSL configuration. ``reuse``: the DIR/dds/ of an earlier run whose keys were
+    kept (``--keep-keys``): its authority and host files instead of new ones (the new
+    profiles name them; nothing is copied), each checked (:func:`check_files`: DdsError
+    naming the file and what to do)."""
     directory = Path(directory).resolve()
     directory.mkdir(parents=True, exist_ok=True)
     if reuse is None:
@@ -579,7 +460,7 @@ def write_run_files(
             check_files(ca, *issued[host])
             (directory / host).mkdir(exist_ok=True)
     openssl = directory / OPENSSL_FILE
-    openssl.write_text(openssl_conf())
+    openssl.write_text(OPENSSL_CONFIG)
     prefix = server_prefix(run)
 
     def write(
@@ -599,8 +480,6 @@ def write_run_files(
         client = write(directory / host / CLIENT_PROFILE_FILE, cert, key, super_client=False)
         files[host] = HostFiles(host, cert, key, profile, client)
     server_profile = write(directory / SERVER_PROFILE, *issued[server_host], is_server=True)
-    for f in files.values():
-        check_files(ca, f.cert, f.key)
     return Pki(ca, openssl, files, server_profile)
 
 
@@ -639,8 +518,6 @@ def secure_dds(
     (:func:`~.participant.own_participant`), at ``address`` (default :func:`first_address`),
     port :func:`server_port`. A secure run skips the domain check: no participant of
     another run can reach it."""
-    from .profiles import NETWORK_RANGES, check_rmw
-
     env = os.environ if environ is None else environ
     if discovery_range not in NETWORK_RANGES:
         raise DdsError(

@@ -1,41 +1,24 @@
 """Fast DDS's shared-memory files of participants that no longer exist, found and removed
-(what ``fastdds shm clean`` does, in our own code: the wheels ship no ``fastdds`` tool).
+(what ``fastdds shm clean`` does; the wheels ship no ``fastdds`` tool).
 
-Fast DDS's shared-memory transport leaves, in ``/dev/shm``, per participant a segment
-``fastrtps_<16 hex>`` with its lock file ``fastrtps_<16 hex>_el``, and per port a segment
-``fastrtps_port<N>``, its mutex ``sem.fastrtps_port<N>_mutex`` and, while a participant
-listens on it, a lock file ``fastrtps_port<N>_el`` or ``_sl``. A live owner holds an
-``flock`` on the lock file; the kernel drops it when the owner dies, however it dies. A
-participant killed with SIGKILL (a crashed node, a stop that had to kill) leaves its files
-behind: hundreds after a day of runs, and a port whose interprocess mutex a killed process
-held can block a live one.
-
-A lock file that can be locked exclusively is stale, and so are its segment and mutex
-(Fast DDS's own rule). A port segment with no lock file at all has no listener left; it is
-stale when no process maps it (``/proc/*/maps``) and it is older than :data:`MIN_AGE` (a
-port being created has its lock file and its mapping within milliseconds). Nothing a live
-process holds is removed.
+Per participant a segment ``fastrtps_<16 hex>`` and its lock file ``..._el``; per port a
+segment ``fastrtps_port<N>``, its mutex ``sem.fastrtps_port<N>_mutex`` and, while someone
+listens, a lock file ``..._el`` or ``_sl``. A live owner holds an ``flock`` on its lock
+files, so a lock file that can be locked exclusively is stale with its segment and mutex
+(Fast DDS's own rule). A port segment without a lock file is stale when no process maps it
+and it is older than :data:`MIN_AGE`. Nothing a live process holds is removed
+(docs/RELIABILITY.md, "Shared memory and orphans").
 """
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-
-__all__ = [
-    'MIN_AGE',
-    'SHM_DIR',
-    'ShmCleanup',
-    'fastdds_entries',
-    'mapped_shm_names',
-    'remove_stale',
-    'stale_fastdds_files',
-    'unheld',
-]
 
 SHM_DIR = Path('/dev/shm')
 #: a port segment without a lock file is left alone until it is this old [s]
@@ -60,13 +43,9 @@ class ShmCleanup:
         """Remove the stale files (those already gone are skipped); how many were removed."""
         removed = 0
         for path in self.stale:
-            try:
+            with contextlib.suppress(OSError):
                 path.unlink()
                 removed += 1
-            except FileNotFoundError:
-                pass
-            except OSError:
-                continue
         return removed
 
 
@@ -79,12 +58,10 @@ def _locked(path: Path) -> bool:
     except OSError:
         return True  # unreadable: leave it alone
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # (released when fd is closed)
+        return False
     except OSError:
         return True
-    else:
-        fcntl.flock(fd, fcntl.LOCK_UN)
-        return False
     finally:
         os.close(fd)
 

@@ -1,14 +1,7 @@
 """One swarm per domain: before a run starts, whether its domain already carries a swarm
-(:func:`refuse_other_swarm`), and Fast DDS's port mapping that tells which participants run
-here (:func:`domain_participant_ports`).
-
-:func:`refuse_other_swarm` looks at the domain before a run
-starts: a publisher of a topic only a swarm publishes (:data:`SWARM_PUBLISHED`), whatever
-its process (another bring-up, nodes started by hand, a bag being played), refuses the run
-with a :class:`~apf_swarm_nodes.errors.DdsError` that names the domain and the topics;
-subscribers (a viewer, ``ros2 topic echo``, a recorder) do not. On a localhost run the
-domain's ports tell whether anything runs there at all, so a free domain costs no wait.
-"""
+(:func:`refuse_other_swarm`: a publisher of a topic only a swarm publishes; subscribers such
+as a viewer or a recorder do not count), and Fast DDS's port mapping, which tells whether
+any participant runs on the domain here (:func:`domain_participant_ports`)."""
 
 from __future__ import annotations
 
@@ -21,16 +14,6 @@ from typing import Any
 from ..topics import DISCOVERY_INFO, SWARM_PUBLISHED, UAV_TOPIC
 from .errors import DdsError
 
-__all__ = [
-    'MAX_PARTICIPANTS',
-    'SWARM_PUBLISHED',
-    'bound_udp_ports',
-    'domain_participant_ports',
-    'domain_port_range',
-    'refuse_other_swarm',
-    'swarm_publishers',
-]
-
 #: Fast DDS's port mapping (RTPS 9.6.1.1): on domain d, participant i listens for
 #: discovery on PB + DG d + 10 + 2 i and for data on the next port
 _PORT_BASE, _DOMAIN_GAIN, _META_OFFSET = 7400, 250, 10
@@ -39,8 +22,8 @@ MAX_PARTICIPANTS = (_DOMAIN_GAIN - _META_OFFSET) // 2
 #: how long a network run's domain is watched for a swarm [s] (no local port tells
 #: whether a remote participant is there)
 NETWORK_WATCH = 2.0
-#: how long the domain probe waits at most [s]: longer than LEASE_ANNOUNCEMENT, after which
-#: every participant there has announced itself again, whatever was lost
+#: how long the domain probe waits at most [s]: longer than a lease announcement period,
+#: after which every participant there has announced itself again
 PROBE_TIMEOUT = 4.0
 
 _UNKNOWN_NAME = '_NODE_NAME_UNKNOWN_'
