@@ -8,8 +8,8 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from apf_swarm_nodes.dds import participant, swarm_domain
 from apf_swarm_nodes.dds import profiles as dds
+from apf_swarm_nodes.dds import swarm_domain
 from apf_swarm_nodes.dds.errors import DdsError
 
 NS = {'f': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
@@ -106,7 +106,7 @@ def test_a_localhost_run_gets_the_profile_and_drops_what_names_other_hosts(
     assert no_swarm == [(7, False)]
     assert path.read_text() == dds.profile_xml(localhost=True, participants=6)
     # the bring-up's own participant: the same profile without shared memory
-    own = participant.own_participant_environment(env)
+    own = dds.own_participant_environment(env)
     udp = Path(own['FASTRTPS_DEFAULT_PROFILES_FILE'])
     assert udp == tmp_path / dds.OWN_PROFILE and own['FASTDDS_DEFAULT_PROFILES_FILE'] == str(udp)
     kinds = [t.text for t in ET.parse(udp).getroot().findall('.//{*}type')]
@@ -114,7 +114,7 @@ def test_a_localhost_run_gets_the_profile_and_drops_what_names_other_hosts(
     assert [t.text for t in ET.parse(path).getroot().findall('.//{*}type')] == ['UDPv4', 'SHM']
     assert udp.read_text() == dds.profile_xml(localhost=True, participants=6, shm=False)
     # a network run: the builtin transports, UDP alone
-    assert participant.own_participant_environment({}) == {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
+    assert dds.own_participant_environment({}) == {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
 
 
 def test_a_network_run_keeps_a_users_profile_and_off_does_nothing(
@@ -217,7 +217,7 @@ def test_own_participant_sets_the_udp_only_environment_then_restores_it(monkeypa
     while Fast DDS reads its transports, the run's environment as before afterwards."""
     import os
 
-    from apf_swarm_nodes.dds.participant import own_participant
+    from apf_swarm_nodes.dds.profiles import own_participant
 
     monkeypatch.delenv('FASTDDS_BUILTIN_TRANSPORTS', raising=False)
     monkeypatch.delenv('FASTRTPS_DEFAULT_PROFILES_FILE', raising=False)

@@ -12,6 +12,8 @@ import subprocess
 from collections.abc import Sequence
 from typing import Protocol
 
+__all__ = ['STOP_CPU_PER_PROCESS', 'Process', 'describe_rc', 'dying_with_parent', 'stop_process']
+
 #: CPU seconds a node takes to leave DDS after SIGINT: the first stage of a stop waits this
 #: much longer per process still running, shared over the cores, so that a loaded machine
 #: does not turn a stop into SIGKILLs

@@ -20,6 +20,8 @@ import signal
 import threading
 import time
 
+__all__ = ['HARD_STOP_AFTER', 'NODE_STOP_BOUND', 'StopWatchdog']
+
 #: seconds from a second SIGINT / SIGTERM to the hard exit
 HARD_STOP_AFTER = 5.0
 #: seconds a node process has from its stop (signal or end) to its exit: leaving DDS takes

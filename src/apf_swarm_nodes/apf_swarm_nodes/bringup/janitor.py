@@ -20,6 +20,8 @@ import psutil
 
 from .zygote import BYE, close_helper, orphaned_cleanup
 
+__all__ = ['Janitor', 'main']
+
 #: the start of a line that names a directory of host keys (DIR/dds/)
 KEYS = 'keys '
 

@@ -34,6 +34,17 @@ from typing import IO, Any
 
 import psutil
 
+__all__ = [
+    'DIST',
+    'ForkedProcess',
+    'Spawn',
+    'Zygote',
+    'become_subreaper',
+    'close_helper',
+    'main',
+    'node_entry_points',
+]
+
 #: the distribution whose console scripts are the node executables
 DIST = 'apf-swarm-nodes'
 #: console scripts that are not nodes (never preloaded or forked)

@@ -16,6 +16,15 @@ from typing import Any
 
 import psutil
 
+__all__ = [
+    'cpu_model',
+    'group_members',
+    'identity',
+    'process_args',
+    'process_cpu_seconds',
+    'process_rss',
+]
+
 
 @lru_cache(maxsize=1)
 def cpu_model() -> str:

@@ -15,6 +15,8 @@ import numpy as np
 
 from .machine import identity, process_cpu_seconds, process_rss
 
+__all__ = ['COMMAND_SIZES', 'echo', 'measure', 'ping_pong', 'state_cost']
+
 #: tracker counts whose command cost is measured (others are interpolated, and extrapolated
 #: linearly beyond: the block direction's cost grows with the tracker's own gradient)
 COMMAND_SIZES = (3, 16, 32, 64, 128)

@@ -25,6 +25,21 @@ import psutil
 
 from .machine import identity
 
+__all__ = [
+    'CPU_BUDGET',
+    'MEMORY_BUDGET',
+    'PROCESSES_PER_CORE',
+    'RATES',
+    'add_arguments',
+    'cache_path',
+    'derive',
+    'ensure',
+    'load',
+    'process_limit',
+    'run',
+    'trackers_per_process',
+]
+
 #: the share of the machine's cores the swarm's messages and commands may take
 CPU_BUDGET = 0.5
 #: the share of the memory available at start that the node processes may take

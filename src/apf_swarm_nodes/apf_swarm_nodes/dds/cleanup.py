@@ -23,6 +23,16 @@ import psutil
 
 from .shm import stale_fastdds_files
 
+__all__ = [
+    'BRINGUP_ENV',
+    'add_arguments',
+    'bringup_alive',
+    'bringup_mark',
+    'expired_leases',
+    'orphan_nodes',
+    'run',
+]
+
 #: a process runs one of our node executables when its command line names this directory
 NODE_DIR = f'{os.sep}apf_swarm_nodes{os.sep}lib{os.sep}apf_swarm_nodes{os.sep}'
 #: the variable that names a node's bring-up: ``<pid>:<start time>``

@@ -15,6 +15,8 @@ from pathlib import Path
 
 from .swarm_domain import bound_udp_ports, domain_port_range
 
+__all__ = ['DOMAIN_LEASE', 'domain_looks_busy', 'env_domain', 'lease_dir', 'pick_domain_id']
+
 
 def _bound_udp_ports() -> set[int]:
     """Bound UDP ports, and the ports of Fast DDS's shared-memory segments."""

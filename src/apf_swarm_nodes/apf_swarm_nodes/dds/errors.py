@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from apf_swarm_core.errors import ApfSwarmError
 
+__all__ = ['DdsError']
+
 
 class DdsError(ApfSwarmError):
     """The middleware cannot carry the run as asked: not Fast DDS, an unknown discovery

@@ -9,6 +9,17 @@ import os
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
+__all__ = [
+    'LOCALHOST_PROFILE',
+    'OWN_PROFILE',
+    'PROFILE_VARIABLES',
+    'SECURE_PROFILE',
+    'SECURE_SERVER_PROFILE',
+    'named_profile',
+    'own_participant',
+    'own_participant_environment',
+]
+
 #: the variables that name a Fast DDS profile file (both names Fast DDS 2.x reads)
 PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
 #: a run's profile on one machine (:mod:`.profiles` writes it in DIR/dds/)

@@ -16,8 +16,30 @@ from typing import Any
 from xml.sax.saxutils import escape, quoteattr
 
 from .errors import DdsError
-from .participant import LOCALHOST_PROFILE, OWN_PROFILE, PROFILE_VARIABLES, named_profile
+from .participant import (
+    LOCALHOST_PROFILE,
+    OWN_PROFILE,
+    PROFILE_VARIABLES,
+    named_profile,
+    own_participant,
+    own_participant_environment,
+)
 from .swarm_domain import MAX_PARTICIPANTS, refuse_other_swarm
+
+__all__ = [
+    'LEASE_ANNOUNCEMENT',
+    'OWN_PROFILE',
+    'PROFILE_VARIABLES',
+    'check_rmw',
+    'discovery_timing',
+    'isolate_dds',
+    'localhost_environment',
+    'max_participants',
+    'own_participant',
+    'own_participant_environment',
+    'profile_xml',
+    'write_profile',
+]
 
 #: the discovery ranges that reach other hosts
 NETWORK_RANGES = ('SUBNET', 'SYSTEM_DEFAULT')

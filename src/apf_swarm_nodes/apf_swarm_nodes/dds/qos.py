@@ -13,6 +13,15 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+__all__ = [
+    'INFINITE',
+    'make_profile',
+    'profile_to_dict',
+    'qos_from_dict',
+    'recording_profile',
+    'replay_profile',
+]
+
 #: an infinite duration as rosbag2 writes it
 INFINITE = {'sec': 0x7FFFFFFF, 'nsec': 0xFFFFFFFF}
 

@@ -43,6 +43,29 @@ from .profiles import (
 if TYPE_CHECKING:
     from cryptography import x509
 
+__all__ = [
+    'CA_FILE',
+    'CERT_FILE',
+    'CLIENT_PROFILE_FILE',
+    'KEY_FILE',
+    'OPENSSL_FILE',
+    'PROFILE_FILE',
+    'SERVER_PROFILE',
+    'THIS_HOST',
+    'HostFiles',
+    'Pki',
+    'check_files',
+    'check_refuses',
+    'complete_environment',
+    'make_pki',
+    'profile_xml',
+    'remove_keys',
+    'secure_dds',
+    'secure_environment',
+    'server_port',
+    'write_run_files',
+]
+
 #: the files of a run's security, under DIR/dds/: the authority's certificate and the
 #: OpenSSL configuration, shared; per host (DIR/dds/HOST/): its certificate, key, profile
 #: (:data:`PROFILE_FILE`; it and :data:`SERVER_PROFILE` are named in :mod:`.participant`,

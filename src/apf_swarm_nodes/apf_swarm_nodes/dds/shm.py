@@ -20,6 +20,17 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+__all__ = [
+    'MIN_AGE',
+    'SHM_DIR',
+    'ShmCleanup',
+    'fastdds_entries',
+    'mapped_shm_names',
+    'remove_stale',
+    'stale_fastdds_files',
+    'unheld',
+]
+
 SHM_DIR = Path('/dev/shm')
 #: a port segment without a lock file is left alone until it is this old [s]
 MIN_AGE = 1.0

@@ -14,6 +14,16 @@ from typing import Any
 from ..topics import DISCOVERY_INFO, SWARM_PUBLISHED, UAV_TOPIC
 from .errors import DdsError
 
+__all__ = [
+    'MAX_PARTICIPANTS',
+    'SWARM_PUBLISHED',
+    'bound_udp_ports',
+    'domain_participant_ports',
+    'domain_port_range',
+    'refuse_other_swarm',
+    'swarm_publishers',
+]
+
 #: Fast DDS's port mapping (RTPS 9.6.1.1): on domain d, participant i listens for
 #: discovery on PB + DG d + 10 + 2 i and for data on the next port
 _PORT_BASE, _DOMAIN_GAIN, _META_OFFSET = 7400, 250, 10
