@@ -24,6 +24,7 @@ from ..argtypes import (
 )
 from ..capacity import probe
 from ..capacity.probe import PROCESSES_PER_CORE
+from .commands import Plan
 from .isolation import check_capacity
 from .processes import DISCOVERY_RANGES, EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from .session import Bringup
@@ -238,6 +239,26 @@ def build_parser(prog: str = 'swarm_up.py') -> argparse.ArgumentParser:
     return p
 
 
+def plan(args: argparse.Namespace, prog: str) -> Plan:
+    """The run the command line asks for, checked against this machine's capacity."""
+    cfg = resolve_config(args)
+    per_process = args.trackers_per_process or _auto_per_process(cfg)
+    if per_process > 1 and not args.trackers_per_process:
+        print(
+            f'{prog}: hosting the trackers {per_process} to a process '
+            '(--trackers-per-process K to choose)',
+            file=sys.stderr,
+            flush=True,
+        )
+    check_capacity(
+        cfg.n_trackers,
+        allow_overload=args.allow_overload,
+        per_process=per_process,
+        say=lambda m: print(f'{prog}: {m}', file=sys.stderr, flush=True),
+    )
+    return Plan.from_args(args, cfg=cfg, trackers_per_process=per_process)
+
+
 def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
     """Run a bring-up from parsed arguments (:func:`add_arguments`); returns the exit code.
 
@@ -245,23 +266,7 @@ def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
     starts); the caller prints it and exits 2.
     """
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # a hung run says where
-    cfg = resolve_config(args)
-    if not args.trackers_per_process:
-        args.trackers_per_process = _auto_per_process(cfg)
-        if args.trackers_per_process > 1:
-            print(
-                f'{prog}: hosting the trackers {args.trackers_per_process} to a process '
-                '(--trackers-per-process K to choose)',
-                file=sys.stderr,
-                flush=True,
-            )
-    check_capacity(
-        cfg.n_trackers,
-        allow_overload=args.allow_overload,
-        per_process=args.trackers_per_process,
-        say=lambda m: print(f'{prog}: {m}', file=sys.stderr, flush=True),
-    )
-    return Bringup(args, cfg, prog=prog).execute()
+    return Bringup(plan(args, prog), prog=prog).execute()
 
 
 def main(argv: Sequence[str] | None = None, prog: str = 'swarm_up.py') -> int:

@@ -4,7 +4,6 @@ and shutdown at the end."""
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import time
 from collections.abc import Callable
@@ -13,7 +12,7 @@ from typing import Any
 
 from ..analysis.samples import StateAccumulator
 from ..topics import RECORDER_NODE, RECORDER_STATUS
-from .commands import hosted_nodes
+from .commands import Plan, hosted_nodes
 from .graph import (
     UnseenRestart,
     expected_graph,
@@ -33,15 +32,12 @@ class GraphWatch:
 
     def __init__(
         self,
-        args: argparse.Namespace,
-        n: int,
-        node_values: dict[str, str],
+        plan: Plan,
         acc: StateAccumulator,
         say: Callable[[str], None],
         warn_once: Callable[[str, str], None],
     ) -> None:
-        self.args, self.mode, self.n, self.node_values = args, args.mode, n, node_values
-        self.acc, self.say, self.warn_once = acc, say, warn_once
+        self.plan, self.acc, self.say, self.warn_once = plan, acc, say, warn_once
         #: whether each tracker process sends its commands as one message (``batch_commands``)
         self.batching = False
         #: the recorder's last ``/recorder/status`` document (``--record``), None before one
@@ -79,7 +75,7 @@ class GraphWatch:
         self.state_sub = self.node.create_subscription(
             SwarmState, SWARM_STATE, self.acc.add_raw, STATE_QOS, raw=True
         )
-        if self.args.record:
+        if self.plan.record:
             import json
 
             from std_msgs.msg import String
@@ -100,15 +96,12 @@ class GraphWatch:
         present = {
             (ns.rstrip('/') + '/' + name) for name, ns in node.get_node_names_and_namespaces()
         }
-        readers = input_readers(
-            self.n,
-            self.mode,
-            self.args.trackers_per_process,
-            self.node_values.get('inputs', 'aggregate'),
-        )
+        plan = self.plan
+        inputs = plan.node_value('inputs', 'aggregate')
+        readers = input_readers(plan.n, plan.mode, plan.trackers_per_process, inputs)
         # a batching process is one that reads /swarm/odom for its trackers
-        nodes, topics = expected_graph(self.n, self.mode, readers, readers if self.batching else 0)
-        if self.args.record:
+        nodes, topics = expected_graph(plan.n, plan.mode, readers, readers if self.batching else 0)
+        if plan.record:
             nodes = [*nodes, f'/{RECORDER_NODE}']
         counts = {
             t.topic: (node.count_publishers(t.topic), node.count_subscribers(t.topic))
@@ -133,12 +126,12 @@ class GraphWatch:
         # the plant waits for the start in both modes; the target only in realtime (in
         # lockstep it is driven by the plant's /target/request)
         nstart = self.start_pub.get_subscription_count()
-        want, who = (2, 'plant, target') if self.mode == 'realtime' else (1, 'plant')
+        want, who = (2, 'plant, target') if plan.mode == 'realtime' else (1, 'plant')
         if nstart < want:
             miss.append(
                 f'topic /swarm/start: matched subscribers {nstart} (need >= {want}: {who})'
             )
-        if self.args.record:
+        if plan.record:
             miss += recorder_missing(
                 self.rec_status, [t.topic for t in topics if t.publishers and not t.optional]
             )
@@ -162,7 +155,7 @@ class GraphWatch:
         their peers do are restarted (:class:`~.graph.UnseenRestart`)."""
         unseen = UnseenRestart({p: hosted_nodes(p) for p in processes or ()})
         t0 = time.monotonic()
-        deadline = t0 + self.args.ready_timeout
+        deadline = t0 + self.plan.ready_timeout
         last_check, last_report = 0.0, t0
         miss = ['(not checked yet)']
         while True:
@@ -187,13 +180,13 @@ class GraphWatch:
                 last_report = now
                 self.say(
                     f'waiting for the graph ({now - t0:.0f} s of '
-                    f'{self.args.ready_timeout:g}): {len(miss)} missing, e.g. {miss[0]}'
+                    f'{self.plan.ready_timeout:g}): {len(miss)} missing, e.g. {miss[0]}'
                 )
             if now >= deadline:
                 raise StopRun(
                     EXIT_BAD_INPUT,
                     'not_ready',
-                    f'the ROS graph was not complete after {self.args.ready_timeout:g} s '
+                    f'the ROS graph was not complete after {self.plan.ready_timeout:g} s '
                     f'(--ready-timeout, ROS_DOMAIN_ID={domain_id}); '
                     f'{len(miss)} never appeared:\n'
                     + ''.join(f'    {m}\n' for m in miss)

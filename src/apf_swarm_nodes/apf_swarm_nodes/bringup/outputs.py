@@ -3,7 +3,6 @@ end (:func:`write_outputs`); the run's own fields of summary.json come from the 
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -11,15 +10,15 @@ from typing import Any
 from apf_swarm_core.config import SwarmConfig
 
 from ..analysis.samples import StateAccumulator
+from .commands import Plan
 
 __all__ = ['write_outputs']
 
 
 def write_outputs(
     *,
-    args: argparse.Namespace,
+    plan: Plan,
     cfg: SwarmConfig,
-    out: Path,
     acc: StateAccumulator,
     status: str,
     fields: dict[str, Any],
@@ -28,9 +27,11 @@ def write_outputs(
     say: Callable[[str], None],
 ) -> dict[str, Path]:
     """Write and print the run's outputs: ``fields`` (the bring-up's facts of the run) join
-    the summary; ``judged`` (realtime) judges the trajectory by flight beside its emulation.
-    Returns the paths written ({} when no sample came)."""
+    the summary; ``judged`` (realtime) judges the trajectory by flight beside its emulation;
+    ``cfg``: the configuration flown. Returns the paths written ({} when no sample came)."""
     from ..analysis.runio import format_summary, run_summary, write_run
+
+    out = plan.out
 
     traj = acc.trajectory()
     if traj is None:
@@ -52,10 +53,10 @@ def write_outputs(
     if judged is not None:
         summary['prediction'] = judged(traj)
     paths = write_run(out, traj, summary, cfg)
-    if not args.no_plots and len(traj['t']) > 1:
+    if not plan.no_plots and len(traj['t']) > 1:
         from ..analysis import plots
 
-        title = f'{cfg.law} law, ROS 2 {args.mode} run'
+        title = f'{cfg.law} law, ROS 2 {plan.mode} run'
         paths['trajectories_3d'] = plots.plot_trajectories_3d(
             traj, f'trajectories, {title}', out / 'trajectories_3d.png'
         )
@@ -65,7 +66,7 @@ def write_outputs(
         )
         paths['centroid_error'] = plots.plot_centroid_error(
             {cfg.law: traj},
-            f'centroid error, ROS 2 {args.mode} run',
+            f'centroid error, ROS 2 {plan.mode} run',
             out / 'centroid_error.png',
         )
     print(format_summary(summary))
@@ -82,7 +83,7 @@ def write_outputs(
             )
     m = summary['messages']
     print(
-        f'  run              {status}, {args.mode}, ROS_DOMAIN_ID {fields["domain_id"]}, '
+        f'  run              {status}, {plan.mode}, ROS_DOMAIN_ID {fields["domain_id"]}, '
         f'{summary["wall_time"]:g} s wall, {m["received"]} messages, {m["dropped"]} '
         f'dropped, missed deadlines {summary["missed_deadlines"]}, stale '
         f'{summary["stale_inputs"]}, rejected {summary["rejected_inputs"]}, respawns '

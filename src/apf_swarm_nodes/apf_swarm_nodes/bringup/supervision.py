@@ -4,16 +4,15 @@
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import signal
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 from ..lifetime import describe_rc
 from ..stop_watchdog import HARD_STOP_AFTER, StopWatchdog
+from .commands import Plan
 from .graph import RECORDER_STOP_SEQUENCE
 from .processes import (
     EXIT_CHILD_DIED,
@@ -100,14 +99,9 @@ class Supervisor:
     lasts and at its end (the bring-up holds one): deaths reported, respawned or the run
     stopped, signals turned into a stop, and the stop itself; ``say`` prints a line."""
 
-    def __init__(
-        self,
-        args: argparse.Namespace,
-        out: Path,
-        signals: Signals,
-        say: Callable[[str], None],
-    ) -> None:
-        self.args, self.mode, self.out, self.signals, self.say = args, args.mode, out, signals, say
+    def __init__(self, plan: Plan, signals: Signals, say: Callable[[str], None]) -> None:
+        self.plan, self.signals, self.say = plan, signals, say
+        self.bag = plan.out / 'bag'
         self.group = ProcessGroup()
         #: the recorder: started first, stopped last, given time to close the bag
         self.rec_group = ProcessGroup(RECORDER_STOP_SEQUENCE)
@@ -131,11 +125,11 @@ class Supervisor:
                 continue
             self.say(child.death_report(rc))
             self.recorder_lost[child.name] = rc
-            if self.args.on_recorder_death == 'continue':
+            if self.plan.on_recorder_death == 'continue':
                 self.say(
                     f'{child.name} died ({describe_rc(rc)}); the run continues without '
                     f'recording (--on-recorder-death continue); `apf-swarm bag reindex '
-                    f'{self.out / "bag"}` recovers what it flushed'
+                    f'{self.bag}` recovers what it flushed'
                 )
                 continue
             raise StopRun(
@@ -143,12 +137,12 @@ class Supervisor:
                 'child_died',
                 f'{child.name} died ({describe_rc(rc)}); stopping the run (a restarted '
                 f'recorder could not continue the bag; `apf-swarm bag reindex '
-                f'{self.out / "bag"}` recovers what it flushed; --on-recorder-death '
+                f'{self.bag}` recovers what it flushed; --on-recorder-death '
                 f'continue keeps the swarm flying)',
             )
         for child, rc in self.group.poll():
             self.say(child.death_report(rc))
-            if not self.args.respawn:
+            if not self.plan.respawn:
                 raise StopRun(
                     EXIT_CHILD_DIED,
                     'child_died',
@@ -161,18 +155,18 @@ class Supervisor:
                     'child_died',
                     f'{child.name} died ({describe_rc(rc)}); stopping the run: {why_not}',
                 )
-            if child.respawns >= self.args.max_respawns:
+            if child.respawns >= self.plan.max_respawns:
                 raise StopRun(
                     EXIT_CHILD_DIED,
                     'child_died',
                     f'{child.name} died ({describe_rc(rc)}) after '
-                    f'{child.respawns} respawns (--max-respawns {self.args.max_respawns}); '
+                    f'{child.respawns} respawns (--max-respawns {self.plan.max_respawns}); '
                     'stopping the run',
                 )
             child.start()
             self.say(
                 f'respawned {child.name} (pid {child.pid}, respawn {child.respawns} of at '
-                f'most {self.args.max_respawns})'
+                f'most {self.plan.max_respawns})'
             )
 
     def restart(self, names: list[str], why: str) -> None:
@@ -196,7 +190,7 @@ class Supervisor:
                 'the plant holds the state of every UAV; a restarted plant would start '
                 'the world over, so it is never respawned'
             )
-        if name == 'target' and self.mode == 'realtime':
+        if name == 'target' and self.plan.mode == 'realtime':
             return (
                 'a restarted realtime target would fly its trajectory again from t = 0; '
                 "only lockstep targets (driven by the plant's requests) are respawned"
