@@ -26,7 +26,7 @@ from ..capacity import probe
 from ..capacity.probe import PROCESSES_PER_CORE
 from .commands import Plan
 from .isolation import check_capacity
-from .processes import DISCOVERY_RANGES, EXIT_BAD_INPUT, EXIT_INTERRUPTED
+from .processes import EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from .session import Bringup
 
 # --------------------------------------------------------------------------------------------
@@ -80,7 +80,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         '--discovery-range',
-        choices=DISCOVERY_RANGES,
+        choices=('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF'),
         default='LOCALHOST',
         help='LOCALHOST (default): nothing from outside this machine reaches the run (a '
         'Fast DDS profile, DIR/dds/, binds every socket to 127.0.0.1; docs/RELIABILITY.md, '
