@@ -9,7 +9,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import resolve
 from apf_swarm_core.errors import ApfSwarmError
 
@@ -28,22 +27,6 @@ from .commands import Plan
 from .isolation import check_capacity
 from .processes import EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from .session import Bringup
-
-# --------------------------------------------------------------------------------------------
-# command line
-# --------------------------------------------------------------------------------------------
-
-
-def resolve_config(args: argparse.Namespace) -> SwarmConfig:
-    """Preset or file, then ``--set``, then ``--n-trackers`` / ``--seed`` / ``--duration``."""
-    return resolve(
-        args.config,
-        args.preset,
-        args.sets,
-        n_trackers=args.n_trackers,
-        seed=args.seed,
-        duration=args.duration,
-    )
 
 
 def _netns_rule(text: str) -> str:
@@ -221,14 +204,6 @@ def _per_process(text: str) -> int:
     return 0 if text == 'auto' else int(positive_int(text))
 
 
-def _auto_per_process(cfg: SwarmConfig) -> int:
-    """The default trackers per process (:func:`apf_swarm_nodes.capacity.probe.
-    trackers_per_process`), from the cached probe if there is one; the bring-up measures
-    the machine later when it needs the probe."""
-    machine = probe.load()
-    return probe.trackers_per_process(machine, cfg.n_trackers, cfg.control_rate or None)
-
-
 def build_parser(prog: str = 'swarm_up.py') -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=prog,
@@ -241,21 +216,28 @@ def build_parser(prog: str = 'swarm_up.py') -> argparse.ArgumentParser:
 
 def plan(args: argparse.Namespace, prog: str) -> Plan:
     """The run the command line asks for, checked against this machine's capacity."""
-    cfg = resolve_config(args)
-    per_process = args.trackers_per_process or _auto_per_process(cfg)
-    if per_process > 1 and not args.trackers_per_process:
-        print(
-            f'{prog}: hosting the trackers {per_process} to a process '
-            '(--trackers-per-process K to choose)',
-            file=sys.stderr,
-            flush=True,
-        )
-    check_capacity(
-        cfg.n_trackers,
-        allow_overload=args.allow_overload,
-        per_process=per_process,
-        say=lambda m: print(f'{prog}: {m}', file=sys.stderr, flush=True),
+
+    def say(text: str) -> None:
+        print(f'{prog}: {text}', file=sys.stderr, flush=True)
+
+    cfg = resolve(
+        args.config,
+        args.preset,
+        args.sets,
+        n_trackers=args.n_trackers,
+        seed=args.seed,
+        duration=args.duration,
     )
+    per_process = args.trackers_per_process or probe.trackers_per_process(
+        probe.load(), cfg.n_trackers, cfg.control_rate or None
+    )  # auto: from the cached probe if there is one
+    check_capacity(
+        cfg.n_trackers, allow_overload=args.allow_overload, per_process=per_process, say=say
+    )
+    if per_process > 1 and not args.trackers_per_process:  # said once it is not refused
+        say(
+            f'hosting the trackers {per_process} to a process (--trackers-per-process K to choose)'
+        )
     return Plan.from_args(args, cfg=cfg, trackers_per_process=per_process)
 
 
