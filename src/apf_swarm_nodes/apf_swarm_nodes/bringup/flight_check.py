@@ -8,11 +8,7 @@ import subprocess
 from collections.abc import Callable
 from typing import Any
 
-from apf_swarm_core.config import (
-    DEFAULT_LATENCY,
-    REALTIME_RATE,
-    SwarmConfig,
-)
+from apf_swarm_core.config import DEFAULT_LATENCY, REALTIME_RATE, SwarmConfig
 
 from .commands import Plan
 

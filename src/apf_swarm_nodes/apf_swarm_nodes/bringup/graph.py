@@ -21,10 +21,6 @@ from ..topics import (
     swarm_node_names,
 )
 
-# --------------------------------------------------------------------------------------------
-# the graph: what must be there before the start
-# --------------------------------------------------------------------------------------------
-
 
 @dataclass(frozen=True)
 class TopicExpectation:
@@ -48,15 +44,12 @@ def expected_graph(
 ) -> tuple[list[str], list[TopicExpectation]]:
     """Fully qualified node names and topic endpoint counts of a swarm of ``n`` trackers.
 
-    Every tracker reads every tracker's odometry and the target's, either as ``/uav_<j>/odom``
-    and ``/target/odom`` (``inputs:=odom``) or as the one aggregate ``/swarm/odom`` message per
-    step (``inputs:=aggregate``); the counts accept either. ``readers``: how many subscribe
-    to each (default n; a realtime process of several trackers reads ``/swarm/odom`` once,
-    see :func:`input_readers`). ``batch_writers``: the processes that send their commands
-    as one ``/swarm/force_cmds`` message (``batch_commands``), which the plant must read
-    before the start or their first commands are lost. ``/swarm/start`` and this node's
-    ``/swarm/state`` subscription are checked on its own endpoints (matched counts), see
-    :meth:`Bringup.missing`.
+    A tracker reads its inputs as ``/uav_<j>/odom`` and ``/target/odom`` (``inputs:=odom``)
+    or as ``/swarm/odom`` (``inputs:=aggregate``); the counts accept either. ``readers``: how
+    many subscribe to each (default n; see :func:`input_readers`). ``batch_writers``: the
+    processes that send their commands as one ``/swarm/force_cmds`` message, which the
+    plant must read before the start. ``/swarm/start`` and the bring-up's ``/swarm/state``
+    subscription are checked on its own endpoints (:meth:`.graph_watch.GraphWatch.missing`).
     """
     nodes = swarm_node_names(n)
     topics = []
@@ -128,15 +121,8 @@ class UnseenRestart:
     """Which node processes to restart while the graph comes up: those none of whose nodes
     the graph shows, once every other process has shown one for ``peer_wait`` seconds, or
     once the count of missing entities has not fallen for ``stall`` seconds; each at most
-    ``limit`` times.
-
-    Over Fast DDS's TCP transport (the secure mode) a node process sometimes never reaches
-    the discovery server although it runs; everything else comes up around it and the run
-    would wait for it until ``--ready-timeout``. A restarted process is discovered like the
-    others. The processes start together, so a process still unseen ``peer_wait`` after the
-    last of its peers showed up is not merely slow: under load all of them are. The stall
-    rule covers a run with one process. ``hosted``: each process's node names
-    (:func:`.commands.hosted_nodes`).
+    ``limit`` times (why: docs/RELIABILITY.md, "Known fault: a node that is never
+    discovered"). ``hosted``: each process's node names (:func:`.commands.hosted_nodes`).
     """
 
     def __init__(
