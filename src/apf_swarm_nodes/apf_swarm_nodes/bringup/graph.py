@@ -6,7 +6,6 @@ from __future__ import annotations
 import signal
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from ..topics import (
@@ -187,30 +186,4 @@ def recorder_missing(status: Mapping[str, Any] | None, topics: Sequence[str]) ->
             out.append(
                 f'recorder: {t} matched {v.get("matched")} of {v.get("publishers")} publishers'
             )
-    return out
-
-
-def recording_fields(bag: Path) -> dict[str, Any]:
-    """summary.json ``recording``: the bag and the recorder's counts (its metadata.yaml)."""
-    import json
-
-    import yaml
-
-    out: dict[str, Any] = {'bag': str(bag)}
-    try:
-        meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-    except (OSError, yaml.YAMLError, KeyError, TypeError):
-        out['error'] = (
-            f'no readable {bag / "metadata.yaml"} (the recorder did not close the '
-            f'bag); `apf-swarm bag reindex {bag}` recovers its flushed chunks'
-        )
-        return out
-    out['messages'] = int(meta.get('message_count', 0))
-    out['topics'] = len(meta.get('topics_with_message_count') or [])
-    try:
-        counts = json.loads((meta.get('custom_data') or {}).get('apf_swarm.recorder', '{}'))
-    except ValueError:
-        counts = {}
-    for key in ('received', 'written', 'lost', 'dropped'):
-        out[key] = counts.get(key)
     return out

@@ -1,5 +1,6 @@
 """A run's outputs: trajectory.npz, summary.json, the figures and the report printed at the
-end (:func:`write_outputs`); the run's own fields of summary.json come from the bring-up."""
+end (:func:`write_outputs`); the run's own fields of summary.json come from the bring-up, the
+recording's from the bag (:func:`recording_fields`)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from apf_swarm_core.config import SwarmConfig
 from ..analysis.samples import StateAccumulator
 from .commands import Plan
 
-__all__ = ['write_outputs']
+__all__ = ['recording_fields', 'write_outputs']
 
 
 def write_outputs(
@@ -106,3 +107,29 @@ def write_outputs(
         + (f' and {", ".join(figs)}' if figs else '')
     )
     return paths
+
+
+def recording_fields(bag: Path) -> dict[str, Any]:
+    """summary.json ``recording``: the bag and the recorder's counts (its metadata.yaml)."""
+    import json
+
+    import yaml
+
+    out: dict[str, Any] = {'bag': str(bag)}
+    try:
+        meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        out['error'] = (
+            f'no readable {bag / "metadata.yaml"} (the recorder did not close the '
+            f'bag); `apf-swarm bag reindex {bag}` recovers its flushed chunks'
+        )
+        return out
+    out['messages'] = int(meta.get('message_count', 0))
+    out['topics'] = len(meta.get('topics_with_message_count') or [])
+    try:
+        counts = json.loads((meta.get('custom_data') or {}).get('apf_swarm.recorder', '{}'))
+    except ValueError:
+        counts = {}
+    for key in ('received', 'written', 'lost', 'dropped'):
+        out[key] = counts.get(key)
+    return out

@@ -17,9 +17,8 @@ from ..analysis.samples import StateAccumulator
 from ..lifetime import describe_rc
 from .commands import Plan
 from .flight_check import FlightCheck
-from .graph import recording_fields
 from .graph_watch import GraphWatch
-from .outputs import write_outputs
+from .outputs import recording_fields, write_outputs
 from .processes import (
     EXIT_CHILD_DIED,
     EXIT_INTERRUPTED,
