@@ -195,7 +195,7 @@ class Bringup:
                 self.graph.init_ros()
                 self.setup.launch()
                 # a stop from now on ends within its grace, which grows with the load
-                self.signals.bound = self.sup.stop_bound()
+                self.signals.watchdog.bound = self.sup.stop_bound()
                 self.sup.check_signals()
                 self.graph.wait_ready(
                     self.between,
