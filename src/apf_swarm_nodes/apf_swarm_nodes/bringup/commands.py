@@ -75,6 +75,21 @@ class Plan:
         return dict(p.split(':=', 1) for p in self.node_params).get(name, default)
 
     @property
+    def batch_commands(self) -> bool:
+        """Whether the trackers send a process's commands as one message: by default in a
+        secure realtime run of several trackers to a process; else as the
+        ``batch_commands`` node parameter says."""
+        several = (
+            self.mode == 'realtime'
+            and self.trackers_per_process > 1
+            and self.node_value('inputs', 'aggregate') == 'aggregate'
+        )
+        given = self.node_value('batch_commands', '')
+        if given:
+            return several and given.strip().lower() == 'true'
+        return several and self.secure
+
+    @property
     def stale_after(self) -> float:
         """The plant's: a tracker whose command answers an older state gets zero force."""
         return float(self.node_value('stale_after', str(STALE_AFTER)))

@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 from ..analysis.samples import StateAccumulator
@@ -27,19 +26,13 @@ from .processes import (
 
 
 class GraphWatch:
-    """The bring-up's node on the graph (the bring-up holds one): ``say`` and ``warn_once``
-    print its lines, ``acc`` takes the ``/swarm/state`` samples."""
+    """The bring-up's node on the graph (the bring-up holds one): ``say`` prints its lines,
+    ``acc`` takes the ``/swarm/state`` samples."""
 
-    def __init__(
-        self,
-        plan: Plan,
-        acc: StateAccumulator,
-        say: Callable[[str], None],
-        warn_once: Callable[[str, str], None],
-    ) -> None:
-        self.plan, self.acc, self.say, self.warn_once = plan, acc, say, warn_once
-        #: whether each tracker process sends its commands as one message (``batch_commands``)
-        self.batching = False
+    def __init__(self, plan: Plan, acc: StateAccumulator, say: Callable[[str], None]) -> None:
+        self.plan, self.acc, self.say = plan, acc, say
+        #: the topics whose extra publishers were warned of
+        self.warned: set[str] = set()
         #: the recorder's last ``/recorder/status`` document (``--record``), None before one
         self.rec_status: dict[str, Any] | None = None
         # rclpy objects, made by init_ros() once rclpy is imported (this module does not)
@@ -100,7 +93,9 @@ class GraphWatch:
         inputs = plan.node_value('inputs', 'aggregate')
         readers = input_readers(plan.n, plan.mode, plan.trackers_per_process, inputs)
         # a batching process is one that reads /swarm/odom for its trackers
-        nodes, topics = expected_graph(plan.n, plan.mode, readers, readers if self.batching else 0)
+        nodes, topics = expected_graph(
+            plan.n, plan.mode, readers, readers if plan.batch_commands else 0
+        )
         if plan.record:
             nodes = [*nodes, f'/{RECORDER_NODE}']
         counts = {
@@ -109,12 +104,12 @@ class GraphWatch:
         }
         miss = graph_missing(present, counts, nodes, topics)
         for t in topics:
-            if counts[t.topic][0] > t.publishers:
-                self.warn_once(
-                    'pubs' + t.topic,
-                    f'{t.topic} has {counts[t.topic][0]} publishers (expected '
+            if counts[t.topic][0] > t.publishers and t.topic not in self.warned:
+                self.warned.add(t.topic)
+                self.say(
+                    f'warning: {t.topic} has {counts[t.topic][0]} publishers (expected '
                     f'{t.publishers}): another graph on ROS_DOMAIN_ID='
-                    f'{domain_id}, or a respawned node not yet forgotten?',
+                    f'{domain_id}, or a respawned node not yet forgotten?'
                 )
         # our own endpoints: matched counts, not mere discovery
         nstate = self.state_sub.get_publisher_count()
@@ -145,15 +140,14 @@ class GraphWatch:
         self,
         between: Callable[[], None],
         domain_id: int | None,
-        logs: Path,
-        processes: list[str] | None = None,
-        restart: Callable[[list[str], str], None] | None = None,
+        processes: list[str],
+        restart: Callable[[list[str], str], None],
     ) -> None:
         """Spin until :meth:`missing` finds nothing, calling ``between`` (the bring-up's
-        signal and process checks) each turn; StopRun after ``--ready-timeout``. With
-        ``restart``, the ``processes`` (log names) none of whose nodes ever appear while
-        their peers do are restarted (:class:`~.graph.UnseenRestart`)."""
-        unseen = UnseenRestart({p: hosted_nodes(p) for p in processes or ()})
+        signal and process checks) each turn; StopRun after ``--ready-timeout``. The
+        ``processes`` (log names) none of whose nodes ever appear while their peers do are
+        restarted (``restart``, :class:`~.graph.UnseenRestart`)."""
+        unseen = UnseenRestart({p: hosted_nodes(p) for p in processes})
         t0 = time.monotonic()
         deadline = t0 + self.plan.ready_timeout
         last_check, last_report = 0.0, t0
@@ -167,8 +161,8 @@ class GraphWatch:
                 miss = self.missing(domain_id)
                 if not miss:
                     return
-                names = unseen.due(now, miss) if restart is not None else []
-                if names and restart is not None:
+                names = unseen.due(now, miss)
+                if names:
                     times = max(unseen.restarts[n] for n in names)
                     restart(
                         names,
@@ -190,7 +184,7 @@ class GraphWatch:
                     f'(--ready-timeout, ROS_DOMAIN_ID={domain_id}); '
                     f'{len(miss)} never appeared:\n'
                     + ''.join(f'    {m}\n' for m in miss)
-                    + f'  node logs: {logs}',
+                    + f'  node logs: {self.plan.out / "logs"}',
                 )
 
     def drain(self, seconds: float = 0.2) -> None:

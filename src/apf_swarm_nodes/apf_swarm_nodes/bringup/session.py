@@ -11,7 +11,7 @@ import os
 import random
 import sys
 import time
-from typing import Any, TextIO
+from typing import Any
 
 from ..analysis.samples import StateAccumulator
 from ..lifetime import describe_rc
@@ -39,17 +39,16 @@ class Bringup:
     graph (:attr:`graph`), its processes (:attr:`sup`) and, realtime, its flight check
     (:attr:`flight`)."""
 
-    def __init__(self, plan: Plan, *, prog: str, stream: TextIO | None = None) -> None:
+    def __init__(self, plan: Plan, *, prog: str) -> None:
         self.plan, self.prog = plan, prog
         #: the configuration flown (realtime: the flight check's), known once prepared
         self.cfg = plan.cfg
-        self.err = stream if stream is not None else sys.stderr
         self.signals = Signals()
         #: the node processes and the recorder, watched and stopped
         self.sup = Supervisor(plan, self.signals, self.say)
         self.acc = StateAccumulator(plan.mode, plan.cfg.steps, plan.cfg.record_every)
         #: the bring-up's node on the graph; realtime, the flight check before and after the run
-        self.graph = GraphWatch(plan, self.acc, self.say, self.warn_once)
+        self.graph = GraphWatch(plan, self.acc, self.say)
         self.flight = FlightCheck(plan, self.say)
         #: the run's identity (the nodes' ``run`` parameter), random, never 0
         self.run_id = random.getrandbits(62) + 1
@@ -59,19 +58,12 @@ class Bringup:
         self.t_begin = time.monotonic()
         self.t_start: Any = None
         self.t_end: Any = None
-        self.warned: set[str] = set()
         #: ``--view``: the live view (:class:`~apf_swarm_nodes.view.LiveView`)
         self.view: Any = None
 
     # --- messages -------------------------------------------------------------------------
     def say(self, text: str) -> None:
-        self.err.write(f'{self.prog}: {text}\n')
-        self.err.flush()
-
-    def warn_once(self, key: str, text: str) -> None:
-        if key not in self.warned:
-            self.warned.add(key)
-            self.say(f'warning: {text}')
+        print(f'{self.prog}: {text}', file=sys.stderr, flush=True)
 
     def between(self) -> None:
         """What the bring-up checks while it waits: signals, then its processes."""
@@ -180,15 +172,10 @@ class Bringup:
     def execute_prepared(self) -> int:
         # the stop's bound from the start: the domain check already makes a participant
         self.signals.install()
-        try:
-            self.setup.isolate()
-            self.graph.batching = self.setup.batch_commands
-        except BaseException:
-            self.signals.restore()
-            raise
         code, status, message = EXIT_OK, 'completed', ''
         group = self.sup.group
         try:
+            self.setup.isolate()
             self.start_view()
             try:
                 self.sup.check_signals()
@@ -198,11 +185,7 @@ class Bringup:
                 self.signals.watchdog.bound = self.sup.stop_bound()
                 self.sup.check_signals()
                 self.graph.wait_ready(
-                    self.between,
-                    self.setup.domain_id,
-                    self.plan.out / 'logs',
-                    [c.name for c in group],
-                    self.sup.restart,
+                    self.between, self.setup.domain_id, [c.name for c in group], self.sup.restart
                 )
                 self.run_loop()
                 if self.plan.mode == 'realtime':

@@ -143,22 +143,6 @@ class Startup:
                 self.janitor = Janitor()
             self.janitor.keys(plan.out / 'dds')
 
-    @property
-    def batch_commands(self) -> bool:
-        """Whether the trackers send a process's commands as one message: by default in a
-        secure realtime run of several trackers to a process; else as the
-        ``batch_commands`` node parameter says."""
-        plan = self.plan
-        several = (
-            plan.mode == 'realtime'
-            and plan.trackers_per_process > 1
-            and plan.node_value('inputs', 'aggregate') == 'aggregate'
-        )
-        given = plan.node_value('batch_commands', '')
-        if given:
-            return several and given.strip().lower() == 'true'
-        return several and self.pki is not None
-
     def check_secure(self) -> None:
         """A secure run, before any node starts: the bring-up's own port (its participant,
         the discovery server) refuses a TLS client without the run's certificate."""
@@ -225,7 +209,7 @@ class Startup:
         # another run. Recorded: each writer waits for the recorder's reader before its
         # first message.
         params = [
-            *(['batch_commands:=true'] if self.batch_commands else []),
+            *(['batch_commands:=true'] if plan.batch_commands else []),
             *plan.node_params,
             f'run:={self.run_id}',
             *(['recorded:=true'] if plan.record else []),
