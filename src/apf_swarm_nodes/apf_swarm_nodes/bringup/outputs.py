@@ -21,26 +21,23 @@ def write_outputs(
     plan: Plan,
     cfg: SwarmConfig,
     acc: StateAccumulator,
-    status: str,
     fields: dict[str, Any],
-    respawned: list[str],
     judged: Callable[[dict[str, Any]], dict[str, Any]] | None,
     say: Callable[[str], None],
-) -> dict[str, Path]:
-    """Write and print the run's outputs: ``fields`` (the bring-up's facts of the run) join
-    the summary; ``judged`` (realtime) judges the trajectory by flight beside its emulation;
-    ``cfg``: the configuration flown. Returns the paths written ({} when no sample came)."""
+) -> None:
+    """Write and print the run's outputs: ``fields`` (the bring-up's facts of the run: status,
+    respawns, ...) join the summary; ``judged`` (realtime) judges the trajectory by flight
+    beside its emulation; ``cfg``: the configuration flown."""
     from ..analysis.runio import format_summary, run_summary, write_run
 
-    out = plan.out
-
+    out, status = plan.out, fields['status']
     traj = acc.trajectory()
     if traj is None:
         say(
             f'no /swarm/state samples: wrote no trajectory.npz / summary.json '
             f'(config and logs are in {out})'
         )
-        return {}
+        return
     # the same function computes `apf-swarm bag metrics` from a recorded bag
     summary = run_summary(
         traj,
@@ -48,7 +45,7 @@ def write_outputs(
         status=status,
         n_samples=len(acc.samples),
         dropped=acc.dropped,
-        respawned=respawned,
+        respawned=list(fields['respawned']),
     )
     summary.update(fields)
     if judged is not None:
@@ -101,12 +98,11 @@ def write_outputs(
                 f'{rec["received"]}, written {rec["written"]}, dropped {rec["dropped"]}'
             )
         )
-    figs = [p.name for k, p in paths.items() if p.suffix == '.png']
+    figs = [p.name for p in paths.values() if p.suffix == '.png']
     print(
         f'wrote {out / "trajectory.npz"}, {out / "summary.json"}'
         + (f' and {", ".join(figs)}' if figs else '')
     )
-    return paths
 
 
 def recording_fields(bag: Path) -> dict[str, Any]:

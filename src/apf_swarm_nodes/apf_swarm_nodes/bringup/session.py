@@ -216,9 +216,7 @@ class Bringup:
                 plan=self.plan,
                 cfg=self.cfg,
                 acc=self.acc,
-                status=status,
                 fields=self.run_fields(status),
-                respawned=[c.name for c in group if c.respawns],
                 judged=self.flight.judged if self.flight.prediction is not None else None,
                 say=self.say,
             )
