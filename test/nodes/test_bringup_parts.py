@@ -3,7 +3,6 @@ subprocesses, no ROS) and the accumulation of /swarm/state samples."""
 
 from __future__ import annotations
 
-import argparse
 import signal
 import sys
 import time
@@ -12,6 +11,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from apf_swarm_core.config import SwarmConfig
 from apf_swarm_nodes.analysis.errors import AnalysisError
 from apf_swarm_nodes.bringup import (
     Child,
@@ -20,6 +20,7 @@ from apf_swarm_nodes.bringup import (
     expected_graph,
     graph_missing,
 )
+from apf_swarm_nodes.bringup.commands import Plan
 from apf_swarm_nodes.bringup.graph import input_readers
 
 
@@ -234,7 +235,7 @@ def test_the_stop_bound_is_the_grace_of_each_stage_and_grows_with_the_load(
     waits = sum(w for _, w in processes.STOP_SEQUENCE)
 
     def run(n_trackers: int, record: bool) -> Supervisor:
-        sup = Supervisor(argparse.Namespace(mode='lockstep'), tmp_path, Signals(), print)
+        sup = Supervisor(Plan(SwarmConfig(), tmp_path), Signals(), print)
         for name in ['target', 'plant', *[f'tracker_{i}' for i in range(n_trackers)]]:
             sup.group.add(Child(name, ['true'], tmp_path / f'{name}.log'))
         if record:
@@ -262,7 +263,7 @@ def test_the_stop_reports_each_process_with_the_signal_that_stopped_it(
 
     monkeypatch.setattr(shm, 'remove_stale', lambda: 0)
     said: list[str] = []
-    sup = Supervisor(argparse.Namespace(mode='lockstep'), tmp_path, Signals(), said.append)
+    sup = Supervisor(Plan(SwarmConfig(), tmp_path), Signals(), said.append)
     for name in ('target', 'plant', 'tracker_1', 'tracker_2'):
         sup.group.add(Child(name, [sys.executable, '-c', POLITE], tmp_path / f'{name}.log'))
     sup.group.start_all()

@@ -9,7 +9,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import resolve
 from apf_swarm_core.errors import ApfSwarmError
 
@@ -24,25 +23,10 @@ from ..argtypes import (
 )
 from ..capacity import probe
 from ..capacity.probe import PROCESSES_PER_CORE
+from .commands import Plan
 from .isolation import check_capacity
-from .processes import DISCOVERY_RANGES, EXIT_BAD_INPUT, EXIT_INTERRUPTED
+from .processes import EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from .session import Bringup
-
-# --------------------------------------------------------------------------------------------
-# command line
-# --------------------------------------------------------------------------------------------
-
-
-def resolve_config(args: argparse.Namespace) -> SwarmConfig:
-    """Preset or file, then ``--set``, then ``--n-trackers`` / ``--seed`` / ``--duration``."""
-    return resolve(
-        args.config,
-        args.preset,
-        args.sets,
-        n_trackers=args.n_trackers,
-        seed=args.seed,
-        duration=args.duration,
-    )
 
 
 def _netns_rule(text: str) -> str:
@@ -79,7 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         '--discovery-range',
-        choices=DISCOVERY_RANGES,
+        choices=('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF'),
         default='LOCALHOST',
         help='LOCALHOST (default): nothing from outside this machine reaches the run (a '
         'Fast DDS profile, DIR/dds/, binds every socket to 127.0.0.1; docs/RELIABILITY.md, '
@@ -220,14 +204,6 @@ def _per_process(text: str) -> int:
     return 0 if text == 'auto' else int(positive_int(text))
 
 
-def _auto_per_process(cfg: SwarmConfig) -> int:
-    """The default trackers per process (:func:`apf_swarm_nodes.capacity.probe.
-    trackers_per_process`), from the cached probe if there is one; the bring-up measures
-    the machine later when it needs the probe."""
-    machine = probe.load()
-    return probe.trackers_per_process(machine, cfg.n_trackers, cfg.control_rate or None)
-
-
 def build_parser(prog: str = 'swarm_up.py') -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=prog,
@@ -238,6 +214,33 @@ def build_parser(prog: str = 'swarm_up.py') -> argparse.ArgumentParser:
     return p
 
 
+def plan(args: argparse.Namespace, prog: str) -> Plan:
+    """The run the command line asks for, checked against this machine's capacity."""
+
+    def say(text: str) -> None:
+        print(f'{prog}: {text}', file=sys.stderr, flush=True)
+
+    cfg = resolve(
+        args.config,
+        args.preset,
+        args.sets,
+        n_trackers=args.n_trackers,
+        seed=args.seed,
+        duration=args.duration,
+    )
+    per_process = args.trackers_per_process or probe.trackers_per_process(
+        probe.load(), cfg.n_trackers, cfg.control_rate or None
+    )  # auto: from the cached probe if there is one
+    check_capacity(
+        cfg.n_trackers, allow_overload=args.allow_overload, per_process=per_process, say=say
+    )
+    if per_process > 1 and not args.trackers_per_process:  # said once it is not refused
+        say(
+            f'hosting the trackers {per_process} to a process (--trackers-per-process K to choose)'
+        )
+    return Plan.from_args(args, cfg=cfg, trackers_per_process=per_process)
+
+
 def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
     """Run a bring-up from parsed arguments (:func:`add_arguments`); returns the exit code.
 
@@ -245,23 +248,7 @@ def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
     starts); the caller prints it and exits 2.
     """
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # a hung run says where
-    cfg = resolve_config(args)
-    if not args.trackers_per_process:
-        args.trackers_per_process = _auto_per_process(cfg)
-        if args.trackers_per_process > 1:
-            print(
-                f'{prog}: hosting the trackers {args.trackers_per_process} to a process '
-                '(--trackers-per-process K to choose)',
-                file=sys.stderr,
-                flush=True,
-            )
-    check_capacity(
-        cfg.n_trackers,
-        allow_overload=args.allow_overload,
-        per_process=args.trackers_per_process,
-        say=lambda m: print(f'{prog}: {m}', file=sys.stderr, flush=True),
-    )
-    return Bringup(args, cfg, prog=prog).execute()
+    return Bringup(plan(args, prog), prog=prog).execute()
 
 
 def main(argv: Sequence[str] | None = None, prog: str = 'swarm_up.py') -> int:

@@ -1,13 +1,21 @@
-"""The command lines of a run's node processes, and the network namespaces of simulated
-hosts."""
+"""The run's plan (:class:`Plan`: what to start, where, with which parameters) and the
+command lines of its node processes."""
 
 from __future__ import annotations
 
+import argparse
+import fnmatch
 from collections.abc import Sequence
+from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Any
+
+from apf_swarm_core.command_hold import STALE_AFTER
+from apf_swarm_core.config import SwarmConfig
 
 from ..topics import (
     PLANT_NODE,
+    RECORDER_NODE,
     TARGET_NAMESPACE,
     TARGET_NODE,
     TRACKER_NODE,
@@ -15,7 +23,76 @@ from ..topics import (
     uav_namespace,
 )
 from .errors import BringupError
-from .processes import PACKAGE
+
+PACKAGE = 'apf_swarm_nodes'
+
+
+@dataclass(frozen=True)
+class Plan:
+    """One run as asked: the configuration to fly and the options of ``apf-swarm up``, each
+    field named as its option (:meth:`from_args`)."""
+
+    cfg: SwarmConfig
+    out: Path
+    mode: str = 'lockstep'
+    trackers_per_process: int = 1
+    #: ``NAME:=VALUE`` for every node
+    node_params: Sequence[str] = ()
+    record: bool = False
+    on_recorder_death: str = 'stop'
+    respawn: bool = False
+    max_respawns: int = 3
+    ready_timeout: float = 30.0
+    stall_timeout: float = 20.0
+    domain_id: int | None = None
+    discovery_range: str = 'LOCALHOST'
+    spawn: str = 'fork'
+    #: ``PATTERN=NETNS``: the simulated host of the node processes a pattern matches
+    node_netns: Sequence[str] = ()
+    secure: bool = False
+    secure_host: Sequence[str] = ()
+    secure_address: str | None = None
+    secure_pki: Path | None = None
+    keep_keys: bool = False
+    gains: str = 'auto'
+    no_plots: bool = False
+    #: the live view's port, None without ``--view``
+    view: int | None = None
+    view_host: str = '127.0.0.1'
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace, **given: Any) -> Plan:
+        """The options in ``args``, then ``given``."""
+        options = {f.name: getattr(args, f.name) for f in fields(cls) if hasattr(args, f.name)}
+        return cls(**{**options, **given})
+
+    @property
+    def n(self) -> int:
+        return self.cfg.n_trackers
+
+    def node_value(self, name: str, default: str) -> str:
+        """A node parameter's value as given (the last one wins, as for ROS), else ``default``."""
+        return dict(p.split(':=', 1) for p in self.node_params).get(name, default)
+
+    @property
+    def batch_commands(self) -> bool:
+        """Whether the trackers send a process's commands as one message: by default in a
+        secure realtime run of several trackers to a process; else as the
+        ``batch_commands`` node parameter says."""
+        several = (
+            self.mode == 'realtime'
+            and self.trackers_per_process > 1
+            and self.node_value('inputs', 'aggregate') == 'aggregate'
+        )
+        given = self.node_value('batch_commands', '')
+        if given:
+            return several and given.strip().lower() == 'true'
+        return several and self.secure
+
+    @property
+    def stale_after(self) -> float:
+        """The plant's: a tracker whose command answers an older state gets zero force."""
+        return float(self.node_value('stale_after', str(STALE_AFTER)))
 
 
 def executable_path(prefix: Path, name: str) -> Path:
@@ -34,6 +111,18 @@ def package_prefix() -> Path:
         ) from None
 
 
+def ros_command(
+    prefix: Path,
+    exe: str,
+    ros_args: Sequence[str],
+    params: Sequence[str],
+    args: Sequence[str] = (),
+) -> list[str]:
+    """``EXE ARGS --ros-args ROS_ARGS -p P...`` of the package's executable ``exe``."""
+    ps = [a for p in params for a in ('-p', p)]
+    return [str(executable_path(prefix, exe)), *args, '--ros-args', *ros_args, *ps]
+
+
 def node_commands(
     prefix: Path,
     config_file: Path,
@@ -49,90 +138,33 @@ def node_commands(
     ``trackers``, log names ``trackers_<first>-<last>``), each still its own node
     ``/uav_<i>/tracker`` with its own parameters.
     """
-    cfg = str(config_file)
-    extra = [a for p in node_params for a in ('-p', p)]
-
-    def exe(name: str) -> str:
-        return str(executable_path(prefix, name))
-
+    files = ['--params-file', str(config_file)]
+    mine = f'mode:={mode}'
+    started = [mine, 'wait_for_start:=true', *node_params]
+    target = ['-r', f'__ns:={TARGET_NAMESPACE}', '-r', f'__node:={TARGET_NODE}']
     cmds = [
-        (
-            'target',
-            [
-                exe('target'),
-                '--ros-args',
-                '--params-file',
-                cfg,
-                '-r',
-                f'__ns:={TARGET_NAMESPACE}',
-                '-r',
-                f'__node:={TARGET_NODE}',
-                '-p',
-                f'mode:={mode}',
-                '-p',
-                'wait_for_start:=true',
-                *extra,
-            ],
-        ),
-        (
-            'plant',
-            [
-                exe('plant'),
-                '--ros-args',
-                '--params-file',
-                cfg,
-                '-r',
-                f'__node:={PLANT_NODE}',
-                '-p',
-                f'mode:={mode}',
-                '-p',
-                'wait_for_start:=true',
-                *extra,
-            ],
-        ),
+        ('target', ros_command(prefix, 'target', [*files, *target], started)),
+        ('plant', ros_command(prefix, 'plant', [*files, '-r', f'__node:={PLANT_NODE}'], started)),
     ]
     if per_process > 1:
         for first in range(1, n + 1, per_process):
-            last = min(n, first + per_process - 1)
-            cmds.append(
-                (
-                    f'trackers_{first}-{last}',
-                    [
-                        exe('trackers'),
-                        '--uav-ids',
-                        f'{first}-{last}',
-                        '--ros-args',
-                        '--params-file',
-                        cfg,
-                        '-p',
-                        f'mode:={mode}',
-                        *extra,
-                    ],
-                )
-            )
+            ids = f'{first}-{min(n, first + per_process - 1)}'
+            argv = ros_command(prefix, 'trackers', files, [mine, *node_params], ['--uav-ids', ids])
+            cmds.append((f'trackers_{ids}', argv))
         return cmds
     for i in range(1, n + 1):
-        cmds.append(
-            (
-                f'tracker_{i}',
-                [
-                    exe('tracker'),
-                    '--ros-args',
-                    '--params-file',
-                    cfg,
-                    '-r',
-                    f'__ns:={uav_namespace(i)}',
-                    '-r',
-                    f'__node:={TRACKER_NODE}',
-                    '-p',
-                    f'uav_id:={i}',
-                    '-p',
-                    f'mode:={mode}',
-                    *extra,
-                ],
-            )
-        )
+        names = ['-r', f'__ns:={uav_namespace(i)}', '-r', f'__node:={TRACKER_NODE}']
+        params = [f'uav_id:={i}', mine, *node_params]
+        cmds.append((f'tracker_{i}', ros_command(prefix, 'tracker', [*files, *names], params)))
     return cmds
+
+
+def recorder_command(
+    prefix: Path, mode: str, bag: Path, config_file: Path, node_params: Sequence[str]
+) -> list[str]:
+    """The recorder's argv: it records into ``bag`` (which must not exist)."""
+    params = [f'mode:={mode}', f'output:={bag}', f'config_file:={config_file}', *node_params]
+    return ros_command(prefix, 'recorder', ['-r', f'__node:={RECORDER_NODE}'], params)
 
 
 def hosted_nodes(name: str) -> list[str]:
@@ -151,12 +183,10 @@ def hosted_nodes(name: str) -> list[str]:
     return []
 
 
-def node_netns(name: str, rules: Sequence[str] | None) -> str | None:
+def node_netns(name: str, rules: Sequence[str]) -> str | None:
     """The network namespace a node process runs in: the first ``PATTERN=NETNS`` rule whose
     shell pattern matches its log name (``tracker_3``, ``trackers_1-2``, ``plant``), or None."""
-    import fnmatch
-
-    for rule in rules or ():
+    for rule in rules:
         pattern, _, ns = rule.partition('=')
         if fnmatch.fnmatchcase(name, pattern):
             return ns

@@ -4,27 +4,21 @@ next to its headless emulation with the run's own delays (``summary.json``, ``pr
 
 from __future__ import annotations
 
-import argparse
 import subprocess
 from collections.abc import Callable
 from typing import Any
 
-from apf_swarm_core.config import (
-    DEFAULT_LATENCY,
-    REALTIME_RATE,
-    SwarmConfig,
-)
+from apf_swarm_core.config import DEFAULT_LATENCY, REALTIME_RATE, SwarmConfig
+
+from .commands import Plan
 
 
 class FlightCheck:
     """A realtime run's flight check (the bring-up holds one): :meth:`check` before the run,
-    :meth:`judged` after it; ``say`` prints a line of the bring-up; ``stale_after``: the
-    plant's (its emulation zeroes a command as late as the plant does)."""
+    :meth:`judged` after it; ``say`` prints a line of the bring-up."""
 
-    def __init__(
-        self, args: argparse.Namespace, say: Callable[[str], None], stale_after: float
-    ) -> None:
-        self.args, self.say, self.stale_after = args, say, stale_after
+    def __init__(self, plan: Plan, say: Callable[[str], None]) -> None:
+        self.plan, self.say = plan, say
         #: what the probe implies for this run (:func:`~..capacity.probe.derive`)
         self.capacity: dict[str, Any] | None = None
         #: the sampled-data prediction before the run, None until :meth:`check`
@@ -51,7 +45,7 @@ class FlightCheck:
             )
             machine = None
         measured = (
-            probe.derive(machine, n, cfg.control_rate or None, self.args.trackers_per_process)
+            probe.derive(machine, n, cfg.control_rate or None, self.plan.trackers_per_process)
             if machine
             else {'rate': cfg.control_rate or REALTIME_RATE, 'latency': None, 'capacity': {}}
         )
@@ -83,7 +77,7 @@ class FlightCheck:
                 + ') or fewer trackers'
             )
         base = cfg
-        if getattr(self.args, 'gains', 'auto') == 'auto':
+        if self.plan.gains == 'auto':
             cfg, pred, gains, warnings = schedule_gains(cfg, latency=latency, advice=CLI_ADVICE)
         else:
             pred = predict(cfg, latency=latency, advice=CLI_ADVICE)
@@ -103,7 +97,7 @@ class FlightCheck:
             self.gains_scheduled = gains
         for w in warnings:
             self.say(f'warning: {w}')
-        if not pred.holds and getattr(self.args, 'gains', 'auto') == 'auto':
+        if not pred.holds and self.plan.gains == 'auto':
             self._say_largest(base, latency, machine)
         self.cfg = cfg
         self.prediction = pred
@@ -123,7 +117,7 @@ class FlightCheck:
         def latency_of(m: int) -> float:
             if given:
                 return latency
-            k = self.args.trackers_per_process or probe.trackers_per_process(machine, m, rate)
+            k = self.plan.trackers_per_process or probe.trackers_per_process(machine, m, rate)
             return float(probe.derive(machine, m, rate, k)['latency'])
 
         found = largest_holding(cfg, latency_of)
@@ -183,7 +177,7 @@ class FlightCheck:
             emu = simulate(
                 emu_cfg,
                 latency_samples=seq,
-                stale_after=self.stale_after,
+                stale_after=self.plan.stale_after,  # zeroed as late as the plant does
             )
             out['emulation'] = flight(emu.trajectory, pairs)
             out['latency_samples'] = np.round(lat[:: max(1, lat.size // 2000)], 6).tolist()

@@ -6,7 +6,6 @@ from __future__ import annotations
 import signal
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from ..topics import (
@@ -20,10 +19,6 @@ from ..topics import (
     odom_topic,
     swarm_node_names,
 )
-
-# --------------------------------------------------------------------------------------------
-# the graph: what must be there before the start
-# --------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -48,15 +43,12 @@ def expected_graph(
 ) -> tuple[list[str], list[TopicExpectation]]:
     """Fully qualified node names and topic endpoint counts of a swarm of ``n`` trackers.
 
-    Every tracker reads every tracker's odometry and the target's, either as ``/uav_<j>/odom``
-    and ``/target/odom`` (``inputs:=odom``) or as the one aggregate ``/swarm/odom`` message per
-    step (``inputs:=aggregate``); the counts accept either. ``readers``: how many subscribe
-    to each (default n; a realtime process of several trackers reads ``/swarm/odom`` once,
-    see :func:`input_readers`). ``batch_writers``: the processes that send their commands
-    as one ``/swarm/force_cmds`` message (``batch_commands``), which the plant must read
-    before the start or their first commands are lost. ``/swarm/start`` and this node's
-    ``/swarm/state`` subscription are checked on its own endpoints (matched counts), see
-    :meth:`Bringup.missing`.
+    A tracker reads its inputs as ``/uav_<j>/odom`` and ``/target/odom`` (``inputs:=odom``)
+    or as ``/swarm/odom`` (``inputs:=aggregate``); the counts accept either. ``readers``: how
+    many subscribe to each (default n; see :func:`input_readers`). ``batch_writers``: the
+    processes that send their commands as one ``/swarm/force_cmds`` message, which the
+    plant must read before the start. ``/swarm/start`` and the bring-up's ``/swarm/state``
+    subscription are checked on its own endpoints (:meth:`.graph_watch.GraphWatch.missing`).
     """
     nodes = swarm_node_names(n)
     topics = []
@@ -128,15 +120,8 @@ class UnseenRestart:
     """Which node processes to restart while the graph comes up: those none of whose nodes
     the graph shows, once every other process has shown one for ``peer_wait`` seconds, or
     once the count of missing entities has not fallen for ``stall`` seconds; each at most
-    ``limit`` times.
-
-    Over Fast DDS's TCP transport (the secure mode) a node process sometimes never reaches
-    the discovery server although it runs; everything else comes up around it and the run
-    would wait for it until ``--ready-timeout``. A restarted process is discovered like the
-    others. The processes start together, so a process still unseen ``peer_wait`` after the
-    last of its peers showed up is not merely slow: under load all of them are. The stall
-    rule covers a run with one process. ``hosted``: each process's node names
-    (:func:`.commands.hosted_nodes`).
+    ``limit`` times (why: docs/RELIABILITY.md, "Known fault: a node that is never
+    discovered"). ``hosted``: each process's node names (:func:`.commands.hosted_nodes`).
     """
 
     def __init__(
@@ -201,30 +186,4 @@ def recorder_missing(status: Mapping[str, Any] | None, topics: Sequence[str]) ->
             out.append(
                 f'recorder: {t} matched {v.get("matched")} of {v.get("publishers")} publishers'
             )
-    return out
-
-
-def recording_fields(bag: Path) -> dict[str, Any]:
-    """summary.json ``recording``: the bag and the recorder's counts (its metadata.yaml)."""
-    import json
-
-    import yaml
-
-    out: dict[str, Any] = {'bag': str(bag)}
-    try:
-        meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-    except (OSError, yaml.YAMLError, KeyError, TypeError):
-        out['error'] = (
-            f'no readable {bag / "metadata.yaml"} (the recorder did not close the '
-            f'bag); `apf-swarm bag reindex {bag}` recovers its flushed chunks'
-        )
-        return out
-    out['messages'] = int(meta.get('message_count', 0))
-    out['topics'] = len(meta.get('topics_with_message_count') or [])
-    try:
-        counts = json.loads((meta.get('custom_data') or {}).get('apf_swarm.recorder', '{}'))
-    except ValueError:
-        counts = {}
-    for key in ('received', 'written', 'lost', 'dropped'):
-        out[key] = counts.get(key)
     return out

@@ -4,16 +4,14 @@ and shutdown at the end."""
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 from ..analysis.samples import StateAccumulator
 from ..topics import RECORDER_NODE, RECORDER_STATUS
-from .commands import hosted_nodes
+from .commands import Plan, hosted_nodes
 from .graph import (
     UnseenRestart,
     expected_graph,
@@ -28,22 +26,13 @@ from .processes import (
 
 
 class GraphWatch:
-    """The bring-up's node on the graph (the bring-up holds one): ``say`` and ``warn_once``
-    print its lines, ``acc`` takes the ``/swarm/state`` samples."""
+    """The bring-up's node on the graph (the bring-up holds one): ``say`` prints its lines,
+    ``acc`` takes the ``/swarm/state`` samples."""
 
-    def __init__(
-        self,
-        args: argparse.Namespace,
-        n: int,
-        node_values: dict[str, str],
-        acc: StateAccumulator,
-        say: Callable[[str], None],
-        warn_once: Callable[[str, str], None],
-    ) -> None:
-        self.args, self.mode, self.n, self.node_values = args, args.mode, n, node_values
-        self.acc, self.say, self.warn_once = acc, say, warn_once
-        #: whether each tracker process sends its commands as one message (``batch_commands``)
-        self.batching = False
+    def __init__(self, plan: Plan, acc: StateAccumulator, say: Callable[[str], None]) -> None:
+        self.plan, self.acc, self.say = plan, acc, say
+        #: the topics whose extra publishers were warned of
+        self.warned: set[str] = set()
         #: the recorder's last ``/recorder/status`` document (``--record``), None before one
         self.rec_status: dict[str, Any] | None = None
         # rclpy objects, made by init_ros() once rclpy is imported (this module does not)
@@ -79,7 +68,7 @@ class GraphWatch:
         self.state_sub = self.node.create_subscription(
             SwarmState, SWARM_STATE, self.acc.add_raw, STATE_QOS, raw=True
         )
-        if self.args.record:
+        if self.plan.record:
             import json
 
             from std_msgs.msg import String
@@ -100,15 +89,14 @@ class GraphWatch:
         present = {
             (ns.rstrip('/') + '/' + name) for name, ns in node.get_node_names_and_namespaces()
         }
-        readers = input_readers(
-            self.n,
-            self.mode,
-            self.args.trackers_per_process,
-            self.node_values.get('inputs', 'aggregate'),
-        )
+        plan = self.plan
+        inputs = plan.node_value('inputs', 'aggregate')
+        readers = input_readers(plan.n, plan.mode, plan.trackers_per_process, inputs)
         # a batching process is one that reads /swarm/odom for its trackers
-        nodes, topics = expected_graph(self.n, self.mode, readers, readers if self.batching else 0)
-        if self.args.record:
+        nodes, topics = expected_graph(
+            plan.n, plan.mode, readers, readers if plan.batch_commands else 0
+        )
+        if plan.record:
             nodes = [*nodes, f'/{RECORDER_NODE}']
         counts = {
             t.topic: (node.count_publishers(t.topic), node.count_subscribers(t.topic))
@@ -116,12 +104,12 @@ class GraphWatch:
         }
         miss = graph_missing(present, counts, nodes, topics)
         for t in topics:
-            if counts[t.topic][0] > t.publishers:
-                self.warn_once(
-                    'pubs' + t.topic,
-                    f'{t.topic} has {counts[t.topic][0]} publishers (expected '
+            if counts[t.topic][0] > t.publishers and t.topic not in self.warned:
+                self.warned.add(t.topic)
+                self.say(
+                    f'warning: {t.topic} has {counts[t.topic][0]} publishers (expected '
                     f'{t.publishers}): another graph on ROS_DOMAIN_ID='
-                    f'{domain_id}, or a respawned node not yet forgotten?',
+                    f'{domain_id}, or a respawned node not yet forgotten?'
                 )
         # our own endpoints: matched counts, not mere discovery
         nstate = self.state_sub.get_publisher_count()
@@ -133,12 +121,12 @@ class GraphWatch:
         # the plant waits for the start in both modes; the target only in realtime (in
         # lockstep it is driven by the plant's /target/request)
         nstart = self.start_pub.get_subscription_count()
-        want, who = (2, 'plant, target') if self.mode == 'realtime' else (1, 'plant')
+        want, who = (2, 'plant, target') if plan.mode == 'realtime' else (1, 'plant')
         if nstart < want:
             miss.append(
                 f'topic /swarm/start: matched subscribers {nstart} (need >= {want}: {who})'
             )
-        if self.args.record:
+        if plan.record:
             miss += recorder_missing(
                 self.rec_status, [t.topic for t in topics if t.publishers and not t.optional]
             )
@@ -152,17 +140,16 @@ class GraphWatch:
         self,
         between: Callable[[], None],
         domain_id: int | None,
-        logs: Path,
-        processes: list[str] | None = None,
-        restart: Callable[[list[str], str], None] | None = None,
+        processes: list[str],
+        restart: Callable[[list[str], str], None],
     ) -> None:
         """Spin until :meth:`missing` finds nothing, calling ``between`` (the bring-up's
-        signal and process checks) each turn; StopRun after ``--ready-timeout``. With
-        ``restart``, the ``processes`` (log names) none of whose nodes ever appear while
-        their peers do are restarted (:class:`~.graph.UnseenRestart`)."""
-        unseen = UnseenRestart({p: hosted_nodes(p) for p in processes or ()})
+        signal and process checks) each turn; StopRun after ``--ready-timeout``. The
+        ``processes`` (log names) none of whose nodes ever appear while their peers do are
+        restarted (``restart``, :class:`~.graph.UnseenRestart`)."""
+        unseen = UnseenRestart({p: hosted_nodes(p) for p in processes})
         t0 = time.monotonic()
-        deadline = t0 + self.args.ready_timeout
+        deadline = t0 + self.plan.ready_timeout
         last_check, last_report = 0.0, t0
         miss = ['(not checked yet)']
         while True:
@@ -174,8 +161,8 @@ class GraphWatch:
                 miss = self.missing(domain_id)
                 if not miss:
                     return
-                names = unseen.due(now, miss) if restart is not None else []
-                if names and restart is not None:
+                names = unseen.due(now, miss)
+                if names:
                     times = max(unseen.restarts[n] for n in names)
                     restart(
                         names,
@@ -187,17 +174,17 @@ class GraphWatch:
                 last_report = now
                 self.say(
                     f'waiting for the graph ({now - t0:.0f} s of '
-                    f'{self.args.ready_timeout:g}): {len(miss)} missing, e.g. {miss[0]}'
+                    f'{self.plan.ready_timeout:g}): {len(miss)} missing, e.g. {miss[0]}'
                 )
             if now >= deadline:
                 raise StopRun(
                     EXIT_BAD_INPUT,
                     'not_ready',
-                    f'the ROS graph was not complete after {self.args.ready_timeout:g} s '
+                    f'the ROS graph was not complete after {self.plan.ready_timeout:g} s '
                     f'(--ready-timeout, ROS_DOMAIN_ID={domain_id}); '
                     f'{len(miss)} never appeared:\n'
                     + ''.join(f'    {m}\n' for m in miss)
-                    + f'  node logs: {logs}',
+                    + f'  node logs: {self.plan.out / "logs"}',
                 )
 
     def drain(self, seconds: float = 0.2) -> None:

@@ -1,9 +1,9 @@
 """A run's outputs: trajectory.npz, summary.json, the figures and the report printed at the
-end (:func:`write_outputs`); the run's own fields of summary.json come from the bring-up."""
+end (:func:`write_outputs`); the run's own fields of summary.json come from the bring-up, the
+recording's from the bag (:func:`recording_fields`)."""
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -11,34 +11,33 @@ from typing import Any
 from apf_swarm_core.config import SwarmConfig
 
 from ..analysis.samples import StateAccumulator
+from .commands import Plan
 
-__all__ = ['write_outputs']
+__all__ = ['recording_fields', 'write_outputs']
 
 
 def write_outputs(
     *,
-    args: argparse.Namespace,
+    plan: Plan,
     cfg: SwarmConfig,
-    out: Path,
     acc: StateAccumulator,
-    status: str,
     fields: dict[str, Any],
-    respawned: list[str],
     judged: Callable[[dict[str, Any]], dict[str, Any]] | None,
     say: Callable[[str], None],
-) -> dict[str, Path]:
-    """Write and print the run's outputs: ``fields`` (the bring-up's facts of the run) join
-    the summary; ``judged`` (realtime) judges the trajectory by flight beside its emulation.
-    Returns the paths written ({} when no sample came)."""
+) -> None:
+    """Write and print the run's outputs: ``fields`` (the bring-up's facts of the run: status,
+    respawns, ...) join the summary; ``judged`` (realtime) judges the trajectory by flight
+    beside its emulation; ``cfg``: the configuration flown."""
     from ..analysis.runio import format_summary, run_summary, write_run
 
+    out, status = plan.out, fields['status']
     traj = acc.trajectory()
     if traj is None:
         say(
             f'no /swarm/state samples: wrote no trajectory.npz / summary.json '
             f'(config and logs are in {out})'
         )
-        return {}
+        return
     # the same function computes `apf-swarm bag metrics` from a recorded bag
     summary = run_summary(
         traj,
@@ -46,16 +45,16 @@ def write_outputs(
         status=status,
         n_samples=len(acc.samples),
         dropped=acc.dropped,
-        respawned=respawned,
+        respawned=list(fields['respawned']),
     )
     summary.update(fields)
     if judged is not None:
         summary['prediction'] = judged(traj)
     paths = write_run(out, traj, summary, cfg)
-    if not args.no_plots and len(traj['t']) > 1:
+    if not plan.no_plots and len(traj['t']) > 1:
         from ..analysis import plots
 
-        title = f'{cfg.law} law, ROS 2 {args.mode} run'
+        title = f'{cfg.law} law, ROS 2 {plan.mode} run'
         paths['trajectories_3d'] = plots.plot_trajectories_3d(
             traj, f'trajectories, {title}', out / 'trajectories_3d.png'
         )
@@ -65,7 +64,7 @@ def write_outputs(
         )
         paths['centroid_error'] = plots.plot_centroid_error(
             {cfg.law: traj},
-            f'centroid error, ROS 2 {args.mode} run',
+            f'centroid error, ROS 2 {plan.mode} run',
             out / 'centroid_error.png',
         )
     print(format_summary(summary))
@@ -82,7 +81,7 @@ def write_outputs(
             )
     m = summary['messages']
     print(
-        f'  run              {status}, {args.mode}, ROS_DOMAIN_ID {fields["domain_id"]}, '
+        f'  run              {status}, {plan.mode}, ROS_DOMAIN_ID {fields["domain_id"]}, '
         f'{summary["wall_time"]:g} s wall, {m["received"]} messages, {m["dropped"]} '
         f'dropped, missed deadlines {summary["missed_deadlines"]}, stale '
         f'{summary["stale_inputs"]}, rejected {summary["rejected_inputs"]}, respawns '
@@ -99,9 +98,34 @@ def write_outputs(
                 f'{rec["received"]}, written {rec["written"]}, dropped {rec["dropped"]}'
             )
         )
-    figs = [p.name for k, p in paths.items() if p.suffix == '.png']
+    figs = [p.name for p in paths.values() if p.suffix == '.png']
     print(
         f'wrote {out / "trajectory.npz"}, {out / "summary.json"}'
         + (f' and {", ".join(figs)}' if figs else '')
     )
-    return paths
+
+
+def recording_fields(bag: Path) -> dict[str, Any]:
+    """summary.json ``recording``: the bag and the recorder's counts (its metadata.yaml)."""
+    import json
+
+    import yaml
+
+    out: dict[str, Any] = {'bag': str(bag)}
+    try:
+        meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        out['error'] = (
+            f'no readable {bag / "metadata.yaml"} (the recorder did not close the '
+            f'bag); `apf-swarm bag reindex {bag}` recovers its flushed chunks'
+        )
+        return out
+    out['messages'] = int(meta.get('message_count', 0))
+    out['topics'] = len(meta.get('topics_with_message_count') or [])
+    try:
+        counts = json.loads((meta.get('custom_data') or {}).get('apf_swarm.recorder', '{}'))
+    except ValueError:
+        counts = {}
+    for key in ('received', 'written', 'lost', 'dropped'):
+        out[key] = counts.get(key)
+    return out

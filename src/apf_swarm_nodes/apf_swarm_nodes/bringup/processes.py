@@ -20,7 +20,6 @@ if TYPE_CHECKING:
     from .janitor import Janitor
     from .zygote import Spawn, Zygote
 
-PACKAGE = 'apf_swarm_nodes'
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
 EXIT_CHILD_DIED = 3
@@ -30,13 +29,6 @@ EXIT_INTERRUPTED = 130
 
 #: escalation of :meth:`ProcessGroup.stop_all`: (signal, seconds to wait after it)
 STOP_SEQUENCE = ((signal.SIGINT, 5.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0))
-
-DISCOVERY_RANGES = ('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF')
-
-
-# --------------------------------------------------------------------------------------------
-# process supervision (no ROS)
-# --------------------------------------------------------------------------------------------
 
 
 def _group_alive(pgid: int) -> bool:
@@ -49,20 +41,6 @@ def _group_alive(pgid: int) -> bool:
         return True
     # zombies answer kill(0) too (and PID 1 of a container may never reap them)
     return bool(group_members(pgid))
-
-
-def tail_lines(path: Path, n: int = 10, max_bytes: int = 16384) -> list[str]:
-    """The last ``n`` lines of a text file (empty list if unreadable)."""
-    try:
-        with open(path, 'rb') as f:
-            f.seek(0, os.SEEK_END)
-            size = f.tell()
-            f.seek(max(0, size - max_bytes))
-            data = f.read()
-    except OSError:
-        return []
-    lines = data.decode('utf-8', errors='replace').splitlines()
-    return lines[-n:]
 
 
 @dataclass
@@ -157,12 +135,14 @@ class Child:
         except ProcessLookupError:
             pass
 
-    def tail(self, n: int = 10) -> list[str]:
-        return tail_lines(self.log_path, n)
-
     def death_report(self, rc: int, n: int = 10) -> str:
         """Multi-line report of an unexpected exit: name, pid, exit code, last log lines."""
-        lines = self.tail(n)
+        try:
+            with open(self.log_path, 'rb') as f:
+                f.seek(max(0, f.seek(0, os.SEEK_END) - 16384))
+                lines = f.read().decode('utf-8', errors='replace').splitlines()[-n:]
+        except OSError:
+            lines = []
         head = (
             f'{self.name} (pid {self.pid}) died unexpectedly: {describe_rc(rc)}; '
             f'last {len(lines)} lines of {self.log_path}:'
@@ -225,7 +205,7 @@ class ProcessGroup:
         group has no member left. Each stage waits at most its time in :attr:`stop_sequence`
         and ends early once every child is stopped, or when ``hurry()`` (a counter, e.g. of
         signals received) grows: each further Ctrl-C moves on to the next stage at once.
-        Returns ``{name: how}``, ``how`` one of
+        Returns ``{name: how}`` in the group's order, ``how`` one of
         ``exited`` (had already ended), ``SIGINT``, ``SIGTERM``, ``SIGKILL`` (the signal after
         which it stopped) or ``not stopped`` (should never happen; see :meth:`leftovers`).
         ``select``: only the children it accepts (the bring-up stops the trackers first).
@@ -269,7 +249,7 @@ class ProcessGroup:
                 time.sleep(poll_interval)
         for c in pending:
             how[c.name] = 'not stopped'
-        return how
+        return {c.name: how[c.name] for c in self.children if c.name in how}  # in their order
 
     def leftovers(self) -> list[tuple[str, int]]:
         """(name, pid) of every live process in a process group this group ever started

@@ -6,24 +6,19 @@ bring-up's node on the graph), :mod:`.supervision` (signals and children), :mod:
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import random
 import sys
 import time
-from pathlib import Path
-from typing import Any, TextIO
-
-from apf_swarm_core.command_hold import STALE_AFTER
-from apf_swarm_core.config import SwarmConfig
+from typing import Any
 
 from ..analysis.samples import StateAccumulator
 from ..lifetime import describe_rc
+from .commands import Plan
 from .flight_check import FlightCheck
-from .graph import recording_fields
 from .graph_watch import GraphWatch
-from .outputs import write_outputs
+from .outputs import recording_fields, write_outputs
 from .processes import (
     EXIT_CHILD_DIED,
     EXIT_INTERRUPTED,
@@ -44,57 +39,31 @@ class Bringup:
     graph (:attr:`graph`), its processes (:attr:`sup`) and, realtime, its flight check
     (:attr:`flight`)."""
 
-    def __init__(
-        self,
-        args: argparse.Namespace,
-        cfg: SwarmConfig,
-        *,
-        prog: str,
-        stream: TextIO | None = None,
-    ) -> None:
-        self.args, self.cfg, self.prog = args, cfg, prog
-        self.err = stream if stream is not None else sys.stderr
-        self.mode: str = args.mode
-        self.node_params: list[str] = list(getattr(args, 'node_params', []) or [])
-        #: the same, read once: name -> value (the last one given wins, as for ROS)
-        self.node_values: dict[str, str] = dict(p.split(':=', 1) for p in self.node_params)
-        self.out: Path = args.out
-        self.n = cfg.n_trackers
+    def __init__(self, plan: Plan, *, prog: str) -> None:
+        self.plan, self.prog = plan, prog
+        #: the configuration flown (realtime: the flight check's), known once prepared
+        self.cfg = plan.cfg
         self.signals = Signals()
         #: the node processes and the recorder, watched and stopped
-        self.sup = Supervisor(args, self.out, self.signals, self.say)
-        self.group, self.rec_group = self.sup.group, self.sup.rec_group
-        self.acc = StateAccumulator(self.mode, cfg.steps, cfg.record_every)
+        self.sup = Supervisor(plan, self.signals, self.say)
+        self.acc = StateAccumulator(plan.mode, plan.cfg.steps, plan.cfg.record_every)
         #: the bring-up's node on the graph; realtime, the flight check before and after the run
-        self.graph = GraphWatch(args, self.n, self.node_values, self.acc, self.say, self.warn_once)
-        #: the plant's: a tracker whose command answers an older state gets zero force
-        self.stale_after = float(self.node_values.get('stale_after', STALE_AFTER))
-        self.flight = FlightCheck(args, self.say, self.stale_after)
+        self.graph = GraphWatch(plan, self.acc, self.say)
+        self.flight = FlightCheck(plan, self.say)
         #: the run's identity (the nodes' ``run`` parameter), random, never 0
         self.run_id = random.getrandbits(62) + 1
         #: before the run: checks, isolation (domain id, a secure run's files), the launch
-        self.setup = Startup(
-            args, cfg, self.run_id, self.node_params, self.node_values, self.sup, self.flight,
-            self.say,
-        )  # fmt: skip
-        # monotonic times of this bring-up's start, the launch, the start and the end of the
-        # run [s]
+        self.setup = Startup(plan, self.run_id, self.sup, self.flight, self.say)
+        # monotonic times of this bring-up's start, the start and the end of the run [s]
         self.t_begin = time.monotonic()
         self.t_start: Any = None
         self.t_end: Any = None
-        self.warned: set[str] = set()
         #: ``--view``: the live view (:class:`~apf_swarm_nodes.view.LiveView`)
         self.view: Any = None
 
     # --- messages -------------------------------------------------------------------------
     def say(self, text: str) -> None:
-        self.err.write(f'{self.prog}: {text}\n')
-        self.err.flush()
-
-    def warn_once(self, key: str, text: str) -> None:
-        if key not in self.warned:
-            self.warned.add(key)
-            self.say(f'warning: {text}')
+        print(f'{self.prog}: {text}', file=sys.stderr, flush=True)
 
     def between(self) -> None:
         """What the bring-up checks while it waits: signals, then its processes."""
@@ -110,7 +79,7 @@ class Bringup:
                 f'waiting for /swarm/state ({time.monotonic() - self.t_start:.1f} s since start)'
             )
         fe = 'n/a' if not math.isfinite(s.formation_error) else f'{s.formation_error:.3f} m'
-        unit = 'steps/s' if self.mode == 'lockstep' else 'msgs/s'
+        unit = 'steps/s' if self.plan.mode == 'lockstep' else 'msgs/s'
         return (
             f't {s.t:7.2f}/{dur:g} s | centroid err {s.centroid_error:.3f} m | formation err '
             f'{fe} | missed {s.missed_deadlines} stale {s.stale_inputs} rejected '
@@ -118,6 +87,7 @@ class Bringup:
         )
 
     def run_loop(self) -> None:
+        plan, acc = self.plan, self.acc
         self.graph.publish_start()
         self.t_start = time.monotonic()
         self.say(
@@ -125,7 +95,7 @@ class Bringup:
         )
         last_progress = self.t_start
         last_poll = 0.0
-        prev_step, prev_recv = 0, 0
+        prev = 0  # steps (lockstep) or messages (realtime) at the last progress line
         while True:
             self.graph.spin(0.05)
             now = time.monotonic()
@@ -133,41 +103,36 @@ class Bringup:
             if now - last_poll >= 0.1:
                 last_poll = now
                 self.sup.supervise()
-            if self.acc.complete:
+            if acc.complete:
                 return
             # realtime: the plant's clock starts once every tracker commands, so the run
             # ends with its final state; a plant that never gets there is cut off a stall
             # timeout after the duration
-            if (
-                self.mode == 'realtime'
-                and now - self.t_start >= self.cfg.duration + self.args.stall_timeout
+            if plan.mode == 'realtime' and now - self.t_start >= (
+                self.cfg.duration + plan.stall_timeout
             ):
                 self.say(
-                    f'warning: no final state from the plant {self.args.stall_timeout:g} '
+                    f'warning: no final state from the plant {plan.stall_timeout:g} '
                     f's after the duration; stopping'
                 )
                 return
-            last_msg = self.acc.last_time if self.acc.last_time is not None else self.t_start
-            if now - last_msg >= self.args.stall_timeout:
+            last_msg = acc.last_time if acc.last_time is not None else self.t_start
+            if now - last_msg >= plan.stall_timeout:
                 what = (
                     'no /swarm/state message at all'
-                    if self.acc.received == 0
-                    else f'no /swarm/state message after step {self.acc.last_step}'
+                    if acc.received == 0
+                    else f'no /swarm/state message after step {acc.last_step}'
                 )
                 raise StopRun(
                     EXIT_STALLED,
                     'stalled',
-                    f'{what} for {self.args.stall_timeout:g} s (--stall-timeout); '
-                    f'stopping. Node logs: {self.out / "logs"}',
+                    f'{what} for {plan.stall_timeout:g} s (--stall-timeout); '
+                    f'stopping. Node logs: {plan.out / "logs"}',
                 )
             if now - last_progress >= 1.0:
-                if self.mode == 'lockstep':
-                    rate = (self.acc.last_step + 1 - prev_step) / (now - last_progress)
-                    prev_step = self.acc.last_step + 1
-                else:
-                    rate = (self.acc.received - prev_recv) / (now - last_progress)
-                    prev_recv = self.acc.received
-                last_progress = now
+                count = acc.last_step + 1 if plan.mode == 'lockstep' else acc.received
+                rate = (count - prev) / (now - last_progress)
+                prev, last_progress = count, now
                 self.say(self.progress_line(rate))
 
     # --- everything -----------------------------------------------------------------------
@@ -176,18 +141,17 @@ class Bringup:
         bad input, found before any process starts). A UAV is drawn stale when its latest
         command answered a state older than the plant's ``stale_after`` (realtime; a
         ``--node-param stale_after:=S`` counts)."""
-        port = getattr(self.args, 'view', None)
-        if port is None:
+        if self.plan.view is None:
             return
         from apf_swarm_core.formation import design_pair_sets
 
         from ..view import LiveView
 
         self.view = LiveView(
-            host=getattr(self.args, 'view_host', '127.0.0.1'),
-            port=port,
+            host=self.plan.view_host,
+            port=self.plan.view,
             designs=design_pair_sets(self.cfg),
-            stale_after=self.stale_after,
+            stale_after=self.plan.stale_after,
         )
         self.view.follow(lambda: self.acc.newest)
         self.say(f'view: {self.view.url} (Foxglove: Open connection, Foxglove WebSocket)')
@@ -208,40 +172,29 @@ class Bringup:
     def execute_prepared(self) -> int:
         # the stop's bound from the start: the domain check already makes a participant
         self.signals.install()
+        code, status, message = EXIT_OK, 'completed', ''
+        group = self.sup.group
         try:
             self.setup.isolate()
-            self.graph.batching = self.setup.batch_commands
-        except BaseException:
-            self.signals.restore()
-            raise
-        code, status, message = EXIT_OK, 'completed', ''
-        try:
             self.start_view()
             try:
                 self.sup.check_signals()
                 self.graph.init_ros()
                 self.setup.launch()
                 # a stop from now on ends within its grace, which grows with the load
-                self.signals.bound = self.sup.stop_bound()
+                self.signals.watchdog.bound = self.sup.stop_bound()
                 self.sup.check_signals()
                 self.graph.wait_ready(
-                    self.between,
-                    self.setup.domain_id,
-                    self.out / 'logs',
-                    [c.name for c in self.group],
-                    self.sup.restart,
+                    self.between, self.setup.domain_id, [c.name for c in group], self.sup.restart
                 )
                 self.run_loop()
-                if self.mode == 'realtime':
+                if self.plan.mode == 'realtime':
                     self.graph.drain()
-                self.t_end = time.monotonic()
             except StopRun as stop:
-                self.t_end = time.monotonic()
                 code, status, message = stop.code, stop.status, stop.message
-                self.say(('error: ' if code not in (EXIT_INTERRUPTED,) else '') + message)
+                self.say(('error: ' if code != EXIT_INTERRUPTED else '') + message)
             finally:
-                if self.t_end is None:
-                    self.t_end = time.monotonic()
+                self.t_end = time.monotonic()
                 try:
                     self.sup.stop_children()
                 finally:
@@ -252,82 +205,58 @@ class Bringup:
             self.signals.restore()
         if self.sup.leftovers and code == EXIT_OK:
             code, status = EXIT_CHILD_DIED, 'leftover_processes'
-        if code == EXIT_OK and self.mode == 'lockstep' and self.acc.dropped:
+        if code == EXIT_OK and self.plan.mode == 'lockstep' and self.acc.dropped:
             code, status = EXIT_LOST_SAMPLES, 'lost_samples'
             self.say(
                 f'error: {self.acc.dropped} /swarm/state samples were lost; the trajectory '
                 'has gaps (a starved or paused bring-up: rerun on a quieter machine)'
             )
-        if status in ('not_ready',):
-            return code
-        if self.t_start is not None:
+        if status != 'not_ready' and self.t_start is not None:
             write_outputs(
-                args=self.args,
+                plan=self.plan,
                 cfg=self.cfg,
-                out=self.out,
                 acc=self.acc,
-                status=status,
                 fields=self.run_fields(status),
-                respawned=[c.name for c in self.group if c.respawns],
                 judged=self.flight.judged if self.flight.prediction is not None else None,
                 say=self.say,
             )
         return code
 
     def run_fields(self, status: str) -> dict[str, Any]:
-        """The run's own fields of summary.json: status, timing, stops, recording."""
-        last = self.acc.last
-        run_s = (self.t_end - self.t_start) if self.t_start is not None else 0.0
-        return {
+        """The run's own fields of summary.json: status, timing, stops, recording (the run
+        has started: :attr:`t_start` is set)."""
+        last, group, stops = self.acc.last, self.sup.group, self.sup.stop_how
+        hows = list(stops.values())
+        run_s = self.t_end - self.t_start
+        fields: dict[str, Any] = {
             'status': status,
-            'mode': self.mode,
+            'mode': self.plan.mode,
             'domain_id': self.setup.domain_id,
             'run_id': f'{self.run_id:x}',
             'wall_time': round(run_s, 3),
             'missed_deadlines': int(last.missed_deadlines) if last is not None else 0,
             'stale_inputs': int(last.stale_inputs) if last is not None else 0,
             'rejected_inputs': int(last.rejected_inputs) if last is not None else 0,
-            'respawns': sum(c.respawns for c in self.group),
-            'respawned': {c.name: c.respawns for c in self.group if c.respawns},
-            'restarted_unseen': {
-                c.name: c.unseen_restarts for c in self.group if c.unseen_restarts
-            },
+            'respawns': sum(c.respawns for c in group),
+            'respawned': {c.name: c.respawns for c in group if c.respawns},
+            'restarted_unseen': {c.name: c.unseen_restarts for c in group if c.unseen_restarts},
             'messages': self.acc.messages(),
             'timing': {
-                'ready': round(self.t_start - self.setup.t_launch, 3)
-                if self.t_start is not None and self.setup.t_launch is not None
-                else None,
+                'ready': round(self.t_start - self.setup.t_launch, 3),
                 # the bring-up's own start to graph ready (preparation, isolation included)
-                'startup': round(self.t_start - self.t_begin, 3)
-                if self.t_start is not None
-                else None,
+                'startup': round(self.t_start - self.t_begin, 3),
                 'run': round(run_s, 3),
                 'shutdown': round(self.sup.stop_seconds, 3),
                 'rate': round(len(self.acc.samples) / run_s, 1) if run_s > 0 else None,
             },
-            'stopped_by': self.sup.stop_how,
+            'stopped_by': stops,
             # how many needed which signal: SIGKILL is the exception (a node that never left
             # DDS leaves shared memory behind, which the bring-up then removes)
-            'stop_signals': {
-                how: sum(1 for v in self.sup.stop_how.values() if v == how)
-                for how in sorted(set(self.sup.stop_how.values()))
-            },
-            **(
-                {
-                    'recording': {
-                        **recording_fields(self.out / 'bag'),
-                        **(
-                            {
-                                'recorder_died': describe_rc(
-                                    list(self.sup.recorder_lost.values())[-1]
-                                )
-                            }
-                            if self.sup.recorder_lost
-                            else {}
-                        ),
-                    }
-                }
-                if self.args.record
-                else {}
-            ),
+            'stop_signals': {how: hows.count(how) for how in sorted(set(hows))},
         }
+        if self.plan.record:
+            fields['recording'] = recording_fields(self.plan.out / 'bag')
+            if self.sup.recorder_lost:
+                lost = list(self.sup.recorder_lost.values())[-1]
+                fields['recording']['recorder_died'] = describe_rc(lost)
+        return fields

@@ -4,16 +4,15 @@
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import signal
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 from ..lifetime import describe_rc
-from ..stop_watchdog import HARD_STOP_AFTER, StopWatchdog
+from ..stop_watchdog import StopWatchdog
+from .commands import Plan
 from .graph import RECORDER_STOP_SEQUENCE
 from .processes import (
     EXIT_CHILD_DIED,
@@ -29,34 +28,21 @@ __all__ = ['Signals', 'Supervisor']
 class Signals:
     """SIGINT / SIGTERM set a flag (the loops poll it); restored on exit.
 
-    And the bound on the stop (:class:`~..stop_watchdog.StopWatchdog`): a main thread
-    blocked inside a DDS call never runs the handler, so a watchdog thread ends the process
-    with ``EXIT_INTERRUPTED`` and a line saying why :attr:`bound` seconds after the first
-    signal or after :meth:`arm` (the run's own stop), :data:`HARD_STOP_AFTER` seconds after
-    a second signal. The bring-up sets :attr:`bound` to its stop's grace plus a margin once
-    it knows its processes (:meth:`Supervision.stop_bound`).
+    And the bound on the stop (:class:`~..stop_watchdog.StopWatchdog`, :attr:`watchdog`): a
+    main thread blocked inside a DDS call never runs the handler, so a watchdog thread ends
+    the process with ``EXIT_INTERRUPTED`` its ``bound`` seconds after the first signal or
+    after :meth:`arm` (the run's own stop). The bring-up sets that bound to its stop's grace
+    plus a margin once it knows its processes (:meth:`Supervisor.stop_bound`).
     """
 
     #: seconds from the first SIGINT / SIGTERM to a hard exit until the bring-up knows its
-    #: processes (then :meth:`Supervision.stop_bound`)
+    #: processes
     BOUND = 60.0
-    #: seconds from a second SIGINT / SIGTERM to a hard exit
-    HARD_STOP_AFTER = HARD_STOP_AFTER
 
     def __init__(self, bound: float = BOUND) -> None:
         self.received: list[int] = []
         self._old: dict[int, Any] = {}
-        self.watchdog = StopWatchdog(
-            bound, who='bring-up', hard_after=self.HARD_STOP_AFTER, code=EXIT_INTERRUPTED
-        )
-
-    @property
-    def bound(self) -> float:
-        return self.watchdog.bound
-
-    @bound.setter
-    def bound(self, seconds: float) -> None:
-        self.watchdog.bound = seconds
+        self.watchdog = StopWatchdog(bound, who='bring-up', code=EXIT_INTERRUPTED)
 
     def _handler(self, signum: int, frame: Any) -> None:
         self.received.append(signum)
@@ -69,9 +55,8 @@ class Signals:
             self.watchdog.install()
 
     def arm(self) -> None:
-        """Start the bound now, signal or not: the run is stopping (its end, a failed start, a
-        node's death), and stopping must not hang either (a DDS call blocked on a mutex a
-        killed node held)."""
+        """Start the bound now, signal or not: stopping must not hang either (a DDS call
+        blocked on a mutex a killed node held)."""
         self.watchdog.arm()
 
     def restore(self) -> None:
@@ -79,10 +64,6 @@ class Signals:
         for sig, old in self._old.items():
             signal.signal(sig, old)
         self._old.clear()
-
-    @property
-    def first(self) -> int | None:
-        return self.received[0] if self.received else None
 
 
 #: seconds of a stop's bound beyond the children's stop grace: the shared-memory cleanup,
@@ -100,14 +81,9 @@ class Supervisor:
     lasts and at its end (the bring-up holds one): deaths reported, respawned or the run
     stopped, signals turned into a stop, and the stop itself; ``say`` prints a line."""
 
-    def __init__(
-        self,
-        args: argparse.Namespace,
-        out: Path,
-        signals: Signals,
-        say: Callable[[str], None],
-    ) -> None:
-        self.args, self.mode, self.out, self.signals, self.say = args, args.mode, out, signals, say
+    def __init__(self, plan: Plan, signals: Signals, say: Callable[[str], None]) -> None:
+        self.plan, self.signals, self.say = plan, signals, say
+        self.bag = plan.out / 'bag'
         self.group = ProcessGroup()
         #: the recorder: started first, stopped last, given time to close the bag
         self.rec_group = ProcessGroup(RECORDER_STOP_SEQUENCE)
@@ -119,61 +95,55 @@ class Supervisor:
         self.leftovers: list[tuple[str, int]] = []
 
     def check_signals(self) -> None:
-        sig = self.signals.first
-        if sig is not None:
-            raise StopRun(
-                EXIT_INTERRUPTED, 'interrupted', f'interrupted by {signal.Signals(sig).name}'
-            )
+        if self.signals.received:
+            name = signal.Signals(self.signals.received[0]).name
+            raise StopRun(EXIT_INTERRUPTED, 'interrupted', f'interrupted by {name}')
 
     def supervise(self) -> None:
+        """A dead recorder stops the run (or not: ``--on-recorder-death``); a dead node is
+        respawned (``--respawn``, at most ``--max-respawns`` times, never the plant) or stops
+        the run."""
         for child, rc in self.rec_group.poll():
             if child.name in self.recorder_lost:
                 continue
             self.say(child.death_report(rc))
             self.recorder_lost[child.name] = rc
-            if self.args.on_recorder_death == 'continue':
+            died = f'{child.name} died ({describe_rc(rc)})'
+            reindex = f'`apf-swarm bag reindex {self.bag}` recovers what it flushed'
+            if self.plan.on_recorder_death == 'continue':
                 self.say(
-                    f'{child.name} died ({describe_rc(rc)}); the run continues without '
-                    f'recording (--on-recorder-death continue); `apf-swarm bag reindex '
-                    f'{self.out / "bag"}` recovers what it flushed'
+                    f'{died}; the run continues without recording (--on-recorder-death '
+                    f'continue); {reindex}'
                 )
                 continue
             raise StopRun(
                 EXIT_CHILD_DIED,
                 'child_died',
-                f'{child.name} died ({describe_rc(rc)}); stopping the run (a restarted '
-                f'recorder could not continue the bag; `apf-swarm bag reindex '
-                f'{self.out / "bag"}` recovers what it flushed; --on-recorder-death '
-                f'continue keeps the swarm flying)',
+                f'{died}; stopping the run (a restarted recorder could not continue the bag; '
+                f'{reindex}; --on-recorder-death continue keeps the swarm flying)',
             )
+        most = self.plan.max_respawns
         for child, rc in self.group.poll():
             self.say(child.death_report(rc))
-            if not self.args.respawn:
-                raise StopRun(
-                    EXIT_CHILD_DIED,
-                    'child_died',
-                    f'{child.name} died ({describe_rc(rc)}); stopping the run',
-                )
+            died = f'{child.name} died ({describe_rc(rc)})'
             why_not = self.not_respawnable(child.name)
-            if why_not:
-                raise StopRun(
-                    EXIT_CHILD_DIED,
-                    'child_died',
-                    f'{child.name} died ({describe_rc(rc)}); stopping the run: {why_not}',
+            if not self.plan.respawn:
+                why = f'{died}; stopping the run'
+            elif why_not:
+                why = f'{died}; stopping the run: {why_not}'
+            elif child.respawns >= most:
+                why = (
+                    f'{died} after {child.respawns} respawns (--max-respawns {most}); '
+                    'stopping the run'
                 )
-            if child.respawns >= self.args.max_respawns:
-                raise StopRun(
-                    EXIT_CHILD_DIED,
-                    'child_died',
-                    f'{child.name} died ({describe_rc(rc)}) after '
-                    f'{child.respawns} respawns (--max-respawns {self.args.max_respawns}); '
-                    'stopping the run',
+            else:
+                child.start()
+                self.say(
+                    f'respawned {child.name} (pid {child.pid}, respawn {child.respawns} of at '
+                    f'most {most})'
                 )
-            child.start()
-            self.say(
-                f'respawned {child.name} (pid {child.pid}, respawn {child.respawns} of at '
-                f'most {self.args.max_respawns})'
-            )
+                continue
+            raise StopRun(EXIT_CHILD_DIED, 'child_died', why)
 
     def restart(self, names: list[str], why: str) -> None:
         """Stop the named node processes (SIGINT, SIGTERM, SIGKILL, within seconds) and start
@@ -196,7 +166,7 @@ class Supervisor:
                 'the plant holds the state of every UAV; a restarted plant would start '
                 'the world over, so it is never respawned'
             )
-        if name == 'target' and self.mode == 'realtime':
+        if name == 'target' and self.plan.mode == 'realtime':
             return (
                 'a restarted realtime target would fly its trajectory again from t = 0; '
                 "only lockstep targets (driven by the plant's requests) are respawned"
