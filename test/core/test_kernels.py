@@ -88,7 +88,9 @@ def test_a_tracker_row_equals_the_row_of_all_rows_and_a_run_alone_its_batch_row(
         ('proposed', 'paper', 'sign', 0.0),
         ('proposed', 'paper', 'layer', 0.7),
         ('proposed', 'continuous', 'layer', 0.0),
+        ('proposed', 'continuous', 'sign', 0.7),
         ('traditional', 'paper', 'sign', 0.7),
+        ('traditional', 'paper', 'layer', 0.0),
     ],
 )
 def test_the_controller_kernel_computes_the_reference_laws(
@@ -104,6 +106,12 @@ def test_the_controller_kernel_computes_the_reference_laws(
     )
     for _ in range(5):
         v, g = rng.normal(size=(2, 4, 3)), rng.normal(scale=0.4, size=(2, 4, 3))
+        # the edges: a zero gradient, a zero component, a gradient exactly at the layer
+        g[0, 0] = 0.0
+        g[1, 1, 2] = 0.0
+        v[0, 1] = 0.0
+        g[0, 2] = (gains['gamma'][0], 0.0, 0.0)
+        g[1, 3] = (0.0, -gains['gamma'][1], 0.0)
         vref = rng.normal(size=(2, 3))
         z = ctl.z
         out = ctl.step(v, g, vref)
@@ -129,6 +137,34 @@ def test_the_controller_kernel_computes_the_reference_laws(
         assert np.array_equal(out.force, force)
         znext = filter_step(z, g, beta=gains['beta'], lambda_filter=0.1, dt=0.01)
         assert np.array_equal(ctl.z, znext)
+
+
+_GAINS = {
+    'law': 'proposed', 'dt': 0.01, 'shape': (3, 3), 'alpha': 0.3, 'beta': 1.0, 'gamma': 0.2,
+    'lambda_filter': 0.1, 'u0': 25.0,
+}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    'option, match',
+    [
+        ({'law': 'sliding'}, 'law must be one of'),
+        ({'saturation': 'tanh'}, 'saturation must be one of'),
+        ({'switching': 'relay'}, 'switching must be one of'),
+    ],
+)
+def test_the_controller_refuses_an_unknown_option_on_construction(option, match):
+    with pytest.raises(ValueError, match=match):
+        SlidingModeController(**{**_GAINS, **option})
+
+
+def test_the_controller_retunes_known_gains_only():
+    ctl = SlidingModeController(**_GAINS)
+    before = ctl.table.copy()
+    ctl.retune(u0=40.0)
+    assert ctl.u0 == 40.0 and not np.array_equal(ctl.table, before)
+    with pytest.raises(TypeError, match='not a controller gain: k_n'):
+        ctl.retune(k_n=2.0)
 
 
 @pytest.mark.parametrize('trust', [0.0, 0.05])
