@@ -22,7 +22,7 @@ STOP_CPU_PER_PROCESS = 0.3
 
 class Process(Protocol):
     """What supervision needs of a started process: a :class:`subprocess.Popen`, or a
-    :class:`~.zygote.ForkedProcess`."""
+    :class:`~.bringup.zygote.ForkedProcess`."""
 
     pid: int
 

@@ -533,7 +533,7 @@ def secure_dds(
     environ: MutableMapping[str, str] | None = None,
     say: Callable[[str], None] | None = None,
 ) -> Pki:
-    """The bring-up's hook of a secure run (instead of :func:`~.dds.isolate_dds`): write
+    """The bring-up's hook of a secure run (instead of :func:`~.profiles.isolate_dds`): write
     the run's files into ``directory`` (DIR/dds/) for this host (:data:`THIS_HOST`) and
     ``hosts`` (or name those of ``reuse``, see :func:`write_run_files`), and put this
     host's environment into ``environ`` (default ``os.environ``), dropping what would add
