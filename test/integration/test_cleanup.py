@@ -41,6 +41,14 @@ def wait_for(cond: Callable[[], bool], timeout: float, what: str) -> None:
         time.sleep(0.05)
 
 
+def alive(p: psutil.Process) -> bool:
+    """Whether ``p`` still runs (a zombie or a process gone meanwhile does not)."""
+    try:
+        return p.is_running() and p.status() != psutil.STATUS_ZOMBIE
+    except psutil.Error:
+        return False
+
+
 def _procs_naming(needle: str) -> list[psutil.Process]:
     out = []
     for p in psutil.process_iter(['cmdline', 'status']):
@@ -90,11 +98,7 @@ class Run:
     def left(self) -> list[int]:
         """Live processes of the run: every node seen, anything naming its config."""
         self.nodes()
-        return [
-            pid
-            for pid, p in self.seen.items()
-            if p.is_running() and p.status() != psutil.STATUS_ZOMBIE
-        ]
+        return [pid for pid, p in self.seen.items() if alive(p)]
 
     def cleanup(self) -> None:
         if self.popen.poll() is None:
@@ -276,10 +280,10 @@ def test_a_sigkilled_bring_up_leaves_no_process_and_no_shared_memory(start, spaw
     run.popen.kill()
     run.popen.wait(10)
     end = time.monotonic() + zygote.ORPHAN_GRACE + 15.0
-    while time.monotonic() < end and (run.left() or any(p.is_running() for p in helpers)):
+    while time.monotonic() < end and (run.left() or any(alive(p) for p in helpers)):
         time.sleep(0.1)
     assert run.left() == [], run.left()
-    assert not any(p.is_running() and p.status() != psutil.STATUS_ZOMBIE for p in helpers)
+    assert not any(alive(p) for p in helpers)
     assert left_shm(before) == set()
 
 
@@ -328,7 +332,7 @@ def test_apf_swarm_clean_stops_a_node_whose_bring_up_is_gone() -> None:
         )
         assert f'orphaned node pid {pid}:' in done.stdout, done.stdout
         assert re.search(r'stopped [1-9]\d* orphaned node processes', done.stdout), done.stdout
-        wait_for(lambda: not node.is_running() or node.status() == psutil.STATUS_ZOMBIE, 5, 'it')
+        wait_for(lambda: not alive(node), 5, 'it')
     finally:
         with contextlib.suppress(psutil.Error):
             node.kill()
@@ -355,18 +359,12 @@ def test_a_killed_probe_leaves_no_echo_process() -> None:
                     out.append(p)
         return out
 
-    def running(p: psutil.Process) -> bool:
-        try:
-            return p.is_running() and p.status() != psutil.STATUS_ZOMBIE
-        except psutil.Error:
-            return False
-
     try:
         wait_for(lambda: bool(echoes()), 30, 'the echo process')
         found = echoes()
         probe.kill()
         probe.wait(10)
-        wait_for(lambda: not any(running(p) for p in found), 10, 'the echo to end')
+        wait_for(lambda: not any(alive(p) for p in found), 10, 'the echo to end')
     finally:
         probe.kill()
         for p in echoes():
