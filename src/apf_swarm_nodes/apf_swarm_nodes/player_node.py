@@ -138,19 +138,16 @@ class PlayerNode(Node):
             time.sleep(0.01)
 
     # --- the schedule ---------------------------------------------------------------------
-    def _publish_clock(self, t_bag_ns: int) -> None:
-        msg = Clock()
-        msg.clock.sec, msg.clock.nanosec = divmod(int(t_bag_ns), 1_000_000_000)
-        assert self.clock_pub is not None  # only called when /clock is published
-        self.clock_pub.publish(msg)
-
     def _wait_until(self, due_ns: int, bag_at: Any) -> bool:
         """Sleep until ``due_ns`` (monotonic), publishing /clock on the way; False on shutdown."""
         period = int(1e9 / self.clock_hz) if self.clock_pub is not None else 0
         while True:
             now = time.monotonic_ns()
             if period and now >= self._next_clock:
-                self._publish_clock(bag_at(now))
+                assert self.clock_pub is not None  # period > 0: /clock is published
+                msg = Clock()
+                msg.clock.sec, msg.clock.nanosec = divmod(int(bag_at(now)), 1_000_000_000)
+                self.clock_pub.publish(msg)
                 self._next_clock += period * max(1, (now - self._next_clock) // period + 1)
             target = min(due_ns, self._next_clock) if period else due_ns
             rem = target - time.monotonic_ns()
@@ -212,10 +209,6 @@ class PlayerNode(Node):
             if not self.p['loop'] or first is None:
                 break
             t0 = last_due + int(1e9 / max(self.clock_hz, 100.0))  # next pass right after
-        self._wait_acked()
-        return self.published
-
-    def _wait_acked(self) -> None:
         timeout = Duration(seconds=float(self.p['ack_timeout']))
         for pub in self.pubs.values():
             if (
@@ -223,6 +216,7 @@ class PlayerNode(Node):
                 and pub.get_subscription_count()
             ):
                 pub.wait_for_all_acked(timeout)
+        return self.published
 
     def report(self) -> str:
         if not self.lateness_ns:

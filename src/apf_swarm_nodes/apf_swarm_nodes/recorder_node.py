@@ -159,16 +159,12 @@ class RecorderNode(Node):
         if self.closed:
             return
         changed = False
+        me = (self.get_name(), self.get_namespace())
         for topic, types in self.get_topic_names_and_types():
             if topic in self.topics or not self.selected(topic):
                 continue
-            pubs = [
-                i
-                for i in self.get_publishers_info_by_topic(topic)
-                if not (
-                    i.node_name == self.get_name() and i.node_namespace == self.get_namespace()
-                )
-            ]
+            infos = self.get_publishers_info_by_topic(topic)
+            pubs = [i for i in infos if (i.node_name, i.node_namespace) != me]
             if not pubs:
                 continue  # QoS and type come from a publisher: wait for one
             if len(types) != 1:

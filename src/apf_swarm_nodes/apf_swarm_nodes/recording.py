@@ -40,13 +40,12 @@ class TopicSelection:
 
     def __call__(self, topic: str) -> bool:
         """Whether ``topic`` is recorded."""
-        if topic in self.own:
-            return False
-        if self.wanted and topic not in self.wanted:
-            return False
-        if self.regex is not None and not self.regex.search(topic):
-            return False
-        return not (self.exclude is not None and self.exclude.search(topic))
+        return not (
+            topic in self.own
+            or (self.wanted and topic not in self.wanted)
+            or (self.regex is not None and not self.regex.search(topic))
+            or (self.exclude is not None and self.exclude.search(topic))
+        )
 
     def describe(self) -> str:
         """The selection in words, for the log."""

@@ -28,18 +28,13 @@ SWARM_STATE_TYPE = 'apf_swarm_msgs/msg/SwarmState'
 FILE_RE = re.compile(r'^(?P<stem>.*?)(?:_(?P<index>\d+))?\.mcap$')
 
 
-def _msg_search_dirs() -> list[Path]:
-    """``share/`` directories of the ament index, then the repository's ``src/`` (a fresh
-    checkout before ``make``)."""
-    prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)
-    return [Path(p) / 'share' for p in prefixes if p] + [Path(__file__).resolve().parents[2]]
-
-
 def _find_msg_file(msgtype: str) -> Path | None:
+    """``msgtype``'s ``.msg`` file in a ``share/`` directory of the ament index, else in the
+    repository's ``src/`` (a fresh checkout before ``make``)."""
     pkg, _, name = msgtype.partition('/msg/')
-    if not name:
-        return None
-    for d in _msg_search_dirs():
+    prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)
+    dirs = [Path(p) / 'share' for p in prefixes if p] + [Path(__file__).resolve().parents[2]]
+    for d in dirs if name else ():
         for cand in (d / pkg / 'msg' / f'{name}.msg', d / pkg / pkg / 'msg' / f'{name}.msg'):
             if cand.is_file():
                 return cand

@@ -121,28 +121,15 @@ def write_metadata(path: Path, doc: Mapping[str, Any]) -> None:
 
 
 class BagWriter:
-    """Raw CDR messages into a new rosbag2 bag: metadata.yaml v9 and MCAP files (the ``ros2``
-    profile, a ``ros2msg`` schema per type, a ``cdr`` channel per topic with its offered QoS,
-    the ``rosbag2`` metadata record at the end) written by mcap's public ``Writer``.
+    """Raw CDR messages into a new rosbag2 bag ``path`` (which must not exist): metadata.yaml
+    v9 and MCAP files (``ros2`` profile, a ``ros2msg`` schema per type, a ``cdr`` channel per
+    topic with its offered QoS, the ``rosbag2`` metadata record at the end).
 
-    Parameters
-    ----------
-    path
-        The bag directory; it must not exist yet (nothing existing is ever overwritten).
-    compress
-        zstd-compress every chunk (MCAP chunk compression, what ``ros2 bag``'s ``zstd_fast``
-        storage preset writes); readers decompress transparently.
-    chunk_size
-        Uncompressed bytes after which a chunk is closed and handed to the OS.
-    split_size, split_duration
-        Start a new file ``BAG_<k>.mcap`` when the current one reaches this many bytes / spans
-        this many seconds of message time (0: never).
-
-    Notes
-    -----
-    :meth:`flush` closes the pending chunk, so a writer killed afterwards loses nothing
-    written before it (``apf-swarm bag reindex`` rebuilds the summary and metadata.yaml);
-    :meth:`close` writes the summaries and metadata.yaml.
+    ``compress``: zstd chunks (``ros2 bag``'s ``zstd_fast``); ``chunk_size``: uncompressed
+    bytes per chunk; ``split_size`` / ``split_duration``: a new file ``BAG_<k>.mcap`` after
+    this many bytes / seconds of message time (0: never). After :meth:`flush` a kill loses
+    nothing written before it (``bag reindex`` rebuilds the rest); :meth:`close` writes the
+    summaries and metadata.yaml.
     """
 
     def __init__(

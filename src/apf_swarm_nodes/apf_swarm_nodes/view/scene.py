@@ -73,20 +73,16 @@ class SceneBuilder:
     """Builds the view's messages from successive samples (a SwarmSample each).
 
     ``designs``: the pair distances of the design minima (the edges are judged against the
-    one nearest to the current positions); ``trail``: how long a trail is [s];
-    ``stale_after``: see :class:`UavStates`; ``radius``: a UAV's drawn radius [m]."""
+    one nearest to the current positions); ``stale_after``: see :class:`UavStates`."""
+
+    #: how long a trail is [s] and a UAV's drawn radius [m]
+    trail = 5.0
+    radius = 0.15
 
     def __init__(
-        self,
-        designs: Sequence[NDArray[np.float64]] = (),
-        *,
-        trail: float = 5.0,
-        stale_after: float = STALE_AFTER,
-        radius: float = 0.15,
+        self, designs: Sequence[NDArray[np.float64]] = (), *, stale_after: float = STALE_AFTER
     ) -> None:
         self.designs = [np.asarray(d, dtype=float) for d in designs]
-        self.trail = float(trail)
-        self.radius = float(radius)
         self.states = UavStates(stale_after)
         self._trails: dict[int, deque[tuple[float, NDArray[np.float64]]]] = {}
         self.last_states: list[str] = []
@@ -158,16 +154,18 @@ class SceneBuilder:
                 pair = [_point(x[a]), _point(x[b])]
                 edges.append(line(LinePrimitiveLineType.LineList, 0.03, rgba, pair))
         entities.append(entity('formation', lines=edges))
+        h = float(np.sqrt(0.5))  # x, y, z: +x turned by 0, +90 deg about z, -90 deg about y
+        turns = ((0.0, 0.0, 0.0, 1.0), (0.0, 0.0, h, h), (0.0, -h, 0.0, h))
         axes = [
             ArrowPrimitive(
-                pose=_pose((0.0, 0.0, 0.0), _rotation_to(axis)),
+                pose=_pose((0.0, 0.0, 0.0), q),
                 shaft_length=0.8,
                 shaft_diameter=0.04,
                 head_length=0.2,
                 head_diameter=0.1,
                 color=_colour((*rgb, 1.0)),
             )
-            for axis, rgb in zip(np.eye(3), ((1, 0, 0), (0, 1, 0), (0, 0, 1)), strict=True)
+            for q, rgb in zip(turns, ((1, 0, 0), (0, 1, 0), (0, 0, 1)), strict=True)
         ]
         entities.append(entity('world_axes', arrows=axes))
         return SceneUpdate(entities=entities)
@@ -181,8 +179,8 @@ class SceneBuilder:
             timestamp=_timestamp(stamp_ns),
             parent_frame_id=WORLD,
             child_frame_id=TARGET_FRAME,
-            translation=_vector(sample.target_x),
-            rotation=_unrotated(),
+            translation=_point(sample.target_x, 'Vector3'),
+            rotation=_quaternion(),
         )
 
     def metrics(self, sample: Any) -> dict[str, Any]:
@@ -214,44 +212,28 @@ def _timestamp(ns: int) -> Any:
     return Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
 
 
-def _point(p: Any) -> Any:
-    from foxglove.messages import Point3
+def _point(p: Any, cls: str = 'Point3') -> Any:
+    """``p`` as a ``foxglove.messages`` Point3 (or Vector3, ``cls``)."""
+    import foxglove.messages as fm
 
-    return Point3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
-
-
-def _vector(p: Any) -> Any:
-    from foxglove.messages import Vector3
-
-    return Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+    return getattr(fm, cls)(x=float(p[0]), y=float(p[1]), z=float(p[2]))
 
 
-def _unrotated() -> Any:
+def _quaternion(q: Sequence[float] = (0.0, 0.0, 0.0, 1.0)) -> Any:
+    """``(x, y, z, w)`` as a ``foxglove.Quaternion`` (default: no rotation)."""
     from foxglove.messages import Quaternion
 
-    return Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+    return Quaternion(x=q[0], y=q[1], z=q[2], w=q[3])
 
 
-def _pose(p: Any, rotation: Any = None) -> Any:
-    """The pose at position ``p``, turned by ``rotation`` (None: not at all)."""
+def _pose(p: Any, rotation: Sequence[float] = (0.0, 0.0, 0.0, 1.0)) -> Any:
+    """The pose at position ``p``, turned by the quaternion ``rotation`` (x, y, z, w)."""
     from foxglove.messages import Pose
 
-    return Pose(position=_vector(p), orientation=_unrotated() if rotation is None else rotation)
+    return Pose(position=_point(p, 'Vector3'), orientation=_quaternion(rotation))
 
 
 def _colour(c: Sequence[float]) -> Any:
     from foxglove.messages import Color
 
     return Color(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3]))
-
-
-def _rotation_to(axis: NDArray[np.float64]) -> Any:
-    """The quaternion turning +x onto ``axis`` (one of the unit axes)."""
-    from foxglove.messages import Quaternion
-
-    s = float(np.sqrt(0.5))
-    if axis[1] > 0:
-        return Quaternion(x=0.0, y=0.0, z=s, w=s)  # +90 deg about z
-    if axis[2] > 0:
-        return Quaternion(x=0.0, y=-s, z=0.0, w=s)  # -90 deg about y
-    return _unrotated()

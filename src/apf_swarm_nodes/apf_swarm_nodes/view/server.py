@@ -46,14 +46,13 @@ class LiveView:
         port: int = DEFAULT_PORT,
         designs: Sequence[NDArray[np.float64]] = (),
         stale_after: float = STALE_AFTER,
-        name: str = 'apf_swarm',
     ) -> None:
         import foxglove
         from foxglove.channels import FrameTransformChannel, SceneUpdateChannel
 
         self.builder = SceneBuilder(designs, stale_after=stale_after)
         try:
-            self.server = foxglove.start_server(name=name, host=host, port=port)
+            self.server = foxglove.start_server(name='apf_swarm', host=host, port=port)
         except Exception as exc:  # the SDK raises its own error types for a busy port
             raise ViewError(
                 f'cannot serve the view on {host}:{port} ({exc}); choose another port '
