@@ -17,6 +17,18 @@ import yaml
 from .errors import BagError
 from .types import CUSTOM_RECORDER, FILE_RE, one_line
 
+__all__ = [
+    'BagInfo',
+    'FileInfo',
+    'TopicInfo',
+    'bag_files',
+    'format_info',
+    'info_dict',
+    'open_bag',
+    'read_metadata',
+    'reindex_hint',
+]
+
 
 @dataclass
 class TopicInfo:
