@@ -208,6 +208,34 @@ def test_summary_and_flight_judge_the_nearest_of_several_designs():
     assert nearest_design(x, []) is None
 
 
+def test_summary_and_flight_pick_the_design_by_one_rule():
+    # a square of side 1.8 between designs of side 1 and 3: in metres it is nearer the small
+    # one (0.8 against 1.2), relative to the spacing nearer the large one (80 % against 40 %).
+    # Both verdicts pick by the relative error, so a summary describes the design it is
+    # judged against.
+    T = 20
+    unit = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    x = np.tile(1.8 * unit + [0, 0, 5], (T, 1, 1))
+    tx = np.tile(x[0].mean(axis=0), (T, 1))
+    traj = {'t': np.arange(T) * 0.01, 'x': x, 'v': np.zeros_like(x), 'target_x': tx}
+    small, large = pair_distances(unit), pair_distances(3 * unit)
+    params = {'k_n': 1.0, 'k_f': 1.0, 'a': 1.0, 'b': 6.0, 'c': 1.7}
+    s = summarize(
+        traj,
+        law='proposed',
+        dt=0.01,
+        seed=1,
+        potential_params=params,
+        expected_pairs=[small, large],
+    )
+    f = flight(traj, [small, large])
+    assert np.array_equal(nearest_design(x, [small, large]), large)
+    assert s['formation']['pair_distance_expected'] == [float(e) for e in np.sort(large)]
+    assert f['formation_error_rms'] * large.mean() == pytest.approx(
+        s['formation']['error_rms_steady']
+    )
+
+
 def test_one_pair_closed_in_is_not_converged_though_the_sorted_rms_is_small():
     # 100 trackers on a line at their design spacing, then the last 0.3 of it closer to its
     # neighbour: the sorted-pair RMS over 4950 pairs stays within formation_tol of the

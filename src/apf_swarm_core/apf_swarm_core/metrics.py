@@ -235,21 +235,12 @@ def flight(
     of J a larger swarm may settle in, :func:`~apf_swarm_core.formation.design_pair_sets`):
     the run is judged against the one its pair distances are nearest to.
     """
-    if isinstance(expected_pairs, list):
-        judged = [flight(traj, e) for e in expected_pairs]
-        if not judged:
-            return flight(traj, None)
-        # the nearest design, whether or not the run flies against it
-        return min(
-            judged,
-            key=lambda f: (
-                f['formation_error_rms'] if f['formation_error_rms'] is not None else math.inf
-            ),
-        )
     criteria = FLIGHT_CRITERIA
     x = np.asarray(traj['x'], dtype=float)
     tx = np.asarray(traj['target_x'], dtype=float)
     st = steady_slice(x.shape[0], criteria['window'])
+    if isinstance(expected_pairs, list):
+        expected_pairs = nearest_design(x[st], expected_pairs) if x.shape[1] > 1 else None
     out: dict[str, Any] = {
         'window': criteria['window'],
         'flies': False,
@@ -297,14 +288,16 @@ def _f(value: float | None) -> float | None:
 
 def nearest_design(x: ArrayLike, designs: Sequence[ArrayLike]) -> NDArray[np.float64] | None:
     """Of several designs' pair distances (the minima of J a swarm may settle in), the one
-    whose :func:`formation_error` over the positions ``x (T, n, 3)`` has the smallest RMS;
-    ``None`` when there is none."""
+    whose :func:`formation_error` over the positions ``x (T, n, 3)``, divided by the design's
+    mean spacing, has the smallest RMS; ``None`` when there is none. :func:`flight` and
+    :func:`summarize` both pick by it over the flight window."""
     best, best_rms = None, math.inf
-    for e in designs:
+    for design in designs:
+        e = np.asarray(design, dtype=float)
         fe = per_sample(lambda xs, e=e: formation_error(xs, e), x)
-        rms = float(np.sqrt(np.mean(fe**2)))
+        rms = float(np.sqrt(np.mean(fe**2))) / float(e.mean())
         if best is None or rms < best_rms:
-            best, best_rms = np.asarray(e, dtype=float), rms
+            best, best_rms = e, rms
     return best
 
 
@@ -325,8 +318,8 @@ def summarize(
     error and the closest pair stay within :data:`FLIGHT_CRITERIA`.
     ``time_to_converge`` is the first time after which all hold until the end.
     ``expected_pairs`` may be a list of designs, as for :func:`flight`: the run is
-    summarized against the one nearest over the steady window (:func:`nearest_design`), so
-    that summary and flight verdict judge one design.
+    summarized against the one :func:`flight` judges it by (:func:`nearest_design` over the
+    flight window).
     """
     t = np.asarray(traj['t'], dtype=float)
     x = np.asarray(traj['x'], dtype=float)
@@ -342,7 +335,8 @@ def summarize(
     crit = FLIGHT_CRITERIA
     ok = ce <= crit['centroid_tol']
     if isinstance(expected_pairs, list):
-        expected_pairs = nearest_design(x[st], expected_pairs)
+        window = steady_slice(t.size, crit['window'])
+        expected_pairs = nearest_design(x[window], expected_pairs) if n > 1 else None
     formation: dict[str, Any] = {
         'pair_distance_min': _f(pd[st, 0].min()) if pd.size else None,
         'pair_distance_max': _f(pd[st, 1].max()) if pd.size else None,
