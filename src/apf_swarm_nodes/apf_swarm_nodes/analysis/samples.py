@@ -10,6 +10,8 @@ from typing import Any
 
 from .errors import AnalysisError
 
+__all__ = ['RawSample', 'StateAccumulator', 'rclpy_decode']
+
 
 def rclpy_decode(raw: bytes) -> Any:
     """A serialized ``SwarmState`` deserialized by rclpy (the live run's path)."""

@@ -14,6 +14,8 @@ from .info import open_bag
 from .read import messages
 from .types import one_line
 
+__all__ = ['export_csv', 'flatten']
+
 
 def flatten(msg: Any, prefix: str = '') -> dict[str, Any]:
     """Dotted field names and scalar values of a (rosbags-deserialized) message.

@@ -14,6 +14,15 @@ from .errors import BagError
 from .info import BagInfo, open_bag, reindex_hint
 from .types import CUSTOM_CONFIG, CUSTOM_MODE, SWARM_STATE_TYPE, one_line, typestore
 
+__all__ = [
+    'bag_config',
+    'bag_metrics',
+    'bag_trajectory',
+    'iter_raw',
+    'messages',
+    'swarm_state_decoder',
+]
+
 
 @contextlib.contextmanager
 def _damaged(path: Path, what: str) -> Iterator[None]:

@@ -18,6 +18,8 @@ from .info import bag_files, read_metadata
 from .types import DEFAULT_CHUNK_SIZE, MCAP_METADATA_NAME, ROS_DISTRO, one_line
 from .write import FileStats, build_metadata, mcap_writer, topic_entry, write_metadata
 
+__all__ = ['reindex']
+
 
 @dataclass
 class _Recovered:

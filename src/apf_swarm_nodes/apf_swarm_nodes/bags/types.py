@@ -15,6 +15,22 @@ import yaml
 
 from .errors import BagError
 
+__all__ = [
+    'BAG_VERSION',
+    'CUSTOM_CONFIG',
+    'CUSTOM_MODE',
+    'CUSTOM_RECORDER',
+    'DEFAULT_CHUNK_SIZE',
+    'FILE_RE',
+    'MCAP_METADATA_NAME',
+    'ROS_DISTRO',
+    'SWARM_STATE_TYPE',
+    'one_line',
+    'qos_text',
+    'type_definition',
+    'typestore',
+]
+
 BAG_VERSION = 9
 #: the distribution the bags are written for, as rosbag2 names it (metadata.yaml and MCAP)
 ROS_DISTRO = 'jazzy'

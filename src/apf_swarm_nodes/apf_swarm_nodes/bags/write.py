@@ -21,6 +21,16 @@ from .types import (
     type_definition,
 )
 
+__all__ = [
+    'BagWriter',
+    'FileStats',
+    'Topic',
+    'build_metadata',
+    'mcap_writer',
+    'topic_entry',
+    'write_metadata',
+]
+
 
 @dataclass
 class Topic:
