@@ -1,12 +1,6 @@
 """Bring-up of the ROS 2 swarm without ``launch``: ``scripts/swarm_up.py`` / ``apf-swarm up``
-(what a run does, its exit codes: docs/ROS.md, "The ROS 2 swarm").
-
-The command line (:mod:`.cli`) parses its arguments into a plan (:class:`.commands.Plan`);
-the run (:class:`.session.Bringup`) prepares and isolates it (:mod:`.startup`), starts and
-supervises its processes (:mod:`.processes`, :mod:`.supervision`), waits for the graph
-(:mod:`.graph_watch`, :mod:`.graph`) and writes its outputs (:mod:`.outputs`). Only
-:func:`run` imports rclpy, so the ``apf-swarm`` parser stays light.
-"""
+(docs/ROS.md, "The ROS 2 swarm"). :mod:`.cli` makes a :class:`.commands.Plan`, which a
+:class:`.session.Bringup` runs. Only :func:`run` imports rclpy."""
 
 from ..analysis.samples import StateAccumulator
 from ..lifetime import stop_process

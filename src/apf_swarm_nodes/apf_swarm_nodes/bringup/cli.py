@@ -204,16 +204,6 @@ def _per_process(text: str) -> int:
     return 0 if text == 'auto' else int(positive_int(text))
 
 
-def build_parser(prog: str = 'swarm_up.py') -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog=prog,
-        description='Bring up the ROS 2 swarm (target, plant, one tracker process '
-        'per UAV), run it, and write trajectory.npz, summary.json, logs and figures.',
-    )
-    add_arguments(p)
-    return p
-
-
 def plan(args: argparse.Namespace, prog: str) -> Plan:
     """The run the command line asks for, checked against this machine's capacity."""
 
@@ -242,18 +232,20 @@ def plan(args: argparse.Namespace, prog: str) -> Plan:
 
 
 def run(args: argparse.Namespace, prog: str = 'swarm_up') -> int:
-    """Run a bring-up from parsed arguments (:func:`add_arguments`); returns the exit code.
-
-    Raises :class:`~apf_swarm_core.errors.ApfSwarmError` for bad input (before anything
-    starts); the caller prints it and exits 2.
-    """
+    """Run a bring-up from parsed arguments (:func:`add_arguments`); returns the exit code,
+    or raises :class:`~apf_swarm_core.errors.ApfSwarmError` for bad input (before any start)."""
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # a hung run says where
     return Bringup(plan(args, prog), prog=prog).execute()
 
 
 def main(argv: Sequence[str] | None = None, prog: str = 'swarm_up.py') -> int:
     """Entry point of ``scripts/swarm_up.py``."""
-    parser = build_parser(prog)
+    parser = argparse.ArgumentParser(
+        prog=prog,
+        description='Bring up the ROS 2 swarm (target, plant, one tracker process '
+        'per UAV), run it, and write trajectory.npz, summary.json, logs and figures.',
+    )
+    add_arguments(parser)
     args = parser.parse_args(argv)
     try:
         return run(args, prog=prog)

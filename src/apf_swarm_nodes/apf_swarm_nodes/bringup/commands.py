@@ -29,8 +29,8 @@ PACKAGE = 'apf_swarm_nodes'
 
 @dataclass(frozen=True)
 class Plan:
-    """One run as asked: the configuration to fly and the options of ``apf-swarm up``, each
-    field named as its option (:meth:`from_args`)."""
+    """One run as asked: the configuration and the options of ``apf-swarm up``, each field
+    named as its option."""
 
     cfg: SwarmConfig
     out: Path
@@ -68,6 +68,7 @@ class Plan:
 
     @property
     def n(self) -> int:
+        """The number of trackers."""
         return self.cfg.n_trackers
 
     def node_value(self, name: str, default: str) -> str:
@@ -76,9 +77,8 @@ class Plan:
 
     @property
     def batch_commands(self) -> bool:
-        """Whether the trackers send a process's commands as one message: by default in a
-        secure realtime run of several trackers to a process; else as the
-        ``batch_commands`` node parameter says."""
+        """Whether a process of several trackers sends its commands as one message (realtime,
+        aggregate inputs): the ``batch_commands`` node parameter, by default ``--secure``."""
         several = (
             self.mode == 'realtime'
             and self.trackers_per_process > 1
@@ -96,10 +96,12 @@ class Plan:
 
 
 def executable_path(prefix: Path, name: str) -> Path:
+    """The path of the package's executable ``name`` under the install ``prefix``."""
     return prefix / 'lib' / PACKAGE / name
 
 
 def package_prefix() -> Path:
+    """The package's install prefix (BringupError if it is not built)."""
     from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
     try:
@@ -131,13 +133,8 @@ def node_commands(
     node_params: Sequence[str] = (),
     per_process: int = 1,
 ) -> list[tuple[str, list[str]]]:
-    """(log name, argv) of every node process of the swarm.
-
-    ``node_params`` (``NAME:=VALUE``) go to every node, e.g. ``executor:=events``.
-    ``per_process`` > 1: the trackers are hosted that many to a process (executable
-    ``trackers``, log names ``trackers_<first>-<last>``), each still its own node
-    ``/uav_<i>/tracker`` with its own parameters.
-    """
+    """(log name, argv) of every node process of the swarm; ``node_params`` go to every
+    node; ``per_process`` > 1: that many trackers to a process (``trackers_<first>-<last>``)."""
     files = ['--params-file', str(config_file)]
     mine = f'mode:={mode}'
     started = [mine, 'wait_for_start:=true', *node_params]
@@ -168,8 +165,8 @@ def recorder_command(
 
 
 def hosted_nodes(name: str) -> list[str]:
-    """The fully qualified names of the nodes a process of :func:`node_commands` hosts, from
-    its log name (``plant``, ``target``, ``tracker_3``, ``trackers_1-16``); [] for another."""
+    """The fully qualified names of the nodes a process hosts, from its log name
+    (``plant``, ``target``, ``tracker_3``, ``trackers_1-16``); [] for another."""
     if name == 'plant':
         return [f'/{PLANT_NODE}']
     if name == 'target':
@@ -184,8 +181,8 @@ def hosted_nodes(name: str) -> list[str]:
 
 
 def node_netns(name: str, rules: Sequence[str]) -> str | None:
-    """The network namespace a node process runs in: the first ``PATTERN=NETNS`` rule whose
-    shell pattern matches its log name (``tracker_3``, ``trackers_1-2``, ``plant``), or None."""
+    """The network namespace of node process ``name``: the first ``PATTERN=NETNS`` rule
+    whose shell pattern matches it, or None."""
     for rule in rules:
         pattern, _, ns = rule.partition('=')
         if fnmatch.fnmatchcase(name, pattern):

@@ -1,6 +1,6 @@
-"""A realtime run's flight check: the sampled-data check before the run (gains scheduled
-when the configuration's would lose the formation) and, after it, the run judged by flight
-next to its headless emulation with the run's own delays (``summary.json``, ``prediction``)."""
+"""A realtime run's flight check: the sampled-data prediction before the run (gains
+scheduled if needed) and, after it, the run judged beside its headless emulation with the
+run's own delays (summary.json ``prediction``)."""
 
 from __future__ import annotations
 
@@ -14,8 +14,7 @@ from .commands import Plan
 
 
 class FlightCheck:
-    """A realtime run's flight check (the bring-up holds one): :meth:`check` before the run,
-    :meth:`judged` after it; ``say`` prints a line of the bring-up."""
+    """A realtime run's flight check: :meth:`check` before the run, :meth:`judged` after."""
 
     def __init__(self, plan: Plan, say: Callable[[str], None]) -> None:
         self.plan, self.say = plan, say
@@ -27,9 +26,8 @@ class FlightCheck:
         self.cfg: SwarmConfig | None = None
 
     def check(self, cfg: SwarmConfig) -> SwarmConfig:
-        """The sampled-data prediction before the run (printed, and kept for summary.json);
-        returns the configuration to fly: with ``--gains auto`` a failing one's gains are
-        replaced by designed ones."""
+        """The sampled-data prediction (printed, kept); returns the configuration to fly,
+        with designed gains under ``--gains auto`` if its own would fail."""
         from apf_swarm_core.sampled import predict, schedule_gains
 
         from ..advice import CLI_ADVICE
@@ -84,11 +82,9 @@ class FlightCheck:
             gains, warnings = None, list(pred.warnings)
         if gains:
             self.say(
-                'scheduled gains for '
-                f'{cfg.n_trackers} trackers at '
-                f'{cfg.control_rate:g} Hz, {latency * 1e3:g} ms (the '
-                "configuration's are predicted to lose the formation; "
-                '--gains config keeps them): '
+                f'scheduled gains for {cfg.n_trackers} trackers at {cfg.control_rate:g} Hz, '
+                f"{latency * 1e3:g} ms (the configuration's are predicted to lose the "
+                'formation; --gains config keeps them): '
                 + ', '.join(
                     f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
                     for k, v in gains.items()
@@ -104,9 +100,8 @@ class FlightCheck:
         return cfg
 
     def _say_largest(self, cfg: SwarmConfig, latency: float, machine: Any) -> None:
-        """The run is predicted to lose its formation whatever its gains: say so in one
-        line, with the largest swarm predicted to hold at its rate on this machine (``cfg``:
-        the configuration before gains were scheduled)."""
+        """No gains hold the run: say so, with the largest swarm predicted to hold at its rate
+        here (``cfg``: before gains were scheduled)."""
         from apf_swarm_core.sampled import largest_holding
 
         from ..capacity import probe
@@ -143,8 +138,8 @@ class FlightCheck:
         )
 
     def judged(self, traj: dict[str, Any]) -> dict[str, Any]:
-        """Realtime: the run judged by flight next to its headless emulation at the same
-        rate with the latencies the plant measured (and the prediction before the run)."""
+        """The run judged by flight beside its headless emulation with the latencies the
+        plant measured, and the prediction before it."""
         import numpy as np
         from apf_swarm_core.command_hold import answers
         from apf_swarm_core.formation import design_pair_sets
@@ -153,9 +148,7 @@ class FlightCheck:
 
         assert self.cfg is not None  # check() ran before the run
         pairs = design_pair_sets(self.cfg)
-        # the run's delays, tracker by tracker and state by state in their order (a late
-        # process delays its trackers together and for several periods, and skips states;
-        # drawn independently, the same delays would average out)
+        # the run's delays in their order (drawn independently they would average out)
         held = np.asarray(traj.get('command_latency', np.zeros((0, 0))), dtype=float)
         seq = answers(traj['t'], held) if held.size else held
         lat = seq[np.isfinite(seq)]

@@ -1,5 +1,5 @@
-"""What the ROS graph must show before a run starts: every node, every expected publisher
-and subscriber (:func:`expected_graph`, :func:`graph_missing`), and the recorder's status."""
+"""What the ROS graph must show before a run starts (:func:`expected_graph`,
+:func:`graph_missing`, :func:`recorder_missing`), and which processes to restart meanwhile."""
 
 from __future__ import annotations
 
@@ -23,13 +23,8 @@ from ..topics import (
 
 @dataclass(frozen=True)
 class TopicExpectation:
-    """A topic and the publisher / subscriber counts the graph must show.
-
-    ``or_subscribers_of``: subscribers of that other topic count too (a tracker reads its
-    inputs either from the per-UAV odometry topics or from the aggregate ``/swarm/odom``).
-    ``optional``: only checked when the topic has a subscriber (``/swarm/odom`` when no
-    tracker reads it).
-    """
+    """A topic and the publisher / subscriber counts the graph must show; subscribers of
+    ``or_subscribers_of`` count too; ``optional``: checked only when it has a subscriber."""
 
     topic: str
     publishers: int
@@ -43,13 +38,9 @@ def expected_graph(
 ) -> tuple[list[str], list[TopicExpectation]]:
     """Fully qualified node names and topic endpoint counts of a swarm of ``n`` trackers.
 
-    A tracker reads its inputs as ``/uav_<j>/odom`` and ``/target/odom`` (``inputs:=odom``)
-    or as ``/swarm/odom`` (``inputs:=aggregate``); the counts accept either. ``readers``: how
-    many subscribe to each (default n; see :func:`input_readers`). ``batch_writers``: the
-    processes that send their commands as one ``/swarm/force_cmds`` message, which the
-    plant must read before the start. ``/swarm/start`` and the bring-up's ``/swarm/state``
-    subscription are checked on its own endpoints (:meth:`.graph_watch.GraphWatch.missing`).
-    """
+    Inputs are read per UAV (``inputs:=odom``) or from ``/swarm/odom``; the counts accept
+    either. ``readers``: subscribers of each (default n; :func:`input_readers`).
+    ``batch_writers``: processes that send one ``/swarm/force_cmds`` message."""
     nodes = swarm_node_names(n)
     topics = []
     readers = n if readers is None else readers
@@ -68,10 +59,8 @@ def expected_graph(
 
 
 def input_readers(n: int, mode: str, per_process: int, inputs: str = 'aggregate') -> int:
-    """How many subscribers read the trackers' inputs: one per tracker, except in realtime
-    with the aggregate inputs (the nodes' ``inputs`` parameter), where a process of several
-    trackers subscribes to ``/swarm/odom`` once and hands each message to its other nodes
-    (the ``trackers`` executable): one per process."""
+    """How many subscribers read the trackers' inputs: one per tracker, or one per process
+    in realtime with aggregate inputs and several trackers to a process."""
     if mode == 'realtime' and per_process > 1 and inputs == 'aggregate':
         return -(-n // per_process)
     return n
@@ -83,10 +72,8 @@ def graph_missing(
     nodes: Sequence[str],
     topics: Sequence[TopicExpectation],
 ) -> list[str]:
-    """What is not there yet, in words (empty when the graph is complete).
-
-    ``counts`` maps a topic to its (publishers, subscribers) as the graph shows them.
-    """
+    """What is not there yet, in words (empty when complete); ``counts``: topic ->
+    (publishers, subscribers) as the graph shows them."""
     present = set(present_nodes)
     out = [f'node {name}' for name in nodes if name not in present]
     for t in topics:
@@ -106,23 +93,18 @@ def graph_missing(
     return out
 
 
-#: no fewer entities missing for this long [s], and a process none of whose nodes was ever
-#: seen is restarted (:class:`UnseenRestart`)
-STALL = 5.0
-#: or: every other process has shown a node for this long [s], and this one none (how it
-#: was chosen: docs/RELIABILITY.md, "Known fault: a node that is never discovered")
-PEER_WAIT = 3.0
+#: :class:`UnseenRestart`'s waits [s] (docs/RELIABILITY.md, "Known fault: a node that is
+#: never discovered"): no fewer entities missing, every other process shown
+STALL, PEER_WAIT = 5.0, 3.0
 #: restarts of one process while the graph comes up
 MAX_UNSEEN_RESTARTS = 2
 
 
 class UnseenRestart:
     """Which node processes to restart while the graph comes up: those none of whose nodes
-    the graph shows, once every other process has shown one for ``peer_wait`` seconds, or
-    once the count of missing entities has not fallen for ``stall`` seconds; each at most
-    ``limit`` times (why: docs/RELIABILITY.md, "Known fault: a node that is never
-    discovered"). ``hosted``: each process's node names (:func:`.commands.hosted_nodes`).
-    """
+    it shows, once every other has shown one for ``peer_wait`` s or the missing count has
+    not fallen for ``stall`` s; each at most ``limit`` times. ``hosted``: process -> its node
+    names (:func:`.commands.hosted_nodes`)."""
 
     def __init__(
         self,
@@ -139,9 +121,8 @@ class UnseenRestart:
         self._shown: dict[str, float] = {}  # process -> when a node of it was first seen
 
     def due(self, now: float, missing: Sequence[str]) -> list[str]:
-        """The processes to restart now [names], given the graph's ``missing`` entities (the
-        lines of :func:`graph_missing`) at time ``now`` [s]; each one returned is counted
-        as restarted."""
+        """The processes to restart at ``now`` [s] (counted as restarted), given the lines of
+        :func:`graph_missing`."""
         gone = {line[len('node ') :] for line in missing if line.startswith('node ')}
         unseen = [n for n, nodes in self.hosted.items() if all(x in gone for x in nodes)]
         for name in self.hosted:
@@ -175,8 +156,7 @@ RECORDER_STOP_SEQUENCE = ((signal.SIGINT, 20.0), (signal.SIGTERM, 3.0), (signal.
 
 
 def recorder_missing(status: Mapping[str, Any] | None, topics: Sequence[str]) -> list[str]:
-    """What the recorder has not got yet: ``topics`` it does not record, or a publisher it
-    has not matched (``status``: its last ``/recorder/status`` document, None before one)."""
+    """What the recorder has not got yet, from its last ``/recorder/status`` (or None)."""
     if status is None:
         return ['recorder: no /recorder/status yet']
     rec = status.get('topics', {})

@@ -19,15 +19,11 @@ from .graph import (
     input_readers,
     recorder_missing,
 )
-from .processes import (
-    EXIT_BAD_INPUT,
-    StopRun,
-)
+from .processes import EXIT_BAD_INPUT, StopRun
 
 
 class GraphWatch:
-    """The bring-up's node on the graph (the bring-up holds one): ``say`` prints its lines,
-    ``acc`` takes the ``/swarm/state`` samples."""
+    """The bring-up's node on the graph; ``acc`` takes the ``/swarm/state`` samples."""
 
     def __init__(self, plan: Plan, acc: StateAccumulator, say: Callable[[str], None]) -> None:
         self.plan, self.acc, self.say = plan, acc, say
@@ -42,6 +38,7 @@ class GraphWatch:
         self.start_pub: Any = None
 
     def init_ros(self) -> None:
+        """rclpy, the node (its own UDP-only participant), its executor and endpoints."""
         import rclpy
         from rclpy.experimental import EventsExecutor
         from rclpy.signals import SignalHandlerOptions
@@ -53,16 +50,12 @@ class GraphWatch:
         from ..node_common import START_QOS, STATE_QOS
         from ..topics import SWARM_START, SWARM_STATE
 
-        # its own command line is not ROS arguments (--node-param NAME:=VALUE would read as
-        # a deprecated remapping rule)
-        # its own participant on UDP only (the nodes keep shared memory): a call of the
-        # supervising process cannot block on a shared-memory mutex a killed node held
+        # args=[]: --node-param NAME:=VALUE would read as a remapping rule; UDP only: no call
+        # can block on a shared-memory mutex a killed node held
         with own_participant():
             rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
             self.node = rclpy.create_node('swarm_up')
-        # the events executor costs less CPU per /swarm/state sample than the single-
-        # threaded one, and the bring-up shares the cores with the swarm
-        # (bench/bench_scale.py --only lockstep compares the executors)
+        # the events executor costs less CPU per sample (bench/bench_scale.py --only lockstep)
         self.executor = EventsExecutor()
         self.executor.add_node(self.node)
         self.state_sub = self.node.create_subscription(
@@ -82,9 +75,12 @@ class GraphWatch:
         self._empty_msg = Empty
 
     def spin(self, timeout: float) -> None:
+        """Handle what arrived, waiting at most ``timeout`` s."""
         self.executor.spin_once(timeout_sec=timeout)
 
-    def missing(self, domain_id: int | None = None) -> list[str]:
+    def missing(self, domain_id: int | None) -> list[str]:
+        """What the graph does not show yet, in words (:func:`.graph.graph_missing`, and this
+        node's own matched endpoints); extra publishers warned of once."""
         node = self.node
         present = {
             (ns.rstrip('/') + '/' + name) for name, ns in node.get_node_names_and_namespaces()
@@ -118,8 +114,7 @@ class GraphWatch:
                 f"topic /swarm/state: this bring-up's subscription matched to "
                 f'{nstate} publishers (need 1: the plant)'
             )
-        # the plant waits for the start in both modes; the target only in realtime (in
-        # lockstep it is driven by the plant's /target/request)
+        # the plant waits for the start; the target only in realtime
         nstart = self.start_pub.get_subscription_count()
         want, who = (2, 'plant, target') if plan.mode == 'realtime' else (1, 'plant')
         if nstart < want:
@@ -143,10 +138,9 @@ class GraphWatch:
         processes: list[str],
         restart: Callable[[list[str], str], None],
     ) -> None:
-        """Spin until :meth:`missing` finds nothing, calling ``between`` (the bring-up's
-        signal and process checks) each turn; StopRun after ``--ready-timeout``. The
-        ``processes`` (log names) none of whose nodes ever appear while their peers do are
-        restarted (``restart``, :class:`~.graph.UnseenRestart`)."""
+        """Spin until :meth:`missing` finds nothing, calling ``between`` each turn; StopRun
+        after ``--ready-timeout``. ``restart``: the ``processes`` (log names)
+        :class:`~.graph.UnseenRestart` picks."""
         unseen = UnseenRestart({p: hosted_nodes(p) for p in processes})
         t0 = time.monotonic()
         deadline = t0 + self.plan.ready_timeout
@@ -187,15 +181,16 @@ class GraphWatch:
                     + f'  node logs: {self.plan.out / "logs"}',
                 )
 
-    def drain(self, seconds: float = 0.2) -> None:
-        """Take what is already queued (realtime end) without waiting for more."""
-        end = time.monotonic() + seconds
+    def drain(self) -> None:
+        """Take what is already queued (realtime end), for at most 0.2 s."""
+        end = time.monotonic() + 0.2
         before = -1
         while time.monotonic() < end and before != self.acc.received:
             before = self.acc.received
             self.spin(0.02)
 
     def shutdown_ros(self) -> None:
+        """Destroy the executor and the node, shut rclpy down."""
         import rclpy
 
         if self.executor is not None:

@@ -1,15 +1,14 @@
-"""Isolation of a run: the capacity check before it starts, and its ``ROS_DOMAIN_ID`` (a
-random domain nobody uses, leased under a lock: :mod:`..dds.domains`)."""
+"""The capacity check before a run starts, and its ``ROS_DOMAIN_ID`` (:mod:`..dds.domains`)."""
 
 from __future__ import annotations
 
 import subprocess
 from collections.abc import Callable
 
-from ..dds.domains import DOMAIN_LEASE, domain_looks_busy, env_domain, pick_domain_id
+from ..dds.domains import pick_domain_id
 from .errors import BringupError
 
-__all__ = ['DOMAIN_LEASE', 'check_capacity', 'domain_looks_busy', 'env_domain', 'pick_domain_id']
+__all__ = ['check_capacity', 'pick_domain_id']
 
 
 def check_capacity(
@@ -19,13 +18,9 @@ def check_capacity(
     per_process: int = 1,
     say: Callable[[str], None] | None = None,
 ) -> None:
-    """Refuse more tracker processes than this machine runs (BringupError naming the limit).
-
-    The limit counts processes (``ceil(n_trackers / per_process)``) and comes from the
-    machine's probe (:func:`~apf_swarm_nodes.capacity.probe.process_limit`: CPU at the
-    lowest rate and memory); a process of K trackers takes far less CPU and memory than K
-    processes, but its trackers share one core. Without a probe (it failed) nothing is
-    refused, with a warning."""
+    """Refuse (BringupError) more tracker processes (``ceil(n_trackers / per_process)``) than
+    the machine's probe allows (:func:`~..capacity.probe.process_limit`); without a probe,
+    nothing is refused, with a warning."""
     from ..capacity import probe
 
     if allow_overload:

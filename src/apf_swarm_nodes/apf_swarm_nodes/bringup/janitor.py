@@ -1,12 +1,7 @@
-"""The janitor: what a killed bring-up cannot do for the nodes it executed.
-
-A bring-up that executes its nodes (``--spawn exec``, or no zygote), or runs secure, starts
-this small process (no ROS: it starts in a fraction of a second) and tells it, a line each,
-the pid of every node executed and where a secure run's host keys lie (``keys DIR``), and
-``"bye"`` when it closes normally. An input that ends without the goodbye means that the
-bring-up died: the janitor removes the keys and does what the zygote would
-(:func:`~.zygote.orphaned_cleanup`). Run as ``python -m apf_swarm_nodes.bringup.janitor``.
-"""
+"""The janitor: what a killed bring-up cannot do for the nodes it executed (or a secure
+run's keys). The bring-up tells it, a line each, every node's pid, ``keys DIR`` and, when it
+closes normally, ``"bye"``; an input that ends without it: the janitor removes the keys and
+cleans up as the zygote would (:func:`~.zygote.orphaned_cleanup`)."""
 
 from __future__ import annotations
 
@@ -42,8 +37,7 @@ class Janitor:
         self._tell(str(pid))
 
     def keys(self, directory: Path) -> None:
-        """A secure run's host keys (under ``directory``, DIR/dds/): removed if the bring-up
-        dies."""
+        """A secure run's host keys (DIR/dds/): removed if the bring-up dies."""
         self._tell(KEYS + str(Path(directory).resolve()))
 
     def _tell(self, line: str) -> None:
@@ -62,6 +56,7 @@ class Janitor:
 
 
 def main() -> None:
+    """Read the bring-up's lines; without a goodbye, clean up after it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     watched: list[psutil.Process] = []
     keys: list[Path] = []

@@ -1,6 +1,5 @@
 """A run's outputs: trajectory.npz, summary.json, the figures and the report printed at the
-end (:func:`write_outputs`); the run's own fields of summary.json come from the bring-up, the
-recording's from the bag (:func:`recording_fields`)."""
+end (:func:`write_outputs`), and the recording's fields (:func:`recording_fields`)."""
 
 from __future__ import annotations
 
@@ -25,9 +24,8 @@ def write_outputs(
     judged: Callable[[dict[str, Any]], dict[str, Any]] | None,
     say: Callable[[str], None],
 ) -> None:
-    """Write and print the run's outputs: ``fields`` (the bring-up's facts of the run: status,
-    respawns, ...) join the summary; ``judged`` (realtime) judges the trajectory by flight
-    beside its emulation; ``cfg``: the configuration flown."""
+    """Write and print the run's outputs: ``fields`` (the bring-up's) join the summary;
+    ``judged`` (realtime) judges the trajectory; ``cfg``: the configuration flown."""
     from ..analysis.runio import format_summary, run_summary, write_run
 
     out, status = plan.out, fields['status']
@@ -38,7 +36,6 @@ def write_outputs(
             f'(config and logs are in {out})'
         )
         return
-    # the same function computes `apf-swarm bag metrics` from a recorded bag
     summary = run_summary(
         traj,
         cfg,
@@ -55,13 +52,12 @@ def write_outputs(
         from ..analysis import plots
 
         title = f'{cfg.law} law, ROS 2 {plan.mode} run'
-        paths['trajectories_3d'] = plots.plot_trajectories_3d(
-            traj, f'trajectories, {title}', out / 'trajectories_3d.png'
-        )
-        paths['xy_time'] = plots.plot_xy_time(traj, f'x and y, {title}', out / 'xy_time.png')
-        paths['centroid'] = plots.plot_centroid(
-            traj, f'formation centre, {title}', out / 'centroid.png'
-        )
+        for key, plot, what in (
+            ('trajectories_3d', plots.plot_trajectories_3d, 'trajectories'),
+            ('xy_time', plots.plot_xy_time, 'x and y'),
+            ('centroid', plots.plot_centroid, 'formation centre'),
+        ):
+            paths[key] = plot(traj, f'{what}, {title}', out / f'{key}.png')
         paths['centroid_error'] = plots.plot_centroid_error(
             {cfg.law: traj},
             f'centroid error, ROS 2 {plan.mode} run',

@@ -18,7 +18,7 @@ from ..lifetime import STOP_CPU_PER_PROCESS, Process, describe_rc, dying_with_pa
 
 if TYPE_CHECKING:
     from .janitor import Janitor
-    from .zygote import Spawn, Zygote
+    from .zygote import Zygote
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
@@ -45,12 +45,9 @@ def _group_alive(pgid: int) -> bool:
 
 @dataclass
 class Child:
-    """One supervised OS process: its own process group, output appended to ``log_path``.
-
-    With a ``zygote``, a node executable of the package is forked from it (the same
-    ``main()``, argv, environment and log; see :mod:`.zygote`), else executed. ``netns``: the
-    network namespace it runs in (a simulated host; root): the forked process enters it, an
-    executed one runs under ``ip netns exec``."""
+    """One supervised OS process in its own process group, output appended to ``log_path``:
+    forked from the ``zygote`` if it has one and can (:mod:`.zygote`), else executed (under
+    ``ip netns exec`` with a ``netns``, a simulated host)."""
 
     name: str
     argv: list[str]
@@ -69,8 +66,8 @@ class Child:
     pids: list[int] = field(default_factory=list)
 
     def start(self, forked: Process | None = None) -> None:
-        """Start (or restart) the process; the log is appended to, with a header on restarts.
-        ``forked``: the process, already forked by the zygote in a batch."""
+        """Start (or restart, with a header in the log) the process; ``forked``: already
+        forked by the zygote in a batch."""
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.log_path, 'ab') as log:
             if self.starts:
@@ -79,12 +76,11 @@ class Child:
                     f'{time.strftime("%H:%M:%S")} =====\n'.encode()
                 )
                 log.flush()
-        if forked is None and self.zygote is not None:
-            forked = self.zygote.spawn_all([self.spawn()])[0]
-        if forked is not None:
-            self.popen = forked
-        else:
-            with open(self.log_path, 'ab') as log:
+            if forked is None and self.zygote is not None:
+                forked = self.zygote.spawn_all([self])[0]
+            if forked is not None:
+                self.popen = forked
+            else:
                 self.popen = subprocess.Popen(
                     dying_with_parent(
                         self.argv
@@ -99,17 +95,11 @@ class Child:
                     start_new_session=True,
                     close_fds=True,
                 )
-            if self.janitor is not None:
-                self.janitor.watch(self.popen.pid)
+                if self.janitor is not None:
+                    self.janitor.watch(self.popen.pid)
         self.starts += 1
         self.stopping = False
         self.pids.append(self.popen.pid)
-
-    def spawn(self) -> Spawn:
-        """What the zygote forks for this process."""
-        from .zygote import Spawn
-
-        return Spawn(self.argv, self.log_path, self.env, self.cwd, self.netns)
 
     @property
     def pid(self) -> int | None:
@@ -172,16 +162,15 @@ class ProcessGroup:
         zygote = next((c.zygote for c in self.children if c.zygote is not None), None)
         if zygote is not None:
             mine = [i for i, c in enumerate(self.children) if c.zygote is zygote]
-            batch = zygote.spawn_all([self.children[i].spawn() for i in mine])
+            batch = zygote.spawn_all([self.children[i] for i in mine])
             for i, f in zip(mine, batch, strict=True):
                 forked[i] = f
         for c, f in zip(self.children, forked, strict=True):
             c.start(f)
 
     def stop_grace(self, select: Callable[[Child], bool] | None = None) -> float:
-        """The longest :meth:`stop_all` of the children ``select`` accepts (all by
-        default) can take: every stage's wait, and the first stage's
-        :data:`STOP_CPU_PER_PROCESS` per process, shared over the cores; 0 without any."""
+        """The longest :meth:`stop_all` of the children ``select`` accepts can take [s]: every
+        stage's wait plus :data:`STOP_CPU_PER_PROCESS` per process over the cores."""
         n = sum(1 for c in self.children if select is None or select(c))
         if not n:
             return 0.0
@@ -196,36 +185,22 @@ class ProcessGroup:
         self,
         *,
         hurry: Callable[[], int] | None = None,
-        poll_interval: float = 0.02,
         select: Callable[[Child], bool] | None = None,
     ) -> dict[str, str]:
-        """Stop every running child: SIGINT to each group, wait, SIGTERM, wait, SIGKILL.
-
-        A child counts as stopped when its process has exited (and is reaped) and its process
-        group has no member left. Each stage waits at most its time in :attr:`stop_sequence`
-        and ends early once every child is stopped, or when ``hurry()`` (a counter, e.g. of
-        signals received) grows: each further Ctrl-C moves on to the next stage at once.
-        Returns ``{name: how}`` in the group's order, ``how`` one of
-        ``exited`` (had already ended), ``SIGINT``, ``SIGTERM``, ``SIGKILL`` (the signal after
-        which it stopped) or ``not stopped`` (should never happen; see :meth:`leftovers`).
-        ``select``: only the children it accepts (the bring-up stops the trackers first).
-        The first stage waits :data:`STOP_CPU_PER_PROCESS` more per process still running,
-        shared over the cores.
-        """
+        """Stop the running children ``select`` accepts (default all) by the stages of
+        :attr:`stop_sequence` (the first :data:`STOP_CPU_PER_PROCESS` per process longer,
+        over the cores); a stage ends once each is reaped and its group empty, or when
+        ``hurry()`` (a count of signals) grows. ``{name: how}`` in the group's order, ``how``
+        ``exited`` (already), the signal name after which it stopped, or ``not stopped``."""
 
         def stopped(c: Child) -> bool:
             return c.popen is not None and c.poll() is not None and not _group_alive(c.popen.pid)
 
-        how: dict[str, str] = {}
-        pending = []
-        for c in self.children:
-            if c.popen is None or (select is not None and not select(c)):
-                continue
+        chosen = [c for c in self.children if c.popen and (select is None or select(c))]
+        for c in chosen:
             c.stopping = True
-            if stopped(c):
-                how[c.name] = 'exited'
-            else:
-                pending.append(c)
+        how = {c.name: 'exited' for c in chosen if stopped(c)}
+        pending = [c for c in chosen if c.name not in how]
         for stage, (sig, wait_s) in enumerate(self.stop_sequence):
             if not pending:
                 break
@@ -234,26 +209,18 @@ class ProcessGroup:
             extra = STOP_CPU_PER_PROCESS * len(pending) / (os.cpu_count() or 1) if not stage else 0
             deadline = time.monotonic() + wait_s + extra
             hurried = hurry() if hurry else 0
-            while pending:
-                still = []
-                for c in pending:
-                    if stopped(c):
-                        how[c.name] = signal.Signals(sig).name
-                    else:
-                        still.append(c)
-                pending = still
-                if not pending or time.monotonic() >= deadline:
+            while True:
+                how.update((c.name, signal.Signals(sig).name) for c in pending if stopped(c))
+                pending = [c for c in pending if c.name not in how]
+                if not pending or time.monotonic() >= deadline or (hurry and hurry() > hurried):
                     break
-                if hurry is not None and hurry() > hurried:
-                    break
-                time.sleep(poll_interval)
+                time.sleep(0.02)
         for c in pending:
             how[c.name] = 'not stopped'
         return {c.name: how[c.name] for c in self.children if c.name in how}  # in their order
 
     def leftovers(self) -> list[tuple[str, int]]:
-        """(name, pid) of every live process in a process group this group ever started
-        (each start is a new session: process group id = the child's pid); empty when clean."""
+        """(name, pid) of every live process in a process group this group ever started."""
         return [
             (c.name, member)
             for c in self.children

@@ -1,8 +1,7 @@
-"""One run (:class:`Bringup`): its parts in order (:meth:`Bringup.execute`: set up, launch,
-wait for the graph, run, stop, write) and the run loop between ``/swarm/start`` and the end,
-with its progress line. The parts: :mod:`.startup` (before the run), :mod:`.graph_watch` (the
-bring-up's node on the graph), :mod:`.supervision` (signals and children), :mod:`.flight_check`
-(realtime) and :mod:`.outputs` (the files at the end)."""
+"""One run (:class:`Bringup`): set up, launch, wait for the graph, run (the loop between
+``/swarm/start`` and the end, with its progress line), stop, write; its parts are in
+:mod:`.startup`, :mod:`.graph_watch`, :mod:`.supervision`, :mod:`.flight_check`, :mod:`.outputs`.
+"""
 
 from __future__ import annotations
 
@@ -34,25 +33,19 @@ __all__ = ['Bringup']
 
 
 class Bringup:
-    """One run; see the module docstring. :meth:`execute` returns the exit code. It holds
-    what comes before the run (:attr:`setup`: checks, isolation, launch), its node on the
-    graph (:attr:`graph`), its processes (:attr:`sup`) and, realtime, its flight check
-    (:attr:`flight`)."""
+    """One run (see the module docstring); :meth:`execute` returns the exit code."""
 
     def __init__(self, plan: Plan, *, prog: str) -> None:
         self.plan, self.prog = plan, prog
         #: the configuration flown (realtime: the flight check's), known once prepared
         self.cfg = plan.cfg
         self.signals = Signals()
-        #: the node processes and the recorder, watched and stopped
         self.sup = Supervisor(plan, self.signals, self.say)
         self.acc = StateAccumulator(plan.mode, plan.cfg.steps, plan.cfg.record_every)
-        #: the bring-up's node on the graph; realtime, the flight check before and after the run
         self.graph = GraphWatch(plan, self.acc, self.say)
         self.flight = FlightCheck(plan, self.say)
         #: the run's identity (the nodes' ``run`` parameter), random, never 0
         self.run_id = random.getrandbits(62) + 1
-        #: before the run: checks, isolation (domain id, a secure run's files), the launch
         self.setup = Startup(plan, self.run_id, self.sup, self.flight, self.say)
         # monotonic times of this bring-up's start, the start and the end of the run [s]
         self.t_begin = time.monotonic()
@@ -61,8 +54,8 @@ class Bringup:
         #: ``--view``: the live view (:class:`~apf_swarm_nodes.view.LiveView`)
         self.view: Any = None
 
-    # --- messages -------------------------------------------------------------------------
     def say(self, text: str) -> None:
+        """Print a line of the bring-up on stderr."""
         print(f'{self.prog}: {text}', file=sys.stderr, flush=True)
 
     def between(self) -> None:
@@ -70,8 +63,8 @@ class Bringup:
         self.sup.check_signals()
         self.sup.supervise()
 
-    # --- the run --------------------------------------------------------------------------
     def progress_line(self, rate: float) -> str:
+        """The once-a-second line of the run; ``rate``: steps/s (lockstep) or msgs/s."""
         s = self.acc.last
         dur = self.cfg.duration
         if s is None:
@@ -87,6 +80,7 @@ class Bringup:
         )
 
     def run_loop(self) -> None:
+        """Publish ``/swarm/start`` and take the states until the run completes or stalls."""
         plan, acc = self.plan, self.acc
         self.graph.publish_start()
         self.t_start = time.monotonic()
@@ -105,9 +99,7 @@ class Bringup:
                 self.sup.supervise()
             if acc.complete:
                 return
-            # realtime: the plant's clock starts once every tracker commands, so the run
-            # ends with its final state; a plant that never gets there is cut off a stall
-            # timeout after the duration
+            # realtime: a plant that never sends its final state is cut off
             if plan.mode == 'realtime' and now - self.t_start >= (
                 self.cfg.duration + plan.stall_timeout
             ):
@@ -135,12 +127,9 @@ class Bringup:
                 prev, last_progress = count, now
                 self.say(self.progress_line(rate))
 
-    # --- everything -----------------------------------------------------------------------
     def start_view(self) -> None:
         """``--view``: serve the newest ``/swarm/state`` sample to Foxglove (a busy port is
-        bad input, found before any process starts). A UAV is drawn stale when its latest
-        command answered a state older than the plant's ``stale_after`` (realtime; a
-        ``--node-param stale_after:=S`` counts)."""
+        bad input, found before any process starts)."""
         if self.plan.view is None:
             return
         from apf_swarm_core.formation import design_pair_sets
@@ -157,8 +146,8 @@ class Bringup:
         self.say(f'view: {self.view.url} (Foxglove: Open connection, Foxglove WebSocket)')
 
     def execute(self) -> int:
-        # every process of the run names its bring-up: `apf-swarm clean` stops those whose
-        # bring-up is gone, wherever they were reparented
+        """The whole run; returns the exit code."""
+        # every process of the run names its bring-up (for `apf-swarm clean`)
         from ..dds.cleanup import BRINGUP_ENV, bringup_mark
 
         os.environ[BRINGUP_ENV] = bringup_mark()
@@ -170,8 +159,8 @@ class Bringup:
             self.setup.close()
 
     def execute_prepared(self) -> int:
-        # the stop's bound from the start: the domain check already makes a participant
-        self.signals.install()
+        """From the isolation to the outputs; returns the exit code."""
+        self.signals.install()  # the domain check already makes a participant
         code, status, message = EXIT_OK, 'completed', ''
         group = self.sup.group
         try:
@@ -223,8 +212,7 @@ class Bringup:
         return code
 
     def run_fields(self, status: str) -> dict[str, Any]:
-        """The run's own fields of summary.json: status, timing, stops, recording (the run
-        has started: :attr:`t_start` is set)."""
+        """The run's own fields of summary.json (once :attr:`t_start` is set)."""
         last, group, stops = self.acc.last, self.sup.group, self.sup.stop_how
         hows = list(stops.values())
         run_s = self.t_end - self.t_start
@@ -234,9 +222,10 @@ class Bringup:
             'domain_id': self.setup.domain_id,
             'run_id': f'{self.run_id:x}',
             'wall_time': round(run_s, 3),
-            'missed_deadlines': int(last.missed_deadlines) if last is not None else 0,
-            'stale_inputs': int(last.stale_inputs) if last is not None else 0,
-            'rejected_inputs': int(last.rejected_inputs) if last is not None else 0,
+            **{
+                k: int(getattr(last, k)) if last is not None else 0
+                for k in ('missed_deadlines', 'stale_inputs', 'rejected_inputs')
+            },
             'respawns': sum(c.respawns for c in group),
             'respawned': {c.name: c.respawns for c in group if c.respawns},
             'restarted_unseen': {c.name: c.unseen_restarts for c in group if c.unseen_restarts},
@@ -250,8 +239,6 @@ class Bringup:
                 'rate': round(len(self.acc.samples) / run_s, 1) if run_s > 0 else None,
             },
             'stopped_by': stops,
-            # how many needed which signal: SIGKILL is the exception (a node that never left
-            # DDS leaves shared memory behind, which the bring-up then removes)
             'stop_signals': {how: hows.count(how) for how in sorted(set(hows))},
         }
         if self.plan.record:

@@ -1,6 +1,5 @@
-"""Before the run: the checks that need no process (executables, recorder, output directory,
-configuration), the run's isolation (domain id, discovery range, log directory) and the
-node processes started, the recorder first."""
+"""Before the run: the checks that need no process, the run's isolation (domain id,
+discovery range, DDS profiles, log directory) and the launch of its processes."""
 
 from __future__ import annotations
 
@@ -13,6 +12,7 @@ from typing import TYPE_CHECKING
 from apf_swarm_core.config import SwarmConfig
 from apf_swarm_core.config_files import to_ros_params
 
+from ..dds.domains import env_domain, pick_domain_id
 from .commands import (
     Plan,
     executable_path,
@@ -23,7 +23,6 @@ from .commands import (
     recorder_command,
 )
 from .errors import BringupError
-from .isolation import env_domain, pick_domain_id
 from .processes import Child
 
 if TYPE_CHECKING:
@@ -37,11 +36,9 @@ __all__ = ['Startup']
 
 
 class Startup:
-    """What a run does before it starts (the bring-up holds one): the checks that need no
-    process (:meth:`prepare`), the isolation (:meth:`isolate`: :attr:`domain_id`, a secure
-    run's :attr:`pki`), the zygote or janitor (:meth:`start_zygote`), the launch of the node
-    processes into ``sup``'s groups (:meth:`launch`), and what it started, stopped
-    (:meth:`close`)."""
+    """What a run does before it starts: :meth:`prepare`, :meth:`isolate`,
+    :meth:`start_zygote`, :meth:`launch` (into ``sup``'s groups), and :meth:`close` at its
+    end."""
 
     def __init__(
         self,
@@ -63,8 +60,8 @@ class Startup:
         self.config_file = plan.out / 'config.yaml'
 
     def prepare(self) -> SwarmConfig:
-        """Checks that need no process: executables, recorder, output directory, config.
-        Returns the configuration to fly (realtime: the flight check's)."""
+        """Check executables, bag and configuration, write DIR/config.yaml; returns the
+        configuration to fly (realtime: the flight check's)."""
         import yaml
 
         plan, cfg = self.plan, self.plan.cfg
@@ -105,10 +102,7 @@ class Startup:
         os.environ['ROS_DOMAIN_ID'] = str(self.domain_id)
         os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = plan.discovery_range
         os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated; would fight the range
-        # every ROS log file of the run (this node's and the children's) under DIR/logs/ros
         os.environ['ROS_LOG_DIR'] = str((plan.out / 'logs' / 'ros').resolve())
-        # DDS: in LOCALHOST nothing from outside this machine (a Fast DDS profile that binds
-        # 127.0.0.1), the discovery timing, and no second swarm on the domain (DdsError)
         from ..dds.profiles import isolate_dds
 
         processes = 3 + -(-plan.n // plan.trackers_per_process) + int(plan.record)
@@ -135,27 +129,16 @@ class Startup:
             reuse=plan.secure_pki,
             say=self.say,
         )
-        if not plan.keep_keys:
-            # a killed bring-up cannot remove the keys; its janitor does
+        if not plan.keep_keys:  # a killed bring-up cannot remove the keys; its janitor does
             if self.janitor is None:
                 from .janitor import Janitor
 
                 self.janitor = Janitor()
             self.janitor.keys(plan.out / 'dds')
 
-    def check_secure(self) -> None:
-        """A secure run, before any node starts: the bring-up's own port (its participant,
-        the discovery server) refuses a TLS client without the run's certificate."""
-        if self.pki is None:
-            return
-        from ..dds.secure import check_refuses, first_address, server_port
-
-        assert self.domain_id is not None
-        check_refuses(self.plan.secure_address or first_address(), server_port(self.domain_id))
-
     def close(self) -> None:
-        """The run's end: the zygote and the janitor told goodbye, then a secure run's
-        private keys removed, unless kept (--keep-keys)."""
+        """Goodbye to the zygote and the janitor; a secure run's keys removed (unless
+        --keep-keys)."""
         if self.zygote is not None:
             self.zygote.close()
         if self.janitor is not None:
@@ -167,9 +150,8 @@ class Startup:
         remove_keys(self.plan.out / 'dds')
 
     def host_env(self, env: dict[str, str], netns: str | None, name: str) -> dict[str, str]:
-        """The environment of node process ``name`` on the simulated host ``netns`` (None:
-        this host): a secure run's nodes take their host's files, a process of trackers
-        only the client profile (:data:`~..dds.secure.CLIENT_PROFILE_FILE`)."""
+        """The environment of node process ``name`` on host ``netns`` (None: this one): a
+        secure run's take their host's files, a process of trackers its client profile."""
         if self.pki is None:
             return env
         from ..dds.secure import THIS_HOST, secure_environment
@@ -183,9 +165,8 @@ class Startup:
         return {**env, **secure_environment(profile, self.pki.openssl)}
 
     def start_zygote(self) -> None:
-        """``--spawn fork``: start the zygote first, so that its imports overlap the
-        preparation (the node processes are forked from it at the launch). Nodes executed
-        instead: the janitor, which cleans up after them if this bring-up is killed."""
+        """``--spawn fork``: the zygote, early (its imports overlap the preparation); else, or
+        if it cannot, the janitor, which cleans up after executed nodes."""
         if self.plan.spawn == 'fork':
             from .zygote import Zygote
 
@@ -199,15 +180,18 @@ class Startup:
         self.janitor = Janitor()
 
     def launch(self) -> None:
-        self.check_secure()
+        """Start the recorder (first: it subscribes to each topic as its publisher appears),
+        then the node processes, forked as one batch where the zygote can."""
         plan, logs = self.plan, self.plan.out / 'logs'
+        if self.pki is not None:  # the bring-up's own port refuses a TLS client without a cert
+            from ..dds.secure import check_refuses, first_address, server_port
+
+            assert self.domain_id is not None
+            check_refuses(plan.secure_address or first_address(), server_port(self.domain_id))
         env = {'PYTHONUNBUFFERED': '1', 'RCUTILS_COLORIZED_OUTPUT': '0', **os.environ}
         config_file = self.config_file.resolve()
-        # over TLS a message costs more than its bytes: one command message per process
-        # (docs/PERFORMANCE.md, "Secure multi-host runs"); a bag records it as
-        # /swarm/force_cmds. The run's identity: its nodes refuse the commands and states of
-        # another run. Recorded: each writer waits for the recorder's reader before its
-        # first message.
+        # batch_commands: docs/PERFORMANCE.md, "Secure multi-host runs"; run: the nodes refuse
+        # another run's messages; recorded: each writer waits for the recorder's reader
         params = [
             *(['batch_commands:=true'] if plan.batch_commands else []),
             *plan.node_params,
@@ -218,35 +202,27 @@ class Startup:
             self.prefix, config_file, plan.n, plan.mode, params, plan.trackers_per_process
         )
         self.t_launch = time.monotonic()
+        recorder = []
         if plan.record:
-            # first, so that it subscribes to every topic as soon as its publisher appears
             bag = (plan.out / 'bag').resolve()
             argv = recorder_command(self.prefix, plan.mode, bag, config_file, plan.node_params)
-            self.sup.rec_group.add(
-                Child(
-                    'recorder',
-                    argv,
-                    logs / 'recorder.log',
-                    env,
-                    zygote=self.zygote,
-                    janitor=self.janitor,
+            recorder = [('recorder', argv)]
+        for group, commands in ((self.sup.rec_group, recorder), (self.sup.group, cmds)):
+            for name, cmd in commands:
+                rec = group is self.sup.rec_group
+                ns = None if rec else node_netns(name, plan.node_netns)  # a simulated host
+                group.add(
+                    Child(
+                        name,
+                        cmd,
+                        logs / f'{name}.log',
+                        env if rec else self.host_env(env, ns, name),
+                        zygote=self.zygote,
+                        netns=ns,
+                        janitor=self.janitor,
+                    )
                 )
-            )
-            self.sup.rec_group.start_all()
-        for name, cmd in cmds:
-            ns = node_netns(name, plan.node_netns)  # a simulated host (multihost.py)
-            self.sup.group.add(
-                Child(
-                    name,
-                    cmd,
-                    logs / f'{name}.log',
-                    self.host_env(env, ns, name),
-                    zygote=self.zygote,
-                    netns=ns,
-                    janitor=self.janitor,
-                )
-            )
-        self.sup.group.start_all()
+            group.start_all()
         if self.zygote is not None and self.zygote.error:
             self.say(f'warning: the zygote failed ({self.zygote.error}); nodes executed instead')
         self.say(

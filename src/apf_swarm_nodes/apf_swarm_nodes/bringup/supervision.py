@@ -26,17 +26,12 @@ __all__ = ['Signals', 'Supervisor']
 
 
 class Signals:
-    """SIGINT / SIGTERM set a flag (the loops poll it); restored on exit.
+    """SIGINT / SIGTERM recorded in :attr:`received` (the loops poll it), restored on exit;
+    and the stop's bound: :attr:`watchdog` ends the process with ``EXIT_INTERRUPTED``
+    ``bound`` s after the first signal or :meth:`arm` (a main thread blocked in DDS never
+    runs a handler); the bring-up sets it from :meth:`Supervisor.stop_bound`."""
 
-    And the bound on the stop (:class:`~..stop_watchdog.StopWatchdog`, :attr:`watchdog`): a
-    main thread blocked inside a DDS call never runs the handler, so a watchdog thread ends
-    the process with ``EXIT_INTERRUPTED`` its ``bound`` seconds after the first signal or
-    after :meth:`arm` (the run's own stop). The bring-up sets that bound to its stop's grace
-    plus a margin once it knows its processes (:meth:`Supervisor.stop_bound`).
-    """
-
-    #: seconds from the first SIGINT / SIGTERM to a hard exit until the bring-up knows its
-    #: processes
+    #: the bound [s] until the bring-up knows its processes
     BOUND = 60.0
 
     def __init__(self, bound: float = BOUND) -> None:
@@ -55,8 +50,7 @@ class Signals:
             self.watchdog.install()
 
     def arm(self) -> None:
-        """Start the bound now, signal or not: stopping must not hang either (a DDS call
-        blocked on a mutex a killed node held)."""
+        """Start the bound now, signal or not: stopping must not hang either."""
         self.watchdog.arm()
 
     def restore(self) -> None:
@@ -66,8 +60,8 @@ class Signals:
         self._old.clear()
 
 
-#: seconds of a stop's bound beyond the children's stop grace: the shared-memory cleanup,
-#: the bring-up's own DDS shutdown, a loaded machine's delays
+#: seconds of a stop's bound beyond the children's stop grace (shared-memory cleanup, the
+#: bring-up's own DDS shutdown, a loaded machine)
 STOP_MARGIN = 10.0
 
 
@@ -76,10 +70,14 @@ def _is_tracker(child: Child) -> bool:
     return 'tracker' in child.name
 
 
+def _not_tracker(child: Child) -> bool:
+    """The plant and the target, stopped after the trackers."""
+    return not _is_tracker(child)
+
+
 class Supervisor:
-    """The run's node processes (:attr:`group`) and recorder (:attr:`rec_group`) while the run
-    lasts and at its end (the bring-up holds one): deaths reported, respawned or the run
-    stopped, signals turned into a stop, and the stop itself; ``say`` prints a line."""
+    """The run's node processes (:attr:`group`) and recorder (:attr:`rec_group`): deaths
+    reported and respawned or the run stopped, signals turned into a stop, and the stop."""
 
     def __init__(self, plan: Plan, signals: Signals, say: Callable[[str], None]) -> None:
         self.plan, self.signals, self.say = plan, signals, say
@@ -146,8 +144,8 @@ class Supervisor:
             raise StopRun(EXIT_CHILD_DIED, 'child_died', why)
 
     def restart(self, names: list[str], why: str) -> None:
-        """Stop the named node processes (SIGINT, SIGTERM, SIGKILL, within seconds) and start
-        them again, before the run begins (:class:`~.graph.UnseenRestart`)."""
+        """Stop and start again the named node processes, before the run begins
+        (:class:`~.graph.UnseenRestart`)."""
         chosen = set(names)
         how = self.group.stop_all(select=lambda c: c.name in chosen)
         for child in self.group:
@@ -159,8 +157,7 @@ class Supervisor:
                 )
 
     def not_respawnable(self, name: str) -> str:
-        """Why a dead node must not be restarted ('' when it may be): the plant holds the
-        state of the whole swarm, and a realtime target restarts its trajectory from t = 0."""
+        """Why a dead node must not be restarted ('' when it may be)."""
         if name == 'plant':
             return (
                 'the plant holds the state of every UAV; a restarted plant would start '
@@ -173,27 +170,25 @@ class Supervisor:
             )
         return ''
 
+    def stages(self) -> list[tuple[ProcessGroup, Callable[[Child], bool] | None]]:
+        """The stop's order: the trackers, then the plant and the target, then the recorder
+        (it takes what is still queued and closes the bag); (group, select)."""
+        return [(self.group, _is_tracker), (self.group, _not_tracker), (self.rec_group, None)]
+
     def stop_bound(self) -> float:
-        """The bound of the whole stop: the trackers' stop, then the plant's and the
-        target's, then the recorder's, each at its longest (:meth:`ProcessGroup.stop_grace`,
-        which grows with the load), and :data:`STOP_MARGIN`."""
-        return (
-            self.group.stop_grace(select=_is_tracker)
-            + self.group.stop_grace(select=lambda c: not _is_tracker(c))
-            + self.rec_group.stop_grace()
-            + STOP_MARGIN
-        )
+        """The bound of the whole stop: each stage at its longest
+        (:meth:`ProcessGroup.stop_grace`, which grows with the load), and :data:`STOP_MARGIN`."""
+        return sum(g.stop_grace(select=select) for g, select in self.stages()) + STOP_MARGIN
 
     def stop_children(self) -> None:
+        """Stop every child in :meth:`stages`, report how, remove stale shared memory."""
         t0 = time.monotonic()
         self.signals.arm()  # stopping has a bound too
-        hurry = lambda: len(self.signals.received)  # noqa: E731
-        # the trackers first, so that none commands into a plant that is gone; then the plant
-        # and the target; each leaves DDS on SIGINT, given time that grows with the load
-        self.stop_how = self.group.stop_all(hurry=hurry, select=_is_tracker)
-        self.stop_how.update(self.group.stop_all(hurry=hurry, select=lambda c: not _is_tracker(c)))
-        # the recorder last: it takes what is still queued and closes the bag
-        self.stop_how.update(self.rec_group.stop_all(hurry=lambda: len(self.signals.received)))
+        self.stop_how = {}
+        for g, select in self.stages():
+            self.stop_how.update(
+                g.stop_all(hurry=lambda: len(self.signals.received), select=select)
+            )
         self.stop_seconds = time.monotonic() - t0
         self.leftovers = self.group.leftovers() + self.rec_group.leftovers()
         by: dict[str, list[str]] = {}

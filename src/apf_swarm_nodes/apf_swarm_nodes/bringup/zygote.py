@@ -1,19 +1,14 @@
-"""The zygote: one process that has imported rclpy, numpy, the project and every message
-type once, and forks each node process of a run on request (``--spawn fork``; what it buys:
-docs/PERFORMANCE.md, "Fast start: the zygote").
-
-A forked node runs the very ``main()`` of its executable, with its argv, environment,
-working directory, log file and command line in ``ps``. The zygote never initialises ROS (a
-process whose DDS threads run must not fork), so it forks respawns too. It forks twice and
-the middle process exits, so that the node is re-parented to the bring-up (a child
-subreaper), which waits for it as for a process it started (:class:`ForkedProcess`). A
-graph is forked as one batch, and no node of a batch runs before the last is forked.
+"""The zygote (``--spawn fork``; docs/PERFORMANCE.md, "Fast start: the zygote"): one process
+that imported rclpy, numpy, the nodes and every message type once, and forks each node
+process of a run, respawns too, into the ``main()`` of its executable with its argv,
+environment, cwd, log and ``ps`` line. It never initialises ROS. It forks twice so that the
+node is re-parented to the bring-up (a child subreaper: :class:`ForkedProcess`); a batch runs
+once its last node is forked.
 
 Protocol: a JSON list of requests a line on stdin (``entry``, ``argv``, ``env``, ``cwd``,
-``log``, ``netns``), the list of replies a line on stdout (``{"pid": N}`` or
-``{"error": "..."}``); the line ``"bye"`` ends it. An input that ends without it means that
-the bring-up died: the zygote then stops the nodes it forked and removes the shared memory
-they left (:func:`orphaned_cleanup`). Run as ``python -m apf_swarm_nodes.bringup.zygote``.
+``log``, ``netns``), the list of replies (``{"pid": N}`` or ``{"error": "..."}``) a line on
+stdout; ``"bye"`` ends it. An input that ends without it (the bring-up died): the zygote
+stops its nodes and removes their shared memory (:func:`orphaned_cleanup`).
 """
 
 from __future__ import annotations
@@ -28,16 +23,17 @@ import subprocess
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import psutil
+
+if TYPE_CHECKING:
+    from .processes import Child
 
 __all__ = [
     'DIST',
     'ForkedProcess',
-    'Spawn',
     'Zygote',
     'become_subreaper',
     'close_helper',
@@ -51,19 +47,17 @@ DIST = 'apf-swarm-nodes'
 NOT_NODES = frozenset({'apf-swarm'})
 #: prctl(2) options, and setns(2)'s type of a network namespace
 PR_SET_CHILD_SUBREAPER, PR_SET_PDEATHSIG, CLONE_NEWNET = 36, 1, 0x40000000
-#: the line that ends a zygote's input when its bring-up closes it (an input that ends
-#: without it: the bring-up died)
+#: the line that ends a helper's input when its bring-up closes it
 BYE = 'bye'
-#: seconds the zygote of a bring-up that died gives the nodes (stopping on their parent-death
-#: signal) before it kills them, and before it looks for stale shared memory a second time
+#: seconds an orphaned zygote gives its nodes before it kills them, and waits before it
+#: looks for stale shared memory a second time
 ORPHAN_GRACE, ORPHAN_SECOND_LOOK = 5.0, 1.0
 #: the node processes this zygote forked (the run's nodes and their respawns)
 FORKED: list[psutil.Process] = []
 
 
 def node_entry_points() -> dict[str, str]:
-    """``{executable: 'module:function'}`` of the package's node executables (its console
-    scripts, as installed)."""
+    """``{executable: 'module:function'}`` of the package's node console scripts."""
     from importlib.metadata import PackageNotFoundError, distribution
 
     try:
@@ -77,25 +71,25 @@ def node_entry_points() -> dict[str, str]:
     }
 
 
-def become_subreaper() -> bool:
-    """Make this process the reaper of its orphaned descendants (Linux ``prctl``); False
-    where that is not possible."""
+def _prctl(option: int, value: int) -> bool:
+    """Linux ``prctl(option, value)``; False where it fails."""
     try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        return bool(libc.prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) == 0)
+        return bool(ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0) == 0)
     except (OSError, AttributeError):
         return False
 
 
-# --------------------------------------------------------------------------------------------
-# the bring-up's side
-# --------------------------------------------------------------------------------------------
+def become_subreaper() -> bool:
+    """Make this process the reaper of its orphaned descendants; False where impossible."""
+    return _prctl(PR_SET_CHILD_SUBREAPER, 1)
+
+
+# --- the bring-up's side ----------------------------------------------------------------------
 
 
 def close_helper(proc: subprocess.Popen[bytes], goodbye: bytes) -> None:
-    """End a helper process of the bring-up (its zygote or janitor) when the bring-up closes
-    it normally: ``goodbye`` as a line on its stdin, then end of input; wait at most 5 s for
-    it to exit, then SIGKILL it."""
+    """End a helper (zygote, janitor) normally: ``goodbye`` and end of input on its stdin,
+    then at most 5 s for it to exit before SIGKILL."""
     with contextlib.suppress(OSError, ValueError):
         if proc.stdin is not None:
             proc.stdin.write(goodbye + b'\n')
@@ -105,25 +99,13 @@ def close_helper(proc: subprocess.Popen[bytes], goodbye: bytes) -> None:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
-
-
-@dataclass(frozen=True)
-class Spawn:
-    """What to start: argv (its first element a node executable of the package), log file,
-    environment (None: this process's), working directory (None: this one), network
-    namespace (None: this one; else the name of one in ``/run/netns``, as ``ip netns``)."""
-
-    argv: Sequence[str]
-    log_path: Path
-    env: Mapping[str, str] | None = None
-    cwd: Path | None = None
-    netns: str | None = None
+    if proc.stdout is not None:
+        proc.stdout.close()
 
 
 class ForkedProcess:
-    """A node process forked by the zygote and re-parented to this process: the part of
-    :class:`subprocess.Popen` that :class:`~.processes.Child` uses (``pid``, ``returncode``,
-    :meth:`poll`, :meth:`wait`)."""
+    """A node process forked by the zygote and re-parented to this one: the part of
+    :class:`subprocess.Popen` that :class:`~.processes.Child` uses."""
 
     def __init__(self, pid: int, args: Sequence[str]) -> None:
         self.pid = pid
@@ -153,9 +135,8 @@ class ForkedProcess:
 
 
 class Zygote:
-    """The bring-up's handle on a zygote process, started early (its imports overlap the
-    bring-up's own preparation). :meth:`spawn_all` forks node processes; :meth:`close` ends
-    the zygote, the node processes live on."""
+    """The bring-up's handle on a zygote process: :meth:`spawn_all` forks node processes,
+    :meth:`close` ends the zygote (the nodes live on)."""
 
     def __init__(self) -> None:
         self.entries = node_entry_points()
@@ -173,11 +154,11 @@ class Zygote:
             close_fds=True,
         )
 
-    def spawn_all(self, spawns: Sequence[Spawn]) -> list[ForkedProcess | None]:
-        """Fork node processes as one batch; None for each that this zygote cannot fork (not
-        a node executable of the package, or the zygote is gone: the caller executes it)."""
-        out: list[ForkedProcess | None] = [None] * len(spawns)
-        entries = [self.entries.get(Path(s.argv[0]).name) if s.argv else None for s in spawns]
+    def spawn_all(self, children: Sequence[Child]) -> list[ForkedProcess | None]:
+        """Fork the children's processes as one batch; None for each it cannot fork (not a
+        node executable of the package, or the zygote is gone: the caller executes it)."""
+        out: list[ForkedProcess | None] = [None] * len(children)
+        entries = [self.entries.get(Path(c.argv[0]).name) if c.argv else None for c in children]
         batch = [i for i, entry in enumerate(entries) if entry]
         proc = self.proc
         if not batch or proc is None or proc.stdin is None or proc.stdout is None:
@@ -185,13 +166,13 @@ class Zygote:
         requests = [
             {
                 'entry': entries[i],
-                'argv': list(s.argv),
-                'env': dict(os.environ) if s.env is None else dict(s.env),
-                'cwd': None if s.cwd is None else str(s.cwd),
-                'log': str(s.log_path),
-                'netns': s.netns,
+                'argv': list(c.argv),
+                'env': dict(os.environ if c.env is None else c.env),
+                'cwd': None if c.cwd is None else str(c.cwd),
+                'log': str(c.log_path),
+                'netns': c.netns,
             }
-            for i, s in ((i, spawns[i]) for i in batch)
+            for i, c in ((i, children[i]) for i in batch)
         ]
         try:
             proc.stdin.write(json.dumps(requests).encode() + b'\n')
@@ -206,31 +187,25 @@ class Zygote:
             return out
         for i, reply in zip(batch, json.loads(line), strict=True):
             if 'pid' in reply:
-                out[i] = ForkedProcess(int(reply['pid']), spawns[i].argv)
+                out[i] = ForkedProcess(int(reply['pid']), children[i].argv)
             else:
                 self.error = str(reply.get('error'))
         return out
 
     def close(self) -> None:
+        """Goodbye: the zygote exits, its nodes live on."""
         proc, self.proc = self.proc, None
-        if proc is None:
-            return
-        close_helper(proc, json.dumps(BYE).encode())  # not orphaned
-        if proc.stdout is not None:
-            proc.stdout.close()
+        if proc is not None:
+            close_helper(proc, json.dumps(BYE).encode())
 
 
-# --------------------------------------------------------------------------------------------
-# the zygote's side
-# --------------------------------------------------------------------------------------------
+# --- the zygote's side ------------------------------------------------------------------------
 
 
 def preload(entries: Mapping[str, str]) -> None:
-    """Import every node module, and do once what each node process would otherwise do
-    while it creates its node: load the type support of every message and service
-    (``create_publisher`` and rclpy's own services; what a service loads can bring more),
-    and fill the caches :mod:`inspect` reads for rclpy's logger (the caller's module and
-    source line of each log call)."""
+    """Import every node module, load the type support of every message, service and action
+    (until no new one appears), and fill the :mod:`inspect` and :mod:`linecache` caches
+    rclpy's logger reads: what each node would otherwise do while it starts."""
     import inspect
     import linecache
 
@@ -265,8 +240,8 @@ def preload(entries: Mapping[str, str]) -> None:
 
 
 def fork_node() -> int:
-    """Fork a node process that is not this process's child: like :func:`os.fork`, 0 in the
-    node process, its pid here (the intermediate process has exited and been reaped)."""
+    """Like :func:`os.fork` (0 in the child, its pid here), through an intermediate process
+    that exits: the node is not this process's child."""
     r, w = os.pipe()
     for stream in (sys.stdout, sys.stderr):
         stream.flush()
@@ -292,8 +267,8 @@ def fork_node() -> int:
 
 
 def enter_netns(name: str) -> None:
-    """Move this (single-threaded) process into the named network namespace (root), or end it
-    with exit code 2 and the reason in its log: it must not run on the wrong host."""
+    """Move this single-threaded process into network namespace ``/run/netns/NAME``, or exit 2
+    with the reason in its log."""
     try:
         fd = os.open(f'/run/netns/{name}', os.O_RDONLY | os.O_CLOEXEC)
         try:
@@ -310,26 +285,20 @@ def enter_netns(name: str) -> None:
 
 
 def become_node(request: Mapping[str, Any]) -> None:
-    """In the forked node process: what starting the executable would have given it (own
-    session, default signals, its log on stdout and stderr, its environment, working
-    directory, argv and command line)."""
+    """In the forked node process: what executing it would have given it (own session,
+    default signals, its log as stdout and stderr, environment, cwd, argv, ``ps`` line)."""
     os.setsid()
-    # (the zygote ignores SIGINT: the node takes it as Ctrl-C again before anything sends it)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    # the node ends (as on Ctrl-C, leaving DDS cleanly) when the bring-up it now belongs to
-    # dies, even by SIGKILL: the kernel's parent-death signal, set once the intermediate
-    # process is gone (before, its exit would have sent it)
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGINT)
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # the zygote ignores it
+    # SIGINT (a clean DDS exit) when the bring-up dies, even by SIGKILL
+    _prctl(PR_SET_PDEATHSIG, signal.SIGINT)
     if os.getppid() == 1:  # the bring-up died before that: no one would stop this node
         os._exit(0)
     for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD, signal.SIGUSR1):
         signal.signal(sig, signal.SIG_DFL)
     log = os.open(request['log'], os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     null = os.open(os.devnull, os.O_RDONLY)
-    os.dup2(null, 0)
-    os.dup2(log, 1)
-    os.dup2(log, 2)
+    for fd, target in ((null, 0), (log, 1), (log, 2)):
+        os.dup2(fd, target)
     os.close(log)
     os.close(null)
     # unbuffered text streams, as PYTHONUNBUFFERED gives an executed node
@@ -350,25 +319,19 @@ def become_node(request: Mapping[str, Any]) -> None:
 
 
 def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
-    """Answer batches of requests until the goodbye (the zygote exits) or the end of input
-    (returns None); in a forked node process, return its request once the whole batch is
-    forked."""
+    """Answer batches of requests until the goodbye (exits) or the end of input (None); in a
+    forked node process, return its request once its whole batch is forked."""
     for line in requests:
         try:
             batch = json.loads(line)
+            bad = None if isinstance(batch, list) else 'expected a JSON list of requests'
         except ValueError as exc:
             batch, bad = [], f'ValueError: {exc}'
-        else:
-            if batch == BYE:  # the bring-up closes it: it stops its nodes itself
-                sys.exit(0)
-            bad = None if isinstance(batch, list) else 'expected a JSON list of requests'
-        if bad is not None:
-            replies.write(json.dumps([{'error': bad}]).encode() + b'\n')
-            replies.flush()
-            continue
+        if batch == BYE:  # the bring-up closes it: it stops its nodes itself
+            sys.exit(0)
+        results: list[dict[str, Any]] = [] if bad is None else [{'error': bad}]
         gate_r, gate_w = os.pipe()  # its end of file lets the batch run
-        results: list[dict[str, Any]] = []
-        for request in batch:
+        for request in batch if bad is None else []:
             try:
                 pid = fork_node()
             except OSError as exc:
@@ -389,32 +352,28 @@ def serve(requests: IO[bytes], replies: IO[bytes]) -> Mapping[str, Any] | None:
     return None
 
 
+def _running(p: psutil.Process) -> bool:
+    """Running and not a zombie (which holds no lock and no mapping)."""
+    try:
+        return bool(p.is_running() and p.status() != psutil.STATUS_ZOMBIE)
+    except psutil.Error:
+        return False
+
+
 def _running_after(procs: Sequence[psutil.Process], seconds: float) -> list[psutil.Process]:
-    """Those of ``procs`` still running (a zombie holds no lock and no mapping) once all
-    have ended or ``seconds`` have passed."""
-
-    def running(procs: Sequence[psutil.Process]) -> list[psutil.Process]:
-        out = []
-        for p in procs:
-            with contextlib.suppress(psutil.Error):
-                if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
-                    out.append(p)
-        return out
-
+    """Those of ``procs`` still running once all have ended or ``seconds`` have passed."""
     deadline = time.monotonic() + seconds
-    pending = running(procs)
+    pending = [p for p in procs if _running(p)]
     while pending and time.monotonic() < deadline:
         time.sleep(0.05)
-        pending = running(pending)
+        pending = [p for p in pending if _running(p)]
     return pending
 
 
 def orphaned_cleanup(nodes: Sequence[psutil.Process] | None = None) -> None:
-    """The bring-up died without cleaning up and its nodes (default :data:`FORKED`) are
-    stopping on their parent-death signal: give them :data:`ORPHAN_GRACE` s and
-    :data:`~..lifetime.STOP_CPU_PER_PROCESS` per node over the cores (as the bring-up's own
-    stop), SIGKILL the session of each one still running, then remove the Fast DDS shared
-    memory no live process holds, as the bring-up would have at its end."""
+    """The bring-up died and its nodes (default :data:`FORKED`) stop on their parent-death
+    signal: give them :data:`ORPHAN_GRACE` s plus the bring-up's per-process stop time,
+    SIGKILL the session of each one left, then remove the stale Fast DDS shared memory."""
     from ..dds import shm
     from ..lifetime import STOP_CPU_PER_PROCESS
 
@@ -426,30 +385,26 @@ def orphaned_cleanup(nodes: Sequence[psutil.Process] | None = None) -> None:
     _running_after(pending, 5.0)  # the kernel drops a killed node's locks at its exit
     with contextlib.suppress(OSError):
         shm.remove_stale()
-        # a node the dead bring-up had just started, and not yet told us of, ends on its
-        # parent-death signal meanwhile: what it held is free a moment later
+        # a node started just before the bring-up died, and not told of, frees its own later
         time.sleep(ORPHAN_SECOND_LOOK)
         shm.remove_stale()
 
 
 def main() -> None:
-    # Ctrl-C in a terminal is the bring-up's to handle; the zygote ends with its input
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    """Preload, then serve the bring-up; in a forked node process, run the node's main()."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the bring-up's to handle
     requests, replies = sys.stdin.buffer, sys.stdout.buffer
-    entries = node_entry_points()
-    preload(entries)
-    import setproctitle
-
-    # set up here, once, while the environment still lies behind argv (where it finds it)
-    setproctitle.setproctitle(setproctitle.getproctitle())
+    preload(node_entry_points())
     import gc
 
+    import setproctitle
+
+    # set up once, while the environment still lies behind argv (where it finds it)
+    setproctitle.setproctitle(setproctitle.getproctitle())
     gc.collect()
     gc.freeze()  # the preloaded objects stay shared with every node process
     request = serve(requests, replies)
-    if request is None:
-        # the input ended without a goodbye: the bring-up died (SIGKILL) and could stop
-        # nothing (its parent pid cannot tell: the input ends before the reparenting)
+    if request is None:  # no goodbye: the bring-up died and could stop nothing
         orphaned_cleanup()
         return
     become_node(request)
