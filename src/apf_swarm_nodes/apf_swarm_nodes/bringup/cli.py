@@ -65,19 +65,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         '--discovery-range',
         choices=('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF'),
         default='LOCALHOST',
-        help='LOCALHOST (default): nothing from outside this machine reaches the run (a '
-        'Fast DDS profile, DIR/dds/, binds every socket to 127.0.0.1; docs/RELIABILITY.md, '
-        '"Isolation"); SUBNET or SYSTEM_DEFAULT: the run is open to the network, for '
-        'nodes on several hosts (scripts/multihost.py); OFF: no discovery',
+        help='LOCALHOST (default): every socket bound to 127.0.0.1 (DIR/dds/; '
+        'docs/RELIABILITY.md, "Isolation"); SUBNET or SYSTEM_DEFAULT: open to the network, '
+        'for nodes on several hosts (scripts/multihost.py); OFF: no discovery',
     )
     p.add_argument(
         '--secure',
         action='store_true',
-        help='with --discovery-range SUBNET: admit only the hosts of this run. A certificate '
-        'authority for the run, a certificate and key per host (this one, each --node-netns '
-        'namespace, each --secure-host) and their Fast DDS profiles (TCP with TLS only, both '
-        'sides verified) in DIR/dds/; keys removed at the end (docs/RELIABILITY.md, '
-        '"Multi-host runs: threat model")',
+        help='with --discovery-range SUBNET: admit only the hosts of this run (this one, each '
+        '--node-netns namespace, each --secure-host): a per-run authority, TLS both ways, '
+        'files in DIR/dds/, keys removed at the end (docs/RELIABILITY.md, "Multi-host runs: '
+        'threat model")',
     )
     p.add_argument(
         '--secure-host',
@@ -102,9 +100,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         '--secure-pki',
         type=Path,
         metavar='DIR',
-        help='--secure: the authority and host files of an earlier run kept with '
-        '--keep-keys (its DIR/dds/), instead of new ones; each checked (missing, expired, '
-        'mismatched, key readable by others: the bring-up stops, naming the file)',
+        help='--secure: reuse the DIR/dds/ files of an earlier run kept with --keep-keys, '
+        'each checked (a missing, expired, mismatched or exposed file stops the bring-up)',
     )
     p.add_argument(
         '--record', action='store_true', help='also record a rosbag2 (MCAP) with the recorder node'
@@ -180,10 +177,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         '--gains',
         choices=('auto', 'config'),
         default='auto',
-        help='realtime: auto (default) replaces the controller gains by '
-        '`apf-swarm design --control-rate` ones when the sampled-data '
-        "prediction says the configuration's would not hold the formation "
-        'at this size and rate; config flies them as given (warned)',
+        help='realtime: auto (default) replaces the gains by designed ones (`apf-swarm design`) '
+        "when the configuration's are predicted to lose the formation; config flies them",
     )
     p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
     add_view_args(p)
