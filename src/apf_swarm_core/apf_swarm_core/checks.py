@@ -1,15 +1,7 @@
-"""Validation and gain report: which of the paper's conditions hold for a configuration.
-
-Conditions checked (each a :class:`Finding`):
-
-* ``beta >= v_N`` (eq. 10-11): the convergence proof of the kinematic law needs it;
-* existence of the formation: for 3 trackers ``b > a + k_N/(3 k_f)`` (docs/THEORY.md
-  section 2), for any n ``b > a`` (otherwise the pair term never repels);
-* the lower bounds on ``u0`` of Theorem 1 (eq. 29), eq. 37 and eq. 43, printed and corrected,
-  a priori and measured on a run (:mod:`apf_swarm_core.gain_bounds`);
-* numerics: the filter time constant against dt, the switching ripple ``u0 dt / M`` (docs/THEORY.md
-  section 2, fact 4) and the boundary-layer lag ``v_N / (k_N (alpha + beta/gamma))`` (fact 3).
-"""
+"""Which of the paper's conditions hold for a configuration, each a :class:`Finding`:
+``beta >= v_N`` (eq. 10-11), the formation's existence, the u0 bounds of eq. 29, 37 and 43
+(:mod:`apf_swarm_core.gain_bounds`) and the numerics of docs/THEORY.md section 2 (the filter
+against dt, the ripple ``u0 T / M``, the boundary-layer lag)."""
 
 from __future__ import annotations
 
@@ -94,10 +86,9 @@ def _bound_findings(
 def sampled_findings(
     cfg: SwarmConfig, run: dict[str, Any] | None = None, advice: Advice = PLAIN
 ) -> list[Finding]:
-    """The real-time findings: :func:`apf_swarm_core.sampled.predict` at ``cfg.control_rate``
-    and ``cfg.latency`` in words (its warnings as warnings), and, with ``run`` (the emulation
-    at that rate and latency), whether it flew by :data:`~apf_swarm_core.metrics.
-    FLIGHT_CRITERIA`."""
+    """:func:`apf_swarm_core.sampled.predict` at ``cfg.control_rate`` and ``cfg.latency`` in
+    words (its warnings as warnings), and whether ``run``, the emulation there, flew
+    (:func:`apf_swarm_core.metrics.flight`)."""
     from .formation import design_pair_sets
     from .metrics import flight
     from .sampled import predict
@@ -181,12 +172,10 @@ def check_config(
 ) -> CheckReport:
     """Every condition for ``cfg``, in words: what holds, what fails, and what will happen.
 
-    ``run`` (a trajectory with ``t``, ``x``, ``target_x``) adds the u0 bounds measured on it;
-    only those can turn a failed gain bound into a warning, because the a priori estimates of
-    ``J_bar_s`` are far too conservative to decide (they assume worst-case relative speeds).
-    ``realtime``: also the sampled-data prediction at ``cfg.control_rate`` and ``cfg.latency``
-    (:func:`sampled_findings`; ``run`` is then the emulation at that rate). ``advice``: the
-    words of the remedies the warnings propose (a command line's name its commands).
+    ``run`` (a trajectory with ``t``, ``x``, ``target_x``) adds the u0 bounds measured on it,
+    the only ones that can warn (the a priori ones are far too conservative). ``realtime``:
+    also :func:`sampled_findings` (``run`` is then the emulation at that rate). ``advice``:
+    the words of the remedies the warnings propose.
     """
     rep = CheckReport()
 

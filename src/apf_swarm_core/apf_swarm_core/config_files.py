@@ -98,16 +98,12 @@ def load_config(path: str | os.PathLike[str]) -> SwarmConfig:
     base: dict[str, Any] = {}
     overrides: dict[int, dict[str, Any]] = {}
     for section, body in doc.items():
-        if (
-            not isinstance(body, dict)
-            or 'ros__parameters' not in body
-            or not isinstance(body['ros__parameters'], dict)
-        ):
+        params = body.get('ros__parameters') if isinstance(body, dict) else None
+        if not isinstance(params, dict):
             raise ConfigError(
                 f"{path}: section {section!r} must contain a 'ros__parameters:' mapping"
             )
         # sections of other nodes (/plant, /target, ...) carry node-only settings: skipped
-        params = body['ros__parameters']
         m = _UAV_SECTION.match(str(section))
         if str(section) in ('/**', '**'):
             base.update(params)
@@ -127,22 +123,12 @@ def preset_dirs() -> list[Path]:
     parent of this file (the source tree or a symlink install), then the installed
     ``share/apf_swarm_core/config``.
     """
-    dirs: list[Path] = []
-    env = os.environ.get('APF_SWARM_CONFIG_PATH')
-    if env:
-        dirs += [Path(p) for p in env.split(os.pathsep) if p]
-    here = Path(__file__).resolve()
-    for parent in here.parents:
-        cand = parent / 'config'
-        if (cand / 'triangle.yaml').is_file():
-            dirs.append(cand)
-            break
-    for parent in Path(__file__).absolute().parents:
-        cand = parent / 'share' / 'apf_swarm_core' / 'config'
-        if cand.is_dir():
-            dirs.append(cand)
-            break
-    return dirs
+    env = os.environ.get('APF_SWARM_CONFIG_PATH', '')
+    dirs = [Path(p) for p in env.split(os.pathsep) if p]
+    source = (p / 'config' for p in Path(__file__).resolve().parents)
+    share = (p / 'share' / 'apf_swarm_core' / 'config' for p in Path(__file__).absolute().parents)
+    dirs += [d for d in source if (d / 'triangle.yaml').is_file()][:1]
+    return dirs + [d for d in share if d.is_dir()][:1]
 
 
 def preset_names() -> list[str]:

@@ -83,47 +83,39 @@ def key(
 
 
 def _describe(meta: Mapping[str, Any]) -> str:
-    parts = []
-    if meta.get('choices'):
-        parts.append('one of ' + ', '.join(meta['choices']))
+    parts = ['one of ' + ', '.join(meta['choices'])] if meta.get('choices') else []
     lo, hi = meta.get('lo'), meta.get('hi')
-    if lo is not None and hi is not None:
-        parts.append(f'{">" if meta.get("lo_open") else ">="} {lo:g} and <= {hi:g}')
-    elif lo is not None:
-        parts.append(f'{">" if meta.get("lo_open") else ">="} {lo:g}')
+    if lo is not None:
+        upper = f' and <= {hi:g}' if hi is not None else ''
+        parts.append(f'{">" if meta.get("lo_open") else ">="} {lo:g}{upper}')
     elif hi is not None:
         parts.append(f'<= {hi:g}')
-    return ' '.join(parts) if parts else 'any value'
+    return ' '.join(parts) or 'any value'
 
 
 def _check_number(name: str, value: float, meta: Mapping[str, Any]) -> None:
     if not math.isfinite(value):
         raise ConfigError(f'{name} = {value!r}: must be a finite number ({_describe(meta)})')
     lo, hi = meta.get('lo'), meta.get('hi')
-    if lo is not None and (value < lo or (meta.get('lo_open') and value == lo)):
-        raise ConfigError(
-            f'{name} = {value!r}: must be {_describe(meta)}'
-            + (f' [{meta["unit"]}]' if meta.get('unit') else '')
-        )
-    if hi is not None and value > hi:
-        raise ConfigError(f'{name} = {value!r}: must be {_describe(meta)}')
+    below = lo is not None and (value < lo or (meta.get('lo_open') and value == lo))
+    if below or (hi is not None and value > hi):
+        unit = f' [{meta["unit"]}]' if below and meta.get('unit') else ''
+        raise ConfigError(f'{name} = {value!r}: must be {_describe(meta)}{unit}')
 
 
 def _coerce(name: str, value: Any, ftype: Any, meta: Mapping[str, Any]) -> Any:
     """Return ``value`` converted to the field's type, or raise ConfigError naming the key."""
     tname = ftype if isinstance(ftype, str) else getattr(ftype, '__name__', str(ftype))
-    if tname == 'int':
-        if isinstance(value, bool) or not isinstance(value, int):
-            if isinstance(value, float) and value.is_integer():
-                value = int(value)
-            else:
-                raise ConfigError(f'{name} = {value!r}: expected an integer ({_describe(meta)})')
-        _check_number(name, value, meta)
-        return value
-    if tname == 'float':
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f'{name} = {value!r}: expected a number ({_describe(meta)})')
-        value = float(value)
+    if tname in ('int', 'float'):
+        whole = tname == 'int'
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or (whole and isinstance(value, float) and not value.is_integer())
+        ):
+            what = 'an integer' if whole else 'a number'
+            raise ConfigError(f'{name} = {value!r}: expected {what} ({_describe(meta)})')
+        value = int(value) if whole else float(value)
         _check_number(name, value, meta)
         return value
     if tname == 'str':
@@ -185,12 +177,7 @@ def validate(cfg: SwarmConfig) -> None:
             f'target_waypoints has {len(cfg.target_waypoints)} numbers: '
             'expected a flat list x1, y1, z1, x2, ... (a multiple of 3)'
         )
-    if cfg.target_speed == 0.0 and cfg.target_trajectory in (
-        'waypoints',
-        'circle',
-        'helix',
-        'figure_eight',
-    ):
+    if cfg.target_speed == 0.0 and cfg.target_trajectory not in ('straight', 'hover'):
         raise ConfigError(
             f'target_speed = 0 with target_trajectory = {cfg.target_trajectory}: '
             'a moving trajectory needs target_speed > 0 (use hover for a '

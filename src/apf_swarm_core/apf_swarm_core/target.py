@@ -85,10 +85,8 @@ class Trajectory(ABC):
     def state(self, t: Times) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Position [m] and velocity [m/s] at ``t`` [s]: shapes ``np.shape(t) + (3,)``."""
         t = np.asarray(t, dtype=float)
-        v, yaw, pitch = self.heading(t)
-        return np.asarray(self.start, dtype=float) + self.displacement(t), target_velocity(
-            v, yaw, pitch
-        )
+        x = np.asarray(self.start, dtype=float) + self.displacement(t)
+        return x, target_velocity(*self.heading(t))
 
     @property
     def max_speed(self) -> float:
@@ -292,21 +290,14 @@ class BatchTarget:
         self.dt = dt
         self.runs = len(trajectories)
         #: the distinct trajectories, and which one each run flies
-        self.distinct: list[Trajectory] = []
-        self.index = np.empty(self.runs, dtype=int)
-        for r, tr in enumerate(trajectories):
-            if tr not in self.distinct:
-                self.distinct.append(tr)
-            self.index[r] = self.distinct.index(tr)
+        self.distinct: list[Trajectory] = list(dict.fromkeys(trajectories))
+        self.index = np.array([self.distinct.index(tr) for tr in trajectories], dtype=int)
         # every run its own trajectory, in order: index the block directly (no gather)
         self.identity = len(self.distinct) == self.runs
         #: the current block: its first step, positions and velocities
         #: (BLOCK, distinct trajectories, 3)
-        self.block: tuple[int, NDArray[np.float64], NDArray[np.float64]] = (
-            -1,
-            np.empty((0, 0, 3)),
-            np.empty((0, 0, 3)),
-        )
+        self.block: tuple[int, NDArray[np.float64], NDArray[np.float64]]
+        self.block = (-1, np.empty((0, 0, 3)), np.empty((0, 0, 3)))
 
     def state(self, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Target position and velocity of every run at step k, shapes (R, 3)."""
@@ -318,11 +309,9 @@ class BatchTarget:
             pos = np.stack([s[0] for s in states], axis=1)  # (BLOCK, trajectories, 3)
             vel = np.stack([s[1] for s in states], axis=1)
             self.block = (base, pos, vel)
+        p, v = pos[k - base], vel[k - base]
         if self.identity:
-            return pos[k - base], vel[k - base]
+            return p, v
         if len(self.distinct) == 1:  # one trajectory for every run: a read-only view
-            shape = (self.runs, 3)
-            return np.broadcast_to(pos[k - base, 0], shape), np.broadcast_to(
-                vel[k - base, 0], shape
-            )
-        return pos[k - base][self.index], vel[k - base][self.index]
+            return np.broadcast_to(p[0], (self.runs, 3)), np.broadcast_to(v[0], (self.runs, 3))
+        return p[self.index], v[self.index]
