@@ -73,14 +73,10 @@ def gain_bounds(
 
     n, vn = cfg.n_trackers, cfg.target_speed_bound
     lip = cfg.k_n + 2.0 * max(0, n - 1) * cfg.k_f * pair_hessian_bound(cfg.a, cfg.swarm_b())
-    g0 = float(
-        np.linalg.norm(
-            gradient(
-                initial_positions(cfg), np.asarray(cfg.target_start), **cfg.potential_params()
-            ),
-            axis=-1,
-        ).max()
+    grad0 = gradient(
+        initial_positions(cfg), np.asarray(cfg.target_start), **cfg.potential_params()
     )
+    g0 = float(np.linalg.norm(grad0, axis=-1).max())
     if j_bar is None:
         j_bar = cfg.alpha * (lip * (cfg.alpha * g0 + math.sqrt(3.0) * cfg.beta) + cfg.k_n * vn)
     if j_bar_s is None:
@@ -126,16 +122,11 @@ def gain_bounds_from_run(
     target_x: ArrayLike,
     steady_fraction: float | None = None,
 ) -> tuple[list[GainBound], dict[str, float]]:
-    """The u0 bounds with ``J_bar`` and ``J_bar_s`` measured along a run.
-
-    The rate ``||d/dt grad_i J||`` is taken by first differences of the gradient recomputed
-    from the recorded positions. ``J_bar = alpha max rate`` over the samples where tracker i is
-    outside the boundary layer (the regime of eq. 29 / 37), ``J_bar_s = (alpha + beta/gamma)
-    max rate`` over the samples inside it (the regime of eq. 43); a regime never visited gives 0.
-    Only the last ``steady_fraction`` of the run is used (default ``cfg.steady_fraction``): the
-    bounds are the conditions for staying on the manifold once it has been reached, and the
-    reaching transient would otherwise dominate the maximum.
-    """
+    """The u0 bounds with ``J_bar`` and ``J_bar_s`` measured along a run (``t`` (T,) [s],
+    ``x`` (T, n, 3), ``target_x`` (T, 3) [m]) over its last ``steady_fraction`` (default
+    ``cfg.steady_fraction``): with the rate ``||d/dt grad_i J||`` by first differences,
+    ``J_bar = alpha max rate`` outside the boundary layer (eq. 29 / 37), ``J_bar_s = (alpha +
+    beta/gamma) max rate`` inside it (eq. 43); 0 for a regime never visited."""
     frac = cfg.steady_fraction if steady_fraction is None else steady_fraction
     t = np.asarray(t, dtype=float)
     g = gradient(

@@ -91,7 +91,6 @@ class LockstepBarrier:
 
     model: PlantModel
     timeout: float
-    lookahead: int = LOOKAHEAD
     running: bool = False
     done: bool = False
     target_absent: bool = False  # the target missed a deadline; its last state is held
@@ -134,8 +133,8 @@ class LockstepBarrier:
         return out
 
     def take_command(self, c: Command, age: float, now: float) -> tuple[bool, list[Action]]:
-        """A tracker's command arrived (``age``: unused, simulated time): offered to the
-        model, then the step finished if it was the last one missing."""
+        """A tracker's command (``age`` unused): offered to the model, then the step
+        finished if it was the last one missing."""
         ok, out = take_command(self.model, self.running, c, latency=0.0, now=now)
         return ok, (out + self.on_command(now)) if ok else out
 
@@ -148,8 +147,7 @@ class LockstepBarrier:
         )
 
     def on_command(self, now: float) -> list[Action]:
-        """The model accepted a command
-        (:meth:`~apf_swarm_core.plant_model.PlantModel.offer_command`)."""
+        """The model accepted a command (:meth:`PlantModel.offer_command`)."""
         return self._maybe_finish(now)
 
     def tick(self, now: float) -> list[Action]:
@@ -157,17 +155,14 @@ class LockstepBarrier:
         late inputs and go on."""
         if not self.running or self.done or now - self.step_started <= self.timeout:
             return []
-        if not self.republished:
-            self.republished = True
-            return [
-                Action(
-                    'warn',
-                    text=f'step {self.model.k}: inputs {self.late()} late after '
-                    f'{self.timeout:g} s; publishing the step again',
-                ),
-                *self._publish_step(now, again=True),
-            ]
-        return self._maybe_finish(now, force=True)
+        if self.republished:
+            return self._maybe_finish(now, force=True)
+        self.republished = True
+        text = f'step {self.model.k}: inputs {self.late()} late after {self.timeout:g} s; '
+        return [
+            Action('warn', text=text + 'publishing the step again'),
+            *self._publish_step(now, True),
+        ]
 
     # --- what the node reads --------------------------------------------------------------
     def late(self) -> list[str]:
@@ -193,14 +188,14 @@ class LockstepBarrier:
         return out
 
     def _request(self, again: bool) -> list[Action]:
-        """Ask for the target's states up to ``lookahead - 1`` steps ahead once fewer than
+        """Ask for the target's states up to :data:`LOOKAHEAD` - 1 steps ahead once fewer than
         half of that are asked for. ``again`` (step k is late): repeat the last request,
         which the target answers by sending that window once more (step k is in it)."""
         k = self.model.k
-        want = min(k + self.lookahead - 1, self.steps)
+        want = min(k + LOOKAHEAD - 1, self.steps)
         if again and self.requested >= k:
             want = self.requested
-        elif want <= self.requested or self.requested - k >= self.lookahead // 2:
+        elif want <= self.requested or self.requested - k >= LOOKAHEAD // 2:
             return []
         self.requested = want
         return [Action('request', want)]
