@@ -53,14 +53,9 @@ def config_from_mapping(
     overrides: Mapping[int, Mapping[str, Any]] | None = None,
     require_all: bool = True,
 ) -> SwarmConfig:
-    """Build a validated :class:`SwarmConfig` from a flat ``{key: value}`` mapping.
-
-    Raises
-    ------
-    ConfigError
-        For an unknown key, a missing required key (``require_all``), a wrong type or an
-        out-of-range value; the message names the key, the value and what is allowed.
-    """
+    """A validated :class:`SwarmConfig` from a flat ``{key: value}`` mapping; a
+    :class:`ConfigError` names an unknown key, a missing required one (``require_all``), or a
+    wrong type or value and what is allowed."""
     kwargs: dict[str, Any] = {}
     for name, val in params.items():
         if name in _NODE_KEYS or name.startswith('node.'):
@@ -117,12 +112,9 @@ def load_config(path: str | os.PathLike[str]) -> SwarmConfig:
 
 
 def preset_dirs() -> list[Path]:
-    """Directories searched for presets, first match wins.
-
-    ``$APF_SWARM_CONFIG_PATH`` (os.pathsep-separated), then a ``config/`` directory next to a
-    parent of this file (the source tree or a symlink install), then the installed
-    ``share/apf_swarm_core/config``.
-    """
+    """Directories searched for presets, first match wins: ``$APF_SWARM_CONFIG_PATH``
+    (os.pathsep-separated), the source tree's ``config/``, the installed
+    ``share/apf_swarm_core/config``."""
     env = os.environ.get('APF_SWARM_CONFIG_PATH', '')
     dirs = [Path(p) for p in env.split(os.pathsep) if p]
     source = (p / 'config' for p in Path(__file__).resolve().parents)

@@ -1,8 +1,6 @@
-"""The schema of the configuration's keys: how a key of
-:class:`~apf_swarm_core.config.SwarmConfig` is declared (:func:`key`: its default and field
-metadata, which validation and the nodes' parameter descriptors read) and how a
-configuration is held to it (:func:`validate`: types, ranges, choices, rules between keys).
-"""
+"""The schema of the keys of :class:`~apf_swarm_core.config.SwarmConfig`: how a key is
+declared (:func:`key`, the metadata validation and the nodes' parameter descriptors read) and
+how a configuration is held to it (:func:`validate`)."""
 
 from __future__ import annotations
 
@@ -52,19 +50,11 @@ def key(
     required: bool = False,
     read_only: bool = False,
 ) -> Any:
-    """A configuration key: a dataclass field with its default and its metadata.
-
-    Parameters
-    ----------
-    default : the value when a configuration does not set the key (a list or tuple becomes
-        a tuple)
-    help : what the key means
-    unit : its SI unit ('' for none)
-    bounds : the range of a number (of each number of a list), an interval ``'(0, inf)'``,
-        ``'[0, 1]'``, ``'[-90, 90]'`` ('' for any value)
-    choices : the allowed strings; length : the allowed lengths of a list
-    required : a configuration file must set it; read_only : a running node cannot change it
-    """
+    """A configuration key: a dataclass field with its ``default`` (a list becomes a tuple),
+    what it means (``help``), its SI ``unit``, the range of a number or of each number of a
+    list (``bounds``, an interval such as ``'(0, inf)'`` or ``'[0, 1]'``, '' for any), the
+    allowed strings (``choices``) and list lengths (``length``); ``required``: a file must
+    set it, ``read_only``: a running node cannot change it."""
     lo, lo_open, hi = _interval(bounds)
     meta = {
         'unit': unit,

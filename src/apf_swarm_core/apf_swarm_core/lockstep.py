@@ -1,11 +1,7 @@
 """The plant's lockstep barrier without ROS (:class:`LockstepBarrier`): the protocol that
-makes the ROS graph step exactly as the simulator does (docs/ROS.md, "Timing modes"): the
-target's states asked for ahead, step k published once its target state is held, step k + 1
-once every active tracker's command of step k is in; past ``timeout`` step k again, past
-another a missing tracker inactive or the target's last state held.
-
-The barrier takes the events (start, a target state, a command, a clock tick) and returns the
-:class:`Action` list the node carries out in order."""
+makes the ROS graph step exactly as the simulator does (docs/ROS.md, "Timing modes"). It takes
+the events (start, a target state, a command, a clock tick) and returns the :class:`Action`
+list the node carries out in order."""
 
 from __future__ import annotations
 
@@ -37,11 +33,9 @@ Kind = Literal['request', 'swarm_odom', 'step', 'state', 'info', 'warn', 'refuse
 @dataclass(frozen=True)
 class Action:
     """What the node does next: ``request`` the target's states up to ``step``; publish
-    ``swarm_odom`` of ``step`` (the held target state, :attr:`LockstepBarrier.target`);
-    publish ``step`` (``/clock`` and every UAV's odometry of the model's current state);
-    publish the ``state`` sample ``data`` of ``step`` (:meth:`PlantModel.snapshot`);
-    log ``text`` at ``info`` or ``warn``; ``refuse``: an input was refused (counted in the
-    model), ``text`` says why."""
+    ``swarm_odom`` of ``step`` (with :attr:`LockstepBarrier.target`), ``step`` (``/clock``
+    and the odometry of the model's state) or the ``state`` sample ``data`` of ``step``; log
+    ``text`` at ``info`` or ``warn``; ``refuse``: ``text`` says why an input was refused."""
 
     kind: Kind
     step: int = -1
@@ -85,9 +79,11 @@ def target_problem(
 
 @dataclass
 class LockstepBarrier:
-    """The barrier, target look-ahead, deadlines and re-sends of the lockstep plant around a
-    :class:`~apf_swarm_core.plant_model.PlantModel`; times are on the caller's monotonic clock
-    [s]."""
+    """The lockstep plant around a :class:`~apf_swarm_core.plant_model.PlantModel`: the
+    target's states asked for ahead, step k published once its target state is held, step
+    k + 1 once every active tracker's command of step k is in; past ``timeout`` step k again,
+    past another a missing tracker inactive or the target's last state held. Times are on
+    the caller's monotonic clock [s]."""
 
     model: PlantModel
     timeout: float

@@ -107,13 +107,9 @@ def design_hessian_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
 
 
 def effective_spectrum(cfg: SwarmConfig, eigs: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The curvatures the manifold descends, ascending: the Hessian's eigenvalues
-    ``lambda`` (``eigs``) along the gradient (the paper), ``lambda / max(|lambda|, mu)``
-    along the Newton direction (``precondition = newton``,
-    :func:`apf_swarm_core.newton.newton_direction`): 1 for every mode at least as stiff as
-    ``mu``; along the block direction (``precondition = block``,
-    :class:`apf_swarm_core.control.BlockPreconditioner`) the eigenvalues of ``P H`` at the design
-    (:func:`design_block_spectrum`, ``eigs`` unused)."""
+    """The curvatures the manifold descends, ascending, for ``cfg.precondition``: the
+    Hessian's eigenvalues ``lambda`` (``eigs``) along the gradient, ``lambda / max(|lambda|,
+    mu)`` along the Newton direction, :func:`design_block_spectrum` along the block one."""
     eigs = np.asarray(eigs, dtype=float)
     if cfg.precondition == 'block':
         return design_block_spectrum(cfg)
@@ -168,12 +164,10 @@ def loop_modes(cfg: SwarmConfig) -> tuple[NDArray[np.float64], NDArray[np.float6
 def start_residual(
     cfg: SwarmConfig, displacement: NDArray[np.float64], K: float, t: float
 ) -> tuple[float, float]:
-    """What the loop of :func:`loop_modes` leaves at time ``t`` [s] of a start displaced by
-    ``displacement`` (n, 3) [m] from the design: each mode's share of it decays as
-    ``exp(-K rate t)`` (the rotations, rate 0, change no distance and are dropped). Returns
-    the formation error RMS (:func:`~apf_swarm_core.metrics.formation_error`) as a fraction
-    of the design's mean pair distance and the closest pair as a fraction of the design's:
-    the numbers flight judges (docs/THEORY.md, *The start*)."""
+    """What the loop of :func:`loop_modes` leaves at ``t`` [s] of a start displaced by
+    ``displacement`` (n, 3) [m] from the design, each mode decaying as ``exp(-K rate t)``:
+    the formation error RMS over the design's mean pair distance and the closest pair over
+    the design's (docs/THEORY.md, *The start*)."""
     x = design_formation(cfg).relative_positions
     rates, shapes = loop_modes(cfg)
     share = np.linalg.lstsq(shapes, np.asarray(displacement, dtype=float).ravel(), rcond=None)[0]

@@ -1,9 +1,6 @@
 """The realtime plant without ROS (:class:`RealtimePlant`): its physics clock, the target state
 it holds, and the inputs it refuses for their age or order (docs/ROS.md, "Timing modes").
-
-The clock starts once every tracker has commanded, or at ``arm_timeout`` (:meth:`arm`); the
-physics step integrates the steps of dt wall time has advanced with the held commands. Times
-are the node's monotonic clock [s]; what to log comes back as lockstep's
+Times are the node's monotonic clock [s]; what to log comes back as lockstep's
 :class:`~apf_swarm_core.lockstep.Action` (``info``, ``warn``, ``refuse``)."""
 
 from __future__ import annotations
