@@ -183,13 +183,9 @@ def check_config(
         rep.findings.append(Finding(level, code, message))
 
     vn = cfg.target_speed_bound
-    # beta >= v_N
     if cfg.beta >= vn:
-        add(
-            'ok',
-            'beta_vs_vn',
-            f'beta = {cfg.beta:g} >= v_N = {vn:g}: the convergence condition of eq. 10-11 holds.',
-        )
+        msg = f'beta = {cfg.beta:g} >= v_N = {vn:g}: the convergence condition of eq. 10-11 holds.'
+        add('ok', 'beta_vs_vn', msg)
     else:
         add(
             'warning',
@@ -201,55 +197,37 @@ def check_config(
             'a straight target). Raise beta to at least v_N.',
         )
     # formation existence
-    n = cfg.n_trackers
-    if n == 3:
+    n, d = cfg.n_trackers, None
+    level: Level
+    if n < 2:
+        level, msg = 'info', 'one tracker: no formation, it converges onto the target.'
+    elif n == 3:
         d = triangle_spacing(cfg.a, cfg.b, cfg.c, cfg.k_n, cfg.k_f)
         thr = cfg.a + cfg.k_n / (3 * cfg.k_f)
-        if d is None:
-            add(
-                'warning',
-                'formation',
-                f'b = {cfg.b:g} <= a + k_n/(3 k_f) = {thr:g}: no triangle exists. '
-                + (
-                    'With b < a the pair term never repels, so '
-                    if cfg.b < cfg.a
-                    else 'The repulsion is too weak to balance the target attraction, so '
-                )
-                + 'the trackers collapse onto the target and onto each other. Choose '
-                f'b > {thr:g} ({advice.spacing()}).',
-            )
+        if d is not None:
+            level, msg = 'ok', f'the triangle exists with side d = {d:.4g} m '
+            msg += f'(b = {cfg.b:g} > a + k_n/(3 k_f) = {thr:g}).'
         else:
-            add(
-                'ok',
-                'formation',
-                f'the triangle exists with side d = {d:.4g} m '
-                f'(b = {cfg.b:g} > a + k_n/(3 k_f) = {thr:g}).',
+            level = 'warning'
+            msg = f'b = {cfg.b:g} <= a + k_n/(3 k_f) = {thr:g}: no triangle exists. ' + (
+                'With b < a the pair term never repels, so '
+                if cfg.b < cfg.a
+                else 'The repulsion is too weak to balance the target attraction, so '
             )
-    elif n >= 2:
-        d = None if cfg.b <= cfg.a else expected_spacing(n, **cfg.potential_params())
-        if cfg.b <= cfg.a:
-            add(
-                'warning',
-                'formation',
-                f'b = {cfg.b:g} <= a = {cfg.a:g}: the pair term never repels; the trackers '
-                'collapse onto each other.',
-            )
-        elif d is None:
-            add(
-                'warning',
-                'formation',
-                f'no formation of {n} trackers: the equilibrium of J collapses; raise b.',
-            )
-        else:
-            add(
-                'ok',
-                'formation',
-                f'the equilibrium formation of {n} trackers has nearest-neighbour spacing '
-                f'{d:.4g} m.',
-            )
+            msg += 'the trackers collapse onto the target and onto each other. Choose '
+            msg += f'b > {thr:g} ({advice.spacing()}).'
+    elif cfg.b <= cfg.a:
+        level = 'warning'
+        msg = f'b = {cfg.b:g} <= a = {cfg.a:g}: the pair term never repels; the trackers '
+        msg += 'collapse onto each other.'
+    elif (d := expected_spacing(n, **cfg.potential_params())) is not None:
+        level = 'ok'
+        msg = f'the equilibrium formation of {n} trackers has nearest-neighbour spacing {d:.4g} m.'
     else:
-        add('info', 'formation', 'one tracker: no formation, it converges onto the target.')
-    if n >= 2 and d is not None:
+        level = 'warning'
+        msg = f'no formation of {n} trackers: the equilibrium of J collapses; raise b.'
+    add(level, 'formation', msg)
+    if d is not None:
         add(*_start_finding(cfg, d))
     # gain bounds: a priori (conservative, informative only) and measured on a run
     bounds, est = gain_bounds(cfg)
