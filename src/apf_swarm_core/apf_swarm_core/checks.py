@@ -95,49 +95,33 @@ def sampled_findings(
 
     pred = predict(cfg, advice=advice)
     T = pred.control_period
-    out = [
-        Finding(
-            'info',
-            'sampled',
-            (
-                f'real time at {1 / T:g} Hz (T = {T * 1e3:g} ms) with {pred.latency * 1e3:g} ms '
-                f'latency, {cfg.switching} switching: formation loop rate K lambda_max = '
-                f'{pred.layer_gain:.4g} x {pred.hessian_max:.4g} = {pred.formation_rate:.4g} 1/s '
-                f'against {pred.rate_allowed:.4g} 1/s allowed; '
-                f'ripple u0 T / M = {pred.ripple:.3g} '
-                f'm/s; steady lag {pred.steady_lag:.3g} m; {pred.settling()}; predicted to '
-                + ('hold' if pred.holds else 'fail')
-                + '.'
-            ),
-        )
-    ]
+    summary = (
+        f'real time at {1 / T:g} Hz (T = {T * 1e3:g} ms) with {pred.latency * 1e3:g} ms '
+        f'latency, {cfg.switching} switching: formation loop rate K lambda_max = '
+        f'{pred.layer_gain:.4g} x {pred.hessian_max:.4g} = {pred.formation_rate:.4g} 1/s '
+        f'against {pred.rate_allowed:.4g} 1/s allowed; ripple u0 T / M = {pred.ripple:.3g} '
+        f'm/s; steady lag {pred.steady_lag:.3g} m; {pred.settling()}; predicted to '
+        f'{"hold" if pred.holds else "fail"}.'
+    )
+    out = [Finding('info', 'sampled', summary)]
     out += [Finding('warning', 'sampled', w) for w in pred.warnings]
     if run is not None:
         f = flight(run, design_pair_sets(cfg))
         if f['formation_error_rms'] is not None:
             # what the emulation says outranks the linear prediction: a run that does not
             # fly there is a warning, whatever the prediction held
-            out.append(
-                Finding(
-                    'info' if f['flies'] else 'warning',
-                    'emulation',
-                    (
-                        f'the emulation at this rate and latency '
-                        f'{"flies" if f["flies"] else "does not fly"}: '
-                        f'formation error RMS {100 * f["formation_error_rms"]:.2g} % '
-                        'of the mean design '
-                        f"spacing, closest pair {100 * f['closest_pair']:.3g} % of the design's, "
-                        f'centroid error RMS {f["centroid_error_rms"]:.3g} m over the last '
-                        f'{100 * f["window"]:g} %'
-                        + (
-                            '.'
-                            if f['flies']
-                            else f'; fly fewer trackers or at a higher rate, or '
-                            f'{advice.redesign(1.0 / T, pred.latency, cfg.n_trackers)}.'
-                        )
-                    ),
-                )
+            flies = f['flies']
+            msg = (
+                f'the emulation at this rate and latency {"flies" if flies else "does not fly"}: '
+                f'formation error RMS {100 * f["formation_error_rms"]:.2g} % of the mean design '
+                f"spacing, closest pair {100 * f['closest_pair']:.3g} % of the design's, "
+                f'centroid error RMS {f["centroid_error_rms"]:.3g} m over the last '
+                f'{100 * f["window"]:g} %'
             )
+            if not flies:
+                redesign = advice.redesign(1.0 / T, pred.latency, cfg.n_trackers)
+                msg += f'; fly fewer trackers or at a higher rate, or {redesign}'
+            out.append(Finding('info' if flies else 'warning', 'emulation', msg + '.'))
     return out
 
 

@@ -126,15 +126,10 @@ def equilibrium_formations(
 
     found: list[Formation] = []
     iu = np.triu_indices(n, 1)
+    options = {'gtol': 1e-12, 'ftol': 1e-15, 'maxiter': 20000}
     for _ in range(max(1, starts)):
         x0 = rng.normal(scale=scale, size=(n, 3))
-        res = minimize(
-            fun,
-            x0.ravel(),
-            jac=True,
-            method='L-BFGS-B',
-            options={'gtol': 1e-12, 'ftol': 1e-15, 'maxiter': 20000},
-        )
+        res = minimize(fun, x0.ravel(), jac=True, method='L-BFGS-B', options=options)
         x = polish_minimum(res.x.reshape(n, 3), params)
         d = np.sort(np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)[iu])
         g = np.linalg.norm(gradient(x, origin, **params), axis=-1).max()

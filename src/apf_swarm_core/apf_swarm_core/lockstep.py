@@ -222,10 +222,8 @@ class LockstepBarrier:
     def _maybe_finish(self, now: float, force: bool = False) -> list[Action]:
         if not self.running or self.done:
             return []
-        m = self.model
-        k = m.k
-        missing = m.missing(k)
-        target_late = self._target_late()
+        m, k = self.model, self.model.k
+        missing, target_late = m.missing(k), self._target_late()
         if (missing or target_late) and not force:
             return []
         if target_late:
@@ -235,28 +233,22 @@ class LockstepBarrier:
             self.target_absent = True
             self.step_started = now
             self.republished = False
-            return [
-                Action(
-                    'warn',
-                    text=f'step {k}: no target state within 2 x {self.timeout:g} s '
-                    f'({m.missed} missed so far); holding the last one (its age grows in '
-                    '/swarm/odom) and not waiting for the target any more',
-                ),
-                *self._maybe_swarm_odom(),
-            ]
+            text = (
+                f'step {k}: no target state within 2 x {self.timeout:g} s ({m.missed} missed '
+                'so far); holding the last one (its age grows in /swarm/odom) and not waiting '
+                'for the target any more'
+            )
+            return [Action('warn', text=text), *self._maybe_swarm_odom()]
         out: list[Action] = []
         if missing:
             m.missed += len(missing)
             m.deactivate(missing)
-            out.append(
-                Action(
-                    'warn',
-                    text=f'step {k}: no command from '
-                    f'{[f"uav_{i}" for i in missing]} within 2 x {self.timeout:g} s '
-                    f'({m.missed} missed so far): zero force, left out of the '
-                    'neighbour sets, not waited for until they command again',
-                )
+            text = (
+                f'step {k}: no command from {[f"uav_{i}" for i in missing]} within 2 x '
+                f'{self.timeout:g} s ({m.missed} missed so far): zero force, left out of the '
+                'neighbour sets, not waited for until they command again'
             )
+            out.append(Action('warn', text=text))
         # the state of step k goes out after step k + 1: the trackers, which wait for
         # /swarm/odom of k + 1, start while the node computes the metrics of k
         state = Action('state', k, m.snapshot(k, self.target, self.target_age()))
