@@ -175,10 +175,8 @@ class TrackerAgent:
         """Store one aggregated message (every tracker's state and the target's) as a whole:
         if any part would be refused, nothing is stored and it counts as one rejection; so is
         a message of another ``run`` than this tracker's (:attr:`run`, when not 0).
-
-        ``now`` / ``target_time``: when the trackers' and the target's states were produced.
-        Rows of trackers that are not neighbours of this one are ignored.
-        """
+        ``now`` / ``target_time``: when the trackers' and the target's states were produced;
+        rows of trackers that are not neighbours of this one are ignored."""
         if self.run and run != self.run:
             return self._reject(f'/swarm/odom of another run ({run:x}; this run: {self.run:x})')
         seq = step if seq is None else int(seq)
