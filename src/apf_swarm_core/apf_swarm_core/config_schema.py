@@ -190,14 +190,9 @@ def validate(cfg: SwarmConfig) -> None:
                     f'uav_{i} overrides {name!r}: only {", ".join(PER_UAV_KEYS)} can differ '
                     'per UAV'
                 )
-            meta = (
-                {'length': (3,), 'lo': None}
-                if name == 'initial_position'
-                else declared['mass'].metadata
-            )
-            normalized.setdefault(int(i), {})[name] = _coerce(
-                f'uav_{i}.{name}', val, 'tuple', meta
-            )
+            meta = declared['mass'].metadata if name == 'mass' else {'length': (3,)}
+            value = _coerce(f'uav_{i}.{name}', val, 'tuple', meta)
+            normalized.setdefault(int(i), {})[name] = value
     object.__setattr__(cfg, 'uav_overrides', normalized)
     for m_row in cfg.mass_matrix_diag():
         for m in m_row:
