@@ -97,12 +97,7 @@ class RealtimePlant:
         )
 
     def offer_target(
-        self,
-        x: NDArray[np.float64],
-        v: NDArray[np.float64],
-        seq: int,
-        age: float,
-        now: float,
+        self, x: NDArray[np.float64], v: NDArray[np.float64], seq: int, age: float, now: float
     ) -> str | None:
         """Hold the target state (x, v) stamped ``seq`` [ns], ``age`` seconds ago; why it is
         refused (stale, out of order), or None."""
