@@ -39,16 +39,8 @@ def brake_force(v: NDArray[np.float64], *, u0: float, drag: float) -> NDArray[np
 
 @dataclass
 class TrackerAgent:
-    """Inputs and controller of one tracking UAV.
-
-    Parameters
-    ----------
-    cfg : SwarmConfig
-    uav_id : int
-        1-based id of this tracker.
-    neighbour_ids : sequence of int
-        Ids of the other trackers whose odometry enters the potential (default: all others).
-    """
+    """Inputs and controller of one tracking UAV: ``uav_id`` (1-based) of ``cfg``, with the
+    ``neighbour_ids`` whose odometry enters the potential (default: all others)."""
 
     cfg: SwarmConfig
     uav_id: int
@@ -100,11 +92,8 @@ class TrackerAgent:
     RETUNABLE = (*CONTROLLER_GAINS, *POTENTIAL_KEYS, 'b_growth')
 
     def retune(self, cfg: SwarmConfig) -> list[str]:
-        """Take over the gains and potential of ``cfg``; returns the keys that changed.
-
-        The filter state and the held inputs are kept, so the controller continues from
-        where it is. Only :data:`RETUNABLE` keys may differ from the current configuration.
-        """
+        """Take over the gains and potential of ``cfg`` (only :data:`RETUNABLE` keys may
+        differ), keeping the filter state and the held inputs; returns the keys changed."""
         differ = [k for k in KEYS if getattr(cfg, k) != getattr(self.cfg, k)]
         changed = [k for k in self.RETUNABLE if k in differ]
         others = [k for k in differ if k not in self.RETUNABLE]
@@ -126,16 +115,12 @@ class TrackerAgent:
         seq: int | None = None,
         active: bool = True,
     ) -> bool:
-        """Store an input (``source`` = tracker id, 0 = target); False if rejected.
-
-        ``now``: when it was produced, on the caller's clock. ``seq``: order key (default
-        ``step``; realtime: the stamp [ns]); a key smaller than the one held is out of order.
-        ``active``: False when the plant reports this neighbour's tracker silent. Non-finite
-        or out-of-range values, unknown sources and out-of-order inputs are rejected, counted
-        and described in ``last_rejection``. Lockstep inputs are also kept by step (the
-        target publishes ahead); a target state of a step answered or held already is a
-        repeated window: ignored, not refused.
-        """
+        """Store an input (``source`` = tracker id, 0 = target) produced at ``now`` (caller's
+        clock); False if rejected (non-finite or out of range, unknown source, ``seq`` below
+        the one held; counted, ``last_rejection`` says why). ``seq``: order key (default
+        ``step``; realtime: the stamp [ns]); ``active``: False when the plant reports this
+        tracker silent. Lockstep inputs are also kept by step; a target state of a step
+        answered or held already (a repeated window) is ignored, not refused."""
         seq = step if seq is None else int(seq)
         if (
             source == 0
@@ -190,10 +175,8 @@ class TrackerAgent:
         """Store one aggregated message (every tracker's state and the target's) as a whole:
         if any part would be refused, nothing is stored and it counts as one rejection; so is
         a message of another ``run`` than this tracker's (:attr:`run`, when not 0).
-
-        ``now`` / ``target_time``: when the trackers' and the target's states were produced.
-        Rows of trackers that are not neighbours of this one are ignored.
-        """
+        ``now`` / ``target_time``: when the trackers' and the target's states were produced;
+        rows of trackers that are not neighbours of this one are ignored."""
         if self.run and run != self.run:
             return self._reject(f'/swarm/odom of another run ({run:x}; this run: {self.run:x})')
         seq = step if seq is None else int(seq)
@@ -307,18 +290,14 @@ class TrackerAgent:
             act = np.array([r.active for r in rows])
         n_active = int(np.count_nonzero(act))
         row = int(np.count_nonzero(act[: self._own_row]))
-        x = xs if n_active == act.size else xs[act]
-        silent_x = xs[~act]
-        all_v = vs if n_active == act.size else vs[act]
-        own_v = vs[self._own_row]
+        x, all_v = (xs, vs) if n_active == act.size else (xs[act], vs[act])
+        silent_x, own_v = xs[~act], vs[self._own_row]
         rule = self.cfg.neighbour_rule()
         # a limited neighbour set (cfg.neighbours): this row of the simulator's mask
         mask = neighbour_mask(x, **rule, rows=[row]) if rule else None
-        # inactive neighbours leave the formation term and stay as obstacles
-        velocities = None
         if self.predictor is not None:
             self.predictor.horizon = compensation_horizon(self.latency.value)
-            velocities = all_v
+        # inactive neighbours leave the formation term and stay as obstacles
         out = control_step(
             self.controller,
             x,
@@ -331,7 +310,7 @@ class TrackerAgent:
             target_v=src[0].v,
             precondition=self.precondition,
             predictor=self.predictor,
-            velocities=velocities,
+            velocities=None if self.predictor is None else all_v,
         )
         self.neighbours_used = n_active - 1 if mask is None else int(np.count_nonzero(mask))
         self.active_neighbours = n_active - 1
@@ -367,12 +346,10 @@ class TrackerAgent:
 
     def safe_command(self) -> NDArray[np.float64]:
         """:func:`brake_force` from the last own velocity (zero force if none is known)."""
-        own = self._held().get(self.uav_id)
+        own, force = self._held().get(self.uav_id), np.zeros(3)
         if own is not None:
             self.own_velocity = own.v
-        force = (
-            np.zeros(3) if own is None else brake_force(own.v, u0=self.cfg.u0, drag=self.cfg.drag)
-        )
+            force = brake_force(own.v, u0=self.cfg.u0, drag=self.cfg.drag)
         if self.predictor is not None:
             self.predictor.hold(force[None, :])
         return force

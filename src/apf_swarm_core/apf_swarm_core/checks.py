@@ -1,15 +1,7 @@
-"""Validation and gain report: which of the paper's conditions hold for a configuration.
-
-Conditions checked (each a :class:`Finding`):
-
-* ``beta >= v_N`` (eq. 10-11): the convergence proof of the kinematic law needs it;
-* existence of the formation: for 3 trackers ``b > a + k_N/(3 k_f)`` (docs/THEORY.md
-  section 2), for any n ``b > a`` (otherwise the pair term never repels);
-* the lower bounds on ``u0`` of Theorem 1 (eq. 29), eq. 37 and eq. 43, printed and corrected,
-  a priori and measured on a run (:mod:`apf_swarm_core.gain_bounds`);
-* numerics: the filter time constant against dt, the switching ripple ``u0 dt / M`` (docs/THEORY.md
-  section 2, fact 4) and the boundary-layer lag ``v_N / (k_N (alpha + beta/gamma))`` (fact 3).
-"""
+"""Which of the paper's conditions hold for a configuration, each a :class:`Finding`:
+``beta >= v_N`` (eq. 10-11), the formation's existence, the u0 bounds of eq. 29, 37 and 43
+(:mod:`apf_swarm_core.gain_bounds`) and the numerics of docs/THEORY.md section 2 (the filter
+against dt, the ripple ``u0 T / M``, the boundary-layer lag)."""
 
 from __future__ import annotations
 
@@ -94,59 +86,42 @@ def _bound_findings(
 def sampled_findings(
     cfg: SwarmConfig, run: dict[str, Any] | None = None, advice: Advice = PLAIN
 ) -> list[Finding]:
-    """The real-time findings: :func:`apf_swarm_core.sampled.predict` at ``cfg.control_rate``
-    and ``cfg.latency`` in words (its warnings as warnings), and, with ``run`` (the emulation
-    at that rate and latency), whether it flew by :data:`~apf_swarm_core.metrics.
-    FLIGHT_CRITERIA`."""
+    """:func:`apf_swarm_core.sampled.predict` at ``cfg.control_rate`` and ``cfg.latency`` in
+    words (its warnings as warnings), and whether ``run``, the emulation there, flew
+    (:func:`apf_swarm_core.metrics.flight`)."""
     from .formation import design_pair_sets
     from .metrics import flight
     from .sampled import predict
 
     pred = predict(cfg, advice=advice)
     T = pred.control_period
-    out = [
-        Finding(
-            'info',
-            'sampled',
-            (
-                f'real time at {1 / T:g} Hz (T = {T * 1e3:g} ms) with {pred.latency * 1e3:g} ms '
-                f'latency, {cfg.switching} switching: formation loop rate K lambda_max = '
-                f'{pred.layer_gain:.4g} x {pred.hessian_max:.4g} = {pred.formation_rate:.4g} 1/s '
-                f'against {pred.rate_allowed:.4g} 1/s allowed; '
-                f'ripple u0 T / M = {pred.ripple:.3g} '
-                f'm/s; steady lag {pred.steady_lag:.3g} m; {pred.settling()}; predicted to '
-                + ('hold' if pred.holds else 'fail')
-                + '.'
-            ),
-        )
-    ]
+    summary = (
+        f'real time at {1 / T:g} Hz (T = {T * 1e3:g} ms) with {pred.latency * 1e3:g} ms '
+        f'latency, {cfg.switching} switching: formation loop rate K lambda_max = '
+        f'{pred.layer_gain:.4g} x {pred.hessian_max:.4g} = {pred.formation_rate:.4g} 1/s '
+        f'against {pred.rate_allowed:.4g} 1/s allowed; ripple u0 T / M = {pred.ripple:.3g} '
+        f'm/s; steady lag {pred.steady_lag:.3g} m; {pred.settling()}; predicted to '
+        f'{"hold" if pred.holds else "fail"}.'
+    )
+    out = [Finding('info', 'sampled', summary)]
     out += [Finding('warning', 'sampled', w) for w in pred.warnings]
     if run is not None:
         f = flight(run, design_pair_sets(cfg))
         if f['formation_error_rms'] is not None:
             # what the emulation says outranks the linear prediction: a run that does not
             # fly there is a warning, whatever the prediction held
-            out.append(
-                Finding(
-                    'info' if f['flies'] else 'warning',
-                    'emulation',
-                    (
-                        f'the emulation at this rate and latency '
-                        f'{"flies" if f["flies"] else "does not fly"}: '
-                        f'formation error RMS {100 * f["formation_error_rms"]:.2g} % '
-                        'of the mean design '
-                        f"spacing, closest pair {100 * f['closest_pair']:.3g} % of the design's, "
-                        f'centroid error RMS {f["centroid_error_rms"]:.3g} m over the last '
-                        f'{100 * f["window"]:g} %'
-                        + (
-                            '.'
-                            if f['flies']
-                            else f'; fly fewer trackers or at a higher rate, or '
-                            f'{advice.redesign(1.0 / T, pred.latency, cfg.n_trackers)}.'
-                        )
-                    ),
-                )
+            flies = f['flies']
+            msg = (
+                f'the emulation at this rate and latency {"flies" if flies else "does not fly"}: '
+                f'formation error RMS {100 * f["formation_error_rms"]:.2g} % of the mean design '
+                f"spacing, closest pair {100 * f['closest_pair']:.3g} % of the design's, "
+                f'centroid error RMS {f["centroid_error_rms"]:.3g} m over the last '
+                f'{100 * f["window"]:g} %'
             )
+            if not flies:
+                redesign = advice.redesign(1.0 / T, pred.latency, cfg.n_trackers)
+                msg += f'; fly fewer trackers or at a higher rate, or {redesign}'
+            out.append(Finding('info' if flies else 'warning', 'emulation', msg + '.'))
     return out
 
 
@@ -181,12 +156,10 @@ def check_config(
 ) -> CheckReport:
     """Every condition for ``cfg``, in words: what holds, what fails, and what will happen.
 
-    ``run`` (a trajectory with ``t``, ``x``, ``target_x``) adds the u0 bounds measured on it;
-    only those can turn a failed gain bound into a warning, because the a priori estimates of
-    ``J_bar_s`` are far too conservative to decide (they assume worst-case relative speeds).
-    ``realtime``: also the sampled-data prediction at ``cfg.control_rate`` and ``cfg.latency``
-    (:func:`sampled_findings`; ``run`` is then the emulation at that rate). ``advice``: the
-    words of the remedies the warnings propose (a command line's name its commands).
+    ``run`` (a trajectory with ``t``, ``x``, ``target_x``) adds the u0 bounds measured on it,
+    the only ones that can warn (the a priori ones are far too conservative). ``realtime``:
+    also :func:`sampled_findings` (``run`` is then the emulation at that rate). ``advice``:
+    the words of the remedies the warnings propose.
     """
     rep = CheckReport()
 
@@ -194,13 +167,9 @@ def check_config(
         rep.findings.append(Finding(level, code, message))
 
     vn = cfg.target_speed_bound
-    # beta >= v_N
     if cfg.beta >= vn:
-        add(
-            'ok',
-            'beta_vs_vn',
-            f'beta = {cfg.beta:g} >= v_N = {vn:g}: the convergence condition of eq. 10-11 holds.',
-        )
+        msg = f'beta = {cfg.beta:g} >= v_N = {vn:g}: the convergence condition of eq. 10-11 holds.'
+        add('ok', 'beta_vs_vn', msg)
     else:
         add(
             'warning',
@@ -212,55 +181,37 @@ def check_config(
             'a straight target). Raise beta to at least v_N.',
         )
     # formation existence
-    n = cfg.n_trackers
-    if n == 3:
+    n, d = cfg.n_trackers, None
+    level: Level
+    if n < 2:
+        level, msg = 'info', 'one tracker: no formation, it converges onto the target.'
+    elif n == 3:
         d = triangle_spacing(cfg.a, cfg.b, cfg.c, cfg.k_n, cfg.k_f)
         thr = cfg.a + cfg.k_n / (3 * cfg.k_f)
-        if d is None:
-            add(
-                'warning',
-                'formation',
-                f'b = {cfg.b:g} <= a + k_n/(3 k_f) = {thr:g}: no triangle exists. '
-                + (
-                    'With b < a the pair term never repels, so '
-                    if cfg.b < cfg.a
-                    else 'The repulsion is too weak to balance the target attraction, so '
-                )
-                + 'the trackers collapse onto the target and onto each other. Choose '
-                f'b > {thr:g} ({advice.spacing()}).',
-            )
+        if d is not None:
+            level, msg = 'ok', f'the triangle exists with side d = {d:.4g} m '
+            msg += f'(b = {cfg.b:g} > a + k_n/(3 k_f) = {thr:g}).'
         else:
-            add(
-                'ok',
-                'formation',
-                f'the triangle exists with side d = {d:.4g} m '
-                f'(b = {cfg.b:g} > a + k_n/(3 k_f) = {thr:g}).',
+            level = 'warning'
+            msg = f'b = {cfg.b:g} <= a + k_n/(3 k_f) = {thr:g}: no triangle exists. ' + (
+                'With b < a the pair term never repels, so '
+                if cfg.b < cfg.a
+                else 'The repulsion is too weak to balance the target attraction, so '
             )
-    elif n >= 2:
-        d = None if cfg.b <= cfg.a else expected_spacing(n, **cfg.potential_params())
-        if cfg.b <= cfg.a:
-            add(
-                'warning',
-                'formation',
-                f'b = {cfg.b:g} <= a = {cfg.a:g}: the pair term never repels; the trackers '
-                'collapse onto each other.',
-            )
-        elif d is None:
-            add(
-                'warning',
-                'formation',
-                f'no formation of {n} trackers: the equilibrium of J collapses; raise b.',
-            )
-        else:
-            add(
-                'ok',
-                'formation',
-                f'the equilibrium formation of {n} trackers has nearest-neighbour spacing '
-                f'{d:.4g} m.',
-            )
+            msg += 'the trackers collapse onto the target and onto each other. Choose '
+            msg += f'b > {thr:g} ({advice.spacing()}).'
+    elif cfg.b <= cfg.a:
+        level = 'warning'
+        msg = f'b = {cfg.b:g} <= a = {cfg.a:g}: the pair term never repels; the trackers '
+        msg += 'collapse onto each other.'
+    elif (d := expected_spacing(n, **cfg.potential_params())) is not None:
+        level = 'ok'
+        msg = f'the equilibrium formation of {n} trackers has nearest-neighbour spacing {d:.4g} m.'
     else:
-        add('info', 'formation', 'one tracker: no formation, it converges onto the target.')
-    if n >= 2 and d is not None:
+        level = 'warning'
+        msg = f'no formation of {n} trackers: the equilibrium of J collapses; raise b.'
+    add(level, 'formation', msg)
+    if d is not None:
         add(*_start_finding(cfg, d))
     # gain bounds: a priori (conservative, informative only) and measured on a run
     bounds, est = gain_bounds(cfg)

@@ -20,13 +20,10 @@ NEVER = 2**40
 
 
 def answers(t: ArrayLike, held: ArrayLike) -> NDArray[np.float64]:
-    """Each tracker's delay for each published state, from a realtime run's record: ``t``
-    (m,) [s] the publications, ``held`` (m, n) [s] the age of each tracker's held command
-    when each was published (``command_latency`` of the plant's trajectory), so that a
-    command arrived in (t[r-1], t[r]] and answered the state published ``held[r]`` before
-    its arrival. Returns (m, n) [s]: the delay of the answer to each state, ``inf`` for a
-    state the tracker never answered (it skipped it), for :class:`CommandHold` to replay.
-    """
+    """Each tracker's delay (m, n) [s] for each published state, ``inf`` for one it never
+    answered, from a realtime run's record: ``t`` (m,) [s] the publications and ``held``
+    (m, n) [s] the age of each tracker's held command at each (``command_latency``), for
+    :class:`CommandHold` to replay."""
     t = np.asarray(t, dtype=float)
     held = np.asarray(held, dtype=float)
     out = np.full(held.shape, np.inf)
@@ -40,23 +37,16 @@ def answers(t: ArrayLike, held: ArrayLike) -> NDArray[np.float64]:
 
 
 class CommandHold:
-    """Which command each UAV holds at each step.
+    """Which command each UAV of ``shape`` (R runs, n trackers) holds at each step.
 
-    :meth:`submit` hands over the commands of step k; each tracker's takes effect at step
-    ``k + d``, d its delay rounded to steps of dt: a fixed ``latency``; a draw from
+    The commands of step k (:meth:`submit`) take effect at step ``k + d``, d the delay [s]
+    rounded to steps of ``dt``: a fixed ``latency`` (float or (R,)); a draw (``rng``) from
     ``latency_samples`` (k,) per tracker and submission; or with ``latency_samples`` (m, n)
-    row ``c mod m`` for the c-th submission (a run's own delays replayed in order, their
-    correlations kept). Until then the UAV keeps its held command (zero before the first);
-    one that arrives after a newer one is dropped. With ``stale_after``, as
+    row ``c mod m`` for the c-th submission (a run's delays replayed in order). Until then
+    the UAV keeps its held command (zero before the first); one that arrives after a newer
+    one is dropped. With ``stale_after`` [s], as
     :meth:`~apf_swarm_core.plant_model.PlantModel.expire` does, a UAV whose command answers a
     state older than the newest one submitted ``stale_after`` ago gets zero force.
-
-    Parameters
-    ----------
-    shape : (R, n): runs and trackers.
-    latency : float or array (R,) [s]; dt : float [s]
-    latency_samples : array (k,) or (m, n) [s], optional; rng : numpy Generator for them
-    stale_after : float [s], optional
     """
 
     def __init__(

@@ -19,13 +19,7 @@ from .plant import NOISE_KINDS
 from .potential import PotentialParams
 from .target import TRAJECTORIES, Trajectory, make_trajectory
 
-__all__ = [
-    'DEFAULT_LATENCY',
-    'KEYS',
-    'REALTIME_RATE',
-    'REQUIRED_KEYS',
-    'SwarmConfig',
-]
+__all__ = ['DEFAULT_LATENCY', 'KEYS', 'REALTIME_RATE', 'REQUIRED_KEYS', 'SwarmConfig']
 
 #: realtime rate of the plant's publications and the trackers' control [Hz] when
 #: ``control_rate`` is 0
@@ -58,9 +52,8 @@ class SwarmConfig:
     b: float = key(6.0, 'repulsion gain of eq. 44', '', NON_NEGATIVE, required=True)
     b_growth: float = key(
         0.0,
-        'the repulsion gain grows with the swarm: eq. 44 uses b (n/3)^b_growth for n > 3 '
-        'trackers (0: b for every size, the paper); with a fixed b the all-to-all attraction '
-        'squeezes a large swarm onto a sphere whose arrangement J barely sets (not in the paper)',
+        'eq. 44 uses b (n/3)^b_growth for n > 3 trackers (0: b for every size, the paper; '
+        'docs/THEORY.md, "Large swarms")',
         '',
         NON_NEGATIVE,
     )
@@ -90,8 +83,8 @@ class SwarmConfig:
     u0: float = key(125.0, 'switching force gain of eq. 24', 'N', POSITIVE, required=True)
     switching: str = key(
         'sign',
-        'switching force of eq. 24: sign (the paper) or layer, -u0 sat(s/phi) with a '
-        'continuous boundary layer (Slotine & Li; not in the paper, for sampled control)',
+        'switching force of eq. 24: sign (the paper) or layer, -u0 sat(s/phi) (Slotine & '
+        'Li; not in the paper, for sampled control)',
         choices=SWITCHINGS,
     )
     phi: float = key(
@@ -99,18 +92,16 @@ class SwarmConfig:
     )
     feedforward: float = key(
         0.0,
-        'weight of the target velocity in the sliding surface, s = v - w v_N + ... (0: the '
-        'paper; 1 removes the lag of a moving target; not in the paper)',
+        'weight w of the target velocity in the sliding surface, s = v - w v_N + ... (0: '
+        'the paper; 1 removes the lag of a moving target)',
         '',
         '[0, 1]',
     )
     precondition: str = key(
         'none',
-        'direction the manifold descends: none, the gradient of J (the paper); newton, the '
-        'saddle-free Newton direction |H|_mu^-1 grad J, which descends every mode of J at '
-        'one rate (O(n^3) per command); block, each tracker its own gradient row scaled by '
-        'its own 3x3 Hessian block, the centroid apart (O(n) per tracker); neither is in the '
-        'paper, both are for large swarms under sampling',
+        'direction the manifold descends: none, the gradient of J (the paper); newton, '
+        '|H|_mu^-1 grad J (O(n^3) per command); block, each gradient row scaled by its own '
+        '3x3 Hessian block, the centroid apart (O(n) per tracker; both not in the paper)',
         choices=('none', 'newton', 'block'),
     )
     newton_mu: float = key(
@@ -130,17 +121,15 @@ class SwarmConfig:
     newton_trust: float = key(
         0.0,
         'precondition = newton or block: trust radius of the step (newton: RMS per tracker; '
-        'block: each tracker, apart from the centroid); where the '
-        'step would be longer the curvature floor rises above newton_mu (0: the floor is '
-        'newton_mu)',
+        'block: each tracker, apart from the centroid), above which the curvature floor '
+        'rises above newton_mu (0: none)',
         'm',
         NON_NEGATIVE,
     )
     compensation: str = key(
         'none',
         'sampled control (control_rate > 0): none, or predict, the state predicted forward '
-        'by the latency (the age it has when its command reaches the plant), with each '
-        "tracker's own held command (not in the paper)",
+        "by the latency with each tracker's own held command (not in the paper)",
         choices=COMPENSATIONS,
     )
     epsilon: float = key(1.0, 'reaching margin of Theorem 1 / eq. 37', 'm/s^2', POSITIVE)
@@ -201,9 +190,8 @@ class SwarmConfig:
     init_layout: str = key(
         'ball',
         "how the trackers start: ball, uniform in the init_spread ball (the paper's); "
-        'formation, in the shape of the design formation (the lowest minimum of J) at '
-        '0.7 of its size, turned at random by the seed, so that they settle in it and not in '
-        "a higher minimum (not in the paper; 3 or fewer trackers: the paper's ball)",
+        'formation, the design formation at 0.7 of its size turned at random by the seed '
+        "(not in the paper; 3 or fewer trackers: the paper's ball)",
         choices=('ball', 'formation'),
     )
     init_separation: float = key(
@@ -321,13 +309,9 @@ class SwarmConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of every key (tuples as lists), for JSON and YAML."""
-        out: dict[str, Any] = {}
-        for f in fields(self):
-            val = getattr(self, f.name)
-            if f.name == 'uav_overrides':
-                out[f.name] = {int(k): dict(v) for k, v in val.items()}
-            else:
-                out[f.name] = list(val) if isinstance(val, tuple) else val
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out = {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
+        out['uav_overrides'] = {int(k): dict(v) for k, v in self.uav_overrides.items()}
         return out
 
 

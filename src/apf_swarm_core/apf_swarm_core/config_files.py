@@ -53,14 +53,9 @@ def config_from_mapping(
     overrides: Mapping[int, Mapping[str, Any]] | None = None,
     require_all: bool = True,
 ) -> SwarmConfig:
-    """Build a validated :class:`SwarmConfig` from a flat ``{key: value}`` mapping.
-
-    Raises
-    ------
-    ConfigError
-        For an unknown key, a missing required key (``require_all``), a wrong type or an
-        out-of-range value; the message names the key, the value and what is allowed.
-    """
+    """A validated :class:`SwarmConfig` from a flat ``{key: value}`` mapping; a
+    :class:`ConfigError` names an unknown key, a missing required one (``require_all``), or a
+    wrong type or value and what is allowed."""
     kwargs: dict[str, Any] = {}
     for name, val in params.items():
         if name in _NODE_KEYS or name.startswith('node.'):
@@ -98,16 +93,12 @@ def load_config(path: str | os.PathLike[str]) -> SwarmConfig:
     base: dict[str, Any] = {}
     overrides: dict[int, dict[str, Any]] = {}
     for section, body in doc.items():
-        if (
-            not isinstance(body, dict)
-            or 'ros__parameters' not in body
-            or not isinstance(body['ros__parameters'], dict)
-        ):
+        params = body.get('ros__parameters') if isinstance(body, dict) else None
+        if not isinstance(params, dict):
             raise ConfigError(
                 f"{path}: section {section!r} must contain a 'ros__parameters:' mapping"
             )
         # sections of other nodes (/plant, /target, ...) carry node-only settings: skipped
-        params = body['ros__parameters']
         m = _UAV_SECTION.match(str(section))
         if str(section) in ('/**', '**'):
             base.update(params)
@@ -121,28 +112,15 @@ def load_config(path: str | os.PathLike[str]) -> SwarmConfig:
 
 
 def preset_dirs() -> list[Path]:
-    """Directories searched for presets, first match wins.
-
-    ``$APF_SWARM_CONFIG_PATH`` (os.pathsep-separated), then a ``config/`` directory next to a
-    parent of this file (the source tree or a symlink install), then the installed
-    ``share/apf_swarm_core/config``.
-    """
-    dirs: list[Path] = []
-    env = os.environ.get('APF_SWARM_CONFIG_PATH')
-    if env:
-        dirs += [Path(p) for p in env.split(os.pathsep) if p]
-    here = Path(__file__).resolve()
-    for parent in here.parents:
-        cand = parent / 'config'
-        if (cand / 'triangle.yaml').is_file():
-            dirs.append(cand)
-            break
-    for parent in Path(__file__).absolute().parents:
-        cand = parent / 'share' / 'apf_swarm_core' / 'config'
-        if cand.is_dir():
-            dirs.append(cand)
-            break
-    return dirs
+    """Directories searched for presets, first match wins: ``$APF_SWARM_CONFIG_PATH``
+    (os.pathsep-separated), the source tree's ``config/``, the installed
+    ``share/apf_swarm_core/config``."""
+    env = os.environ.get('APF_SWARM_CONFIG_PATH', '')
+    dirs = [Path(p) for p in env.split(os.pathsep) if p]
+    source = (p / 'config' for p in Path(__file__).resolve().parents)
+    share = (p / 'share' / 'apf_swarm_core' / 'config' for p in Path(__file__).absolute().parents)
+    dirs += [d for d in source if (d / 'triangle.yaml').is_file()][:1]
+    return dirs + [d for d in share if d.is_dir()][:1]
 
 
 def preset_names() -> list[str]:

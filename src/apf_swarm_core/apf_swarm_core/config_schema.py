@@ -1,8 +1,6 @@
-"""The schema of the configuration's keys: how a key of
-:class:`~apf_swarm_core.config.SwarmConfig` is declared (:func:`key`: its default and field
-metadata, which validation and the nodes' parameter descriptors read) and how a
-configuration is held to it (:func:`validate`: types, ranges, choices, rules between keys).
-"""
+"""The schema of the keys of :class:`~apf_swarm_core.config.SwarmConfig`: how a key is
+declared (:func:`key`, the metadata validation and the nodes' parameter descriptors read) and
+how a configuration is held to it (:func:`validate`)."""
 
 from __future__ import annotations
 
@@ -52,19 +50,11 @@ def key(
     required: bool = False,
     read_only: bool = False,
 ) -> Any:
-    """A configuration key: a dataclass field with its default and its metadata.
-
-    Parameters
-    ----------
-    default : the value when a configuration does not set the key (a list or tuple becomes
-        a tuple)
-    help : what the key means
-    unit : its SI unit ('' for none)
-    bounds : the range of a number (of each number of a list), an interval ``'(0, inf)'``,
-        ``'[0, 1]'``, ``'[-90, 90]'`` ('' for any value)
-    choices : the allowed strings; length : the allowed lengths of a list
-    required : a configuration file must set it; read_only : a running node cannot change it
-    """
+    """A configuration key: a dataclass field with its ``default`` (a list becomes a tuple),
+    what it means (``help``), its SI ``unit``, the range of a number or of each number of a
+    list (``bounds``, an interval such as ``'(0, inf)'`` or ``'[0, 1]'``, '' for any), the
+    allowed strings (``choices``) and list lengths (``length``); ``required``: a file must
+    set it, ``read_only``: a running node cannot change it."""
     lo, lo_open, hi = _interval(bounds)
     meta = {
         'unit': unit,
@@ -83,47 +73,39 @@ def key(
 
 
 def _describe(meta: Mapping[str, Any]) -> str:
-    parts = []
-    if meta.get('choices'):
-        parts.append('one of ' + ', '.join(meta['choices']))
+    parts = ['one of ' + ', '.join(meta['choices'])] if meta.get('choices') else []
     lo, hi = meta.get('lo'), meta.get('hi')
-    if lo is not None and hi is not None:
-        parts.append(f'{">" if meta.get("lo_open") else ">="} {lo:g} and <= {hi:g}')
-    elif lo is not None:
-        parts.append(f'{">" if meta.get("lo_open") else ">="} {lo:g}')
+    if lo is not None:
+        upper = f' and <= {hi:g}' if hi is not None else ''
+        parts.append(f'{">" if meta.get("lo_open") else ">="} {lo:g}{upper}')
     elif hi is not None:
         parts.append(f'<= {hi:g}')
-    return ' '.join(parts) if parts else 'any value'
+    return ' '.join(parts) or 'any value'
 
 
 def _check_number(name: str, value: float, meta: Mapping[str, Any]) -> None:
     if not math.isfinite(value):
         raise ConfigError(f'{name} = {value!r}: must be a finite number ({_describe(meta)})')
     lo, hi = meta.get('lo'), meta.get('hi')
-    if lo is not None and (value < lo or (meta.get('lo_open') and value == lo)):
-        raise ConfigError(
-            f'{name} = {value!r}: must be {_describe(meta)}'
-            + (f' [{meta["unit"]}]' if meta.get('unit') else '')
-        )
-    if hi is not None and value > hi:
-        raise ConfigError(f'{name} = {value!r}: must be {_describe(meta)}')
+    below = lo is not None and (value < lo or (meta.get('lo_open') and value == lo))
+    if below or (hi is not None and value > hi):
+        unit = f' [{meta["unit"]}]' if below and meta.get('unit') else ''
+        raise ConfigError(f'{name} = {value!r}: must be {_describe(meta)}{unit}')
 
 
 def _coerce(name: str, value: Any, ftype: Any, meta: Mapping[str, Any]) -> Any:
     """Return ``value`` converted to the field's type, or raise ConfigError naming the key."""
     tname = ftype if isinstance(ftype, str) else getattr(ftype, '__name__', str(ftype))
-    if tname == 'int':
-        if isinstance(value, bool) or not isinstance(value, int):
-            if isinstance(value, float) and value.is_integer():
-                value = int(value)
-            else:
-                raise ConfigError(f'{name} = {value!r}: expected an integer ({_describe(meta)})')
-        _check_number(name, value, meta)
-        return value
-    if tname == 'float':
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f'{name} = {value!r}: expected a number ({_describe(meta)})')
-        value = float(value)
+    if tname in ('int', 'float'):
+        whole = tname == 'int'
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or (whole and isinstance(value, float) and not value.is_integer())
+        ):
+            what = 'an integer' if whole else 'a number'
+            raise ConfigError(f'{name} = {value!r}: expected {what} ({_describe(meta)})')
+        value = int(value) if whole else float(value)
         _check_number(name, value, meta)
         return value
     if tname == 'str':
@@ -185,12 +167,7 @@ def validate(cfg: SwarmConfig) -> None:
             f'target_waypoints has {len(cfg.target_waypoints)} numbers: '
             'expected a flat list x1, y1, z1, x2, ... (a multiple of 3)'
         )
-    if cfg.target_speed == 0.0 and cfg.target_trajectory in (
-        'waypoints',
-        'circle',
-        'helix',
-        'figure_eight',
-    ):
+    if cfg.target_speed == 0.0 and cfg.target_trajectory not in ('straight', 'hover'):
         raise ConfigError(
             f'target_speed = 0 with target_trajectory = {cfg.target_trajectory}: '
             'a moving trajectory needs target_speed > 0 (use hover for a '
@@ -213,14 +190,9 @@ def validate(cfg: SwarmConfig) -> None:
                     f'uav_{i} overrides {name!r}: only {", ".join(PER_UAV_KEYS)} can differ '
                     'per UAV'
                 )
-            meta = (
-                {'length': (3,), 'lo': None}
-                if name == 'initial_position'
-                else declared['mass'].metadata
-            )
-            normalized.setdefault(int(i), {})[name] = _coerce(
-                f'uav_{i}.{name}', val, 'tuple', meta
-            )
+            meta = declared['mass'].metadata if name == 'mass' else {'length': (3,)}
+            value = _coerce(f'uav_{i}.{name}', val, 'tuple', meta)
+            normalized.setdefault(int(i), {})[name] = value
     object.__setattr__(cfg, 'uav_overrides', normalized)
     for m_row in cfg.mass_matrix_diag():
         for m in m_row:

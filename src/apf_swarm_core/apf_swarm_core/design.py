@@ -42,12 +42,9 @@ def _triangle_threshold(a: float, k_n: float, k_f: float) -> float:
 def triangle_spacing(
     a: float, b: float, c: float, k_n: float = 1.0, k_f: float = 1.0
 ) -> float | None:
-    """Side d [m] of the equilateral equilibrium of 3 trackers centred on the target.
-
-    ``d = sqrt(c ln(b / (a + k_N/(3 k_f))))`` (docs/THEORY.md section 2); ``None`` when
-    ``b <= a + k_N/(3 k_f)``, where no such formation exists and the trackers collapse onto
-    the target.
-    """
+    """Side ``d = sqrt(c ln(b / (a + k_N/(3 k_f))))`` [m] of the equilateral equilibrium of 3
+    trackers centred on the target (docs/THEORY.md section 2); ``None`` when b is not above
+    ``a + k_N/(3 k_f)`` (the trackers collapse)."""
     thr = _triangle_threshold(a, k_n, k_f)
     if b <= thr:
         return None
@@ -98,13 +95,9 @@ class Formation:
 def equilibrium_formation(
     n: int, *, starts: int = 8, seed: int = 0, **gains: Unpack[Gains[float]]
 ) -> Formation:
-    """Equilibrium formation of n trackers around a target at the origin, minimizing J.
-
-    Runs L-BFGS (scipy) with the analytic gradient of eq. 44 from ``starts`` random initial
-    shapes and keeps the lowest J. Rotations of the result are equilibria too. Gains
-    ``k_n, k_f, a, b, c`` as keywords (default
-    :data:`~apf_swarm_core.potential.POTENTIAL_DEFAULTS`).
-    """
+    """The lowest of :func:`equilibrium_formations`: the equilibrium of n trackers around a
+    target at the origin (its rotations are equilibria too). Gains ``k_n, k_f, a, b, c`` as
+    keywords (default :data:`~apf_swarm_core.potential.POTENTIAL_DEFAULTS`)."""
     return equilibrium_formations(n, starts=starts, seed=seed, **gains)[0]
 
 
@@ -116,10 +109,9 @@ def equilibrium_formations(
     tolerance: float = 1e-6,
     **gains: Unpack[Gains[float]],
 ) -> list[Formation]:
-    """The distinct minima of J whose potential is within ``tolerance`` (relative) of the
-    lowest found from ``starts`` random shapes, lowest first: a larger swarm settles in any
-    of them (docs/THEORY.md, section 4). Gains as for :func:`equilibrium_formation`.
-    """
+    """The distinct minima of J (L-BFGS with the gradient of eq. 44 from ``starts`` random
+    shapes, each :func:`polish_minimum`-ed) within ``tolerance`` (relative) of the lowest,
+    lowest first (docs/THEORY.md, section 4). Gains as for :func:`equilibrium_formation`."""
     from scipy.optimize import minimize
 
     k_n, k_f, a, b, c = gain_values(gains)
@@ -134,15 +126,10 @@ def equilibrium_formations(
 
     found: list[Formation] = []
     iu = np.triu_indices(n, 1)
+    options = {'gtol': 1e-12, 'ftol': 1e-15, 'maxiter': 20000}
     for _ in range(max(1, starts)):
         x0 = rng.normal(scale=scale, size=(n, 3))
-        res = minimize(
-            fun,
-            x0.ravel(),
-            jac=True,
-            method='L-BFGS-B',
-            options={'gtol': 1e-12, 'ftol': 1e-15, 'maxiter': 20000},
-        )
+        res = minimize(fun, x0.ravel(), jac=True, method='L-BFGS-B', options=options)
         x = polish_minimum(res.x.reshape(n, 3), params)
         d = np.sort(np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)[iu])
         g = np.linalg.norm(gradient(x, origin, **params), axis=-1).max()
@@ -172,12 +159,9 @@ def _rotation_basis(x: NDArray[np.float64]) -> NDArray[np.float64]:
 def polish_minimum(
     x: NDArray[np.float64], params: PotentialParams, *, iterations: int = 200
 ) -> NDArray[np.float64]:
-    """From a point where a quasi-Newton search stopped, a true minimum of J (target at
-    the origin): saddle-free Newton steps ``-|H|^{-1} grad J`` with a backtracking line
-    search while the gradient is not yet ~0, and a step along the most negative curvature
-    while the Hessian (the three rotations set aside) has one: L-BFGS may stop at a saddle
-    of a flat J, a formation no swarm keeps. O(n^3) per iteration, never on the control path.
-    """
+    """A true minimum of J (target at the origin) from ``x`` (n, 3), where L-BFGS stopped:
+    saddle-free Newton steps ``-|H|^{-1} grad J`` and steps along negative curvature, each
+    with a line search on J's slope (docs/THEORY.md, section 4); O(n^3) per iteration."""
     origin = np.zeros(3)
 
     def slope(t: float, step: NDArray[np.float64]) -> float:
@@ -243,12 +227,10 @@ def design_formations(
 def design_pairs(
     n: int, *, k_n: float, k_f: float, a: float, b: float, c: float
 ) -> NDArray[np.float64] | None:
-    """The design pair distances the formation metrics compare against (the one rule):
-    n = 2: the two trackers on opposite sides of the target, ``sqrt(c ln(b/(a + k_N/(2
-    k_f))))`` apart; n = 3: three copies of the closed-form side of
-    :func:`triangle_spacing`; more: the pair distances of the lowest of
-    :func:`design_formations`. ``None`` when J has no formation (n < 2, or it collapses
-    below 1e-6 m)."""
+    """The design pair distances the formation metrics compare against: n = 2,
+    ``sqrt(c ln(b/(a + k_N/(2 k_f))))`` (opposite sides of the target); n = 3, three times
+    :func:`triangle_spacing`; more, those of the lowest of :func:`design_formations`.
+    ``None`` without a formation (n < 2, or it collapses below 1e-6 m)."""
     if n < 2:
         return None
     if n == 2:
@@ -273,11 +255,8 @@ def expected_spacing(
 def b_for_spacing(
     d: float, n: int, *, k_n: float = 1.0, k_f: float = 1.0, a: float = 1.0, c: float = 1.7
 ) -> float:
-    """The b whose equilibrium nearest-neighbour spacing is ``d`` for n trackers.
-
-    Closed form for n = 3; otherwise a bracketed root search (scipy ``brentq``) on the
-    numerical equilibrium of :func:`equilibrium_formation`.
-    """
+    """The b whose equilibrium nearest-neighbour spacing is ``d`` for n trackers: closed
+    form for n = 3, else a root search (``brentq``) on :func:`expected_spacing`."""
     if n == 3:
         return triangle_b_for_spacing(d, a, c, k_n, k_f)
     from scipy.optimize import brentq

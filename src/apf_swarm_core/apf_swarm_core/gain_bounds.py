@@ -1,10 +1,6 @@
-"""The lower bounds on the switching gain u0 (Theorem 1 / eq. 29, eq. 37, eq. 43).
-
-Each bound is given as printed in the paper (with ``-f_bar``) and corrected (``+f_bar/M_lo``,
-the usual sliding-mode argument), from a priori estimates of ``J_bar`` and ``J_bar_s``
-(:func:`gain_bounds`) or from run data (:func:`gain_bounds_from_run`). What they mean for a
-configuration, in words, is :func:`apf_swarm_core.checks.check_config`'s.
-"""
+"""The lower bounds on the switching gain u0 (Theorem 1 / eq. 29, eq. 37, eq. 43), as printed
+(``-f_bar``) and corrected (``+f_bar/M_lo``; docs/THEORY.md, "Gain conditions"), a priori
+(:func:`gain_bounds`) or from run data (:func:`gain_bounds_from_run`)."""
 
 from __future__ import annotations
 
@@ -48,39 +44,29 @@ class GainBound:
 
 
 def pair_hessian_bound(a: float, b: float) -> float:
-    """Bound on the spectral norm of the Hessian of one pair term of eq. 44.
-
-    The Hessian of ``(a/2) r^2 + (bc/2) e^{-r^2/c}`` is ``w I + (2b/c) e^{-r^2/c} d d^T`` with
-    ``w = a - b e^{-r^2/c}``; its eigenvalues are ``w`` and ``a - b e^{-u}(1 - 2u)``,
-    ``u = r^2/c``, which lie in ``[a - b, a + 2b e^{-3/2}]``.
-    """
+    """Bound on the spectral norm of the Hessian of one pair term of eq. 44: its
+    eigenvalues ``a - b e^{-u}`` and ``a - b e^{-u}(1 - 2u)``, ``u = r^2/c``, lie in
+    ``[a - b, a + 2b e^{-3/2}]``."""
     return max(abs(a - b), a + 2.0 * b * math.exp(-1.5))
 
 
 def gain_bounds(
     cfg: SwarmConfig, *, j_bar: float | None = None, j_bar_s: float | None = None
 ) -> tuple[list[GainBound], dict[str, float]]:
-    """The u0 bounds of eq. 29, 37 and 43 for ``cfg``, printed and corrected.
-
-    Without ``j_bar`` / ``j_bar_s`` they are estimated a priori (conservatively): with
-    ``L = k_N + 2 (n-1) k_f H`` (H from :func:`pair_hessian_bound`) a Lipschitz bound of
-    ``grad_i J`` and ``V`` a tracker speed bound, ``||d/dt grad_i J|| <= L V + k_N v_N``;
-    outside the layer ``V = alpha g0 + sqrt(3) beta`` with g0 the largest initial gradient, so
-    ``J_bar = alpha (L V + k_N v_N)``; inside the layer ``V = alpha gamma + beta`` and
-    ``J_bar_s = (alpha + beta/gamma)(L V + k_N v_N)``. ``J_bar_sign = 2 beta / lambda`` (eq. 35).
-    """
+    """The u0 bounds of eq. 29, 37 and 43 for ``cfg``, printed and corrected, and the
+    estimates they use. Without ``j_bar`` / ``j_bar_s``, a priori: ``||d/dt grad_i J|| <= L V
+    + k_N v_N`` with L = k_N + 2 (n-1) k_f :func:`pair_hessian_bound` and a speed bound V,
+    ``alpha g0 + sqrt(3) beta`` outside the layer (g0 the largest initial gradient),
+    ``alpha gamma + beta`` inside, times alpha for ``J_bar`` and alpha + beta/gamma for
+    ``J_bar_s``; ``J_bar_sign = 2 beta / lambda`` (eq. 35)."""
     from .simulator import initial_positions
 
     n, vn = cfg.n_trackers, cfg.target_speed_bound
     lip = cfg.k_n + 2.0 * max(0, n - 1) * cfg.k_f * pair_hessian_bound(cfg.a, cfg.swarm_b())
-    g0 = float(
-        np.linalg.norm(
-            gradient(
-                initial_positions(cfg), np.asarray(cfg.target_start), **cfg.potential_params()
-            ),
-            axis=-1,
-        ).max()
+    grad0 = gradient(
+        initial_positions(cfg), np.asarray(cfg.target_start), **cfg.potential_params()
     )
+    g0 = float(np.linalg.norm(grad0, axis=-1).max())
     if j_bar is None:
         j_bar = cfg.alpha * (lip * (cfg.alpha * g0 + math.sqrt(3.0) * cfg.beta) + cfg.k_n * vn)
     if j_bar_s is None:
@@ -126,16 +112,11 @@ def gain_bounds_from_run(
     target_x: ArrayLike,
     steady_fraction: float | None = None,
 ) -> tuple[list[GainBound], dict[str, float]]:
-    """The u0 bounds with ``J_bar`` and ``J_bar_s`` measured along a run.
-
-    The rate ``||d/dt grad_i J||`` is taken by first differences of the gradient recomputed
-    from the recorded positions. ``J_bar = alpha max rate`` over the samples where tracker i is
-    outside the boundary layer (the regime of eq. 29 / 37), ``J_bar_s = (alpha + beta/gamma)
-    max rate`` over the samples inside it (the regime of eq. 43); a regime never visited gives 0.
-    Only the last ``steady_fraction`` of the run is used (default ``cfg.steady_fraction``): the
-    bounds are the conditions for staying on the manifold once it has been reached, and the
-    reaching transient would otherwise dominate the maximum.
-    """
+    """The u0 bounds with ``J_bar`` and ``J_bar_s`` measured along a run (``t`` (T,) [s],
+    ``x`` (T, n, 3), ``target_x`` (T, 3) [m]) over its last ``steady_fraction`` (default
+    ``cfg.steady_fraction``): with the rate ``||d/dt grad_i J||`` by first differences,
+    ``J_bar = alpha max rate`` outside the boundary layer (eq. 29 / 37), ``J_bar_s = (alpha +
+    beta/gamma) max rate`` inside it (eq. 43); 0 for a regime never visited."""
     frac = cfg.steady_fraction if steady_fraction is None else steady_fraction
     t = np.asarray(t, dtype=float)
     g = gradient(

@@ -1,11 +1,7 @@
 """The plant's lockstep barrier without ROS (:class:`LockstepBarrier`): the protocol that
-makes the ROS graph step exactly as the simulator does (docs/ROS.md, "Timing modes"): the
-target's states asked for ahead, step k published once its target state is held, step k + 1
-once every active tracker's command of step k is in; past ``timeout`` step k again, past
-another a missing tracker inactive or the target's last state held.
-
-The barrier takes the events (start, a target state, a command, a clock tick) and returns the
-:class:`Action` list the node carries out in order."""
+makes the ROS graph step exactly as the simulator does (docs/ROS.md, "Timing modes"). It takes
+the events (start, a target state, a command, a clock tick) and returns the :class:`Action`
+list the node carries out in order."""
 
 from __future__ import annotations
 
@@ -37,11 +33,9 @@ Kind = Literal['request', 'swarm_odom', 'step', 'state', 'info', 'warn', 'refuse
 @dataclass(frozen=True)
 class Action:
     """What the node does next: ``request`` the target's states up to ``step``; publish
-    ``swarm_odom`` of ``step`` (the held target state, :attr:`LockstepBarrier.target`);
-    publish ``step`` (``/clock`` and every UAV's odometry of the model's current state);
-    publish the ``state`` sample ``data`` of ``step`` (:meth:`PlantModel.snapshot`);
-    log ``text`` at ``info`` or ``warn``; ``refuse``: an input was refused (counted in the
-    model), ``text`` says why."""
+    ``swarm_odom`` of ``step`` (with :attr:`LockstepBarrier.target`), ``step`` (``/clock``
+    and the odometry of the model's state) or the ``state`` sample ``data`` of ``step``; log
+    ``text`` at ``info`` or ``warn``; ``refuse``: ``text`` says why an input was refused."""
 
     kind: Kind
     step: int = -1
@@ -85,13 +79,14 @@ def target_problem(
 
 @dataclass
 class LockstepBarrier:
-    """The barrier, target look-ahead, deadlines and re-sends of the lockstep plant around a
-    :class:`~apf_swarm_core.plant_model.PlantModel`; times are on the caller's monotonic clock
-    [s]."""
+    """The lockstep plant around a :class:`~apf_swarm_core.plant_model.PlantModel`: the
+    target's states asked for ahead, step k published once its target state is held, step
+    k + 1 once every active tracker's command of step k is in; past ``timeout`` step k again,
+    past another a missing tracker inactive or the target's last state held. Times are on
+    the caller's monotonic clock [s]."""
 
     model: PlantModel
     timeout: float
-    lookahead: int = LOOKAHEAD
     running: bool = False
     done: bool = False
     target_absent: bool = False  # the target missed a deadline; its last state is held
@@ -134,8 +129,8 @@ class LockstepBarrier:
         return out
 
     def take_command(self, c: Command, age: float, now: float) -> tuple[bool, list[Action]]:
-        """A tracker's command arrived (``age``: unused, simulated time): offered to the
-        model, then the step finished if it was the last one missing."""
+        """A tracker's command (``age`` unused): offered to the model, then the step
+        finished if it was the last one missing."""
         ok, out = take_command(self.model, self.running, c, latency=0.0, now=now)
         return ok, (out + self.on_command(now)) if ok else out
 
@@ -148,8 +143,7 @@ class LockstepBarrier:
         )
 
     def on_command(self, now: float) -> list[Action]:
-        """The model accepted a command
-        (:meth:`~apf_swarm_core.plant_model.PlantModel.offer_command`)."""
+        """The model accepted a command (:meth:`PlantModel.offer_command`)."""
         return self._maybe_finish(now)
 
     def tick(self, now: float) -> list[Action]:
@@ -157,17 +151,14 @@ class LockstepBarrier:
         late inputs and go on."""
         if not self.running or self.done or now - self.step_started <= self.timeout:
             return []
-        if not self.republished:
-            self.republished = True
-            return [
-                Action(
-                    'warn',
-                    text=f'step {self.model.k}: inputs {self.late()} late after '
-                    f'{self.timeout:g} s; publishing the step again',
-                ),
-                *self._publish_step(now, again=True),
-            ]
-        return self._maybe_finish(now, force=True)
+        if self.republished:
+            return self._maybe_finish(now, force=True)
+        self.republished = True
+        text = f'step {self.model.k}: inputs {self.late()} late after {self.timeout:g} s; '
+        return [
+            Action('warn', text=text + 'publishing the step again'),
+            *self._publish_step(now, True),
+        ]
 
     # --- what the node reads --------------------------------------------------------------
     def late(self) -> list[str]:
@@ -193,14 +184,14 @@ class LockstepBarrier:
         return out
 
     def _request(self, again: bool) -> list[Action]:
-        """Ask for the target's states up to ``lookahead - 1`` steps ahead once fewer than
+        """Ask for the target's states up to :data:`LOOKAHEAD` - 1 steps ahead once fewer than
         half of that are asked for. ``again`` (step k is late): repeat the last request,
         which the target answers by sending that window once more (step k is in it)."""
         k = self.model.k
-        want = min(k + self.lookahead - 1, self.steps)
+        want = min(k + LOOKAHEAD - 1, self.steps)
         if again and self.requested >= k:
             want = self.requested
-        elif want <= self.requested or self.requested - k >= self.lookahead // 2:
+        elif want <= self.requested or self.requested - k >= LOOKAHEAD // 2:
             return []
         self.requested = want
         return [Action('request', want)]
@@ -231,10 +222,8 @@ class LockstepBarrier:
     def _maybe_finish(self, now: float, force: bool = False) -> list[Action]:
         if not self.running or self.done:
             return []
-        m = self.model
-        k = m.k
-        missing = m.missing(k)
-        target_late = self._target_late()
+        m, k = self.model, self.model.k
+        missing, target_late = m.missing(k), self._target_late()
         if (missing or target_late) and not force:
             return []
         if target_late:
@@ -244,28 +233,22 @@ class LockstepBarrier:
             self.target_absent = True
             self.step_started = now
             self.republished = False
-            return [
-                Action(
-                    'warn',
-                    text=f'step {k}: no target state within 2 x {self.timeout:g} s '
-                    f'({m.missed} missed so far); holding the last one (its age grows in '
-                    '/swarm/odom) and not waiting for the target any more',
-                ),
-                *self._maybe_swarm_odom(),
-            ]
+            text = (
+                f'step {k}: no target state within 2 x {self.timeout:g} s ({m.missed} missed '
+                'so far); holding the last one (its age grows in /swarm/odom) and not waiting '
+                'for the target any more'
+            )
+            return [Action('warn', text=text), *self._maybe_swarm_odom()]
         out: list[Action] = []
         if missing:
             m.missed += len(missing)
             m.deactivate(missing)
-            out.append(
-                Action(
-                    'warn',
-                    text=f'step {k}: no command from '
-                    f'{[f"uav_{i}" for i in missing]} within 2 x {self.timeout:g} s '
-                    f'({m.missed} missed so far): zero force, left out of the '
-                    'neighbour sets, not waited for until they command again',
-                )
+            text = (
+                f'step {k}: no command from {[f"uav_{i}" for i in missing]} within 2 x '
+                f'{self.timeout:g} s ({m.missed} missed so far): zero force, left out of the '
+                'neighbour sets, not waited for until they command again'
             )
+            out.append(Action('warn', text=text))
         # the state of step k goes out after step k + 1: the trackers, which wait for
         # /swarm/odom of k + 1, start while the node computes the metrics of k
         state = Action('state', k, m.snapshot(k, self.target, self.target_age()))

@@ -46,33 +46,15 @@ def mode_matrix(
     mass: float = 1.0,
     horizon: float = 0.0,
 ) -> NDArray[np.float64]:
-    """Transition matrix of one formation mode over one control period.
+    """Transition matrix, shape (3 + m, 3 + m), of one formation mode over one control
+    period T = ``period`` [s] with ``latency`` tau = m T + r [s].
 
-    State ``(e_k, e'_k, u_{k-1}, ..., u_{k-m-1})`` with ``latency = m T + r``; the command
-    of sample k is ``u_k = -g M (e'_k + K lambda e_k)``, or with delay compensation
-    (``horizon`` h > 0, :mod:`apf_swarm_core.compensation`) the same of the predicted state
-    ``e_k + h e'_k`` and ``e'_k + h u_{k-1} / M``.
-
-    Parameters
-    ----------
-    lam : float
-        Eigenvalue of the Hessian of J [1 with unit gains].
-    layer_gain : float
-        K = alpha + beta/gamma [1/s].
-    inner_rate : float
-        g [1/s]: u0/(phi M) for the layer switching, 1/T for the sign law.
-    period : float
-        T [s], > 0.
-    latency : float
-        tau [s], >= 0.
-    mass : float
-        M [kg] (the force enters as u/M).
-    horizon : float
-        h [s] of the prediction (0: none).
-
-    Returns
-    -------
-    array, shape (3 + m, 3 + m)
+    State ``(e_k, e'_k, u_{k-1}, ..., u_{k-m-1})``; the command of sample k is
+    ``u_k = -g M (e'_k + K lambda e_k)`` with ``lam`` lambda an eigenvalue of the Hessian of
+    J, ``layer_gain`` K = alpha + beta/gamma [1/s], ``inner_rate`` g [1/s] (:func:`inner_rate`)
+    and ``mass`` M [kg]; with delay compensation (``horizon`` h > 0 [s],
+    :mod:`apf_swarm_core.compensation`) the same of the predicted state ``e_k + h e'_k`` and
+    ``e'_k + h u_{k-1} / M``.
     """
     T, tau = float(period), float(latency)
     m = int(math.floor(tau / T + 1e-12))
@@ -112,22 +94,22 @@ def mode_radius(lam: float, **kwargs: Any) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(mode_matrix(lam, **kwargs)))))
 
 
+def _design(cfg: SwarmConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The design equilibrium's positions (n, 3) and the Hessian of J there (3n, 3n)."""
+    x = design_formation(cfg).relative_positions
+    return x, hessian(x, np.zeros(3), **cfg.potential_params())
+
+
 def design_hessian_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
     """Eigenvalues of the Hessian of J at the design equilibrium of ``cfg.n_trackers``
     trackers, ascending (the rotations' zeros included); shape (3n,)."""
-    f = design_formation(cfg)
-    h = hessian(f.relative_positions, np.zeros(3), **cfg.potential_params())
-    return np.linalg.eigvalsh(h).astype(np.float64, copy=False)
+    return np.linalg.eigvalsh(_design(cfg)[1]).astype(np.float64, copy=False)
 
 
 def effective_spectrum(cfg: SwarmConfig, eigs: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The curvatures the manifold descends, ascending: the Hessian's eigenvalues
-    ``lambda`` (``eigs``) along the gradient (the paper), ``lambda / max(|lambda|, mu)``
-    along the Newton direction (``precondition = newton``,
-    :func:`apf_swarm_core.newton.newton_direction`): 1 for every mode at least as stiff as
-    ``mu``; along the block direction (``precondition = block``,
-    :class:`apf_swarm_core.control.BlockPreconditioner`) the eigenvalues of ``P H`` at the design
-    (:func:`design_block_spectrum`, ``eigs`` unused)."""
+    """The curvatures the manifold descends, ascending, for ``cfg.precondition``: the
+    Hessian's eigenvalues ``lambda`` (``eigs``) along the gradient, ``lambda / max(|lambda|,
+    mu)`` along the Newton direction, :func:`design_block_spectrum` along the block one."""
     eigs = np.asarray(eigs, dtype=float)
     if cfg.precondition == 'block':
         return design_block_spectrum(cfg)
@@ -160,12 +142,9 @@ def _block_map(cfg: SwarmConfig, x: NDArray[np.float64]) -> NDArray[np.float64]:
 def design_block_spectrum(cfg: SwarmConfig) -> NDArray[np.float64]:
     """Eigenvalues of ``P H`` at the design equilibrium, ascending (shape (3n,), the
     rotations' zeros included): H the Hessian of J, P the linear map of
-    :class:`~apf_swarm_core.control.BlockPreconditioner` near the equilibrium (each tracker's
-    ``|H_ii|_mu^-1`` on the gradient less its mean, plus the mean over k_N). ``P H`` is
-    similar to a symmetric matrix (P is symmetric positive definite), so its eigenvalues are
-    real: each is the rate, in units of K, at which one mode of the formation decays."""
-    x = design_formation(cfg).relative_positions
-    h = hessian(x, np.zeros(3), **cfg.potential_params())
+    :class:`~apf_swarm_core.control.BlockPreconditioner` there (:func:`_block_map`); each,
+    real (P is symmetric positive definite), is a formation mode's decay rate in units of K."""
+    x, h = _design(cfg)
     return np.sort(np.linalg.eigvals(_block_map(cfg, x) @ h).real)
 
 
@@ -174,8 +153,7 @@ def loop_modes(cfg: SwarmConfig) -> tuple[NDArray[np.float64], NDArray[np.float6
     configuration's direction: A = H along the gradient, ``|H|_mu^-1 H`` along the Newton
     direction, ``P H`` along the block direction): their rates in units of K, shape (3n,),
     and their shapes, the columns of a (3n, 3n) array (tracker-major, as ``e.ravel()``)."""
-    x = design_formation(cfg).relative_positions
-    h = hessian(x, np.zeros(3), **cfg.potential_params())
+    x, h = _design(cfg)
     if cfg.precondition == 'block':
         rates, shapes = np.linalg.eig(_block_map(cfg, x) @ h)
         return rates.real, shapes.real
@@ -186,12 +164,10 @@ def loop_modes(cfg: SwarmConfig) -> tuple[NDArray[np.float64], NDArray[np.float6
 def start_residual(
     cfg: SwarmConfig, displacement: NDArray[np.float64], K: float, t: float
 ) -> tuple[float, float]:
-    """What the loop of :func:`loop_modes` leaves at time ``t`` [s] of a start displaced by
-    ``displacement`` (n, 3) [m] from the design: each mode's share of it decays as
-    ``exp(-K rate t)`` (the rotations, rate 0, change no distance and are dropped). Returns
-    the formation error RMS (:func:`~apf_swarm_core.metrics.formation_error`) as a fraction
-    of the design's mean pair distance and the closest pair as a fraction of the design's:
-    the numbers flight judges (docs/THEORY.md, *The start*)."""
+    """What the loop of :func:`loop_modes` leaves at ``t`` [s] of a start displaced by
+    ``displacement`` (n, 3) [m] from the design, each mode decaying as ``exp(-K rate t)``:
+    the formation error RMS over the design's mean pair distance and the closest pair over
+    the design's (docs/THEORY.md, *The start*)."""
     x = design_formation(cfg).relative_positions
     rates, shapes = loop_modes(cfg)
     share = np.linalg.lstsq(shapes, np.asarray(displacement, dtype=float).ravel(), rcond=None)[0]

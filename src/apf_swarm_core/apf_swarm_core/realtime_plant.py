@@ -1,9 +1,6 @@
 """The realtime plant without ROS (:class:`RealtimePlant`): its physics clock, the target state
 it holds, and the inputs it refuses for their age or order (docs/ROS.md, "Timing modes").
-
-The clock starts once every tracker has commanded, or at ``arm_timeout`` (:meth:`arm`); the
-physics step integrates the steps of dt wall time has advanced with the held commands. Times
-are the node's monotonic clock [s]; what to log comes back as lockstep's
+Times are the node's monotonic clock [s]; what to log comes back as lockstep's
 :class:`~apf_swarm_core.lockstep.Action` (``info``, ``warn``, ``refuse``)."""
 
 from __future__ import annotations
@@ -60,13 +57,8 @@ class RealtimePlant:
             return []
         self.clock_started, self.wall0 = True, now
         if waiting:
-            return [
-                Action(
-                    'warn',
-                    text=f'clock started after arm_timeout = {self.arm_timeout:g} s without a '
-                    f'command from {[f"uav_{i}" for i in waiting]}',
-                )
-            ]
+            text = f'clock started after arm_timeout = {self.arm_timeout:g} s without a command '
+            return [Action('warn', text=text + f'from {[f"uav_{i}" for i in waiting]}')]
         return [Action('info', text='clock started: every tracker commands')]
 
     def stale_command(self, uav_id: int, age: float) -> str | None:
@@ -105,12 +97,7 @@ class RealtimePlant:
         )
 
     def offer_target(
-        self,
-        x: NDArray[np.float64],
-        v: NDArray[np.float64],
-        seq: int,
-        age: float,
-        now: float,
+        self, x: NDArray[np.float64], v: NDArray[np.float64], seq: int, age: float, now: float
     ) -> str | None:
         """Hold the target state (x, v) stamped ``seq`` [ns], ``age`` seconds ago; why it is
         refused (stale, out of order), or None."""
@@ -134,25 +121,21 @@ class RealtimePlant:
         newly = self.model.expire(now, self.stale_after, self.timeout)
         if newly:
             self.model.missed += len(newly)
-            out.append(
-                Action(
-                    'warn',
-                    text=f'no command from {[f"uav_{i}" for i in newly]} for {self.timeout:g} '
-                    f's: inactive, left out of the neighbour sets (zero force since '
-                    f'{self.stale_after:g} s; {self.model.missed} missed so far)',
-                )
+            text = (
+                f'no command from {[f"uav_{i}" for i in newly]} for {self.timeout:g} s: '
+                f'inactive, left out of the neighbour sets (zero force since '
+                f'{self.stale_after:g} s; {self.model.missed} missed so far)'
             )
+            out.append(Action('warn', text=text))
         self.model.advance_to(now - self.wall0)
         cfg = self.model.cfg
         if self.model.k >= cfg.steps:
             self.done = True
-            out.append(
-                Action(
-                    'info',
-                    text=f'done: {cfg.steps} steps of {cfg.dt:g} s; {self.model.zeroed} held '
-                    f'commands zeroed (tracker later than stale_after = {self.stale_after:g} s)',
-                )
+            text = (
+                f'done: {cfg.steps} steps of {cfg.dt:g} s; {self.model.zeroed} held commands '
+                f'zeroed (tracker later than stale_after = {self.stale_after:g} s)'
             )
+            out.append(Action('info', text=text))
         return out
 
     def state_sample(self, now: float) -> dict[str, Any]:

@@ -1,10 +1,6 @@
-"""Target kinematics (paper eq. 1) and the trajectories the target can fly.
-
-Every trajectory gives the target's speed ``v``, yaw ``chi`` and pitch ``delta`` as functions of
-time; the velocity is always formed by :func:`target_velocity` (eq. 1), and the position is the
-closed-form integral of that velocity, so that the target is exact and deterministic at any
-time (no integration drift, identical in the simulator and in the ROS target node).
-:class:`BatchTarget` evaluates the trajectories of a batch of runs step by step.
+"""Target kinematics (paper eq. 1) and the trajectories the target can fly: each gives the
+speed, yaw and pitch at a time, the velocity of :func:`target_velocity` (eq. 1) and the
+closed-form integral of it, exact at any time in the simulator and in the ROS target node.
 """
 
 from __future__ import annotations
@@ -34,21 +30,8 @@ TRAJECTORIES = ('straight', 'circle', 'helix', 'figure_eight', 'waypoints', 'hov
 
 
 def target_velocity(speed: ArrayLike, yaw: ArrayLike, pitch: ArrayLike) -> NDArray[np.float64]:
-    """Velocity of paper eq. 1.
-
-    .. math::
-
-        \\dot x = v\\cos\\chi\\cos\\delta,\\quad \\dot y = v\\sin\\chi\\cos\\delta,
-        \\quad \\dot z = v\\sin\\delta
-
-    Parameters
-    ----------
-    speed : array (...) [m/s]; yaw chi : array (...) [rad]; pitch delta : array (...) [rad]
-
-    Returns
-    -------
-    velocity : array, shape (..., 3) [m/s]
-    """
+    """Velocity of eq. 1, ``(v cos chi cos delta, v sin chi cos delta, v sin delta)``, shape
+    (..., 3) [m/s], of ``speed`` v [m/s], ``yaw`` chi and ``pitch`` delta [rad], each (...)."""
     speed, yaw, pitch = np.broadcast_arrays(
         *(np.asarray(a, dtype=float) for a in (speed, yaw, pitch))
     )
@@ -65,11 +48,8 @@ Times = ArrayLike  # float or array of times [s]
 
 @dataclass(frozen=True)
 class Trajectory(ABC):
-    """Base class: ``state(t)`` gives position and velocity at a time or an array of times.
-
-    Subclasses define :meth:`heading` (speed, yaw, pitch: the inputs of eq. 1) and
-    :meth:`displacement` (the integral of that velocity from 0), vectorized over ``t``.
-    """
+    """Base class: ``state(t)`` gives position and velocity at a time or an array of times
+    from the subclass's :meth:`heading` and :meth:`displacement`."""
 
     start: tuple[float, float, float] = (0.0, 0.0, 5.0)
     speed: float = 1.0
@@ -85,10 +65,8 @@ class Trajectory(ABC):
     def state(self, t: Times) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Position [m] and velocity [m/s] at ``t`` [s]: shapes ``np.shape(t) + (3,)``."""
         t = np.asarray(t, dtype=float)
-        v, yaw, pitch = self.heading(t)
-        return np.asarray(self.start, dtype=float) + self.displacement(t), target_velocity(
-            v, yaw, pitch
-        )
+        x = np.asarray(self.start, dtype=float) + self.displacement(t)
+        return x, target_velocity(*self.heading(t))
 
     @property
     def max_speed(self) -> float:
@@ -116,11 +94,8 @@ class Straight(Trajectory):
 
 @dataclass(frozen=True)
 class Helix(Trajectory):
-    """Constant speed, constant pitch, yaw turning at ``speed cos(pitch) / radius``.
-
-    ``pitch = 0`` is a horizontal circle; the centre of the turn is at ``radius`` to the left
-    of the initial heading ``yaw``.
-    """
+    """Constant speed and pitch, yaw turning at ``speed cos(pitch) / radius`` about a centre
+    ``radius`` to the left of the initial heading ``yaw``."""
 
     radius: float = 20.0
     yaw: float = 0.0
@@ -155,12 +130,8 @@ class Circle(Helix):
 
 @dataclass(frozen=True)
 class FigureEight(Trajectory):
-    """Horizontal figure eight (lemniscate of Gerono) of half-width ``radius``.
-
-    ``p(t) = (R sin(w t), (R/2) sin(2 w t), 0)``; its speed ``R w sqrt(cos^2(wt) + cos^2(2wt))``
-    peaks at ``sqrt(2) R w`` when the eight crosses itself; ``w`` is chosen so that the peak is
-    ``speed``. Yaw follows the velocity, pitch is zero.
-    """
+    """Horizontal figure eight of half-width ``radius`` R, ``p(t) = (R sin(w t), (R/2)
+    sin(2 w t), 0)`` turned by ``yaw``; its speed peaks at ``sqrt(2) R w = speed``."""
 
     radius: float = 20.0
     yaw: float = 0.0
@@ -188,11 +159,8 @@ class FigureEight(Trajectory):
 
 @dataclass(frozen=True)
 class Waypoints(Trajectory):
-    """Straight legs at constant ``speed`` through ``points`` (relative to ``start``), then hover.
-
-    ``points`` are offsets from ``start`` [m]; the first leg starts at ``start`` itself. After
-    the last point the target holds position (speed 0).
-    """
+    """Straight legs at constant ``speed`` from ``start`` through ``points`` (offsets from
+    ``start`` [m]), then hover at the last."""
 
     points: tuple[tuple[float, float, float], ...] = field(default_factory=tuple)
 
@@ -274,16 +242,9 @@ def make_trajectory(
 
 
 class BatchTarget:
-    """The target states of R runs at the steps ``k`` of a fixed-step run (``t = k dt``).
-
-    Evaluated for blocks of :attr:`BLOCK` steps at once (vectorized over ``t``), once per
-    distinct trajectory; runs that share a trajectory gather its row at each step.
-
-    Parameters
-    ----------
-    trajectories : sequence of Trajectory, one per run
-    dt : float [s]
-    """
+    """The target states of R runs, one of ``trajectories`` each, at the steps ``k`` of a
+    fixed-step run (``t = k dt``, dt [s]): evaluated :attr:`BLOCK` steps at once, once per
+    distinct trajectory."""
 
     #: steps evaluated at once
     BLOCK = 1024
@@ -292,21 +253,14 @@ class BatchTarget:
         self.dt = dt
         self.runs = len(trajectories)
         #: the distinct trajectories, and which one each run flies
-        self.distinct: list[Trajectory] = []
-        self.index = np.empty(self.runs, dtype=int)
-        for r, tr in enumerate(trajectories):
-            if tr not in self.distinct:
-                self.distinct.append(tr)
-            self.index[r] = self.distinct.index(tr)
+        self.distinct: list[Trajectory] = list(dict.fromkeys(trajectories))
+        self.index = np.array([self.distinct.index(tr) for tr in trajectories], dtype=int)
         # every run its own trajectory, in order: index the block directly (no gather)
         self.identity = len(self.distinct) == self.runs
         #: the current block: its first step, positions and velocities
         #: (BLOCK, distinct trajectories, 3)
-        self.block: tuple[int, NDArray[np.float64], NDArray[np.float64]] = (
-            -1,
-            np.empty((0, 0, 3)),
-            np.empty((0, 0, 3)),
-        )
+        self.block: tuple[int, NDArray[np.float64], NDArray[np.float64]]
+        self.block = (-1, np.empty((0, 0, 3)), np.empty((0, 0, 3)))
 
     def state(self, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Target position and velocity of every run at step k, shapes (R, 3)."""
@@ -318,11 +272,9 @@ class BatchTarget:
             pos = np.stack([s[0] for s in states], axis=1)  # (BLOCK, trajectories, 3)
             vel = np.stack([s[1] for s in states], axis=1)
             self.block = (base, pos, vel)
+        p, v = pos[k - base], vel[k - base]
         if self.identity:
-            return pos[k - base], vel[k - base]
+            return p, v
         if len(self.distinct) == 1:  # one trajectory for every run: a read-only view
-            shape = (self.runs, 3)
-            return np.broadcast_to(pos[k - base, 0], shape), np.broadcast_to(
-                vel[k - base, 0], shape
-            )
-        return pos[k - base][self.index], vel[k - base][self.index]
+            return np.broadcast_to(p[0], (self.runs, 3)), np.broadcast_to(v[0], (self.runs, 3))
+        return p[self.index], v[self.index]

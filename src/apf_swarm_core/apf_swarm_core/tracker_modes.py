@@ -1,16 +1,8 @@
 """How a tracker answers its inputs in each timing mode, without ROS: one call per input
 decides everything (accept or refuse, stale or not, brake or command) and returns a
-:class:`Reply` the node only converts and publishes.
-
-* :class:`LockstepTracker`: simulated time. An input's stamp is its step's time (age 0);
-  step k is answered once every input of step k has arrived, with the brake when the
-  target's held state is older than the timeout in simulated time.
-* :class:`RealtimeTracker`: wall-clock time. An input's age is the ROS clock's now minus
-  its stamp; with ``trigger = odom`` a command answers each new own state, with ``timer``
-  the node's timer asks at the control rate; a stale input gets the brake.
-
-Both share one :class:`~apf_swarm_core.agents.TrackerAgent` (inputs, controller, the
-command of the simulator's functions); :func:`tracker_mode` picks one for a mode.
+:class:`Reply` the node only converts and publishes. :class:`LockstepTracker` (simulated
+time) and :class:`RealtimeTracker` (wall-clock time) share one
+:class:`~apf_swarm_core.agents.TrackerAgent`; :func:`tracker_mode` picks one for a mode.
 """
 
 from __future__ import annotations
@@ -111,7 +103,9 @@ class _TrackerMode:
 
 
 class LockstepTracker(_TrackerMode):
-    """Simulated time: answer step k once all its inputs are in (``dt_ns``: the step [ns])."""
+    """Simulated time: an input's stamp is its step's time (``dt_ns``: the step [ns]); step
+    k is answered once all its inputs are in, with the brake when one is older than the
+    timeout in simulated time."""
 
     TIME_UNIT = 's of simulated time'
 
@@ -148,7 +142,9 @@ class LockstepTracker(_TrackerMode):
 
 
 class RealtimeTracker(_TrackerMode):
-    """Wall-clock time: command on each own state (``on_odom``) or at the control rate."""
+    """Wall-clock time: an input's age is the ROS clock's now minus its stamp; command on
+    each own state (``on_odom``, trigger odom) or at the control rate (trigger timer); a
+    stale input gets the brake."""
 
     def __init__(
         self, agent: TrackerAgent, timeout: float, control_rate: float, on_odom: bool
