@@ -31,6 +31,7 @@ __all__ = [
     'EXECUTOR_PARAM',
     'MODES',
     'OUTPUTS',
+    'PLANT_PARAMS',
     'SWARM_NODE_PARAMS',
     'TRACKER_PARAMS',
     'WATCHDOG_RATE',

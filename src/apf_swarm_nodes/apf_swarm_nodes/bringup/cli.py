@@ -28,6 +28,8 @@ from .isolation import check_capacity
 from .processes import EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from .session import Bringup
 
+__all__ = ['add_arguments', 'main', 'plan', 'run']
+
 
 def _netns_rule(text: str) -> str:
     pattern, sep, ns = text.partition('=')

@@ -24,6 +24,18 @@ from ..topics import (
 )
 from .errors import BringupError
 
+__all__ = [
+    'PACKAGE',
+    'Plan',
+    'executable_path',
+    'hosted_nodes',
+    'node_commands',
+    'node_netns',
+    'package_prefix',
+    'recorder_command',
+    'ros_command',
+]
+
 PACKAGE = 'apf_swarm_nodes'
 
 

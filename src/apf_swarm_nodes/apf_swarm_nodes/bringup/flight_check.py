@@ -12,6 +12,8 @@ from apf_swarm_core.config import DEFAULT_LATENCY, REALTIME_RATE, SwarmConfig
 
 from .commands import Plan
 
+__all__ = ['FlightCheck']
+
 
 class FlightCheck:
     """A realtime run's flight check: :meth:`check` before the run, :meth:`judged` after."""

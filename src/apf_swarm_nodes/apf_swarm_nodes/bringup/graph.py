@@ -20,6 +20,17 @@ from ..topics import (
     swarm_node_names,
 )
 
+__all__ = [
+    'MAX_UNSEEN_RESTARTS',
+    'RECORDER_STOP_SEQUENCE',
+    'TopicExpectation',
+    'UnseenRestart',
+    'expected_graph',
+    'graph_missing',
+    'input_readers',
+    'recorder_missing',
+]
+
 
 @dataclass(frozen=True)
 class TopicExpectation:

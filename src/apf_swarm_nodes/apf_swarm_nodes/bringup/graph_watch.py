@@ -21,6 +21,8 @@ from .graph import (
 )
 from .processes import EXIT_BAD_INPUT, StopRun
 
+__all__ = ['GraphWatch']
+
 
 class GraphWatch:
     """The bring-up's node on the graph; ``acc`` takes the ``/swarm/state`` samples."""

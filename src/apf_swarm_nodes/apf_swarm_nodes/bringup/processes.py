@@ -16,6 +16,19 @@ from typing import TYPE_CHECKING
 from ..capacity.machine import group_members
 from ..lifetime import STOP_CPU_PER_PROCESS, Process, describe_rc, dying_with_parent
 
+__all__ = [
+    'EXIT_BAD_INPUT',
+    'EXIT_CHILD_DIED',
+    'EXIT_INTERRUPTED',
+    'EXIT_LOST_SAMPLES',
+    'EXIT_OK',
+    'EXIT_STALLED',
+    'STOP_SEQUENCE',
+    'Child',
+    'ProcessGroup',
+    'StopRun',
+]
+
 if TYPE_CHECKING:
     from .janitor import Janitor
     from .zygote import Zygote

@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from .processes import Child
 
 __all__ = [
+    'BYE',
     'DIST',
     'ForkedProcess',
     'Zygote',
@@ -39,6 +40,7 @@ __all__ = [
     'close_helper',
     'main',
     'node_entry_points',
+    'orphaned_cleanup',
 ]
 
 #: the distribution whose console scripts are the node executables

@@ -16,6 +16,18 @@ from ..argtypes import add_animation_args, add_view_args, nonneg_float, positive
 from ..view.server import DEFAULT_PORT
 from .commands import PROG
 
+__all__ = [
+    'add_bag_parser',
+    'cmd_bag_animate',
+    'cmd_bag_export',
+    'cmd_bag_info',
+    'cmd_bag_metrics',
+    'cmd_bag_play',
+    'cmd_bag_plot',
+    'cmd_bag_reindex',
+    'cmd_bag_view',
+]
+
 
 def cmd_bag_info(args: argparse.Namespace) -> int:
     from ..bags import format_info, info_dict, open_bag
@@ -155,7 +167,7 @@ def cmd_bag_play(args: argparse.Namespace) -> int:
         view.close()
 
 
-def _add_bag_parser(sub: Any) -> None:
+def add_bag_parser(sub: Any) -> None:
     p = sub.add_parser(
         'bag',
         help='inspect, replay and repair rosbag2 (MCAP) bags',

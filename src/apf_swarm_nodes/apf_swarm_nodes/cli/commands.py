@@ -24,6 +24,21 @@ from ..analysis.runio import format_summary, write_run
 from ..argtypes import nonneg_float
 from ..progress import Progress
 
+__all__ = [
+    'PROG',
+    'cmd_check',
+    'cmd_design',
+    'cmd_design_rate',
+    'cmd_reproduce',
+    'cmd_simulate',
+    'cmd_sweep',
+    'latency_arg',
+    'latency_samples',
+    'machine_latency',
+    'machine_rate',
+    'write_animation',
+]
+
 PROG = 'apf-swarm'
 
 
@@ -35,7 +50,7 @@ def _progress(args: argparse.Namespace, label: str) -> Progress | None:
     return None if getattr(args, 'quiet', False) else Progress(label)
 
 
-def _latency_arg(text: str) -> float | Path:
+def latency_arg(text: str) -> float | Path:
     """``--latency``: seconds, or a JSON file of measured latencies."""
     try:
         return nonneg_float(text)

@@ -11,16 +11,18 @@ from apf_swarm_core.config import DEFAULT_LATENCY
 from apf_swarm_core.errors import ApfSwarmError
 
 from ..argtypes import add_animation_args, add_config_args, positive_float
-from .bag import _add_bag_parser
+from .bag import add_bag_parser
 from .commands import (
     PROG,
-    _latency_arg,
     cmd_check,
     cmd_design,
     cmd_reproduce,
     cmd_simulate,
     cmd_sweep,
+    latency_arg,
 )
+
+__all__ = ['build_parser', 'main']
 
 
 def _add_realtime_args(p: argparse.ArgumentParser, help_rate: str = '') -> None:
@@ -33,7 +35,7 @@ def _add_realtime_args(p: argparse.ArgumentParser, help_rate: str = '') -> None:
     )
     p.add_argument(
         '--latency',
-        type=_latency_arg,
+        type=latency_arg,
         metavar='S|FILE',
         help='control-loop delay [s], or a JSON file of measured latencies to '
         "draw from (a list, or a realtime run's summary.json); default for "
@@ -149,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cleanup.add_arguments(p)
     p.set_defaults(func=cleanup.run)
-    _add_bag_parser(sub)
+    add_bag_parser(sub)
     return parser
 
 

@@ -28,16 +28,20 @@ from .swarm_domain import MAX_PARTICIPANTS, refuse_other_swarm
 
 __all__ = [
     'LEASE_ANNOUNCEMENT',
+    'LEASE_DURATION',
+    'NETWORK_RANGES',
     'OWN_PROFILE',
     'PROFILE_VARIABLES',
     'check_rmw',
     'discovery_timing',
+    'duration',
     'isolate_dds',
     'localhost_environment',
     'max_participants',
     'own_participant',
     'own_participant_environment',
     'profile_xml',
+    'profiles_file',
     'write_profile',
 ]
 

@@ -57,6 +57,7 @@ __all__ = [
     'check_files',
     'check_refuses',
     'complete_environment',
+    'first_address',
     'make_pki',
     'profile_xml',
     'remove_keys',
