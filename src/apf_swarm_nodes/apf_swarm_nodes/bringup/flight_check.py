@@ -4,7 +4,6 @@ run's own delays (summary.json ``prediction``)."""
 
 from __future__ import annotations
 
-import subprocess
 from collections.abc import Callable
 from typing import Any
 
@@ -36,14 +35,9 @@ class FlightCheck:
         from ..capacity import probe
 
         n = cfg.n_trackers
-        try:
-            machine = probe.ensure(say=self.say)
-        except (RuntimeError, OSError, ValueError, subprocess.TimeoutExpired) as exc:
-            self.say(
-                f'warning: {exc}; assuming {REALTIME_RATE:g} Hz and '
-                f'{DEFAULT_LATENCY * 1e3:g} ms of latency'
-            )
-            machine = None
+        machine = probe.ensure_or_warn(
+            self.say, f'assuming {REALTIME_RATE:g} Hz and {DEFAULT_LATENCY * 1e3:g} ms of latency'
+        )
         measured = (
             probe.derive(machine, n, cfg.control_rate or None, self.plan.trackers_per_process)
             if machine

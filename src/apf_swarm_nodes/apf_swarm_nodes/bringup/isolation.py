@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
 from collections.abc import Callable
 
 from ..dds.domains import pick_domain_id
@@ -26,11 +25,8 @@ def check_capacity(
     if allow_overload:
         return
     procs = -(-n_trackers // per_process)
-    try:
-        machine = probe.ensure(say=say)
-    except (RuntimeError, OSError, ValueError, subprocess.TimeoutExpired) as exc:
-        if say is not None:
-            say(f'warning: {exc}; the tracker process limit is not known, none applied')
+    machine = probe.ensure_or_warn(say, 'the tracker process limit is not known, none applied')
+    if machine is None:
         return
     limit = probe.process_limit(machine)
     if procs > limit['processes']:

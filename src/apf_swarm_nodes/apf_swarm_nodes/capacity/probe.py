@@ -34,6 +34,7 @@ __all__ = [
     'cache_path',
     'derive',
     'ensure',
+    'ensure_or_warn',
     'load',
     'process_limit',
     'run',
@@ -109,6 +110,16 @@ def ensure(refresh: bool = False, say: Callable[[str], None] | None = None) -> d
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(probe, indent=2) + '\n')
     return probe
+
+
+def ensure_or_warn(say: Callable[[str], None] | None, instead: str) -> dict[str, Any] | None:
+    """:func:`ensure`, or None when the probe cannot run, said as ``warning: WHY; instead``."""
+    try:
+        return ensure(say=say)
+    except (RuntimeError, OSError, ValueError, subprocess.TimeoutExpired) as exc:
+        if say is not None:
+            say(f'warning: {exc}; {instead}')
+        return None
 
 
 def _state_cost_at(probe: dict[str, Any], n: int, key: str = 'state_cost') -> float:
