@@ -20,7 +20,7 @@ FLOORS = {
     'docs/PERFORMANCE.md': 400,
 }
 BENCH_LINES = 1500
-SRC_LINES = 18643
+SRC_LINES = 18715
 
 
 def _lines(path: Path) -> int:

@@ -247,35 +247,27 @@ def reply_msg(
     """The ForceCommand of a tracker's :class:`~apf_swarm_core.tracker_modes.Reply`: its
     command's row, or the safe brake flagged ``stale`` with zero surface, gradient and
     filter; ``out`` (commands only) a previous message to update in place."""
-    common: dict[str, Any] = {
-        'uav_id': uav_id,
-        'step': r.step,
-        'law': law,
-        'stamp': stamp,
-        'rejected_inputs': rejected_inputs,
-        'instance': instance,
-        'run': run,
-    }
-    if r.output is None:
-        zero = r.force * 0.0
-        return force_msg(
-            force=r.force,
-            sliding_surface=zero,
-            gradient=zero,
-            filter_state=zero,
-            saturated=False,
-            stale=True,
-            **common,
-        )
     o = r.output
+    surface, gradient, filter_state = (
+        (r.force * 0.0,) * 3
+        if o is None
+        else (o.sliding_surface[0], o.gradient[0], o.filter_state[0])
+    )
     return force_msg(
-        out=out,
-        force=o.force[0],
-        sliding_surface=o.sliding_surface[0],
-        gradient=o.gradient[0],
-        filter_state=o.filter_state[0],
-        saturated=bool(o.saturated[0]),
-        **common,
+        out=out if o is not None else None,
+        uav_id=uav_id,
+        step=r.step,
+        law=law,
+        stamp=stamp,
+        force=r.force,
+        sliding_surface=surface,
+        gradient=gradient,
+        filter_state=filter_state,
+        saturated=o is not None and bool(o.saturated[0]),
+        stale=o is None,
+        rejected_inputs=rejected_inputs,
+        instance=instance,
+        run=run,
     )
 
 
