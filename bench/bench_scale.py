@@ -3,7 +3,7 @@
 
 Each case: a ``scripts/swarm_up.py`` run, its ``summary.json``, its processes' CPU and RSS.
 ladder: per rate and ladder ("EXECUTOR INPUTS K=k|auto depth=d"), n climbs ``--sizes`` until it
-does not fly (``prediction.run.flies``, no missed deadline, 95 % of the states), each size after
+does not fly (``flight_check.run.flies``, no missed deadline, 95 % of the states), each size after
 the raw ping-pong of its odometry. latency: 3 trackers at 100 Hz (``trigger:=odom``) against the
 ping-pong, beside and alone. discovery: forked nodes against executed. lockstep: steps/s, floor
 500 for 3 trackers. view: none, unwatched, watched. secure: open against TLS, 3 simulated hosts
@@ -59,21 +59,21 @@ class Case:
     def flies(self) -> bool:
         states = self.get('messages', 'received', default=0) >= 0.95 * self.rate * self.duration
         return self.rc == 0 and self.get('missed_deadlines') == 0 and states and bool(
-            self.get('prediction', 'run', 'flies'))  # fmt: skip
+            self.get('flight_check', 'run', 'flies'))  # fmt: skip
 
     def verdict(self) -> str:
         if not self.summary:
             return f'crashed (exit {self.rc})'
         if self.flies():
             return 'flies'
-        run = self.get('prediction', 'run', default={})
+        run = self.get('flight_check', 'run', default={})
         return (f'does not fly: exit {self.rc}, {self.get("missed_deadlines")} missed, '
                 f'{self.get("messages", "received")} states, error '
                 f'{100 * run.get("formation_error_rms", float("nan")):.2g} %, closest pair '
                 f'{100 * run.get("closest_pair", float("nan")):.0f} %')  # fmt: skip
 
     def latency(self) -> str:
-        return p50_p99(self.get('prediction', 'latency', default={}))  # of the control loop [ms]
+        return p50_p99(self.get('flight_check', 'latency', default={}))  # of the control loop [ms]
 
 
 class Bench:
@@ -183,9 +183,9 @@ def ladders(bench: Bench, args: argparse.Namespace) -> str:
                 rtt = ping_pong(pick_domain_id(lo=202, hi=230), 5 - 3 * args.smoke, rate, n)['rtt']
                 case = bench.up(Case(n, rate=rate, duration=args.flight, params=params,
                                      k=words.get('K', 'auto'), label='ladder'))  # fmt: skip
-                k = case.get('prediction', 'machine', 'trackers_per_process', default=case.k)
+                k = case.get('flight_check', 'machine', 'trackers_per_process', default=case.k)
                 states = f'{case.get("messages", "received")} / {rate * args.flight:.0f}'
-                lat = case.get('prediction', 'latency', default={})
+                lat = case.get('flight_check', 'latency', default={})
                 ratio = ', '.join(f'{lat[q] / rtt[q]:.1f}' for q in ('p50', 'p99')) if lat else '-'
                 rows.append([f'{rate:g}', text.strip(), n, k, case.latency(), p50_p99(rtt), ratio,
                              states, f'{case.cpu:.0f}', case.verdict()])  # fmt: skip
@@ -205,7 +205,7 @@ def latency(bench: Bench, args: argparse.Namespace) -> str:
         case = Case(3, rate=100.0, duration=seconds + 4, k='1', label='latency',
                     params=('trigger:=odom', f'inputs:={inputs}'))  # fmt: skip
         bench.up(case, beside=lambda d, _, pp=pp: pp.update(ping_pong(d, seconds)))
-        lat, rtt = case.get('prediction', 'latency', default={}), pp.get('rtt', {})
+        lat, rtt = case.get('flight_check', 'latency', default={}), pp.get('rtt', {})
         p99 = lat.get('p99')
         ratio = f'{p99 / rtt["p99"]:.2f}, {p99 / alone["p99"]:.2f}' if p99 and rtt else '-'
         rows.append(['control loop', inputs, p50_p99(lat), ratio])
@@ -258,7 +258,7 @@ def views(bench: Bench, args: argparse.Namespace) -> str:
                 t.join(timeout=10)
     med, rows = statistics.median, []
     for v, cases in runs.items():
-        lat = [c.get('prediction', 'latency', default={}) for c, _ in cases]
+        lat = [c.get('flight_check', 'latency', default={}) for c, _ in cases]
         base = [b for b, _ in runs['no view']]
         ratio = med(c.cpu_s[1] / b.cpu_s[1] for (c, _), b in zip(cases, base, strict=True))
         p50, p99 = (ms(med(x.get(q, 0) for x in lat)) for q in ('p50', 'p99'))
@@ -279,7 +279,7 @@ def secure(bench: Bench, args: argparse.Namespace) -> str:
     for mode in args.order.split(','):
         c = bench.up(Case(args.sizes[0], duration=args.flight, k='4', label=mode))
         hosts = json.loads((bench.last / 'multihost.json').read_text())['hosts']
-        run = c.get('prediction', 'run')
+        run = c.get('flight_check', 'run')
         fly = f'{100 * run["formation_error_rms"]:.2f} / {100 * run["closest_pair"]:.1f} %'
         rows.append([mode, c.get('timing', 'ready'), c.latency(),
                      ' / '.join(f'{h["cpu_pct"]:.0f}' for h in hosts),

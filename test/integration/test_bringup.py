@@ -351,7 +351,7 @@ def test_realtime_bringup_forms_the_triangle_on_the_wall_clock(bringup) -> None:
     assert np.median(np.diff(t)) == pytest.approx(1.0 / rate, rel=0.02), (len(t), rate)
     assert len(t) <= 1.03 * 8 * rate, (len(t), rate)
     assert summary['messages']['dropped'] == 0
-    pred = summary['prediction']
+    pred = summary['flight_check']
     assert pred['before_run']['holds'], pred['before_run']
     assert pred['run']['flies'], (pred['run'], pred.get('emulation'), pred.get('latency'))
     assert pred['emulation']['flies'] and pred['latency']['p50'] > 0
@@ -404,7 +404,7 @@ def test_batched_commands_fly_the_realtime_swarm(bringup) -> None:
     assert 'clock started: every tracker commands' in (logs / 'plant.log').read_text()
     summary = run.summary()
     assert summary['missed_deadlines'] == 0 and summary['messages']['dropped'] == 0
-    pred = summary['prediction']
+    pred = summary['flight_check']
     assert pred['run']['flies'], (pred['run'], pred.get('emulation'), pred.get('latency'))
 
 

@@ -134,6 +134,6 @@ def test_three_hosts_discovery_server_realtime_forms_the_triangle(tmp_path: Path
     )
     # judged by flight over the last 40 %, next to the headless emulation with the latencies
     # measured across the hosts
-    assert summary['prediction']['run']['flies'], summary['prediction']['run']
-    assert summary['prediction']['emulation']['flies']
+    assert summary['flight_check']['run']['flies'], summary['flight_check']['run']
+    assert summary['flight_check']['emulation']['flies']
     assert no_namespaces_left(result['hosts'][0]['netns'])

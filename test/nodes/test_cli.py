@@ -213,3 +213,22 @@ def test_error_paths_exit_2_without_traceback(
     errors = [line for line in p.stderr.splitlines() if 'error:' in line]
     assert len(errors) == 1 and needle in errors[0], p.stderr  # one line names the problem
     assert p.stderr.splitlines()[-1] == errors[0]  # (argparse prints its usage above it)
+
+
+def test_latency_file_is_a_list_or_a_run_summary(tmp_path: Path) -> None:
+    """``--latency FILE`` reads a list, a realtime run's summary.json (``flight_check``), or
+    one written before that key was named (``prediction``); anything else is refused by name."""
+    from apf_swarm_core.errors import ApfSwarmError
+    from apf_swarm_nodes.cli.commands import latency_samples
+
+    docs = {
+        'list': [0.004, 0.006],
+        'summary': {'flight_check': {'latency_samples': [0.004, 0.006]}},
+        'older': {'prediction': {'latency_samples': [0.004, 0.006]}},
+    }
+    for name, doc in docs.items():
+        (tmp_path / name).write_text(json.dumps(doc))
+        assert latency_samples(tmp_path / name).tolist() == [0.004, 0.006], name
+    (tmp_path / 'bad').write_text(json.dumps({'flight_check': {}}))
+    with pytest.raises(ApfSwarmError, match='latency_samples'):
+        latency_samples(tmp_path / 'bad')

@@ -1,6 +1,6 @@
 """A realtime run's flight check: the sampled-data prediction before the run (gains
 scheduled if needed) and, after it, the run judged beside its headless emulation with the
-run's own delays (summary.json ``prediction``)."""
+run's own delays (summary.json ``flight_check``)."""
 
 from __future__ import annotations
 

@@ -46,7 +46,7 @@ def write_outputs(
     )
     summary.update(fields)
     if judged is not None:
-        summary['prediction'] = judged(traj)
+        summary['flight_check'] = judged(traj)
     paths = write_run(out, traj, summary, cfg)
     if not plan.no_plots and len(traj['t']) > 1:
         from ..analysis import plots
@@ -64,7 +64,7 @@ def write_outputs(
             out / 'centroid_error.png',
         )
     print(format_summary(summary))
-    pr = summary.get('prediction')
+    pr = summary.get('flight_check')
     if pr is not None:
         from apf_swarm_core.metrics import flight_verdict as verdict
 
