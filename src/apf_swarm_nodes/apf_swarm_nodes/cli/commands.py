@@ -65,17 +65,14 @@ def latency_arg(text: str) -> float | Path:
 
 
 def latency_samples(path: Path) -> np.ndarray:
-    """Measured latencies [s] from a JSON file: a list, or an object with
-    ``latency_samples`` (a realtime run's summary.json holds them under ``flight_check``;
-    one written before that name, under ``prediction``)."""
+    """Measured latencies [s] from a JSON file: a list, an object with ``latency_samples``,
+    or a realtime run's summary.json (under ``flight_check``; ``prediction`` before)."""
     try:
         doc = json.loads(path.read_text())
     except ValueError as exc:
         raise ApfSwarmError(f'{path}: not JSON ({exc}); expected a list of latencies [s]') from exc
-    if isinstance(doc, dict):
-        check = doc.get('flight_check') or doc.get('prediction')
-        inner = check.get('latency_samples') if isinstance(check, dict) else None
-        doc = doc.get('latency_samples', inner)
+    while isinstance(doc, dict):  # down to the samples: a summary holds its flight check's
+        doc = doc.get('latency_samples', doc.get('flight_check', doc.get('prediction')))
     arr = np.asarray(doc if doc is not None else [], dtype=float).ravel()
     if arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise ApfSwarmError(
