@@ -20,7 +20,7 @@ FLOORS = {
     'docs/PERFORMANCE.md': 400,
 }
 BENCH_LINES = 1500
-SRC_LINES = 18715
+SRC_LINES = 18718
 
 
 def _lines(path: Path) -> int:

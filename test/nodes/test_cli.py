@@ -229,6 +229,7 @@ def test_latency_file_is_a_list_or_a_run_summary(tmp_path: Path) -> None:
     for name, doc in docs.items():
         (tmp_path / name).write_text(json.dumps(doc))
         assert latency_samples(tmp_path / name).tolist() == [0.004, 0.006], name
-    (tmp_path / 'bad').write_text(json.dumps({'flight_check': {}}))
-    with pytest.raises(ApfSwarmError, match='latency_samples'):
-        latency_samples(tmp_path / 'bad')
+    for bad in ({'flight_check': {}}, ['4 ms', 'fast'], [[0.004], [0.005, 0.006]], [-0.001]):
+        (tmp_path / 'bad').write_text(json.dumps(bad))
+        with pytest.raises(ApfSwarmError, match='latency_samples'):
+            latency_samples(tmp_path / 'bad')

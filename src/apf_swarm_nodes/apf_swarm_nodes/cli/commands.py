@@ -73,7 +73,10 @@ def latency_samples(path: Path) -> np.ndarray:
         raise ApfSwarmError(f'{path}: not JSON ({exc}); expected a list of latencies [s]') from exc
     while isinstance(doc, dict):  # down to the samples: a summary holds its flight check's
         doc = doc.get('latency_samples', doc.get('flight_check', doc.get('prediction')))
-    arr = np.asarray(doc if doc is not None else [], dtype=float).ravel()
+    try:
+        arr = np.asarray(doc if doc is not None else [], dtype=float).ravel()
+    except (TypeError, ValueError):  # strings, objects, ragged lists: refused below
+        arr = np.array([np.nan])
     if arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise ApfSwarmError(
             f'{path}: expected a non-empty list of latencies >= 0 s '
